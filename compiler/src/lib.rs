@@ -1,6 +1,25 @@
 //! The `.kin` compiler: source text → syntax tree → resolved, checked model → IR.
+//!
+//! The public surface is small: [`compile`] a source into an [`ir::Machine`] with a
+//! [`SourceMap`] back to the text, or the [`Diagnostic`]s explaining why not; [`bind_params`]
+//! loads a separate `params { … }` file onto a compiled machine.
 pub mod basis;
+mod check;
 pub mod diagnostic;
 pub mod ir;
+mod lower;
+mod params;
+mod resolve;
 pub mod syntax;
 pub mod units;
+
+pub use diagnostic::{Diagnostic, Severity, Span};
+pub use lower::{compile, Compiled, Output, SourceMap};
+
+/// Binds a parameter file (`params { … }`) onto a compiled machine.
+pub fn bind_params(machine: &mut ir::Machine, source: &str) -> Vec<Diagnostic> {
+    match syntax::parse_params(source) {
+        Ok(block) => params::bind(machine, &block),
+        Err(d) => vec![d],
+    }
+}

@@ -1,0 +1,1242 @@
+//! Checking of the error models: targets, expressions, factor families and dimensions.
+//!
+//! An error model is an expression; it is expanded into a sum of terms, each a product of basis
+//! factors (dimensionless families that bring coefficients β) and a known scalar (numbers with
+//! units, machine state, lags). A fitted term's coefficients get the derived unit
+//! `component unit / unit of the scalar`; a term without basis factors is a known, fixed error
+//! and must have the component's own dimension.
+
+use std::collections::HashMap;
+
+use crate::basis::{self, Basis, Detrend, Wavelength};
+use crate::diagnostic::{suggest, Diagnostic, Span};
+use crate::ir::{self, Component, FrameRef, JointKind, NonLinear, Scalar, Var};
+use crate::resolve::{constant, dimension_mismatch, parse_unit, quantity_of, Sink, Structure};
+use crate::syntax::ast::{self, Arg, BinOp, Expr, ExprKind, OptionArg, OptionValue};
+use crate::units::{Dim, Unit};
+
+/// The checked error models and everything they introduced.
+pub(crate) struct Models {
+    pub errors: Vec<ir::ErrorModel>,
+    pub coefficients: Vec<ir::Coefficient>,
+    pub nonlinear: Vec<ir::NonLinearParam>,
+    pub lags: Vec<ir::Lag>,
+    /// Where each error model, coefficient and non-linear parameter was declared.
+    pub error_spans: Vec<Span>,
+    pub coefficient_spans: Vec<Span>,
+    pub nonlinear_spans: Vec<Span>,
+    pub used_inputs: Vec<bool>,
+}
+
+/// Temperature semantics of a scalar: an absolute temperature may only be differenced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Temp {
+    /// Not an absolute temperature (may still be a temperature difference).
+    Plain,
+    /// An absolute temperature (an `absolute` input, or something offset from one).
+    Absolute,
+    /// A literal temperature such as `20 degC`: absolute next to an absolute, else a difference.
+    /// Holds the SI value read as a difference; `Literal` terms carry the absolute value in
+    /// their scale.
+    Literal { difference: f64 },
+}
+
+/// One expanded term while checking.
+#[derive(Debug, Clone)]
+struct SymTerm {
+    scale: Scalar,
+    dim: Dim,
+    temp: Temp,
+    /// Basis factors with the span of the call that made them.
+    factors: Vec<(ir::BasisFactor, Span, String)>,
+    /// Brings coefficients (has a basis factor or `const`).
+    fitted: bool,
+    span: Span,
+}
+
+impl SymTerm {
+    fn scalar(scale: Scalar, dim: Dim, span: Span) -> Self {
+        SymTerm { scale, dim, temp: Temp::Plain, factors: Vec::new(), fitted: false, span }
+    }
+    fn is_scalar(&self) -> bool {
+        !self.fitted
+    }
+}
+
+pub(crate) fn check_errors(decls: &[&ast::ErrorsDecl], st: &Structure, sink: &mut Sink) -> Models {
+    let mut cx = Checker {
+        st,
+        models: Models {
+            errors: Vec::new(),
+            coefficients: Vec::new(),
+            nonlinear: Vec::new(),
+            lags: Vec::new(),
+            error_spans: Vec::new(),
+            coefficient_spans: Vec::new(),
+            nonlinear_spans: Vec::new(),
+            used_inputs: vec![false; st.inputs.len()],
+        },
+        defined: HashMap::new(),
+        current: String::new(),
+        nonlinear_count: HashMap::new(),
+    };
+    for decl in decls {
+        for def in &decl.defs {
+            cx.definition(def, sink);
+        }
+    }
+    cx.models
+}
+
+struct Checker<'a> {
+    st: &'a Structure,
+    models: Models,
+    /// Index of the error model per target, and the span of its `=` definition if any.
+    defined: HashMap<(FrameRef, Component), (usize, Option<Span>)>,
+    /// Display name of the target being checked, e.g. `Z.tz`.
+    current: String,
+    nonlinear_count: HashMap<(String, &'static str), usize>,
+}
+
+impl Checker<'_> {
+    fn definition(&mut self, def: &ast::ErrorDef, sink: &mut Sink) {
+        let Some((frame, component, display)) = self.target(&def.target, sink) else { return };
+        self.current = display.clone();
+        let index = match self.defined.get(&(frame, component)).copied() {
+            Some((index, first)) => {
+                if !def.add {
+                    let mut d = Diagnostic::error("E0102", format!("`{display}` is defined twice"), def.target.span)
+                        .with_label("second definition")
+                        .with_help(format!("use `{display} += …` to add terms to an existing model"));
+                    if let Some(first) = first.or_else(|| self.models.error_spans.get(index).copied()) {
+                        d = d.with_secondary(first, "first defined here");
+                    }
+                    sink.push(d);
+                    return;
+                }
+                index
+            }
+            None => {
+                let index = self.models.errors.len();
+                self.models.errors.push(ir::ErrorModel { frame, component, terms: Vec::new() });
+                self.models.error_spans.push(def.target.span);
+                self.defined.insert((frame, component), (index, (!def.add).then_some(def.target.span)));
+                index
+            }
+        };
+        let Some(terms) = self.expand(&def.value, sink) else { return };
+        let component_unit = if component.is_rotation() { &self.st.units.tilt } else { &self.st.units.error };
+        let component_dim = if component.is_rotation() { Dim::ANGLE } else { Dim::LENGTH };
+        for term in terms {
+            if matches!(term.temp, Temp::Absolute) {
+                sink.push(absolute_temperature(term.span));
+                continue;
+            }
+            if term.fitted {
+                self.fitted_term(index, term, component_unit, sink);
+            } else if term.dim != component_dim {
+                let kind = if component.is_rotation() { "a rotation" } else { "a translation" };
+                sink.push(
+                    Diagnostic::error(
+                        "E0202",
+                        format!("{kind} error cannot take a term of {}", term.dim.describe()),
+                        term.span,
+                    )
+                    .with_label(format!("this fixed term is {}", term.dim.describe()))
+                    .with_note(format!(
+                        "`{display}` is {}; a term without a fitted factor is a known error and must have that dimension",
+                        component_dim.describe()
+                    ))
+                    .with_help(if term.dim == Dim::DIMENSIONLESS || term.dim == component_dim * Dim::DIMENSIONLESS {
+                        format!("give it a unit, e.g. `{} {}`", 1, component_unit.name)
+                    } else {
+                        "multiply by `const` to fit a coefficient instead, or fix the units".to_string()
+                    }),
+                );
+            } else {
+                let scale = match term.temp {
+                    Temp::Literal { difference } => Scalar::Num(difference),
+                    _ => term.scale,
+                };
+                if let Some(model) = self.models.errors.get_mut(index) {
+                    model.terms.push(ir::Term {
+                        scale,
+                        factors: Vec::new(),
+                        first: self.models.coefficients.len(),
+                        coefficients: 0,
+                    });
+                }
+            }
+        }
+    }
+
+    fn fitted_term(&mut self, index: usize, term: SymTerm, component_unit: &Unit, sink: &mut Sink) {
+        let count: usize = term.factors.iter().map(|(f, _, _)| f.basis.size()).product();
+        if count > 100_000 {
+            sink.push(
+                Diagnostic::error("E0105", format!("this term has {count} coefficients"), term.span)
+                    .with_label("too many coefficients")
+                    .with_help("use fewer knots or harmonics"),
+            );
+            return;
+        }
+        let coef_unit = component_unit.div(&display_unit(term.dim, &self.st.units));
+        let first = self.models.coefficients.len();
+        let sizes: Vec<usize> = term.factors.iter().map(|(f, _, _)| f.basis.size()).collect();
+        let prior = self
+            .models
+            .errors
+            .get(index)
+            .map(|m| m.terms.iter().map(|t| t.coefficients).sum::<usize>())
+            .unwrap_or(0);
+        for k in 0..count {
+            // Row-major multi-index over the factors.
+            let mut rest = k;
+            let mut parts = Vec::with_capacity(sizes.len());
+            for (i, (factor, _, name)) in term.factors.iter().enumerate().rev() {
+                let size = sizes.get(i).copied().unwrap_or(1).max(1);
+                parts.push(format!("{name}:{}", factor.basis.label(rest % size)));
+                rest /= size;
+            }
+            parts.reverse();
+            let label = if parts.is_empty() { "const".to_string() } else { parts.join(" * ") };
+            self.models.coefficients.push(ir::Coefficient {
+                name: format!("{}[{}]", self.current, prior + k),
+                label,
+                error: index,
+                unit: coef_unit.clone(),
+            });
+            self.models.coefficient_spans.push(term.span);
+        }
+        if let Some(model) = self.models.errors.get_mut(index) {
+            model.terms.push(ir::Term {
+                scale: term.scale,
+                factors: term.factors.into_iter().map(|(f, _, _)| f).collect(),
+                first,
+                coefficients: count,
+            });
+        }
+    }
+
+    /// Resolves `X.tx`, `probe.rz`, `tool.tz`, `workpiece.rx`, `EXX` or `xtx`.
+    fn target(&self, t: &ast::Target, sink: &mut Sink) -> Option<(FrameRef, Component, String)> {
+        let (frame_name, comp_name, comp_span) = match &t.component {
+            Some(c) => (t.frame.node.clone(), c.node.clone(), c.span),
+            None => match alias(&t.frame.node, self.st) {
+                Some((axis, comp)) => (axis, comp.name().to_string(), t.frame.span),
+                None => {
+                    let mut d = Diagnostic::error("E0101", format!("`{}` is not an error component", t.frame.node), t.span)
+                        .with_label("expected `FRAME.COMPONENT`")
+                        .with_note("write e.g. `X.tx`, an ISO 230-1 name such as `EXX`/`EBX`, or a VDI 2617 name such as `xtx`/`xry`");
+                    if let Some(s) = suggest(&t.frame.node, self.st.axes.iter().map(|a| a.name.as_str())) {
+                        d = d.with_help(format!("did you mean `{s}.tx` (or another component of `{s}`)?"));
+                    }
+                    sink.push(d);
+                    return None;
+                }
+            },
+        };
+        let component = match Component::ALL.iter().find(|c| c.name() == comp_name) {
+            Some(c) => *c,
+            None => {
+                let mut d = Diagnostic::error("E0106", format!("unknown error component `{comp_name}`"), comp_span)
+                    .with_label("not one of tx, ty, tz, rx, ry, rz")
+                    .with_note("every frame has six parametric errors: translations tx ty tz and rotations rx ry rz, in its own axes");
+                if let Some(s) = suggest(&comp_name, Component::ALL.map(|c| c.name())) {
+                    d = d.with_help(format!("did you mean `{s}`?"));
+                }
+                sink.push(d);
+                return None;
+            }
+        };
+        let frame = if let Some(i) = self.st.axis_index(&frame_name) {
+            // An axis outside every chain was reported already.
+            (*self.st.axis_frame.get(i)?)?
+        } else if let Some(i) = self.st.tool_index(&frame_name) {
+            FrameRef::ToolEnd(Some(i))
+        } else if frame_name == "tool" {
+            FrameRef::ToolEnd(None)
+        } else if frame_name == "workpiece" {
+            FrameRef::WorkpieceEnd
+        } else {
+            let candidates: Vec<&str> = self
+                .st
+                .axes
+                .iter()
+                .map(|a| a.name.as_str())
+                .chain(self.st.tools.iter().map(|t| t.name.as_str()))
+                .chain(["tool", "workpiece"])
+                .collect();
+            let mut d = Diagnostic::error("E0101", format!("unknown frame `{frame_name}`"), t.frame.span)
+                .with_label("not an axis, a tool, `tool` or `workpiece`");
+            if self.st.input_index(&frame_name).is_some() {
+                d = d.with_note(format!("`{frame_name}` is an input; errors belong to frames (axes, tools, the workpiece)"));
+            } else if let Some(s) = suggest(&frame_name, candidates.iter().copied()) {
+                d = d.with_help(format!("did you mean `{s}`?"));
+            }
+            sink.push(d);
+            return None;
+        };
+        Some((frame, component, format!("{frame_name}.{}", component.name())))
+    }
+
+    /// Expands an expression into a sum of terms.
+    fn expand(&mut self, e: &Expr, sink: &mut Sink) -> Option<Vec<SymTerm>> {
+        match &e.kind {
+            ExprKind::Quantity { value, unit } => {
+                let Some(u) = unit else {
+                    return Some(vec![SymTerm::scalar(Scalar::Num(*value), Dim::DIMENSIONLESS, e.span)]);
+                };
+                let unit = parse_unit(u, sink)?;
+                let mut t = SymTerm::scalar(Scalar::Num(unit.to_si(*value)), unit.dim, e.span);
+                if unit.dim == Dim::TEMPERATURE {
+                    t.temp = Temp::Literal { difference: unit.as_difference().to_si(*value) };
+                }
+                Some(vec![t])
+            }
+            ExprKind::Const => Some(vec![SymTerm {
+                scale: Scalar::Num(1.0),
+                dim: Dim::DIMENSIONLESS,
+                temp: Temp::Plain,
+                factors: Vec::new(),
+                fitted: true,
+                span: e.span,
+            }]),
+            ExprKind::Name(n) => self.variable(n, e.span, sink).map(|t| vec![t]),
+            ExprKind::Neg(inner) => {
+                let terms = self.expand(inner, sink)?;
+                Some(
+                    terms
+                        .into_iter()
+                        .map(|mut t| {
+                            t.scale = Scalar::Neg(Box::new(t.scale));
+                            if let Temp::Literal { difference } = t.temp {
+                                t.temp = Temp::Literal { difference: -difference };
+                            }
+                            t.span = e.span;
+                            t
+                        })
+                        .collect(),
+                )
+            }
+            ExprKind::Binary(op, a, b) => {
+                let left = self.expand(a, sink);
+                let right = self.expand(b, sink);
+                let (left, right) = (left?, right?);
+                match op {
+                    BinOp::Add | BinOp::Sub => self.add(*op, e.span, left, a.span, right, b.span, sink),
+                    BinOp::Mul => self.multiply(left, right, e.span, sink),
+                    BinOp::Div => self.divide(left, right, e.span, b.span, sink),
+                }
+            }
+            ExprKind::Call { name, args } => self.call(name, args, e.span, sink).map(|t| vec![t]),
+        }
+    }
+
+    /// The variable of a family or lag: an axis, an input or `time`.
+    fn resolve_var(&mut self, n: &str, span: Span, sink: &mut Sink) -> Option<Var> {
+        let t = self.variable(n, span, sink)?;
+        match t.scale {
+            Scalar::Var(v) => Some(v),
+            _ => None,
+        }
+    }
+
+    fn variable(&mut self, n: &str, span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        if let Some(i) = self.st.axis_index(n) {
+            let dim = match self.st.axes.get(i).map(|a| a.kind) {
+                Some(JointKind::Revolute) => Dim::ANGLE,
+                _ => Dim::LENGTH,
+            };
+            return Some(SymTerm::scalar(Scalar::Var(Var::Axis(i)), dim, span));
+        }
+        if let Some(i) = self.st.input_index(n) {
+            if let Some(u) = self.models.used_inputs.get_mut(i) {
+                *u = true;
+            }
+            let input = self.st.inputs.get(i)?;
+            let mut t = SymTerm::scalar(Scalar::Var(Var::Input(i)), input.unit.dim, span);
+            if input.absolute {
+                t.temp = Temp::Absolute;
+            }
+            return Some(t);
+        }
+        if n == "time" {
+            return Some(SymTerm::scalar(Scalar::Var(Var::Time), Dim::TIME, span));
+        }
+        if self.st.tool_index(n).is_some() {
+            sink.push(
+                Diagnostic::error("E0101", format!("`{n}` is a tool, not a quantity"), span)
+                    .with_label("a tool cannot be used in an expression"),
+            );
+            return None;
+        }
+        let candidates: Vec<&str> = self
+            .st
+            .axes
+            .iter()
+            .map(|a| a.name.as_str())
+            .chain(self.st.inputs.iter().map(|i| i.name.as_str()))
+            .chain(["time"])
+            .collect();
+        let mut d = Diagnostic::error("E0101", format!("unknown name `{n}`"), span).with_label("not an axis or an input");
+        if let Some(s) = suggest(n, candidates.iter().copied()) {
+            d = d.with_help(format!("did you mean `{s}`?"));
+        } else if FAMILIES.contains(&n) {
+            d = d.with_help(format!("`{n}` is a factor family: call it, e.g. `{n}(X)`"));
+        }
+        sink.push(d);
+        None
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn add(
+        &mut self,
+        op: BinOp,
+        span: Span,
+        left: Vec<SymTerm>,
+        lspan: Span,
+        mut right: Vec<SymTerm>,
+        rspan: Span,
+        sink: &mut Sink,
+    ) -> Option<Vec<SymTerm>> {
+        if op == BinOp::Sub {
+            for t in &mut right {
+                t.scale = Scalar::Neg(Box::new(t.scale.clone()));
+                if let Temp::Literal { difference } = t.temp {
+                    t.temp = Temp::Literal { difference: -difference };
+                }
+            }
+        }
+        // Known scalars added together must agree in dimension; fitted terms each carry their
+        // own coefficients and so their own derived units.
+        let ls: Vec<&SymTerm> = left.iter().filter(|t| t.is_scalar()).collect();
+        let rs: Vec<&SymTerm> = right.iter().filter(|t| t.is_scalar()).collect();
+        if let (Some(l), Some(r)) = (ls.first(), rs.first()) {
+            let bare = |t: &SymTerm| t.dim == Dim::DIMENSIONLESS && matches!(t.scale, Scalar::Num(_));
+            if l.dim != r.dim {
+                let mut d = dimension_mismatch(span, lspan, l.dim, rspan, r.dim);
+                if bare(l) || bare(r) {
+                    let other = if bare(l) { r.dim } else { l.dim };
+                    d = d.with_help(format!("give the number a unit of {}, e.g. `375 mm`", other.describe()));
+                }
+                sink.push(d);
+                return None;
+            }
+            // Temperature: absolute − absolute is a difference; absolute ± rise stays absolute.
+            if ls.len() == 1 && rs.len() == 1 && left.len() == 1 && right.len() == 1 {
+                let (lt, rt) = (l.temp, r.temp);
+                let mut l = left.into_iter().next()?;
+                let r = right.into_iter().next()?;
+                let (temp, lscale, rscale) = match (lt, rt) {
+                    (Temp::Absolute, Temp::Absolute) if op == BinOp::Sub => (Temp::Plain, l.scale, r.scale),
+                    (Temp::Absolute, Temp::Literal { .. }) if op == BinOp::Sub => (Temp::Plain, l.scale, r.scale),
+                    (Temp::Literal { .. }, Temp::Absolute) if op == BinOp::Sub => (Temp::Plain, l.scale, r.scale),
+                    (Temp::Absolute, Temp::Literal { difference }) => (Temp::Absolute, l.scale, Scalar::Num(difference)),
+                    (Temp::Absolute, Temp::Plain) | (Temp::Plain, Temp::Absolute) => (Temp::Absolute, l.scale, r.scale),
+                    (Temp::Literal { difference: a }, Temp::Literal { difference: b }) => {
+                        (Temp::Literal { difference: a + b }, l.scale, r.scale)
+                    }
+                    (Temp::Literal { difference }, _) => (Temp::Plain, Scalar::Num(difference), r.scale),
+                    (_, Temp::Literal { difference }) => (Temp::Plain, l.scale, Scalar::Num(difference)),
+                    _ => (Temp::Plain, l.scale, r.scale),
+                };
+                if matches!(temp, Temp::Absolute) && matches!((lt, rt), (Temp::Absolute, Temp::Absolute)) {
+                    sink.push(absolute_temperature(span));
+                    return None;
+                }
+                l.scale = Scalar::Add(Box::new(lscale), Box::new(rscale));
+                l.temp = temp;
+                l.span = span;
+                return Some(vec![l]);
+            }
+        }
+        let mut out = left;
+        out.extend(right);
+        Some(out)
+    }
+
+    fn multiply(&mut self, left: Vec<SymTerm>, right: Vec<SymTerm>, span: Span, sink: &mut Sink) -> Option<Vec<SymTerm>> {
+        let mut out = Vec::with_capacity(left.len() * right.len());
+        for a in &left {
+            for b in &right {
+                for t in [a, b] {
+                    if matches!(t.temp, Temp::Absolute) {
+                        sink.push(absolute_temperature(t.span));
+                        return None;
+                    }
+                }
+                for (fa, sa, _) in &a.factors {
+                    if let Some((_, sb, _)) = b.factors.iter().find(|(fb, _, _)| fb.var == fa.var) {
+                        sink.push(
+                            Diagnostic::error("E0307", "two basis factors of the same variable in one product", *sb)
+                                .with_label("second factor of this variable")
+                                .with_secondary(*sa, "first factor")
+                                .with_help("use one family with a higher degree or more knots instead"),
+                        );
+                        return None;
+                    }
+                }
+                let lit = |t: &SymTerm| match t.temp {
+                    Temp::Literal { difference } => Scalar::Num(difference),
+                    _ => t.scale.clone(),
+                };
+                let mut factors = a.factors.clone();
+                factors.extend(b.factors.iter().cloned());
+                out.push(SymTerm {
+                    scale: simplify_mul(lit(a), lit(b)),
+                    dim: a.dim * b.dim,
+                    temp: Temp::Plain,
+                    factors,
+                    fitted: a.fitted || b.fitted,
+                    span,
+                });
+            }
+        }
+        Some(out)
+    }
+
+    fn divide(&mut self, left: Vec<SymTerm>, right: Vec<SymTerm>, span: Span, rspan: Span, sink: &mut Sink) -> Option<Vec<SymTerm>> {
+        if let Some(t) = right.iter().find(|t| t.fitted) {
+            sink.push(
+                Diagnostic::error("E0307", "a fitted factor cannot divide", t.span)
+                    .with_label("basis factor in a denominator")
+                    .with_note("the model must stay linear in the coefficients β"),
+            );
+            return None;
+        }
+        let divisor = self.collapse(right, rspan, sink)?;
+        if let Scalar::Num(v) = divisor.scale {
+            if v == 0.0 {
+                sink.push(Diagnostic::error("E0003", "division by zero", rspan));
+                return None;
+            }
+        }
+        let mut out = Vec::with_capacity(left.len());
+        for mut t in left {
+            if matches!(t.temp, Temp::Absolute) {
+                sink.push(absolute_temperature(t.span));
+                return None;
+            }
+            if let Temp::Literal { difference } = t.temp {
+                t.scale = Scalar::Num(difference);
+                t.temp = Temp::Plain;
+            }
+            t.scale = Scalar::Div(Box::new(t.scale), Box::new(divisor.scale.clone()));
+            t.dim = t.dim / divisor.dim;
+            t.span = span;
+            out.push(t);
+        }
+        Some(out)
+    }
+
+    /// Sums known scalar terms into one (they were dimension-checked when added).
+    fn collapse(&mut self, terms: Vec<SymTerm>, span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let mut it = terms.into_iter();
+        let mut acc = it.next()?;
+        if matches!(acc.temp, Temp::Absolute) {
+            sink.push(absolute_temperature(acc.span));
+            return None;
+        }
+        if let Temp::Literal { difference } = acc.temp {
+            acc.scale = Scalar::Num(difference);
+        }
+        for t in it {
+            acc.scale = Scalar::Add(Box::new(acc.scale), Box::new(t.scale));
+        }
+        acc.temp = Temp::Plain;
+        acc.span = span;
+        Some(acc)
+    }
+
+    fn call(&mut self, name: &ast::Name, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let f = name.node.as_str();
+        match f {
+            "sin" | "cos" => return self.trig(f, args, span, sink),
+            "lag" => return self.lag(args, span, sink),
+            _ => {}
+        }
+        if !FAMILIES.contains(&f) {
+            let mut d = Diagnostic::error("E0104", format!("unknown function `{f}`"), name.span).with_label("not a factor family");
+            if let Some(s) = suggest(f, FAMILIES.iter().copied().chain(["sin", "cos", "lag"])) {
+                d = d.with_help(format!("did you mean `{s}`?"));
+            } else {
+                d = d.with_note(format!("factor families: {}, and the functions sin, cos, lag", FAMILIES.join(", ")));
+            }
+            sink.push(d);
+            return None;
+        }
+        let mut opts = Options::new(f, args, span, sink)?;
+        let (var_name, var_span) = opts.variable(sink)?;
+        let var = self.resolve_var(&var_name, var_span, sink)?;
+        let basis = self.family(f, var, &var_name, var_span, &mut opts, sink)?;
+        opts.finish(sink)?;
+        let factor_var = match (f, var) {
+            ("backlash" | "direction", Var::Axis(i)) => Var::Direction(i),
+            _ => var,
+        };
+        Some(SymTerm {
+            scale: Scalar::Num(1.0),
+            dim: Dim::DIMENSIONLESS,
+            temp: Temp::Plain,
+            factors: vec![(ir::BasisFactor { var: factor_var, basis }, span, format!("{f}({var_name})"))],
+            fitted: true,
+            span,
+        })
+    }
+
+    /// The declared range of a family's variable, in SI, and its dimension.
+    fn range_of(&self, var: Var, name: &str, span: Span, family: &str, sink: &mut Sink) -> Option<([f64; 2], Dim, Unit)> {
+        match var {
+            Var::Axis(i) => {
+                let a = self.st.axes.get(i)?;
+                let (dim, unit) = match a.kind {
+                    JointKind::Prismatic => (Dim::LENGTH, self.st.units.length.clone()),
+                    JointKind::Revolute => (Dim::ANGLE, self.st.units.angle.clone()),
+                };
+                Some((a.range, dim, unit))
+            }
+            Var::Input(i) => {
+                let input = self.st.inputs.get(i)?;
+                match self.st.input_ranges.get(i).copied().flatten() {
+                    Some(r) => Some((r, input.unit.dim, input.unit.clone())),
+                    None => {
+                        sink.push(
+                            Diagnostic::error("E0305", format!("`{family}` needs the range of input `{name}`"), span)
+                                .with_label("this input has no declared range")
+                                .with_note("families are normalised over the variable's range")
+                                .with_help(format!("declare it, e.g. `input {name} : … range LO .. HI`")),
+                        );
+                        None
+                    }
+                }
+            }
+            _ => {
+                sink.push(
+                    Diagnostic::error("E0305", format!("`{family}` needs an axis or a ranged input"), span)
+                        .with_label("not a ranged variable"),
+                );
+                None
+            }
+        }
+    }
+
+    fn family(&mut self, f: &str, var: Var, var_name: &str, var_span: Span, opts: &mut Options, sink: &mut Sink) -> Option<Basis> {
+        let revolute = matches!(var, Var::Axis(i) if self.st.axes.get(i).map(|a| a.kind) == Some(JointKind::Revolute));
+        let wrong_kind = |what: &str, sink: &mut Sink| {
+            sink.push(
+                Diagnostic::error("E0305", format!("`{f}` applies to {what} only"), var_span)
+                    .with_label(format!("`{var_name}` is not {what}")),
+            );
+        };
+        let basis = match f {
+            "linear" => {
+                let (r, ..) = self.range_of(var, var_name, var_span, f, sink)?;
+                Basis::linear(r[0], r[1])
+            }
+            "poly" => {
+                let (r, ..) = self.range_of(var, var_name, var_span, f, sink)?;
+                let degree = opts.integer("degree", 1, 5, sink)?.unwrap_or(2);
+                Basis::legendre(r[0], r[1], degree as u32)
+            }
+            "spline" | "straightness" => {
+                let (r, _, unit) = self.range_of(var, var_name, var_span, f, sink)?;
+                let knots = opts.knots(r, &unit, sink)?.unwrap_or_default();
+                let (degree, smooth) = opts.degree_smooth(sink)?;
+                let no_once = opts.flag("no_once_per_rev");
+                if no_once && !revolute {
+                    wrong_kind("a revolute axis (`no_once_per_rev`)", sink);
+                    return None;
+                }
+                let detrend = if f == "straightness" {
+                    Detrend::Line
+                } else if no_once {
+                    Detrend::OncePerRev
+                } else {
+                    Detrend::None
+                };
+                Basis::spline(r[0], r[1], knots, degree, smooth, detrend)
+            }
+            "fourier" => {
+                if !revolute {
+                    wrong_kind("a revolute axis", sink);
+                    sink.diagnostics.last_mut().map(|d| {
+                        d.help = Some(format!("for a periodic error along a prismatic axis use `periodic({var_name}, wavelength …)`"));
+                    });
+                    return None;
+                }
+                let h = opts.harmonics(sink)?;
+                Basis::fourier(h)
+            }
+            "periodic" => {
+                let (r, dim, unit) = self.range_of(var, var_name, var_span, f, sink)?;
+                let (tau, tau_span, fitted) = opts.required_quantity("wavelength", dim, &unit, sink)?;
+                if !(tau > 0.0) {
+                    sink.push(Diagnostic::error("E0105", "the wavelength must be positive", tau_span).with_label("not positive"));
+                    return None;
+                }
+                if tau > r[1] - r[0] + 1e-12 {
+                    sink.push(
+                        Diagnostic::error("E0303", format!("the wavelength is longer than the range of `{var_name}`"), tau_span)
+                            .with_label(format!(
+                                "{} {} > range {} {}",
+                                fmt_num(unit.from_si(tau) - unit.from_si(0.0)),
+                                unit.name,
+                                fmt_num(unit.from_si(r[1]) - unit.from_si(r[0])),
+                                unit.name
+                            ))
+                            .with_note("a periodic error must repeat within the range to be told apart from the ordinary error")
+                            .with_help("use `spline` for slow variations, or check the wavelength's unit"),
+                    );
+                    return None;
+                }
+                let wavelength = if fitted {
+                    let index = self.nonlinear("wavelength", tau, unit.as_difference(), tau_span);
+                    Wavelength::Fitted(NonLinear { index })
+                } else {
+                    Wavelength::Fixed(tau)
+                };
+                let phase = opts.quantity("phase", dim, &unit, sink)?.map(|(v, _, _)| v).unwrap_or(0.0);
+                let knots = match opts.integer("knots", 0, 50, sink)? {
+                    Some(n) => basis::equally_spaced_knots(n as usize).ok()?,
+                    None => basis::equally_spaced_knots(2).ok()?,
+                };
+                let (degree, smooth) = opts.degree_smooth(sink)?;
+                Basis::periodic(wavelength, phase, knots, degree, smooth)
+            }
+            "backlash" | "direction" => {
+                if !matches!(var, Var::Axis(_)) {
+                    wrong_kind("an axis (its direction of motion)", sink);
+                    return None;
+                }
+                Ok(Basis::Sign)
+            }
+            _ => return None,
+        };
+        match basis {
+            Ok(b) => Some(b),
+            Err(e) => {
+                sink.push(
+                    Diagnostic::error("E0105", format!("invalid `{f}`: {e}"), opts.span)
+                        .with_label("these options do not define a basis"),
+                );
+                None
+            }
+        }
+    }
+
+    fn nonlinear(&mut self, kind: &'static str, value: f64, unit: Unit, span: Span) -> usize {
+        let key = (self.current.clone(), kind);
+        let k = self.nonlinear_count.entry(key).or_insert(0);
+        let name = if *k == 0 { format!("{}.{kind}", self.current) } else { format!("{}.{kind}[{}]", self.current, *k) };
+        *k += 1;
+        let index = self.models.nonlinear.len();
+        self.models.nonlinear.push(ir::NonLinearParam { name, value, fitted: true, unit });
+        self.models.nonlinear_spans.push(span);
+        index
+    }
+
+    fn trig(&mut self, f: &str, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let [Arg::Positional(arg)] = args else {
+            sink.push(Diagnostic::error("E0105", format!("`{f}` takes one angle"), span).with_label("expected one argument"));
+            return None;
+        };
+        let terms = self.expand(arg, sink)?;
+        if terms.iter().any(|t| t.fitted) {
+            sink.push(
+                Diagnostic::error("E0307", format!("a fitted factor cannot be inside `{f}`"), arg.span)
+                    .with_label("basis factor inside a function")
+                    .with_note("the model must stay linear in the coefficients β"),
+            );
+            return None;
+        }
+        let inner = self.collapse(terms, arg.span, sink)?;
+        if inner.dim != Dim::ANGLE && inner.dim != Dim::DIMENSIONLESS {
+            sink.push(
+                Diagnostic::error("E0205", format!("`{f}` takes an angle, but this is {}", inner.dim.describe()), arg.span)
+                    .with_label("expected an angle"),
+            );
+            return None;
+        }
+        let scale = if f == "sin" { Scalar::Sin(Box::new(inner.scale)) } else { Scalar::Cos(Box::new(inner.scale)) };
+        Some(SymTerm::scalar(scale, Dim::DIMENSIONLESS, span))
+    }
+
+    /// `lag(INPUT, tau [fit] T)`: a known scalar, the first-order lag state of an input.
+    fn lag(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let mut opts = Options::new("lag", args, span, sink)?;
+        let (var_name, var_span) = opts.variable(sink)?;
+        let var = self.resolve_var(&var_name, var_span, sink)?;
+        let Var::Input(input) = var else {
+            sink.push(
+                Diagnostic::error("E0305", "`lag` applies to an input only", var_span)
+                    .with_label(format!("`{var_name}` is not an input"))
+                    .with_note("a lag follows a measured input such as a temperature (thesis eq. 3.41–3.48)"),
+            );
+            return None;
+        };
+        let time_unit = self.st.units.time.clone();
+        let (tau, tau_span, fitted) = opts.required_quantity("tau", Dim::TIME, &time_unit, sink)?;
+        opts.finish(sink)?;
+        if !(tau > 0.0) {
+            sink.push(Diagnostic::error("E0105", "the time constant must be positive", tau_span).with_label("not positive"));
+            return None;
+        }
+        let index = self.nonlinear("tau", tau, time_unit, tau_span);
+        if let Some(p) = self.models.nonlinear.get_mut(index) {
+            p.fitted = fitted;
+        }
+        let lag = self.models.lags.len();
+        self.models.lags.push(ir::Lag { input, tau: NonLinear { index } });
+        let input_decl = self.st.inputs.get(input)?;
+        let mut t = SymTerm::scalar(Scalar::Var(Var::Lag(lag)), input_decl.unit.dim, span);
+        if input_decl.absolute {
+            t.temp = Temp::Absolute;
+        }
+        Some(t)
+    }
+}
+
+/// Families that bring coefficients.
+const FAMILIES: [&str; 8] = ["linear", "poly", "spline", "straightness", "fourier", "periodic", "backlash", "direction"];
+
+/// Options each family accepts.
+fn allowed_options(f: &str) -> &'static [&'static str] {
+    match f {
+        "poly" => &["degree"],
+        "spline" => &["knots", "degree", "smooth", "no_once_per_rev"],
+        "straightness" => &["knots", "degree", "smooth"],
+        "fourier" => &["harmonics"],
+        "periodic" => &["wavelength", "knots", "degree", "smooth", "phase"],
+        "lag" => &["tau"],
+        _ => &[],
+    }
+}
+
+/// The arguments of a family call: one positional variable, then named options.
+struct Options<'a> {
+    family: &'a str,
+    span: Span,
+    positional: Vec<&'a Expr>,
+    options: Vec<&'a OptionArg>,
+    flags: Vec<(String, Span)>,
+    used: Vec<bool>,
+    used_flags: Vec<bool>,
+}
+
+impl<'a> Options<'a> {
+    fn new(family: &'a str, args: &'a [Arg], span: Span, sink: &mut Sink) -> Option<Self> {
+        let mut positional = Vec::new();
+        let mut options: Vec<&OptionArg> = Vec::new();
+        let mut flags = Vec::new();
+        let allowed = allowed_options(family);
+        let mut ok = true;
+        for a in args {
+            match a {
+                // A bare name after the variable is a flag such as `no_once_per_rev`.
+                Arg::Positional(e) if !positional.is_empty() => match &e.kind {
+                    ExprKind::Name(n) if allowed.contains(&n.as_str()) => flags.push((n.clone(), e.span)),
+                    _ => {
+                        let mut d = Diagnostic::error("E0105", format!("unexpected argument to `{family}`"), e.span)
+                            .with_label("expected an option such as `knots 4`");
+                        if let ExprKind::Name(n) = &e.kind {
+                            if let Some(s) = suggest(n, allowed.iter().copied()) {
+                                d = d.with_help(format!("did you mean `{s}`?"));
+                            }
+                        }
+                        sink.push(d);
+                        ok = false;
+                    }
+                },
+                Arg::Positional(e) => positional.push(e),
+                Arg::Option(o) => {
+                    if !allowed.contains(&o.name.node.as_str()) {
+                        let mut d = Diagnostic::error("E0105", format!("`{family}` has no option `{}`", o.name.node), o.name.span)
+                            .with_label("unknown option");
+                        d = match suggest(&o.name.node, allowed.iter().copied()) {
+                            Some(s) => d.with_help(format!("did you mean `{s}`?")),
+                            None if allowed.is_empty() => d.with_note(format!("`{family}` takes no options")),
+                            None => d.with_note(format!("`{family}` takes: {}", allowed.join(", "))),
+                        };
+                        sink.push(d);
+                        ok = false;
+                        continue;
+                    }
+                    if let Some(first) = options.iter().find(|p| p.name.node == o.name.node) {
+                        sink.push(
+                            Diagnostic::error("E0105", format!("option `{}` is given twice", o.name.node), o.name.span)
+                                .with_label("second value")
+                                .with_secondary(first.name.span, "first given here"),
+                        );
+                        ok = false;
+                        continue;
+                    }
+                    if let Some(fit) = o.fit {
+                        if !matches!(o.name.node.as_str(), "wavelength" | "tau") {
+                            sink.push(
+                                Diagnostic::error("E0105", format!("`{}` cannot be fitted", o.name.node), fit)
+                                    .with_label("only `wavelength` and `tau` can be fitted"),
+                            );
+                            ok = false;
+                        }
+                    }
+                    options.push(o);
+                }
+            }
+        }
+        if positional.len() != 1 {
+            let at = positional.get(1).map(|e| e.span).unwrap_or(span);
+            sink.push(
+                Diagnostic::error("E0105", format!("`{family}` takes exactly one variable"), at)
+                    .with_label(if positional.is_empty() { "missing the variable" } else { "extra argument" })
+                    .with_help(format!("e.g. `{family}(X{})`", if allowed.is_empty() { "" } else { ", …" })),
+            );
+            ok = false;
+        }
+        let (n_opt, n_flag) = (options.len(), flags.len());
+        ok.then_some(Options {
+            family,
+            span,
+            positional,
+            options,
+            flags,
+            used: vec![false; n_opt],
+            used_flags: vec![false; n_flag],
+        })
+    }
+
+    /// The name of the family's variable; the checker resolves it.
+    fn variable(&self, sink: &mut Sink) -> Option<(String, Span)> {
+        let e = self.positional.first()?;
+        match &e.kind {
+            ExprKind::Name(n) => Some((n.clone(), e.span)),
+            _ => {
+                sink.push(
+                    Diagnostic::error("E0305", format!("the variable of `{}` must be a name", self.family), e.span)
+                        .with_label("expected an axis or an input")
+                        .with_help("scale the term instead: `spline(X, knots 3) * (…)`"),
+                );
+                None
+            }
+        }
+    }
+
+    fn take(&mut self, name: &str) -> Option<&'a OptionArg> {
+        let i = self.options.iter().position(|o| o.name.node == name)?;
+        if let Some(u) = self.used.get_mut(i) {
+            *u = true;
+        }
+        self.options.get(i).copied()
+    }
+
+    fn flag(&mut self, name: &str) -> bool {
+        match self.flags.iter().position(|(n, _)| n == name) {
+            Some(i) => {
+                if let Some(u) = self.used_flags.get_mut(i) {
+                    *u = true;
+                }
+                true
+            }
+            None => false,
+        }
+    }
+
+    fn integer(&mut self, name: &str, lo: i64, hi: i64, sink: &mut Sink) -> Option<Option<i64>> {
+        let Some(o) = self.take(name) else { return Some(None) };
+        let value = match &o.value {
+            OptionValue::Expr(Expr { kind: ExprKind::Quantity { value, unit: None }, .. }) if value.fract() == 0.0 => *value as i64,
+            other => {
+                sink.push(
+                    Diagnostic::error("E0105", format!("`{name}` takes a whole number"), other.span())
+                        .with_label("expected a whole number without unit"),
+                );
+                return None;
+            }
+        };
+        if value < lo || value > hi {
+            let code = if matches!(name, "degree" | "smooth") { "E0302" } else { "E0105" };
+            sink.push(
+                Diagnostic::error(code, format!("`{name} {value}` is out of bounds"), o.span)
+                    .with_label(format!("must be between {lo} and {hi}")),
+            );
+            return None;
+        }
+        Some(Some(value))
+    }
+
+    /// `degree d` (default 2) and `smooth c` (default 1, or d − 1 for d = 1).
+    fn degree_smooth(&mut self, sink: &mut Sink) -> Option<(u32, i32)> {
+        let degree_opt = self.options.iter().find(|o| o.name.node == "degree").map(|o| o.span);
+        let degree = self.integer("degree", 1, 5, sink)?.unwrap_or(2);
+        let smooth_opt = self.options.iter().find(|o| o.name.node == "smooth").map(|o| o.span);
+        let smooth = self.integer("smooth", -1, 5, sink)?.unwrap_or((degree - 1).min(1));
+        if smooth >= degree {
+            let mut d = Diagnostic::error(
+                "E0302",
+                format!("degree {degree} and smooth {smooth} contradict each other"),
+                smooth_opt.or(degree_opt).unwrap_or(self.span),
+            )
+            .with_label(format!("continuity up to derivative {smooth} leaves no freedom at a knot of a degree-{degree} polynomial"))
+            .with_note("pieces of degree d joined with continuity c < d; c = d would make one polynomial");
+            if let (Some(s), Some(dg)) = (smooth_opt, degree_opt) {
+                if s != dg {
+                    d = d.with_secondary(dg, "degree given here");
+                }
+            }
+            sink.push(d.with_help(format!("use `smooth {}` or `degree {}`", degree - 1, smooth + 1)));
+            return None;
+        }
+        Some((degree as u32, smooth as i32))
+    }
+
+    /// `knots N` (equally spaced) or `knots at (…) unit` (positions in the variable's units).
+    fn knots(&mut self, range: [f64; 2], unit: &Unit, sink: &mut Sink) -> Option<Option<Vec<f64>>> {
+        let Some(o) = self.take("knots") else { return Some(None) };
+        match &o.value {
+            OptionValue::At { items, unit: u, span } => {
+                let unit = match u {
+                    Some(u) => parse_unit(u, sink)?,
+                    None => unit.clone(),
+                };
+                let mut out = Vec::with_capacity(items.len());
+                let mut last: Option<(f64, Span)> = None;
+                for item in items {
+                    let v = quantity_of(item, unit.dim, &unit, false, "a knot position", sink)?;
+                    if !(v > range[0] && v < range[1]) {
+                        sink.push(
+                            Diagnostic::error("E0301", "knot outside the range", item.span)
+                                .with_label(format!(
+                                    "outside {} .. {} {}",
+                                    fmt_num(unit.from_si(range[0])),
+                                    fmt_num(unit.from_si(range[1])),
+                                    unit.name
+                                ))
+                                .with_note("knots must lie strictly inside the variable's range"),
+                        );
+                        return None;
+                    }
+                    if let Some((prev, pspan)) = last {
+                        if v <= prev {
+                            sink.push(
+                                Diagnostic::error("E0301", "knots must be strictly increasing", item.span)
+                                    .with_label("not after the previous knot")
+                                    .with_secondary(pspan, "previous knot"),
+                            );
+                            return None;
+                        }
+                    }
+                    last = Some((v, item.span));
+                    out.push((v - range[0]) / (range[1] - range[0]));
+                }
+                if out.is_empty() {
+                    sink.push(Diagnostic::error("E0105", "empty knot list", *span).with_label("no knots"));
+                    return None;
+                }
+                Some(Some(out))
+            }
+            OptionValue::Expr(Expr { kind: ExprKind::Quantity { value, unit: None }, .. }) if value.fract() == 0.0 && *value >= 0.0 => {
+                if *value > 50.0 {
+                    sink.push(Diagnostic::error("E0105", "at most 50 knots", o.span).with_label("too many knots"));
+                    return None;
+                }
+                basis::equally_spaced_knots(*value as usize).ok().map(Some)
+            }
+            other => {
+                sink.push(
+                    Diagnostic::error("E0105", "`knots` takes a count or `at (…)` positions", other.span())
+                        .with_label("expected e.g. `knots 4` or `knots at (100, 250) mm`"),
+                );
+                None
+            }
+        }
+    }
+
+    fn harmonics(&mut self, sink: &mut Sink) -> Option<Vec<u32>> {
+        let Some(o) = self.take("harmonics") else {
+            sink.push(
+                Diagnostic::error("E0105", "`fourier` needs `harmonics`", self.span)
+                    .with_label("which harmonics?")
+                    .with_help("e.g. `fourier(C, harmonics 2..4)` or `harmonics (2, 3, 5)`"),
+            );
+            return None;
+        };
+        let list: Vec<i64> = match &o.value {
+            OptionValue::IntRange { lo, hi, .. } if lo <= hi && hi - lo <= 200 => (*lo..=*hi).collect(),
+            OptionValue::IntList { items, .. } => items.clone(),
+            OptionValue::Expr(Expr { kind: ExprKind::Quantity { value, unit: None }, .. }) if value.fract() == 0.0 => vec![*value as i64],
+            other => {
+                sink.push(
+                    Diagnostic::error("E0306", "bad harmonics", other.span())
+                        .with_label("expected e.g. `2..4` or `(2, 3, 5)`"),
+                );
+                return None;
+            }
+        };
+        let mut out = Vec::with_capacity(list.len());
+        for h in list {
+            if h < 1 || h > 1000 {
+                sink.push(
+                    Diagnostic::error("E0306", format!("harmonic {h} is not allowed"), o.value.span())
+                        .with_label("harmonics are whole numbers from 1")
+                        .with_note("the constant (harmonic 0) is `const`"),
+                );
+                return None;
+            }
+            if out.contains(&(h as u32)) {
+                sink.push(
+                    Diagnostic::error("E0306", format!("harmonic {h} is listed twice"), o.value.span())
+                        .with_label("duplicate harmonic"),
+                );
+                return None;
+            }
+            out.push(h as u32);
+        }
+        Some(out)
+    }
+
+    /// A quantity option of a dimension, in SI; `Some(None)` when absent.
+    fn quantity(&mut self, name: &str, dim: Dim, default: &Unit, sink: &mut Sink) -> Option<Option<(f64, Span, bool)>> {
+        let Some(o) = self.take(name) else { return Some(None) };
+        let OptionValue::Expr(e) = &o.value else {
+            sink.push(
+                Diagnostic::error("E0105", format!("`{name}` takes a quantity"), o.value.span())
+                    .with_label(format!("expected {}", dim.describe())),
+            );
+            return None;
+        };
+        let what = format!("`{name}`");
+        let c = constant(e, false, sink)?;
+        let value = if c.bare {
+            default.as_difference().to_si(c.value)
+        } else if c.dim != dim {
+            sink.push(
+                Diagnostic::error("E0203", format!("{what} must be {}, but this is {}", dim.describe(), c.dim.describe()), e.span)
+                    .with_label(format!("expected {}", dim.describe())),
+            );
+            return None;
+        } else {
+            c.value
+        };
+        Some(Some((value, e.span, o.fit.is_some())))
+    }
+
+    fn required_quantity(&mut self, name: &str, dim: Dim, default: &Unit, sink: &mut Sink) -> Option<(f64, Span, bool)> {
+        match self.quantity(name, dim, default, sink)? {
+            Some(q) => Some(q),
+            None => {
+                sink.push(
+                    Diagnostic::error("E0105", format!("`{}` needs `{name}`", self.family), self.span)
+                        .with_label(format!("missing `{name}`"))
+                        .with_help(format!("e.g. `{name} {}` (add `fit` to estimate it)", example_value(name))),
+                );
+                None
+            }
+        }
+    }
+
+    /// Every option must have been consumed by the family: anything left is unused.
+    fn finish(&self, sink: &mut Sink) -> Option<()> {
+        let mut ok = true;
+        for (o, used) in self.options.iter().zip(&self.used) {
+            if !used {
+                sink.push(
+                    Diagnostic::error("E0105", format!("option `{}` does not apply here", o.name.node), o.name.span)
+                        .with_label("unused option"),
+                );
+                ok = false;
+            }
+        }
+        for ((n, s), used) in self.flags.iter().zip(&self.used_flags) {
+            if !used {
+                sink.push(Diagnostic::error("E0105", format!("`{n}` needs a value"), *s).with_label("missing value"));
+                ok = false;
+            }
+        }
+        ok.then_some(())
+    }
+}
+
+fn example_value(name: &str) -> &'static str {
+    match name {
+        "tau" => "30 min",
+        "wavelength" => "25.4 mm",
+        _ => "1",
+    }
+}
+
+fn absolute_temperature(span: Span) -> Diagnostic {
+    Diagnostic::error("E0204", "an absolute temperature cannot be used as a factor", span)
+        .with_label("absolute temperature")
+        .with_note("errors follow temperature changes; an absolute temperature has an arbitrary zero")
+        .with_help("subtract a reference temperature, e.g. `(T - 20 degC)`")
+}
+
+fn simplify_mul(a: Scalar, b: Scalar) -> Scalar {
+    match (a, b) {
+        (Scalar::Num(x), Scalar::Num(y)) => Scalar::Num(x * y),
+        (Scalar::Num(x), other) | (other, Scalar::Num(x)) if x == 1.0 => other,
+        (a, b) => Scalar::Mul(Box::new(a), Box::new(b)),
+    }
+}
+
+/// The display unit of a dimension, built from the user's default units.
+pub(crate) fn display_unit(dim: Dim, units: &ir::DisplayUnits) -> Unit {
+    let bases = [
+        (dim.length, &units.length),
+        (dim.angle, &units.angle),
+        (dim.time, &units.time),
+        (dim.force, &units.force),
+    ];
+    // A difference of degC is a kelvin; `um/K` reads better than `um/degC` and means the same.
+    let temperature = Unit::parse("K").unwrap_or_else(|_| units.temperature.as_difference());
+    let mut out = Unit::dimensionless();
+    for (exp, unit) in bases.into_iter().chain([(dim.temperature, &temperature)]) {
+        if exp != 0 {
+            out = out.mul(&unit.powi(i32::from(exp)));
+        }
+    }
+    out
+}
+
+/// ISO 230-1 (`EXX`, `EBZ`: E, error direction, axis) and VDI 2617 (`xtx`, `yrz`: axis,
+/// translation/rotation, direction) names of axis errors.
+fn alias(name: &str, st: &Structure) -> Option<(String, Component)> {
+    let comp = |kind: char, dir: char| -> Option<Component> {
+        Some(match (kind, dir) {
+            ('t', 'x') => Component::Tx,
+            ('t', 'y') => Component::Ty,
+            ('t', 'z') => Component::Tz,
+            ('r', 'x') => Component::Rx,
+            ('r', 'y') => Component::Ry,
+            ('r', 'z') => Component::Rz,
+            _ => return None,
+        })
+    };
+    let mut chars = name.chars();
+    if let (Some('E'), Some(d)) = (chars.next(), chars.next()) {
+        let axis: String = chars.collect();
+        if st.axis_index(&axis).is_some() {
+            let c = match d {
+                'X' => comp('t', 'x'),
+                'Y' => comp('t', 'y'),
+                'Z' => comp('t', 'z'),
+                'A' => comp('r', 'x'),
+                'B' => comp('r', 'y'),
+                'C' => comp('r', 'z'),
+                _ => None,
+            }?;
+            return Some((axis, c));
+        }
+    }
+    let chars: Vec<char> = name.chars().collect();
+    if let [a, k, d] = chars.as_slice() {
+        let axis = st.axes.iter().find(|ax| ax.name.to_lowercase() == a.to_string())?;
+        return Some((axis.name.clone(), comp(*k, *d)?));
+    }
+    None
+}
+
+fn fmt_num(v: f64) -> String {
+    let r = (v * 1e6).round() / 1e6;
+    format!("{r}")
+}

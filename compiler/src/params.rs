@@ -1,0 +1,168 @@
+//! Binding parameter values (`params { … }`) to a compiled machine.
+//!
+//! Coefficients are addressed as `FRAME.comp[i]` (index among that component's coefficients,
+//! in order of appearance) or all at once as `FRAME.comp = [ … ] unit`; non-linear parameters by
+//! their name (`Z.tz.tau`). Values are stored in SI; units must match the derived dimension.
+
+use crate::diagnostic::{suggest, Diagnostic, Span};
+use crate::ir;
+use crate::resolve::{constant, parse_unit, Sink};
+use crate::syntax::ast::{self, ParamValue};
+use crate::units::Unit;
+
+/// Binds every definition of `params` into `machine.beta` (zeros where not given) and the
+/// non-linear parameter values. Returns the diagnostics.
+pub fn bind(machine: &mut ir::Machine, params: &ast::ParamsBlock) -> Vec<Diagnostic> {
+    let mut sink = Sink::default();
+    if machine.beta.len() != machine.coefficients.len() {
+        machine.beta = vec![0.0; machine.coefficients.len()];
+    }
+    for def in &params.defs {
+        bind_one(machine, def, &mut sink);
+    }
+    sink.diagnostics
+}
+
+fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, sink: &mut Sink) {
+    let path: Vec<&str> = def.path.iter().map(|n| n.node.as_str()).collect();
+    let full = path.join(".");
+    let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
+    let last = def.path.last().map(|n| n.span).unwrap_or(def.span);
+    let path_span = first.to(last);
+
+    // A non-linear parameter, by its full name (with an optional index).
+    let nl_name = match &def.index {
+        Some(i) if i.node > 0 => format!("{full}[{}]", i.node),
+        _ => full.clone(),
+    };
+    if let Some(k) = machine.nonlinear.iter().position(|p| p.name == nl_name) {
+        let Some(p) = machine.nonlinear.get(k) else { return };
+        let unit = p.unit.clone();
+        if let Some(v) = scalar_value(&def.value, &unit, sink) {
+            if v <= 0.0 {
+                sink.push(Diagnostic::error("E0501", format!("`{nl_name}` must be positive"), def.span).with_label("not positive"));
+            } else if let Some(p) = machine.nonlinear.get_mut(k) {
+                p.value = v;
+            }
+        }
+        return;
+    }
+
+    // Coefficients of one error component.
+    let members: Vec<usize> = machine
+        .coefficients
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.name.rsplit_once('[').map(|(base, _)| base) == Some(full.as_str()))
+        .map(|(i, _)| i)
+        .collect();
+    if members.is_empty() {
+        let mut names: Vec<String> = machine
+            .coefficients
+            .iter()
+            .filter_map(|c| c.name.rsplit_once('[').map(|(b, _)| b.to_string()))
+            .chain(machine.nonlinear.iter().map(|p| p.name.clone()))
+            .collect();
+        names.dedup();
+        let mut d = Diagnostic::error("E0501", format!("`{full}` has no parameters"), path_span)
+            .with_label("no coefficient or non-linear parameter of this name");
+        if let Some(s) = suggest(&full, names.iter().map(String::as_str)) {
+            d = d.with_help(format!("did you mean `{s}`?"));
+        }
+        sink.push(d);
+        return;
+    }
+    match (&def.index, &def.value) {
+        (Some(i), value) => {
+            let Some(&k) = usize::try_from(i.node).ok().and_then(|i| members.get(i)) else {
+                sink.push(
+                    Diagnostic::error("E0501", format!("`{full}` has {} coefficients; index {} is out of range", members.len(), i.node), i.span)
+                        .with_label(format!("valid indices: 0..{}", members.len().saturating_sub(1))),
+                );
+                return;
+            };
+            let unit = machine.coefficients.get(k).map(|c| c.unit.clone()).unwrap_or_else(Unit::dimensionless);
+            if let Some(v) = scalar_value(value, &unit, sink) {
+                if let Some(b) = machine.beta.get_mut(k) {
+                    *b = v;
+                }
+            }
+        }
+        (None, ParamValue::List { values, unit, span }) => {
+            if values.len() != members.len() {
+                sink.push(
+                    Diagnostic::error("E0501", format!("`{full}` has {} coefficients, but {} values are given", members.len(), values.len()), *span)
+                        .with_label("wrong number of values"),
+                );
+                return;
+            }
+            let given = match unit {
+                Some(u) => match parse_unit(u, sink) {
+                    Some(parsed) => Some((parsed, u.span)),
+                    None => return,
+                },
+                None => None,
+            };
+            for (k, v) in members.iter().zip(values) {
+                let Some(coef) = machine.coefficients.get(*k) else { continue };
+                let unit = match &given {
+                    Some((u, uspan)) => {
+                        if u.dim != coef.unit.dim {
+                            sink.push(unit_mismatch(&coef.name, &coef.unit, u, *uspan));
+                            return;
+                        }
+                        u.clone()
+                    }
+                    None => coef.unit.clone(),
+                };
+                if let Some(b) = machine.beta.get_mut(*k) {
+                    *b = unit.to_si(*v);
+                }
+            }
+        }
+        (None, ParamValue::Scalar(e)) => {
+            sink.push(
+                Diagnostic::error("E0501", format!("`{full}` has {} coefficients", members.len()), e.span)
+                    .with_label("a single value for several coefficients")
+                    .with_help(format!("give them all, `{full} = [ … ] unit`, or one, `{full}[0] = …`")),
+            );
+        }
+    }
+}
+
+fn unit_mismatch(name: &str, expected: &Unit, given: &Unit, span: Span) -> Diagnostic {
+    Diagnostic::error(
+        "E0501",
+        format!("`{name}` is in {} ({}), but `{}` is {}", expected.name, expected.dim.describe(), given.name, given.dim.describe()),
+        span,
+    )
+    .with_label(format!("expected {}", expected.dim.describe()))
+}
+
+/// A single value: a quantity of the expected dimension, or a bare number in `unit`.
+fn scalar_value(value: &ParamValue, unit: &Unit, sink: &mut Sink) -> Option<f64> {
+    match value {
+        ParamValue::Scalar(e) => {
+            let c = constant(e, false, sink)?;
+            if c.bare {
+                return Some(unit.to_si(c.value));
+            }
+            if c.dim != unit.dim {
+                sink.push(
+                    Diagnostic::error(
+                        "E0501",
+                        format!("expected {} (e.g. `{}`), but this is {}", unit.dim.describe(), unit.name, c.dim.describe()),
+                        e.span,
+                    )
+                    .with_label(format!("expected {}", unit.dim.describe())),
+                );
+                return None;
+            }
+            Some(c.value)
+        }
+        ParamValue::List { span, .. } => {
+            sink.push(Diagnostic::error("E0501", "expected one value, not a list", *span).with_label("a list"));
+            None
+        }
+    }
+}

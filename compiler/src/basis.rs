@@ -616,7 +616,7 @@ fn periodic_alphas(g: Power, smooth: i32) -> Vec<f64> {
     // Row j, column k ↔ c' = k + 1.
     let entry = |j: u32, k: u32| {
         let c = k + 1;
-        let at_zero = if c == j { falling_factorial(j, j) } else { 0.0 };
+        let at_zero = 0.0;
         falling_factorial(c, j) - at_zero
     };
     let rhs = |j: u32| g.derivative(j, 1.0) - g.derivative(j, 0.0);

@@ -250,8 +250,10 @@ impl Checker<'_> {
             }
         };
         let frame = if let Some(i) = self.st.axis_index(&frame_name) {
-            // An axis outside every chain was reported already.
-            (*self.st.axis_frame.get(i)?)?
+            // An axis outside every chain was reported already (E0401) and the compilation will
+            // fail; its models are still checked under a frame that no IR will ever hold, so
+            // their own mistakes are reported in the same run.
+            self.st.axis_frame.get(i).copied().flatten().unwrap_or(FrameRef::Tool(usize::MAX - i))
         } else if let Some(i) = self.st.tool_index(&frame_name) {
             FrameRef::ToolEnd(Some(i))
         } else if frame_name == "tool" {

@@ -1,1 +1,4 @@
 //! The `.kin` runtime.
+pub mod kinematics;
+pub mod exact;
+pub mod data;

@@ -1,0 +1,938 @@
+//! The reader. The header is small and read with plain string handling; data rows are the hot
+//! path (millions of numeric cells) and go through a logos lexer that finds cells and recognises
+//! a plain number in one pass. Anything the fast path does not recognise falls back to a careful,
+//! slow path that produces the diagnostic.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use kin_compiler::ir::{JointKind, Machine};
+use kin_compiler::units::{Dim, Unit, UnitError};
+use logos::Logos;
+
+use super::{
+    Groups, LengthData, Observations, PointData, Pose, Problem, ReadError, ReadOptions, Rows,
+    MAX_PROBLEMS, OBSERVED, TOOL_OFFSET,
+};
+
+/// Reads a point or length file from disk. Any read failure or problem in the file is an error;
+/// see [`read`].
+pub fn read_file(
+    path: &Path,
+    machine: &Machine,
+    options: &ReadOptions,
+) -> Result<Observations, ReadError> {
+    let bytes = std::fs::read(path).map_err(|source| ReadError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    read(&bytes, path, machine, options)
+}
+
+/// Reads a point or length file from memory; `path` only names the file in errors.
+pub fn read(
+    bytes: &[u8],
+    path: &Path,
+    machine: &Machine,
+    options: &ReadOptions,
+) -> Result<Observations, ReadError> {
+    let invalid = |problems: Vec<Problem>, omitted| ReadError::Invalid {
+        path: path.to_path_buf(),
+        problems,
+        omitted,
+    };
+    let text = match std::str::from_utf8(bytes) {
+        Ok(text) => text,
+        Err(e) => return Err(invalid(vec![not_utf8(bytes, e.valid_up_to())], 0)),
+    };
+    // Spreadsheets often start a CSV export with a byte order mark.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut lines = text.split('\n').enumerate().map(|(i, l)| {
+        let l = l.strip_suffix('\r').unwrap_or(l);
+        (i + 1, l)
+    });
+    let header = lines.find(|(_, l)| !skipped(l));
+    let Some((header_line, header)) = header else {
+        return Err(invalid(vec![Problem::NoHeader], 0));
+    };
+    let mut reader = Reader::new(machine, options, header_line, header);
+    let mut cells = Vec::with_capacity(reader.columns.len());
+    for (number, line) in lines {
+        if skipped(line) {
+            continue;
+        }
+        split_cells(line, &mut cells);
+        reader.row(number, line, &cells);
+    }
+    reader.finish().map_err(|p| invalid(p.list, p.omitted))
+}
+
+fn not_utf8(bytes: &[u8], valid: usize) -> Problem {
+    let prefix = bytes.get(..valid).unwrap_or_default();
+    let line_start = prefix
+        .iter()
+        .rposition(|&b| b == b'\n')
+        .map_or(0, |i| i + 1);
+    let line = 1 + prefix.iter().filter(|&&b| b == b'\n').count();
+    let column = 1 + std::str::from_utf8(prefix.get(line_start..).unwrap_or_default())
+        .map_or(0, |s| s.chars().count());
+    Problem::NotUtf8 { line, column }
+}
+
+/// Comments and blank lines carry no data; a comment may come before the header.
+fn skipped(line: &str) -> bool {
+    let t = line.trim_start();
+    t.is_empty() || t.starts_with('#')
+}
+
+#[derive(Logos, Debug, Clone, Copy, PartialEq, Eq)]
+#[logos(skip r"[ \t\r]+")]
+enum Tok {
+    #[token(",")]
+    Comma,
+    // Every text this matches is also accepted by `f64::from_str`.
+    #[regex(r"[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?", priority = 10)]
+    Number,
+    #[regex(r"[^, \t\r\n]+", priority = 1)]
+    Text,
+}
+
+/// A cell's span in its line, spaces around it excluded (ASCII ones; the slow path trims the
+/// rest). An empty cell has `start == end` at the place it would be.
+#[derive(Debug, Clone, Copy)]
+struct Cell {
+    start: usize,
+    end: usize,
+    /// The cell is exactly one number token: the fast path may parse it directly.
+    number: bool,
+}
+
+fn split_cells(line: &str, cells: &mut Vec<Cell>) {
+    cells.clear();
+    let mut lex = Tok::lexer(line);
+    let mut cell = Cell {
+        start: 0,
+        end: 0,
+        number: false,
+    };
+    let mut tokens = 0usize;
+    while let Some(tok) = lex.next() {
+        let span = lex.span();
+        match tok {
+            Ok(Tok::Comma) => {
+                cells.push(cell);
+                cell = Cell {
+                    start: span.end,
+                    end: span.end,
+                    number: false,
+                };
+                tokens = 0;
+            }
+            other => {
+                if tokens == 0 {
+                    cell.start = span.start;
+                }
+                tokens += 1;
+                cell.end = span.end;
+                cell.number = tokens == 1 && other == Ok(Tok::Number);
+            }
+        }
+    }
+    cells.push(cell);
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Points,
+    Lengths,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Role {
+    Axis { end: usize, axis: usize },
+    Dir { end: usize, axis: usize },
+    Input(usize),
+    Time,
+    Run,
+    Tool,
+    ToolOffset(usize),
+    Artifact,
+    Observed(usize),
+    Dl,
+}
+
+enum Store {
+    Skip,
+    Numbers(Vec<f64>),
+    Ids(Vec<u32>),
+}
+
+struct Column {
+    name: String,
+    role: Option<Role>,
+    /// Conversion to SI and the unit's name for messages.
+    scale: f64,
+    offset: f64,
+    unit: String,
+    store: Store,
+}
+
+/// Artifact cells left empty: the row has no artifact.
+const NO_ID: u32 = u32::MAX;
+
+#[derive(Default)]
+struct Interner {
+    ids: HashMap<String, u32>,
+    labels: Vec<String>,
+    /// Consecutive rows mostly repeat a label: checking the last one first skips the hash.
+    last: Option<u32>,
+}
+
+impl Interner {
+    fn id(&mut self, label: &str) -> u32 {
+        if let Some(last) = self.last {
+            if self.labels.get(last as usize).is_some_and(|l| l == label) {
+                return last;
+            }
+        }
+        let id = match self.ids.get(label) {
+            Some(&id) => id,
+            None => {
+                let id = u32::try_from(self.labels.len()).unwrap_or(NO_ID - 1);
+                self.ids.insert(label.to_string(), id);
+                self.labels.push(label.to_string());
+                id
+            }
+        };
+        self.last = Some(id);
+        id
+    }
+}
+
+#[derive(Default)]
+struct Problems {
+    list: Vec<Problem>,
+    omitted: usize,
+}
+
+impl Problems {
+    fn push(&mut self, p: Problem) {
+        if self.list.len() < MAX_PROBLEMS {
+            self.list.push(p);
+        } else {
+            self.omitted += 1;
+        }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.list.is_empty() && self.omitted == 0
+    }
+}
+
+struct Reader<'m> {
+    machine: &'m Machine,
+    kind: Kind,
+    columns: Vec<Column>,
+    problems: Problems,
+    lines: Vec<usize>,
+    data_lines: usize,
+    runs: Interner,
+    artifacts: Interner,
+    /// Per run id, the last accepted time (SI) and its line.
+    last_time: Vec<Option<(f64, usize)>>,
+    has_run: bool,
+}
+
+/// 1-based character column of a byte offset in a line.
+fn char_column(line: &str, byte: usize) -> usize {
+    1 + line.get(..byte).map_or(0, |s| s.chars().count())
+}
+
+/// Long garbage is cut so one bad cell cannot flood a message.
+fn excerpt(text: &str) -> String {
+    const MAX: usize = 40;
+    if text.chars().count() <= MAX {
+        text.to_string()
+    } else {
+        let mut s: String = text.chars().take(MAX).collect();
+        s.push('…');
+        s
+    }
+}
+
+/// `X[mm]` → (`X`, Some(`mm`)).
+fn split_name(text: &str) -> Result<(&str, Option<&str>), &'static str> {
+    match text.find('[') {
+        None if text.contains(']') => Err("`]` without `[`"),
+        None => Ok((text, None)),
+        Some(open) => {
+            let name = text.get(..open).unwrap_or("").trim_end();
+            let rest = text.get(open + 1..).unwrap_or("");
+            let close = rest.find(']').ok_or("`[` without `]`")?;
+            if !rest.get(close + 1..).unwrap_or("").trim().is_empty() {
+                return Err("text after the unit");
+            }
+            let unit = rest.get(..close).unwrap_or("").trim();
+            if unit.contains('[') {
+                return Err("nested `[`");
+            }
+            Ok((name, Some(unit)))
+        }
+    }
+}
+
+impl<'m> Reader<'m> {
+    fn new(machine: &'m Machine, options: &ReadOptions, line_no: usize, line: &str) -> Self {
+        let mut problems = Problems::default();
+        let raw: Vec<(usize, &str)> = {
+            let mut offset = 0;
+            line.split(',')
+                .map(|cell| {
+                    let lead = cell.len() - cell.trim_start().len();
+                    let start = offset + lead;
+                    offset += cell.len() + 1;
+                    (char_column(line, start), cell.trim())
+                })
+                .collect()
+        };
+        let ignored = |name: &str| options.ignore.iter().any(|i| i == name);
+        let is_dl = |text: &str| split_name(text).is_ok_and(|(n, _)| n == "dL");
+        let kind = if !ignored("dL") && raw.iter().any(|(_, t)| is_dl(t)) {
+            Kind::Lengths
+        } else {
+            Kind::Points
+        };
+        let known = known_columns(machine, kind);
+        let mut columns = Vec::with_capacity(raw.len());
+        let mut first_seen: HashMap<String, usize> = HashMap::new();
+        for &(column, text) in &raw {
+            let skip = |name: String| Column {
+                name,
+                role: None,
+                scale: 1.0,
+                offset: 0.0,
+                unit: String::new(),
+                store: Store::Skip,
+            };
+            let (name, unit_text) = match split_name(text) {
+                Ok(parts) => parts,
+                Err(reason) => {
+                    problems.push(Problem::BadName {
+                        line: line_no,
+                        column,
+                        text: excerpt(text),
+                        reason,
+                    });
+                    columns.push(skip(text.to_string()));
+                    continue;
+                }
+            };
+            if name.is_empty() {
+                problems.push(Problem::EmptyName {
+                    line: line_no,
+                    column,
+                });
+                columns.push(skip(String::new()));
+                continue;
+            }
+            if ignored(name) {
+                columns.push(skip(name.to_string()));
+                continue;
+            }
+            if let Some(&first) = first_seen.get(name) {
+                problems.push(Problem::DuplicateColumn {
+                    line: line_no,
+                    column,
+                    name: name.to_string(),
+                    first,
+                });
+                columns.push(skip(name.to_string()));
+                continue;
+            }
+            first_seen.insert(name.to_string(), column);
+            let Some(role) = known.get(name).copied() else {
+                problems.push(Problem::UnknownColumn {
+                    line: line_no,
+                    column,
+                    name: name.to_string(),
+                    hint: hint(name, machine, kind, &known),
+                });
+                columns.push(skip(name.to_string()));
+                continue;
+            };
+            let unit = match column_unit(machine, role, unit_text) {
+                Ok(unit) => unit,
+                Err(e) => {
+                    problems.push(e.at(line_no, column, name));
+                    columns.push(skip(name.to_string()));
+                    continue;
+                }
+            };
+            let store = match role {
+                Role::Run | Role::Tool | Role::Artifact => Store::Ids(Vec::new()),
+                _ => Store::Numbers(Vec::new()),
+            };
+            let (scale, offset, unit) = match unit {
+                Some(u) => (u.scale, u.offset, u.name),
+                None => (1.0, 0.0, String::new()),
+            };
+            columns.push(Column {
+                name: name.to_string(),
+                role: Some(role),
+                scale,
+                offset,
+                unit,
+                store,
+            });
+        }
+        let has = |role: Role| columns.iter().any(|c| c.role == Some(role));
+        let mut missing = Vec::new();
+        let ends = if kind == Kind::Lengths { 2 } else { 1 };
+        for end in 0..ends {
+            for (axis, a) in machine.axes.iter().enumerate() {
+                if !has(Role::Axis { end, axis }) {
+                    missing.push(axis_column(&a.name, kind, end));
+                }
+            }
+        }
+        if kind == Kind::Lengths && !has(Role::Dl) {
+            missing.push("dL".to_string());
+        }
+        if !missing.is_empty() {
+            problems.push(Problem::MissingColumns { names: missing });
+        }
+        if kind == Kind::Points && !(0..OBSERVED.len()).any(|k| has(Role::Observed(k))) {
+            problems.push(Problem::NoObservedColumn);
+        }
+        let offsets: Vec<bool> = (0..3).map(|k| has(Role::ToolOffset(k))).collect();
+        if offsets.iter().any(|&b| b) && !offsets.iter().all(|&b| b) {
+            let missing = TOOL_OFFSET
+                .iter()
+                .zip(&offsets)
+                .filter(|(_, &present)| !present)
+                .map(|(n, _)| n.to_string())
+                .collect();
+            problems.push(Problem::IncompleteToolColumns { missing });
+        }
+        let has_run = has(Role::Run);
+        Reader {
+            machine,
+            kind,
+            columns,
+            problems,
+            lines: Vec::new(),
+            data_lines: 0,
+            runs: Interner::default(),
+            artifacts: Interner::default(),
+            last_time: Vec::new(),
+            has_run,
+        }
+    }
+
+    fn row(&mut self, line_no: usize, line: &str, cells: &[Cell]) {
+        self.data_lines += 1;
+        if cells.len() != self.columns.len() {
+            self.problems.push(Problem::CellCount {
+                line: line_no,
+                found: cells.len(),
+                expected: self.columns.len(),
+            });
+            return;
+        }
+        let Reader {
+            machine,
+            columns,
+            problems,
+            runs,
+            artifacts,
+            ..
+        } = self;
+        let mut observed = false;
+        let mut observed_columns = false;
+        let mut offsets_empty = [None::<bool>; 3];
+        let mut time = None;
+        let mut run = if self.has_run { None } else { Some(0) };
+        let bad = |problems: &mut Problems, name: &str, cell: &Cell, expected: String| {
+            let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+            problems.push(Problem::BadCell {
+                line: line_no,
+                column: char_column(line, cell.start),
+                name: name.to_string(),
+                text: excerpt(text),
+                expected,
+            });
+        };
+        for (col, cell) in columns.iter_mut().zip(cells) {
+            let Some(role) = col.role else { continue };
+            match (&mut col.store, role) {
+                (Store::Numbers(values), Role::Dir { .. }) => {
+                    let v = direction(line, cell);
+                    if v.is_none() {
+                        bad(problems, &col.name, cell, "+1 or -1".into());
+                    }
+                    values.push(v.unwrap_or(f64::NAN));
+                }
+                (Store::Numbers(values), _) => {
+                    let parsed = number(line, cell).map(|v| v.map(|v| v * col.scale + col.offset));
+                    let required = matches!(role, Role::Axis { .. } | Role::Time | Role::Dl);
+                    let v = match parsed {
+                        Ok(Some(v)) if v.is_finite() => v,
+                        Ok(None) if !required => f64::NAN,
+                        _ => {
+                            let expected = if col.unit.is_empty() || col.unit == "1" {
+                                "a number".to_string()
+                            } else {
+                                format!("a number in {}", col.unit)
+                            };
+                            bad(problems, &col.name, cell, expected);
+                            f64::NAN
+                        }
+                    };
+                    let empty = matches!(parsed, Ok(None));
+                    match role {
+                        Role::Observed(_) => {
+                            observed_columns = true;
+                            observed |= !empty;
+                        }
+                        Role::ToolOffset(k) => {
+                            if let Some(slot) = offsets_empty.get_mut(k) {
+                                *slot = Some(empty);
+                            }
+                        }
+                        Role::Time if v.is_finite() => time = Some(v),
+                        _ => {}
+                    }
+                    values.push(v);
+                }
+                (Store::Ids(ids), Role::Tool) => {
+                    let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                    let found = machine.tools.iter().position(|t| t.name == text);
+                    if found.is_none() {
+                        if text.is_empty() {
+                            bad(problems, &col.name, cell, "a tool name".into());
+                        } else {
+                            problems.push(Problem::UnknownTool {
+                                line: line_no,
+                                column: char_column(line, cell.start),
+                                name: col.name.clone(),
+                                text: excerpt(text),
+                                declared: machine.tools.iter().map(|t| t.name.clone()).collect(),
+                            });
+                        }
+                    }
+                    ids.push(found.and_then(|i| u32::try_from(i).ok()).unwrap_or(0));
+                }
+                (Store::Ids(ids), Role::Run) => {
+                    let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                    if text.is_empty() {
+                        bad(problems, &col.name, cell, "a run label".into());
+                        ids.push(0);
+                    } else {
+                        let id = runs.id(text);
+                        run = Some(id);
+                        ids.push(id);
+                    }
+                }
+                (Store::Ids(ids), _) => {
+                    let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                    ids.push(if text.is_empty() {
+                        NO_ID
+                    } else {
+                        artifacts.id(text)
+                    });
+                }
+                (Store::Skip, _) => {}
+            }
+        }
+        if observed_columns && !observed && self.kind == Kind::Points {
+            let columns = self
+                .columns
+                .iter()
+                .filter(|c| matches!(c.role, Some(Role::Observed(_))))
+                .map(|c| c.name.clone())
+                .collect();
+            self.problems.push(Problem::NothingObserved {
+                line: line_no,
+                columns,
+            });
+        }
+        let given: Vec<bool> = offsets_empty.iter().flatten().copied().collect();
+        if given.len() == 3 && given.iter().any(|&e| e) && !given.iter().all(|&e| e) {
+            let empty = TOOL_OFFSET
+                .iter()
+                .zip(offsets_empty)
+                .filter(|(_, e)| *e == Some(true))
+                .map(|(n, _)| n.to_string())
+                .collect();
+            self.problems.push(Problem::IncompleteToolOffset {
+                line: line_no,
+                empty,
+            });
+        }
+        if let (Some(t), Some(run)) = (time, run) {
+            self.check_time(line_no, t, run);
+        }
+        self.lines.push(line_no);
+    }
+
+    fn check_time(&mut self, line_no: usize, t: f64, run: u32) {
+        let slot = run as usize;
+        if self.last_time.len() <= slot {
+            self.last_time.resize(slot + 1, None);
+        }
+        let Some(last) = self.last_time.get_mut(slot) else {
+            return;
+        };
+        match *last {
+            Some((previous, previous_line)) if t < previous => {
+                let col = self.columns.iter().find(|c| c.role == Some(Role::Time));
+                let (scale, offset, unit) =
+                    col.map_or((1.0, 0.0, "s".to_string()), |c| (c.scale, c.offset, c.unit.clone()));
+                let label = self.has_run.then(|| self.runs.labels.get(slot).cloned()).flatten();
+                self.problems.push(Problem::TimeOrder {
+                    line: line_no,
+                    previous_line,
+                    time: (t - offset) / scale,
+                    previous: (previous - offset) / scale,
+                    unit,
+                    run: label,
+                });
+            }
+            _ => *last = Some((t, line_no)),
+        }
+    }
+
+    fn finish(mut self) -> Result<Observations, Problems> {
+        if self.data_lines == 0 {
+            self.problems.push(Problem::NoRows);
+        }
+        if !self.problems.is_empty() {
+            return Err(self.problems);
+        }
+        let n = self.lines.len();
+        let m = self.machine;
+        let ends = if self.kind == Kind::Lengths { 2 } else { 1 };
+        let mut poses: Vec<Pose> = (0..ends)
+            .map(|_| Pose {
+                axes: vec![Vec::new(); m.axes.len()],
+                dir: vec![None; m.axes.len()],
+            })
+            .collect();
+        let mut rows = Rows {
+            line: std::mem::take(&mut self.lines),
+            time: None,
+            run: None,
+            artifact: None,
+            tool: vec![0; n],
+            tool_offset: None,
+            inputs: vec![None; m.inputs.len()],
+        };
+        let mut offsets: [Option<Vec<f64>>; 3] = Default::default();
+        let mut observed: [Option<Vec<f64>>; 6] = Default::default();
+        let mut dl = Vec::new();
+        for col in &mut self.columns {
+            let Some(role) = col.role else { continue };
+            match (std::mem::replace(&mut col.store, Store::Skip), role) {
+                (Store::Numbers(v), Role::Axis { end, axis }) => {
+                    if let Some(slot) = poses.get_mut(end).and_then(|p| p.axes.get_mut(axis)) {
+                        *slot = v;
+                    }
+                }
+                (Store::Numbers(v), Role::Dir { end, axis }) => {
+                    if let Some(slot) = poses.get_mut(end).and_then(|p| p.dir.get_mut(axis)) {
+                        *slot = Some(v);
+                    }
+                }
+                (Store::Numbers(v), Role::Input(i)) => {
+                    if let Some(slot) = rows.inputs.get_mut(i) {
+                        *slot = Some(v);
+                    }
+                }
+                (Store::Numbers(v), Role::Time) => rows.time = Some(v),
+                (Store::Numbers(v), Role::ToolOffset(k)) => {
+                    if let Some(slot) = offsets.get_mut(k) {
+                        *slot = Some(v);
+                    }
+                }
+                (Store::Numbers(v), Role::Observed(k)) => {
+                    if let Some(slot) = observed.get_mut(k) {
+                        *slot = Some(v);
+                    }
+                }
+                (Store::Numbers(v), Role::Dl) => dl = v,
+                (Store::Ids(ids), Role::Tool) => {
+                    rows.tool = ids.into_iter().map(|i| i as usize).collect();
+                }
+                (Store::Ids(ids), Role::Run) => {
+                    rows.run = Some(Groups {
+                        of_row: ids,
+                        labels: std::mem::take(&mut self.runs.labels),
+                    });
+                }
+                (Store::Ids(ids), Role::Artifact) => {
+                    rows.artifact = Some(Groups {
+                        of_row: ids.into_iter().map(|i| (i != NO_ID).then_some(i)).collect(),
+                        labels: std::mem::take(&mut self.artifacts.labels),
+                    });
+                }
+                _ => {}
+            }
+        }
+        if let [Some(x), Some(y), Some(z)] = offsets {
+            rows.tool_offset = Some([x, y, z]);
+        }
+        let mut poses = poses.into_iter();
+        let first = poses.next().unwrap_or_default();
+        Ok(match self.kind {
+            Kind::Points => Observations::Points(PointData {
+                rows,
+                pose: first,
+                observed,
+            }),
+            Kind::Lengths => Observations::Lengths(LengthData {
+                rows,
+                poses: [first, poses.next().unwrap_or_default()],
+                dl,
+            }),
+        })
+    }
+}
+
+/// `Ok(None)` for an empty cell; `Err` for anything that is not a finite number.
+fn number(line: &str, cell: &Cell) -> Result<Option<f64>, ()> {
+    let raw = line.get(cell.start..cell.end).unwrap_or("");
+    if cell.number {
+        if let Ok(v) = raw.parse::<f64>() {
+            return Ok(Some(v));
+        }
+    }
+    let text = raw.trim();
+    if text.is_empty() {
+        return Ok(None);
+    }
+    // `f64::from_str` also reads `nan` and `inf`, which are not measurements.
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(Some(v)),
+        _ => Err(()),
+    }
+}
+
+fn direction(line: &str, cell: &Cell) -> Option<f64> {
+    let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+    match text {
+        "+" => return Some(1.0),
+        "-" | "\u{2212}" => return Some(-1.0),
+        _ => {}
+    }
+    let text = text.replace('\u{2212}', "-");
+    match text.parse::<f64>() {
+        Ok(v) if v == 1.0 || v == -1.0 => Some(v),
+        _ => None,
+    }
+}
+
+fn axis_column(axis: &str, kind: Kind, end: usize) -> String {
+    match kind {
+        Kind::Points => axis.to_string(),
+        Kind::Lengths => format!("{axis}_{}", end + 1),
+    }
+}
+
+/// Every column name a file of this kind may hold, with its meaning. Axis and input names come
+/// first so a machine that (against the checker's advice) reuses a reserved name still reads.
+fn known_columns(machine: &Machine, kind: Kind) -> HashMap<String, Role> {
+    let mut known = HashMap::new();
+    let ends = if kind == Kind::Lengths { 2 } else { 1 };
+    for end in 0..ends {
+        for (axis, a) in machine.axes.iter().enumerate() {
+            let name = axis_column(&a.name, kind, end);
+            known
+                .entry(format!("dir_{name}"))
+                .or_insert(Role::Dir { end, axis });
+            known.entry(name).or_insert(Role::Axis { end, axis });
+        }
+    }
+    for (i, input) in machine.inputs.iter().enumerate() {
+        known.entry(input.name.clone()).or_insert(Role::Input(i));
+    }
+    let mut fixed = vec![
+        ("time", Role::Time),
+        ("run", Role::Run),
+        ("tool", Role::Tool),
+        ("artifact", Role::Artifact),
+    ];
+    fixed.extend(TOOL_OFFSET.iter().enumerate().map(|(k, n)| (*n, Role::ToolOffset(k))));
+    match kind {
+        Kind::Points => {
+            fixed.extend(OBSERVED.iter().enumerate().map(|(k, n)| (*n, Role::Observed(k))));
+        }
+        Kind::Lengths => fixed.push(("dL", Role::Dl)),
+    }
+    for (name, role) in fixed {
+        known.entry(name.to_string()).or_insert(role);
+    }
+    known
+}
+
+/// A likely reason for an unknown column: the other file kind's naming, or a near miss.
+fn hint(name: &str, machine: &Machine, kind: Kind, known: &HashMap<String, Role>) -> Option<String> {
+    let axis_named = |n: &str| machine.axes.iter().find(|a| a.name == n);
+    match kind {
+        Kind::Lengths => {
+            let base = name.strip_prefix("dir_").unwrap_or(name);
+            if let Some(a) = axis_named(base) {
+                return Some(format!(
+                    "a length file names each axis twice: `{0}_1` and `{0}_2`",
+                    a.name
+                ));
+            }
+            if OBSERVED.contains(&name) {
+                return Some("a length file observes `dL`".to_string());
+            }
+        }
+        Kind::Points => {
+            let base = name.strip_prefix("dir_").unwrap_or(name);
+            let stem = base
+                .strip_suffix("_1")
+                .or_else(|| base.strip_suffix("_2"));
+            if stem.and_then(axis_named).is_some() {
+                return Some(format!(
+                    "`{name}` belongs in a length file, which has a `dL` column"
+                ));
+            }
+        }
+    }
+    let lower = name.to_lowercase();
+    let mut best: Option<(usize, &str)> = None;
+    for candidate in known.keys() {
+        let d = if candidate.to_lowercase() == lower {
+            0
+        } else {
+            edit_distance(name, candidate)
+        };
+        if d <= 2 && best.is_none_or(|(bd, bn)| d < bd || (d == bd && candidate.as_str() < bn)) {
+            best = Some((d, candidate));
+        }
+    }
+    best.map(|(_, n)| format!("did you mean `{n}`?"))
+}
+
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row.first().copied().unwrap_or(0);
+        if let Some(first) = row.first_mut() {
+            *first = i + 1;
+        }
+        for (j, &cb) in b.iter().enumerate() {
+            let above = row.get(j + 1).copied().unwrap_or(usize::MAX);
+            let left = row.get(j).copied().unwrap_or(usize::MAX);
+            let cost = prev + usize::from(ca != cb);
+            let value = cost.min(above.saturating_add(1)).min(left.saturating_add(1));
+            prev = above;
+            if let Some(slot) = row.get_mut(j + 1) {
+                *slot = value;
+            }
+        }
+    }
+    row.last().copied().unwrap_or(0)
+}
+
+/// A header unit problem before its location is known.
+enum UnitProblem {
+    Parse(UnitError),
+    NotAllowed,
+    Dimension { unit: String, found: Dim, expected: Dim },
+}
+
+impl UnitProblem {
+    fn at(self, line: usize, column: usize, name: &str) -> Problem {
+        let name = name.to_string();
+        match self {
+            UnitProblem::Parse(error) => Problem::BadUnit {
+                line,
+                column,
+                name,
+                error,
+            },
+            UnitProblem::NotAllowed => Problem::UnitNotAllowed { line, column, name },
+            UnitProblem::Dimension {
+                unit,
+                found,
+                expected,
+            } => Problem::WrongDimension {
+                line,
+                column,
+                name,
+                unit,
+                found: found.describe(),
+                expected: expected.describe(),
+            },
+        }
+    }
+}
+
+/// The unit a column's cells are in: the header's, checked against the quantity, or the
+/// machine's default. `None` for label columns.
+fn column_unit(
+    machine: &Machine,
+    role: Role,
+    header: Option<&str>,
+) -> Result<Option<Unit>, UnitProblem> {
+    let u = &machine.units;
+    let (default, expected, absolute) = match role {
+        Role::Run | Role::Tool | Role::Artifact => {
+            return match header {
+                None => Ok(None),
+                Some(_) => Err(UnitProblem::NotAllowed),
+            };
+        }
+        Role::Axis { axis, .. } => match machine.axes.get(axis).map(|a| a.kind) {
+            Some(JointKind::Revolute) => (u.angle.clone(), Dim::ANGLE, false),
+            _ => (u.length.clone(), Dim::LENGTH, false),
+        },
+        Role::Dir { .. } => (Unit::dimensionless(), Dim::DIMENSIONLESS, false),
+        Role::Input(i) => match machine.inputs.get(i) {
+            Some(input) => (input.unit.clone(), input.unit.dim, input.absolute),
+            None => (Unit::dimensionless(), Dim::DIMENSIONLESS, false),
+        },
+        Role::Time => (u.time.clone(), Dim::TIME, false),
+        Role::ToolOffset(_) => (u.length.clone(), Dim::LENGTH, false),
+        Role::Observed(k) if k >= 3 => (u.tilt.clone(), Dim::ANGLE, false),
+        Role::Observed(_) | Role::Dl => (u.error.clone(), Dim::LENGTH, false),
+    };
+    let unit = match header {
+        None => default,
+        Some(text) => {
+            let unit = Unit::parse(text).map_err(UnitProblem::Parse)?;
+            if unit.dim != expected {
+                return Err(UnitProblem::Dimension {
+                    unit: unit.name,
+                    found: unit.dim,
+                    expected,
+                });
+            }
+            unit
+        }
+    };
+    // Only an absolute temperature keeps the Celsius offset; everything else is a difference.
+    Ok(Some(if absolute {
+        unit.as_absolute()
+    } else {
+        unit.as_difference()
+    }))
+}
+
+#[cfg(test)]
+mod tests;
+
+#[cfg(test)]
+pub(crate) fn read_text(text: &str, machine: &Machine) -> Result<Observations, ReadError> {
+    read(
+        text.as_bytes(),
+        Path::new("test.csv"),
+        machine,
+        &ReadOptions::default(),
+    )
+}

@@ -2,3 +2,6 @@
 pub mod kinematics;
 pub mod exact;
 pub mod data;
+pub mod interp;
+pub mod lag;
+pub mod states;

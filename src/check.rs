@@ -6,12 +6,41 @@ use std::process::ExitCode;
 
 use kin_compiler::ir::{FrameRef, JointKind, Machine, Task};
 use kin_compiler::{compile, Compiled};
+use kin_runtime::identify::Observe;
 use serde::Serialize;
 
 use crate::render;
 use crate::Format;
 
-pub fn run(path: &Path, format: Format, color: bool) -> ExitCode {
+/// What the identifiability analysis of `kin check` assumes is observed.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum ObserveArg {
+    Position,
+    Pose,
+    Length,
+}
+
+impl From<ObserveArg> for Observe {
+    fn from(o: ObserveArg) -> Observe {
+        match o {
+            ObserveArg::Position => Observe::Position,
+            ObserveArg::Pose => Observe::Pose,
+            ObserveArg::Length => Observe::Length,
+        }
+    }
+}
+
+/// Identifiability on states sampled over the ranges: enough rows to see every coefficient
+/// several times over, with a fixed seed so `kin check` is reproducible.
+fn identify(c: &Compiled, observe: Observe, aligned: bool) -> Vec<kin_compiler::Diagnostic> {
+    let n = (2 * c.machine.coefficients.len()).max(200);
+    match kin_runtime::identify::sampled(&c.machine, observe, aligned, n, 0x6b696e) {
+        Ok(report) => kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned),
+        Err(e) => vec![kin_compiler::Diagnostic::error("E0601", format!("identifiability could not be analysed: {e}"), Default::default())],
+    }
+}
+
+pub fn run(path: &Path, format: Format, color: bool, identifiability: Option<(ObserveArg, bool)>) -> ExitCode {
     let name = path.display().to_string();
     let source = match std::fs::read_to_string(path) {
         Ok(s) => s,
@@ -20,7 +49,14 @@ pub fn run(path: &Path, format: Format, color: bool) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let out = compile(&source);
+    let mut out = compile(&source);
+    if let (Some(c), Some((observe, aligned))) = (&out.compiled, identifiability) {
+        let found = identify(c, observe.into(), aligned);
+        if !found.is_empty() {
+            out.diagnostics.extend(found);
+            out.compiled = None;
+        }
+    }
     let ok = out.compiled.is_some();
     match format {
         Format::Human => {

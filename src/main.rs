@@ -32,19 +32,29 @@ enum Command {
         /// Colour in diagnostics: auto (on a terminal), always or never.
         #[arg(long, default_value = "auto")]
         color: String,
+        /// What the identifiability analysis assumes is observed at poses sampled over the ranges.
+        #[arg(long, value_enum, default_value_t = check::ObserveArg::Position)]
+        observe: check::ObserveArg,
+        /// Assume the measured artifact's placement is unknown (six alignment parameters).
+        #[arg(long)]
+        aligned: bool,
+        /// Skip the identifiability analysis.
+        #[arg(long)]
+        no_identify: bool,
     },
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
-        Command::Check { file, format, color } => {
+        Command::Check { file, format, color, observe, aligned, no_identify } => {
             let color = match color.as_str() {
                 "always" => true,
                 "never" => false,
                 _ => std::io::stderr().is_terminal(),
             };
-            check::run(&file, format, color)
+            let identify = (!no_identify).then_some((observe, aligned));
+            check::run(&file, format, color, identify)
         }
     }
 }

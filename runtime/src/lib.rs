@@ -5,3 +5,4 @@ pub mod data;
 pub mod interp;
 pub mod lag;
 pub mod states;
+pub mod identify;

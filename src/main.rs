@@ -32,8 +32,9 @@ enum Command {
         /// Colour in diagnostics: auto (on a terminal), always or never.
         #[arg(long, default_value = "auto")]
         color: String,
-        /// What the identifiability analysis assumes is observed at poses sampled over the ranges.
-        #[arg(long, value_enum, default_value_t = check::ObserveArg::Position)]
+        /// What the identifiability analysis assumes is observed at poses sampled over the ranges:
+        /// the full tool location by default (what the model describes), or less.
+        #[arg(long, value_enum, default_value_t = check::ObserveArg::Pose)]
         observe: check::ObserveArg,
         /// Assume the measured artifact's placement is unknown (six alignment parameters).
         #[arg(long)]

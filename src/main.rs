@@ -1,7 +1,9 @@
 //! `kin`: check, simulate, evaluate and fit models of multi-axis machines.
 
 mod check;
+mod load;
 mod render;
+mod simulate;
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -43,19 +45,83 @@ enum Command {
         #[arg(long)]
         no_identify: bool,
     },
+    /// Simulate measurements with a known truth: the machine's errors applied exactly
+    /// (finite transforms), written in the measurement-file format.
+    Simulate {
+        machine: PathBuf,
+        /// Parameter values (`params { … }` file); the machine's own `params` block otherwise.
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// Poses to simulate: a point or length file (observed columns are not needed).
+        #[arg(long, conflicts_with = "sample")]
+        poses: Option<PathBuf>,
+        /// Instead of a poses file, sample N poses over the axis ranges.
+        #[arg(long)]
+        sample: Option<usize>,
+        /// Output file (standard output when absent).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Standard deviation of the measurement noise on positions and lengths, e.g. `0.3um`.
+        #[arg(long)]
+        noise: Option<String>,
+        /// Standard deviation of the noise on rotations, e.g. `1urad`.
+        #[arg(long)]
+        noise_tilt: Option<String>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Which error components a point file holds.
+        #[arg(long, value_enum, default_value_t = simulate::Components::Position)]
+        components: simulate::Components,
+        #[arg(long, default_value = "auto")]
+        color: String,
+    },
+    /// Predicted errors of the first-order model at given poses, as a measurement file.
+    Eval {
+        machine: PathBuf,
+        poses: PathBuf,
+        #[arg(long)]
+        params: Option<PathBuf>,
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        #[arg(long, value_enum, default_value_t = simulate::Components::Pose)]
+        components: simulate::Components,
+        #[arg(long, default_value = "auto")]
+        color: String,
+    },
+}
+
+fn use_color(choice: &str) -> bool {
+    match choice {
+        "always" => true,
+        "never" => false,
+        _ => std::io::stderr().is_terminal(),
+    }
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Check { file, format, color, observe, aligned, no_identify } => {
-            let color = match color.as_str() {
-                "always" => true,
-                "never" => false,
-                _ => std::io::stderr().is_terminal(),
-            };
+            let color = use_color(&color);
             let identify = (!no_identify).then_some((observe, aligned));
             check::run(&file, format, color, identify)
+        }
+        Command::Simulate { machine, params, poses, sample, output, noise, noise_tilt, seed, components, color } => {
+            simulate::simulate(simulate::SimulateArgs {
+                machine,
+                params,
+                poses,
+                sample,
+                output,
+                noise,
+                noise_tilt,
+                seed,
+                components,
+                color: use_color(&color),
+            })
+        }
+        Command::Eval { machine, poses, params, output, components, color } => {
+            simulate::eval(&machine, params.as_deref(), &poses, output.as_deref(), components, use_color(&color))
         }
     }
 }

@@ -8,7 +8,13 @@ use serde::Serialize;
 
 /// Renders diagnostics as ariadne reports. Byte indexing, because spans are byte offsets; colour
 /// only when asked (the CLI asks when stderr is a terminal).
-pub fn human(path: &str, source: &str, diagnostics: &[Diagnostic], color: bool, out: &mut impl Write) -> std::io::Result<()> {
+pub fn human(
+    path: &str,
+    source: &str,
+    diagnostics: &[Diagnostic],
+    color: bool,
+    out: &mut impl Write,
+) -> std::io::Result<()> {
     let src = Source::from(source);
     for d in diagnostics {
         let kind = match d.severity {
@@ -17,7 +23,11 @@ pub fn human(path: &str, source: &str, diagnostics: &[Diagnostic], color: bool, 
         };
         let primary = clamp(d.primary_span().start, d.primary_span().end, source.len());
         let mut report = Report::build(kind, (path, primary.clone()))
-            .with_config(Config::default().with_index_type(IndexType::Byte).with_color(color))
+            .with_config(
+                Config::default()
+                    .with_index_type(IndexType::Byte)
+                    .with_color(color),
+            )
             .with_code(d.code)
             .with_message(&d.message);
         for (i, l) in d.labels.iter().enumerate() {
@@ -58,12 +68,21 @@ pub struct JsonDiagnostic<'a> {
     pub column: usize,
 }
 
-pub fn json_diagnostics<'a>(path: &'a str, source: &str, diagnostics: &'a [Diagnostic]) -> Vec<JsonDiagnostic<'a>> {
+pub fn json_diagnostics<'a>(
+    path: &'a str,
+    source: &str,
+    diagnostics: &'a [Diagnostic],
+) -> Vec<JsonDiagnostic<'a>> {
     diagnostics
         .iter()
         .map(|d| {
             let (line, column) = line_column(source, d.primary_span().start);
-            JsonDiagnostic { diagnostic: d, file: path, line, column }
+            JsonDiagnostic {
+                diagnostic: d,
+                file: path,
+                line,
+                column,
+            }
         })
         .collect()
 }
@@ -71,6 +90,11 @@ pub fn json_diagnostics<'a>(path: &'a str, source: &str, diagnostics: &'a [Diagn
 pub fn line_column(source: &str, offset: usize) -> (usize, usize) {
     let before = source.get(..offset.min(source.len())).unwrap_or("");
     let line = before.matches('\n').count() + 1;
-    let column = before.rsplit('\n').next().map(|l| l.chars().count()).unwrap_or(0) + 1;
+    let column = before
+        .rsplit('\n')
+        .next()
+        .map(|l| l.chars().count())
+        .unwrap_or(0)
+        + 1;
     (line, column)
 }

@@ -614,11 +614,7 @@ fn periodic_alphas(g: Power, smooth: i32) -> Vec<f64> {
         return Vec::new();
     };
     // Row j, column k ↔ c' = k + 1.
-    let entry = |j: u32, k: u32| {
-        let c = k + 1;
-        let at_zero = 0.0;
-        falling_factorial(c, j) - at_zero
-    };
+    let entry = |j: u32, k: u32| periodic_matrix_entry(j, k + 1);
     let rhs = |j: u32| g.derivative(j, 1.0) - g.derivative(j, 0.0);
     let mut alpha = vec![0.0; n as usize];
     for j in (0..n).rev() {
@@ -631,6 +627,14 @@ fn periodic_alphas(g: Power, smooth: i32) -> Vec<f64> {
         }
     }
     alpha
+}
+
+/// `M[j][c'] = D^j w^{c'}(1) − D^j w^{c'}(0) = c'!/(c' − j)! − [c' = j]·j!`, the matrix of the
+/// periodic continuity system derived at [`periodic_alphas`]. Zero below the diagonal
+/// `c' = j + 1`, which is what lets that function back-substitute.
+fn periodic_matrix_entry(j: u32, c: u32) -> f64 {
+    let at_zero = if c == j { falling_factorial(j, j) } else { 0.0 };
+    falling_factorial(c, j) - at_zero
 }
 
 /// Legendre polynomials `P1(u)..P_degree(u)` by Bonnet's recurrence
@@ -1286,19 +1290,24 @@ mod tests {
 
     #[test]
     fn periodisation_matrix_is_upper_triangular() {
-        for c in 0..5u32 {
+        // Back substitution in `periodic_alphas` reads only c' ≥ j + 1: the rest must vanish.
+        for c in 0..MAX_DEGREE {
             for j in 0..=c {
-                for k in 0..j {
-                    let col = k + 1;
-                    let at_zero = if col == j {
-                        falling_factorial(j, j)
-                    } else {
-                        0.0
-                    };
-                    assert_eq!(falling_factorial(col, j) - at_zero, 0.0);
+                for col in 1..=j {
+                    assert_eq!(periodic_matrix_entry(j, col), 0.0, "M[{j}][{col}]");
                 }
+                assert_eq!(
+                    periodic_matrix_entry(j, j + 1),
+                    falling_factorial(j + 1, j + 1)
+                );
             }
         }
+        // c = 1: [[1, 1], [0, 2]], not the printed [[1, 1], [1, 2]].
+        let m: Vec<f64> = [(0, 1), (0, 2), (1, 1), (1, 2)]
+            .iter()
+            .map(|&(j, c)| periodic_matrix_entry(j, c))
+            .collect();
+        assert_eq!(m, vec![1.0, 1.0, 0.0, 2.0]);
     }
 
     #[test]

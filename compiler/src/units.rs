@@ -279,8 +279,11 @@ impl Factors {
         )
     }
 
+    /// Judged on what the canonical name shows (zero powers vanish from it), so that a name
+    /// always reads back as the same unit.
     fn is_absolute_celsius(&self) -> bool {
-        matches!(self.0.as_slice(), [(a, 1)] if is_celsius(*a))
+        let mut shown = self.0.iter().filter(|(_, p)| *p != 0);
+        matches!((shown.next(), shown.next()), (Some(&(a, 1)), None) if is_celsius(a))
     }
 
     /// Numerator and denominator are multiplied separately and divided once, so `um/m` gives
@@ -723,6 +726,7 @@ mod tests {
 
         assert_eq!(unit("degC^1").offset, CELSIUS_OFFSET);
         assert_eq!(unit("degC^2").offset, 0.0);
+        assert_eq!(unit("mm^0/degC^-1").offset, CELSIUS_OFFSET);
         assert_eq!(unit("mm").as_absolute(), unit("mm"));
     }
 

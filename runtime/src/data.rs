@@ -33,6 +33,10 @@ pub const MAX_PROBLEMS: usize = 20;
 pub struct ReadOptions {
     /// Column names (without unit) to skip unread instead of rejecting them as unknown.
     pub ignore: Vec<String>,
+    /// Read a file of poses to evaluate a model at: observed columns (`ex` … `erz`, `dL`) become
+    /// optional, and a row may observe nothing (all NaN). A length file is then also recognised
+    /// by its `_1`/`_2` axis columns.
+    pub poses: bool,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -205,7 +209,10 @@ pub enum Problem {
         text: String,
         reason: &'static str,
     },
-    #[error("line {line}, column {column}: unknown column `{name}`{}", hint_text(hint))]
+    #[error(
+        "line {line}, column {column}: unknown column `{name}`{}",
+        hint_text(hint)
+    )]
     UnknownColumn {
         line: usize,
         column: usize,
@@ -259,7 +266,10 @@ pub enum Problem {
         found: usize,
         expected: usize,
     },
-    #[error("line {line}, column {column} (`{name}`): `{text}`: expected {expected}")]
+    #[error(
+        "line {line}, column {column} (`{name}`): {}: expected {expected}",
+        quoted(text)
+    )]
     BadCell {
         line: usize,
         column: usize,
@@ -298,6 +308,14 @@ pub enum Problem {
         unit: String,
         run: Option<String>,
     },
+}
+
+fn quoted(text: &str) -> String {
+    if text.is_empty() {
+        "empty cell".to_string()
+    } else {
+        format!("`{text}`")
+    }
 }
 
 fn hint_text(hint: &Option<String>) -> String {

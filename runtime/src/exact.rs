@@ -277,3 +277,171 @@ fn rigid_inverse(t: &Matrix4<f64>) -> Matrix4<f64> {
     inv.fixed_view_mut::<3, 1>(0, 3).copy_from(&p);
     inv
 }
+
+#[cfg(test)]
+mod tests {
+    use kin_compiler::ir::{FrameKind, JointKind, Task};
+    use nalgebra::{Matrix3, Rotation3, Vector3, Vector6};
+    use rand::rngs::StdRng;
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+    use crate::kinematics::testing::*;
+
+    const ZERO: [f64; 3] = [0.0; 3];
+
+    fn pose(q: &[f64]) -> Pose<'_> {
+        Pose {
+            q,
+            tool: 0,
+            tool_offset: None,
+        }
+    }
+
+    #[test]
+    fn rotation_vector_inverts_the_exponential_at_every_angle() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let angles = [
+            0.0,
+            1e-12,
+            1e-7,
+            1e-4,
+            0.3,
+            2.0,
+            3.0,
+            std::f64::consts::PI - 1e-9,
+        ];
+        for angle in angles {
+            for _ in 0..50 {
+                let axis = Vector3::new(
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                )
+                .normalize();
+                let r = Rotation3::from_scaled_axis(axis * angle).into_inner();
+                let got = rotation_vector(&r);
+                assert!(
+                    (got - axis * angle).amax() < 1e-9 * (1.0 + angle),
+                    "{angle}: {got} vs {}",
+                    axis * angle
+                );
+            }
+        }
+        assert_eq!(rotation_vector(&Matrix3::identity()), Vector3::zeros());
+    }
+
+    #[test]
+    fn elementary_rotations_are_right_handed() {
+        let quarter = std::f64::consts::FRAC_PI_2;
+        // Rot_z(90°) takes x to y, Rot_x takes y to z, Rot_y takes z to x.
+        for (axis, from, to) in [(2, 0, 1), (0, 1, 2), (1, 2, 0)] {
+            let r = elementary_rotation(axis, quarter);
+            assert!((r[(to, from)] - 1.0).abs() < 1e-15);
+        }
+        // The joint rotation about a base axis equals the elementary one.
+        for (axis, dir) in [
+            (0, [1.0, 0.0, 0.0]),
+            (1, [0.0, 1.0, 0.0]),
+            (2, [0.0, 0.0, 1.0]),
+        ] {
+            let j = joint_motion(JointKind::Revolute, dir, 0.7);
+            assert!((j - elementary_rotation(axis, 0.7)).amax() < 1e-15);
+        }
+    }
+
+    #[test]
+    fn large_rz_error_is_applied_exactly() {
+        // A 0.1 rad rz of the X carriage swings the probe at (0, l, 0) on a circle:
+        // (−l sin rz, l cos rz − l, 0), and turns it by exactly rz.
+        let l = 0.25;
+        let m = machine(
+            Task::Position,
+            vec![axis("X", JointKind::Prismatic, [1.0, 0.0, 0.0])],
+            vec![element(0, FrameKind::Moving, shape(ZERO, ZERO))],
+            vec![],
+            vec![tool("t", shape([0.0, l, 0.0], ZERO))],
+            shape(ZERO, ZERO),
+        );
+        let rz = 0.1;
+        let mut errors = FrameErrors::zeros(&m);
+        errors.tool_chain[0][5] = rz;
+        let e = positioning_error(&m, &pose(&[0.4]), &errors).unwrap();
+        let expected = Vector6::new(-l * rz.sin(), l * rz.cos() - l, 0.0, 0.0, 0.0, rz);
+        assert!((e - expected).amax() < 1e-15, "{e}");
+    }
+
+    #[test]
+    fn error_transform_translates_before_rotating() {
+        // Eq. 2.8: Trans then rotations, so the translation is along the *unrotated* axes and a
+        // tool offset from the frame is turned by the rotation.
+        let m = machine(
+            Task::Position,
+            vec![],
+            vec![],
+            vec![],
+            vec![tool("t", shape([0.0, 0.0, 0.0], ZERO))],
+            shape(ZERO, ZERO),
+        );
+        let mut errors = FrameErrors::zeros(&m);
+        errors.tool_end = [0.1, 0.0, 0.0, 0.0, 0.0, std::f64::consts::FRAC_PI_2];
+        let t = actual_transform(&m, &pose(&[]), &errors).unwrap();
+        assert!((t.fixed_view::<3, 1>(0, 3) - Vector3::new(0.1, 0.0, 0.0)).amax() < 1e-15);
+        assert!((t[(1, 0)] - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn fixed_frame_carries_its_joint_into_the_next_step() {
+        // Table rule: after a fixed frame, T(k→k+1) = J_k·S_{k+1}·J_{k+1}. A fixed revolute B
+        // about y at the base followed by a moving Z slide at (0, 0, 0.5): Z's shape offset and
+        // its travel both turn with B.
+        let m = machine(
+            Task::Position,
+            vec![
+                axis("B", JointKind::Revolute, [0.0, 1.0, 0.0]),
+                axis("Z", JointKind::Prismatic, [0.0, 0.0, 1.0]),
+            ],
+            vec![
+                element(0, FrameKind::Fixed, shape(ZERO, ZERO)),
+                element(1, FrameKind::Moving, shape([0.0, 0.0, 0.5], ZERO)),
+            ],
+            vec![],
+            vec![tool("t", shape(ZERO, ZERO))],
+            shape(ZERO, ZERO),
+        );
+        let b = 0.4;
+        let t = nominal_transform(&m, &pose(&[b, 0.1])).unwrap();
+        let expected = Vector3::new(b.sin(), 0.0, b.cos()) * 0.6;
+        assert!((t.fixed_view::<3, 1>(0, 3) - expected).amax() < 1e-15);
+
+        // An error of the fixed B frame acts before J_B: a tz error moves the tool along base z,
+        // not along the turned z.
+        let mut errors = FrameErrors::zeros(&m);
+        errors.tool_chain[0][2] = 1e-3;
+        let e = positioning_error(&m, &pose(&[b, 0.1]), &errors).unwrap();
+        assert!((e - Vector6::new(0.0, 0.0, 1e-3, 0.0, 0.0, 0.0)).amax() < 1e-15);
+    }
+
+    #[test]
+    fn exact_length_error_of_a_scale_error() {
+        // A uniform scale error s of a single X slide (X.tx = s·x) stretches every length
+        // along x by exactly s·L.
+        let m = machine(
+            Task::Measure,
+            vec![axis("X", JointKind::Prismatic, [1.0, 0.0, 0.0])],
+            vec![element(0, FrameKind::Moving, shape(ZERO, ZERO))],
+            vec![],
+            vec![tool("t", shape([0.0, 0.1, 0.0], ZERO))],
+            shape(ZERO, ZERO),
+        );
+        let s = 1e-4;
+        let errs = |x: f64| {
+            let mut e = FrameErrors::zeros(&m);
+            e.tool_chain[0][0] = s * x;
+            e
+        };
+        let dl = length_error(&m, &pose(&[-0.2]), &errs(-0.2), &pose(&[0.3]), &errs(0.3)).unwrap();
+        assert!((dl - s * 0.5).abs() < 1e-15);
+        assert!((task_error(m.task, &Vector6::repeat(dl))[0] + s * 0.5).abs() < 1e-15);
+    }
+}

@@ -6,3 +6,4 @@ pub mod interp;
 pub mod lag;
 pub mod states;
 pub mod identify;
+pub mod simulate;

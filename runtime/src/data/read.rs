@@ -232,6 +232,8 @@ impl Problems {
 struct Reader<'m> {
     machine: &'m Machine,
     kind: Kind,
+    /// Observations optional: the file only gives poses to evaluate a model at.
+    poses: bool,
     columns: Vec<Column>,
     problems: Problems,
     lines: Vec<usize>,
@@ -296,8 +298,17 @@ impl<'m> Reader<'m> {
                 .collect()
         };
         let ignored = |name: &str| options.ignore.iter().any(|i| i == name);
-        let is_dl = |text: &str| split_name(text).is_ok_and(|(n, _)| n == "dL");
-        let kind = if !ignored("dL") && raw.iter().any(|(_, t)| is_dl(t)) {
+        let name_of = |text: &str| split_name(text).map_or(String::new(), |(n, _)| n.to_string());
+        let names: Vec<String> = raw.iter().map(|(_, t)| name_of(t)).collect();
+        let has_dl = !ignored("dL") && names.iter().any(|n| n == "dL");
+        // Without observations a length file is known by its `_1`/`_2` axis columns.
+        let has_ends = || {
+            machine.axes.iter().any(|a| {
+                let ends = [format!("{}_1", a.name), format!("{}_2", a.name)];
+                names.iter().any(|n| ends.contains(n) && !ignored(n))
+            })
+        };
+        let kind = if has_dl || (options.poses && has_ends()) {
             Kind::Lengths
         } else {
             Kind::Points
@@ -305,6 +316,9 @@ impl<'m> Reader<'m> {
         let known = known_columns(machine, kind);
         let mut columns = Vec::with_capacity(raw.len());
         let mut first_seen: HashMap<String, usize> = HashMap::new();
+        // Roles whose column is there, readable or not: a column with a bad unit is reported
+        // once, as such, not again as missing.
+        let mut present = Vec::new();
         for &(column, text) in &raw {
             let skip = |name: String| Column {
                 name,
@@ -360,6 +374,7 @@ impl<'m> Reader<'m> {
                 columns.push(skip(name.to_string()));
                 continue;
             };
+            present.push(role);
             let unit = match column_unit(machine, role, unit_text) {
                 Ok(unit) => unit,
                 Err(e) => {
@@ -385,7 +400,7 @@ impl<'m> Reader<'m> {
                 store,
             });
         }
-        let has = |role: Role| columns.iter().any(|c| c.role == Some(role));
+        let has = |role: Role| present.contains(&role);
         let mut missing = Vec::new();
         let ends = if kind == Kind::Lengths { 2 } else { 1 };
         for end in 0..ends {
@@ -395,13 +410,16 @@ impl<'m> Reader<'m> {
                 }
             }
         }
-        if kind == Kind::Lengths && !has(Role::Dl) {
+        if kind == Kind::Lengths && !has(Role::Dl) && !options.poses {
             missing.push("dL".to_string());
         }
         if !missing.is_empty() {
             problems.push(Problem::MissingColumns { names: missing });
         }
-        if kind == Kind::Points && !(0..OBSERVED.len()).any(|k| has(Role::Observed(k))) {
+        if kind == Kind::Points
+            && !options.poses
+            && !(0..OBSERVED.len()).any(|k| has(Role::Observed(k)))
+        {
             problems.push(Problem::NoObservedColumn);
         }
         let offsets: Vec<bool> = (0..3).map(|k| has(Role::ToolOffset(k))).collect();
@@ -414,10 +432,11 @@ impl<'m> Reader<'m> {
                 .collect();
             problems.push(Problem::IncompleteToolColumns { missing });
         }
-        let has_run = has(Role::Run);
+        let has_run = columns.iter().any(|c| c.role == Some(Role::Run));
         Reader {
             machine,
             kind,
+            poses: options.poses,
             columns,
             problems,
             lines: Vec::new(),
@@ -439,6 +458,7 @@ impl<'m> Reader<'m> {
             });
             return;
         }
+        let poses = self.poses;
         let Reader {
             machine,
             columns,
@@ -474,7 +494,11 @@ impl<'m> Reader<'m> {
                 }
                 (Store::Numbers(values), _) => {
                     let parsed = number(line, cell).map(|v| v.map(|v| v * col.scale + col.offset));
-                    let required = matches!(role, Role::Axis { .. } | Role::Time | Role::Dl);
+                    let required = match role {
+                        Role::Axis { .. } | Role::Time => true,
+                        Role::Dl => !poses,
+                        _ => false,
+                    };
                     let v = match parsed {
                         Ok(Some(v)) if v.is_finite() => v,
                         Ok(None) if !required => f64::NAN,
@@ -544,7 +568,7 @@ impl<'m> Reader<'m> {
                 (Store::Skip, _) => {}
             }
         }
-        if observed_columns && !observed && self.kind == Kind::Points {
+        if observed_columns && !observed && self.kind == Kind::Points && !self.poses {
             let columns = self
                 .columns
                 .iter()
@@ -586,9 +610,13 @@ impl<'m> Reader<'m> {
         match *last {
             Some((previous, previous_line)) if t < previous => {
                 let col = self.columns.iter().find(|c| c.role == Some(Role::Time));
-                let (scale, offset, unit) =
-                    col.map_or((1.0, 0.0, "s".to_string()), |c| (c.scale, c.offset, c.unit.clone()));
-                let label = self.has_run.then(|| self.runs.labels.get(slot).cloned()).flatten();
+                let (scale, offset, unit) = col.map_or((1.0, 0.0, "s".to_string()), |c| {
+                    (c.scale, c.offset, c.unit.clone())
+                });
+                let label = self
+                    .has_run
+                    .then(|| self.runs.labels.get(slot).cloned())
+                    .flatten();
                 self.problems.push(Problem::TimeOrder {
                     line: line_no,
                     previous_line,
@@ -629,7 +657,8 @@ impl<'m> Reader<'m> {
         };
         let mut offsets: [Option<Vec<f64>>; 3] = Default::default();
         let mut observed: [Option<Vec<f64>>; 6] = Default::default();
-        let mut dl = Vec::new();
+        // A poses-only length file may have no `dL`: nothing observed.
+        let mut dl = vec![f64::NAN; n];
         for col in &mut self.columns {
             let Some(role) = col.role else { continue };
             match (std::mem::replace(&mut col.store, Store::Skip), role) {
@@ -761,10 +790,20 @@ fn known_columns(machine: &Machine, kind: Kind) -> HashMap<String, Role> {
         ("tool", Role::Tool),
         ("artifact", Role::Artifact),
     ];
-    fixed.extend(TOOL_OFFSET.iter().enumerate().map(|(k, n)| (*n, Role::ToolOffset(k))));
+    fixed.extend(
+        TOOL_OFFSET
+            .iter()
+            .enumerate()
+            .map(|(k, n)| (*n, Role::ToolOffset(k))),
+    );
     match kind {
         Kind::Points => {
-            fixed.extend(OBSERVED.iter().enumerate().map(|(k, n)| (*n, Role::Observed(k))));
+            fixed.extend(
+                OBSERVED
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| (*n, Role::Observed(k))),
+            );
         }
         Kind::Lengths => fixed.push(("dL", Role::Dl)),
     }
@@ -775,7 +814,12 @@ fn known_columns(machine: &Machine, kind: Kind) -> HashMap<String, Role> {
 }
 
 /// A likely reason for an unknown column: the other file kind's naming, or a near miss.
-fn hint(name: &str, machine: &Machine, kind: Kind, known: &HashMap<String, Role>) -> Option<String> {
+fn hint(
+    name: &str,
+    machine: &Machine,
+    kind: Kind,
+    known: &HashMap<String, Role>,
+) -> Option<String> {
     let axis_named = |n: &str| machine.axes.iter().find(|a| a.name == n);
     match kind {
         Kind::Lengths => {
@@ -792,9 +836,7 @@ fn hint(name: &str, machine: &Machine, kind: Kind, known: &HashMap<String, Role>
         }
         Kind::Points => {
             let base = name.strip_prefix("dir_").unwrap_or(name);
-            let stem = base
-                .strip_suffix("_1")
-                .or_else(|| base.strip_suffix("_2"));
+            let stem = base.strip_suffix("_1").or_else(|| base.strip_suffix("_2"));
             if stem.and_then(axis_named).is_some() {
                 return Some(format!(
                     "`{name}` belongs in a length file, which has a `dL` column"
@@ -829,7 +871,9 @@ fn edit_distance(a: &str, b: &str) -> usize {
             let above = row.get(j + 1).copied().unwrap_or(usize::MAX);
             let left = row.get(j).copied().unwrap_or(usize::MAX);
             let cost = prev + usize::from(ca != cb);
-            let value = cost.min(above.saturating_add(1)).min(left.saturating_add(1));
+            let value = cost
+                .min(above.saturating_add(1))
+                .min(left.saturating_add(1));
             prev = above;
             if let Some(slot) = row.get_mut(j + 1) {
                 *slot = value;
@@ -843,7 +887,11 @@ fn edit_distance(a: &str, b: &str) -> usize {
 enum UnitProblem {
     Parse(UnitError),
     NotAllowed,
-    Dimension { unit: String, found: Dim, expected: Dim },
+    Dimension {
+        unit: String,
+        found: Dim,
+        expected: Dim,
+    },
 }
 
 impl UnitProblem {

@@ -192,7 +192,10 @@ fn push_number(buf: &mut String, v: f64) {
 }
 
 fn units(machine: &Machine, options: &WriteOptions) -> Result<DisplayUnits, WriteError> {
-    let units = options.units.clone().unwrap_or_else(|| machine.units.clone());
+    let units = options
+        .units
+        .clone()
+        .unwrap_or_else(|| machine.units.clone());
     let expect = [
         ("positions", &units.length, Dim::LENGTH),
         ("angles", &units.angle, Dim::ANGLE),
@@ -368,8 +371,7 @@ fn check(columns: &[Column], n: usize) -> Result<(), WriteError> {
                 }
             }
             Cells::Tool(tools, names) => {
-                if let Some((row, &t)) = tools.iter().enumerate().find(|(_, &t)| t >= names.len())
-                {
+                if let Some((row, &t)) = tools.iter().enumerate().find(|(_, &t)| t >= names.len()) {
                     return Err(WriteError::Tool {
                         row,
                         index: t,
@@ -389,8 +391,7 @@ fn check(columns: &[Column], n: usize) -> Result<(), WriteError> {
                         .filter_map(|(r, id)| id.map(|id| (r, id)))
                         .collect(),
                 };
-                if let Some(&(row, id)) = ids.iter().find(|(_, id)| *id as usize >= labels.len())
-                {
+                if let Some(&(row, id)) = ids.iter().find(|(_, id)| *id as usize >= labels.len()) {
                     return Err(WriteError::LabelId {
                         row,
                         column: column.name.clone(),
@@ -425,11 +426,11 @@ fn check(columns: &[Column], n: usize) -> Result<(), WriteError> {
 /// A label must read back as itself: the reader splits on commas and lines, trims cells, takes
 /// an empty cell for "none" and a line starting with `#` for a comment.
 fn check_label(column: &str, label: &str, first_column: bool) -> Result<(), WriteError> {
-    let ok = !label.is_empty()
-        && label.trim() == label
-        && !label.contains([',', '\n', '\r'])
-        && !(first_column && label.starts_with('#'));
-    if ok {
+    let unreadable = label.is_empty()
+        || label.trim() != label
+        || label.contains([',', '\n', '\r'])
+        || (first_column && label.starts_with('#'));
+    if !unreadable {
         Ok(())
     } else {
         Err(WriteError::Label {

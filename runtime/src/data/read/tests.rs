@@ -60,8 +60,10 @@ fn fixture_points_convert_to_si() {
     let quarter = std::f64::consts::FRAC_PI_2;
     assert_column(&data.pose.axes[3], &[quarter, quarter, 0.0]);
     // An absolute temperature in degC by default: kelvin with the offset.
-    let t = data.rows.inputs[0].as_ref().map(Vec::as_slice);
-    assert_column(t.unwrap_or_default(), &[293.15, 293.65, 294.15]);
+    assert_column(
+        data.rows.inputs[0].as_deref().unwrap_or_default(),
+        &[293.15, 293.65, 294.15],
+    );
     assert!(data.rows.inputs[1].is_none() && data.rows.inputs[2].is_none());
     let [ex, ey, ez, erx, ery, erz] = &data.observed;
     assert_column(ex.as_deref().unwrap_or_default(), &[1.5e-6, -0.5e-6, 0.0]);
@@ -70,10 +72,16 @@ fn fixture_points_convert_to_si() {
     assert!(erx.is_none() && ery.is_none());
     let arcsec = std::f64::consts::PI / 648_000.0;
     assert_column(erz.as_deref().unwrap_or_default(), &[NAN, arcsec, 0.0]);
-    assert_column(data.rows.time.as_deref().unwrap_or_default(), &[0.0, 90.0, 30.0]);
+    assert_column(
+        data.rows.time.as_deref().unwrap_or_default(),
+        &[0.0, 90.0, 30.0],
+    );
     let run = data.rows.run.as_ref();
     assert_eq!(run.map(|r| r.of_row.clone()), Some(vec![0, 0, 1]));
-    assert_eq!(run.map(|r| r.labels.clone()), Some(vec!["a".into(), "b".into()]));
+    assert_eq!(
+        run.map(|r| r.labels.clone()),
+        Some(vec!["a".into(), "b".into()])
+    );
     assert_eq!(data.rows.tool, vec![0, 0, 0]);
     assert!(data.rows.tool_offset.is_none() && data.rows.artifact.is_none());
     assert!(close(data.value(Var::Axis(0), 1).unwrap_or(NAN), 0.1));
@@ -95,8 +103,14 @@ fn fixture_lengths() {
     assert_column(&data.poses[0].axes[0], &[0.0, 0.15, 0.0]);
     assert_column(&data.poses[1].axes[1], &[0.0, 0.15, 0.0]);
     assert_column(&data.dl, &[0.8e-6, -1.2e-6, 0.1e-6]);
-    assert_column(data.poses[0].dir[0].as_deref().unwrap_or_default(), &[1.0, -1.0, 1.0]);
-    assert_column(data.poses[1].dir[0].as_deref().unwrap_or_default(), &[-1.0, 1.0, 1.0]);
+    assert_column(
+        data.poses[0].dir[0].as_deref().unwrap_or_default(),
+        &[1.0, -1.0, 1.0],
+    );
+    assert_column(
+        data.poses[1].dir[0].as_deref().unwrap_or_default(),
+        &[-1.0, 1.0, 1.0],
+    );
     assert!(data.poses[0].dir[1].is_none());
     assert_eq!(data.rows.tool, vec![1, 1, 0]);
     assert_eq!(data.rows.artifact_of(0), Some(0));
@@ -169,7 +183,14 @@ fn fixture_with_many_problems_reports_each_located() {
         text.contains("line 6, column 12 (`tool`): unknown tool `p3`; declared tools: probe, star"),
         "{text}"
     );
-    assert!(text.contains("line 4, column 1 (`X`): `nan`: expected a number in mm"), "{text}");
+    assert!(
+        text.contains("line 4, column 1 (`X`): `nan`: expected a number in mm"),
+        "{text}"
+    );
+    assert!(
+        text.contains("line 10, column 18 (`run`): empty cell: expected a run label"),
+        "{text}"
+    );
 }
 
 #[test]
@@ -206,8 +227,14 @@ fn tool_offsets_and_artifacts() {
     assert_eq!(p.rows.tool_offset_of(0), Some([1e-3, 2e-3, 3e-6]));
     assert_eq!(p.rows.tool_offset_of(1), None);
     let artifact = p.rows.artifact.as_ref();
-    assert_eq!(artifact.map(|a| a.of_row.clone()), Some(vec![Some(0), None, Some(0)]));
-    assert_eq!(artifact.map(|a| a.labels.clone()), Some(vec!["plate".to_string()]));
+    assert_eq!(
+        artifact.map(|a| a.of_row.clone()),
+        Some(vec![Some(0), None, Some(0)])
+    );
+    assert_eq!(
+        artifact.map(|a| a.labels.clone()),
+        Some(vec!["plate".to_string()])
+    );
 }
 
 #[test]
@@ -245,7 +272,19 @@ fn direction_spellings() {
 
 #[test]
 fn non_numbers_are_refused() {
-    for bad in ["nan", "NaN", "inf", "-infinity", "1e999", "1,5", "0x10", "1.2.3", "--1", "1 2", ""] {
+    for bad in [
+        "nan",
+        "NaN",
+        "inf",
+        "-infinity",
+        "1e999",
+        "1,5",
+        "0x10",
+        "1.2.3",
+        "--1",
+        "1 2",
+        "",
+    ] {
         let text = format!("X,Y,Z,C,ex\n{bad},0,0,0,1\n");
         let ps = problems(&text);
         assert_eq!(ps.len(), 1, "{bad}: {ps:?}");
@@ -275,7 +314,10 @@ fn header_problems() {
             names: vec!["Z".into(), "C".into()]
         }]
     );
-    assert_eq!(problems("X,Y,Z,C\n0,0,0,0\n"), vec![Problem::NoObservedColumn]);
+    assert_eq!(
+        problems("X,Y,Z,C\n0,0,0,0\n"),
+        vec![Problem::NoObservedColumn]
+    );
     assert_eq!(
         problems("X,Y,Z,C,ex,wobble\n0,0,0,0,1,2\n"),
         vec![Problem::UnknownColumn {
@@ -324,7 +366,7 @@ fn header_problems() {
             },
             Problem::WrongDimension {
                 line: 1,
-                column: 14,
+                column: 12,
                 name: "C".into(),
                 unit: "mm".into(),
                 found: "length".into(),
@@ -332,7 +374,7 @@ fn header_problems() {
             },
             Problem::WrongDimension {
                 line: 1,
-                column: 20,
+                column: 18,
                 name: "ex".into(),
                 unit: "urad".into(),
                 found: "angle".into(),
@@ -340,7 +382,7 @@ fn header_problems() {
             },
             Problem::WrongDimension {
                 line: 1,
-                column: 30,
+                column: 27,
                 name: "erx".into(),
                 unit: "um/m".into(),
                 found: "dimensionless".into(),
@@ -420,7 +462,14 @@ fn row_problems() {
 fn columns_count_characters_not_bytes() {
     let ps = problems("X,Y,Z,C,artifact,ex\n0,0,0,0,µµµ,oops\n");
     assert!(
-        matches!(ps.as_slice(), [Problem::BadCell { column: 13, line: 2, .. }]),
+        matches!(
+            ps.as_slice(),
+            [Problem::BadCell {
+                column: 13,
+                line: 2,
+                ..
+            }]
+        ),
         "{ps:?}"
     );
 }
@@ -456,13 +505,16 @@ fn length_files() {
         names: vec!["X_1".into()]
     }));
     let ps = problems("X,Y,Z,C,X_1,ex\n0,0,0,0,1,1\n");
-    assert!(matches!(ps.as_slice(), [Problem::UnknownColumn { hint: Some(h), .. }] if h.contains("length file")));
+    assert!(
+        matches!(ps.as_slice(), [Problem::UnknownColumn { hint: Some(h), .. }] if h.contains("length file"))
+    );
 }
 
 #[test]
 fn ignored_columns_are_not_read() {
     let options = ReadOptions {
         ignore: vec!["operator".into(), "note".into()],
+        ..ReadOptions::default()
     };
     let text = "X,Y,Z,C,operator,ex,note,note\n0,0,0,0,Ann,1,x,y\n";
     let Ok(Observations::Points(p)) = read(text.as_bytes(), Path::new("t"), &machine(), &options)
@@ -473,9 +525,47 @@ fn ignored_columns_are_not_read() {
     // An ignored dL makes it a point file again.
     let options = ReadOptions {
         ignore: vec!["dL".into()],
+        ..ReadOptions::default()
     };
     let ps = problems_with("X,Y,Z,C,dL\n0,0,0,0,1\n", &options);
     assert_eq!(ps, vec![Problem::NoObservedColumn]);
+}
+
+#[test]
+fn pose_files_need_no_observations() {
+    let options = ReadOptions {
+        poses: true,
+        ..ReadOptions::default()
+    };
+    let read_poses = |text: &str| read(text.as_bytes(), Path::new("p"), &machine(), &options);
+    let Ok(Observations::Points(p)) = read_poses("X,Y,Z,C\n1,2,3,4\n") else {
+        panic!()
+    };
+    assert_eq!(p.len(), 1);
+    assert!(p.observed.iter().all(Option::is_none));
+    let Ok(Observations::Points(p)) = read_poses("X,Y,Z,C,ex\n1,2,3,4,\n") else {
+        panic!()
+    };
+    assert!(p.observed[0].as_ref().is_some_and(|v| v[0].is_nan()));
+    let text = "X_1,Y_1,Z_1,C_1,X_2,Y_2,Z_2,C_2\n0,0,0,0,1,1,1,0\n";
+    let Ok(Observations::Lengths(l)) = read_poses(text) else {
+        panic!()
+    };
+    assert!(l.dl.len() == 1 && l.dl[0].is_nan());
+    let text = "X_1,Y_1,Z_1,C_1,X_2,Y_2,Z_2,C_2,dL\n0,0,0,0,1,1,1,0,\n";
+    assert!(matches!(read_poses(text), Ok(Observations::Lengths(_))));
+    // Axes are still required, and the same text is no measurement file.
+    let ps = problems_with("X,Y,Z\n1,2,3\n", &options);
+    assert_eq!(
+        ps,
+        vec![Problem::MissingColumns {
+            names: vec!["C".into()]
+        }]
+    );
+    assert_eq!(
+        problems("X,Y,Z,C\n1,2,3,4\n"),
+        vec![Problem::NoObservedColumn]
+    );
 }
 
 #[test]
@@ -512,7 +602,11 @@ fn problems_are_capped() {
 
 #[test]
 fn io_errors_name_the_path() {
-    let err = read_file(Path::new("/nonexistent/x.csv"), &machine(), &ReadOptions::default());
+    let err = read_file(
+        Path::new("/nonexistent/x.csv"),
+        &machine(),
+        &ReadOptions::default(),
+    );
     assert!(matches!(&err, Err(ReadError::Io { path, .. }) if path.ends_with("x.csv")));
 }
 

@@ -1,0 +1,209 @@
+//! Measurement files from a model with known β: exact simulation (for data with a known truth)
+//! and first-order prediction (`kin eval`).
+//!
+//! Simulation evaluates the parametric errors of every frame and applies them as finite
+//! transforms ([`crate::exact`]): it shares no formula with the F-matrix code, so fitting
+//! simulated data tests the first-order model against an independent truth.
+
+use kin_compiler::ir::Machine;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+use thiserror::Error;
+
+use crate::data::{LengthData, Observations, PointData, Pose as DataPose, Rows};
+use crate::exact;
+use crate::interp::{EvalError, Interpreter, State};
+use crate::kinematics::{FrameErrors, KinematicsError, Pose};
+use crate::states::{StateError, States};
+
+#[derive(Debug, Error)]
+pub enum SimulateError {
+    #[error(transparent)]
+    State(#[from] StateError),
+    #[error("line {line}: {source}")]
+    Eval {
+        line: usize,
+        #[source]
+        source: EvalError,
+    },
+    #[error("line {line}: {source}")]
+    Kinematics {
+        line: usize,
+        #[source]
+        source: KinematicsError,
+    },
+    #[error("noise must be a finite, non-negative standard deviation")]
+    Noise,
+}
+
+/// Which error components a simulated point file holds, and the measurement noise.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// `ex ey ez erx ery erz`: which to write.
+    pub observe: [bool; 6],
+    /// Standard deviation of the noise on positions and lengths (m) and on rotations (rad).
+    pub noise: f64,
+    pub noise_tilt: f64,
+    pub seed: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { observe: [true, true, true, false, false, false], noise: 0.0, noise_tilt: 0.0, seed: 0 }
+    }
+}
+
+/// How an observed value is computed from the model.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Engine {
+    Exact,
+    FirstOrder,
+}
+
+/// Simulates measurements at the poses of `poses` (a poses file: the rows of a point or length
+/// file, observed columns ignored) for coefficients `beta`, with the exact transforms.
+pub fn simulate(m: &Machine, beta: &[f64], poses: &Observations, options: &Options) -> Result<Observations, SimulateError> {
+    run(m, beta, poses, options, Engine::Exact)
+}
+
+/// The first-order model's prediction at the poses of `poses`, without noise (`kin eval`).
+pub fn predict(m: &Machine, beta: &[f64], poses: &Observations, observe: [bool; 6]) -> Result<Observations, SimulateError> {
+    let options = Options { observe, ..Options::default() };
+    run(m, beta, poses, &options, Engine::FirstOrder)
+}
+
+fn run(m: &Machine, beta: &[f64], poses: &Observations, options: &Options, engine: Engine) -> Result<Observations, SimulateError> {
+    if !(options.noise >= 0.0 && options.noise.is_finite() && options.noise_tilt >= 0.0 && options.noise_tilt.is_finite()) {
+        return Err(SimulateError::Noise);
+    }
+    let mut rng = rand::rngs::StdRng::seed_from_u64(options.seed);
+    let mut gauss = |sigma: f64| -> f64 {
+        match Normal::new(0.0, sigma) {
+            Ok(d) if sigma > 0.0 => d.sample(&mut rng),
+            _ => 0.0,
+        }
+    };
+    let mut model = Model::new(m, beta, engine)?;
+    match poses {
+        Observations::Points(p) => {
+            let states = States::new(m, &p.rows, &p.pose, "")?;
+            let mut observed: [Option<Vec<f64>>; 6] = Default::default();
+            for (k, slot) in observed.iter_mut().enumerate() {
+                if options.observe.get(k).copied().unwrap_or(false) {
+                    *slot = Some(Vec::with_capacity(states.len()));
+                }
+            }
+            for r in 0..states.len() {
+                let line = states.line.get(r).copied().unwrap_or(0);
+                let e = model.error(&states.get(r), line)?;
+                for (k, col) in observed.iter_mut().enumerate() {
+                    if let Some(col) = col {
+                        let sigma = if k < 3 { options.noise } else { options.noise_tilt };
+                        col.push(e.get(k).copied().unwrap_or(0.0) + gauss(sigma));
+                    }
+                }
+            }
+            Ok(Observations::Points(PointData { rows: p.rows.clone(), pose: p.pose.clone(), observed }))
+        }
+        Observations::Lengths(l) => {
+            let [p1, p2] = &l.poses;
+            let s1 = States::new(m, &l.rows, p1, "_1")?;
+            let s2 = States::new(m, &l.rows, p2, "_2")?;
+            let mut dl = Vec::with_capacity(s1.len());
+            for r in 0..s1.len() {
+                let line = s1.line.get(r).copied().unwrap_or(0);
+                dl.push(model.length(&s1.get(r), &s2.get(r), line)? + gauss(options.noise));
+            }
+            Ok(Observations::Lengths(LengthData { rows: l.rows.clone(), poses: l.poses.clone(), dl }))
+        }
+    }
+}
+
+/// One engine with its scratch.
+struct Model<'m> {
+    m: &'m Machine,
+    beta: &'m [f64],
+    it: Interpreter<'m>,
+    engine: Engine,
+    e1: FrameErrors,
+    e2: FrameErrors,
+    row: Vec<f64>,
+}
+
+impl<'m> Model<'m> {
+    fn new(m: &'m Machine, beta: &'m [f64], engine: Engine) -> Result<Self, SimulateError> {
+        let it = Interpreter::new(m).map_err(|source| SimulateError::Eval { line: 0, source })?;
+        Ok(Model { m, beta, it, engine, e1: FrameErrors::zeros(m), e2: FrameErrors::zeros(m), row: vec![0.0; m.coefficients.len()] })
+    }
+
+    /// The reported error (task sign) at one state.
+    fn error(&mut self, s: &State, line: usize) -> Result<[f64; 6], SimulateError> {
+        let eval = |source| SimulateError::Eval { line, source };
+        match self.engine {
+            Engine::FirstOrder => self.it.error(s, self.beta).map_err(eval),
+            Engine::Exact => {
+                self.it.frame_errors(s, self.beta, &mut self.e1).map_err(eval)?;
+                let pose = Pose { q: s.q, tool: s.tool, tool_offset: s.tool_offset };
+                let e = exact::positioning_error(self.m, &pose, &self.e1).map_err(|source| SimulateError::Kinematics { line, source })?;
+                Ok((e * self.m.task.sign()).into())
+            }
+        }
+    }
+
+    /// The reported length error between two states.
+    fn length(&mut self, a: &State, b: &State, line: usize) -> Result<f64, SimulateError> {
+        let eval = |source| SimulateError::Eval { line, source };
+        match self.engine {
+            Engine::FirstOrder => self.it.length_and_row(a, b, self.beta, &mut self.row).map_err(eval),
+            Engine::Exact => {
+                self.it.frame_errors(a, self.beta, &mut self.e1).map_err(eval)?;
+                self.it.frame_errors(b, self.beta, &mut self.e2).map_err(eval)?;
+                let pa = Pose { q: a.q, tool: a.tool, tool_offset: a.tool_offset };
+                let pb = Pose { q: b.q, tool: b.tool, tool_offset: b.tool_offset };
+                let d = exact::length_error(self.m, &pa, &self.e1, &pb, &self.e2).map_err(|source| SimulateError::Kinematics { line, source })?;
+                Ok(d * self.m.task.sign())
+            }
+        }
+    }
+}
+
+/// A point poses table of `n` states sampled over the machine's ranges, for `kin simulate
+/// --sample N` and for tests: the rows a poses file would hold.
+pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
+    let states = States::sample(m, n, seed);
+    let mut pose = DataPose { axes: vec![Vec::with_capacity(n); m.axes.len()], dir: vec![None; m.axes.len()] };
+    let mut dirs: Vec<Vec<f64>> = vec![Vec::with_capacity(n); m.axes.len()];
+    let mut rows = Rows { line: (1..=n).collect(), tool: Vec::with_capacity(n), inputs: vec![None; m.inputs.len()], ..Rows::default() };
+    let mut inputs: Vec<Vec<f64>> = vec![Vec::with_capacity(n); m.inputs.len()];
+    for r in 0..n {
+        let s = states.get(r);
+        for (a, col) in pose.axes.iter_mut().enumerate() {
+            col.push(s.q.get(a).copied().unwrap_or(0.0));
+        }
+        for (a, col) in dirs.iter_mut().enumerate() {
+            col.push(s.dirs.get(a).copied().unwrap_or(1.0));
+        }
+        for (i, col) in inputs.iter_mut().enumerate() {
+            col.push(s.inputs.get(i).copied().unwrap_or(0.0));
+        }
+        rows.tool.push(s.tool);
+    }
+    let used = crate::states::used_vars(m);
+    for (a, col) in dirs.into_iter().enumerate() {
+        if used.contains(&kin_compiler::ir::Var::Direction(a)) {
+            if let Some(slot) = pose.dir.get_mut(a) {
+                *slot = Some(col);
+            }
+        }
+    }
+    for (i, col) in inputs.into_iter().enumerate() {
+        if let Some(slot) = rows.inputs.get_mut(i) {
+            *slot = Some(col);
+        }
+    }
+    if !m.lags.is_empty() {
+        // A sampled table is one run in steady state: one minute between rows.
+        rows.time = Some((0..n).map(|r| 60.0 * r as f64).collect());
+    }
+    PointData { rows, pose, observed: Default::default() }
+}

@@ -1,0 +1,70 @@
+//! Loading what every command needs: a compiled machine with its bound parameters, and
+//! measurement files. Problems are printed here, located in the user's file.
+
+use std::path::Path;
+
+use kin_compiler::{bind_params, compile, Compiled, Diagnostic};
+use kin_runtime::data::{self, Observations, ReadOptions};
+
+use crate::render;
+
+/// Why a command stopped; the message (if any) has been printed already.
+pub struct Failed;
+
+fn read_text(path: &Path) -> Result<String, Failed> {
+    std::fs::read_to_string(path).map_err(|e| {
+        eprintln!("error: cannot read `{}`: {e}", path.display());
+        Failed
+    })
+}
+
+fn report(path: &Path, source: &str, diagnostics: &[Diagnostic], color: bool) {
+    let mut stderr = std::io::stderr().lock();
+    let _ = render::human(&path.display().to_string(), source, diagnostics, color, &mut stderr);
+}
+
+/// Compiles a machine and binds `params` (a `params { … }` file) if given.
+pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compiled, Failed> {
+    let source = read_text(path)?;
+    let out = compile(&source);
+    report(path, &source, &out.diagnostics, color);
+    let Some(mut compiled) = out.compiled else {
+        eprintln!("{}: the machine has errors", path.display());
+        return Err(Failed);
+    };
+    if let Some(p) = params {
+        let text = read_text(p)?;
+        let diagnostics = bind_params(&mut compiled.machine, &text);
+        report(p, &text, &diagnostics, color);
+        if diagnostics.iter().any(Diagnostic::is_error) {
+            return Err(Failed);
+        }
+    }
+    if compiled.machine.beta.is_empty() {
+        compiled.machine.beta = vec![0.0; compiled.machine.coefficients.len()];
+    }
+    Ok(compiled)
+}
+
+/// Reads a measurement file (or, with `poses`, a file of poses whose observed columns may be
+/// absent).
+pub fn observations(path: &Path, compiled: &Compiled, poses: bool) -> Result<Observations, Failed> {
+    let options = ReadOptions { poses, ..ReadOptions::default() };
+    data::read_file(path, &compiled.machine, &options).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed
+    })
+}
+
+/// Parses `0.3um`, `0.3 um` or `2urad` into SI, checking the dimension.
+pub fn quantity(text: &str, dim: kin_compiler::units::Dim, what: &str) -> Result<f64, String> {
+    let text = text.trim();
+    let split = text.find(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == '+' || c == 'e' || c == 'E')).unwrap_or(text.len());
+    let (num, unit) = text.split_at(split);
+    let value: f64 = num.parse().map_err(|_| format!("{what}: `{text}` does not start with a number"))?;
+    let unit = kin_compiler::units::Unit::parse(unit.trim()).map_err(|e| format!("{what}: {e} in `{text}`"))?;
+    if unit.dim != dim {
+        return Err(format!("{what}: `{text}` is {}, expected {}", unit.dim.describe(), dim.describe()));
+    }
+    Ok(unit.as_difference().to_si(value))
+}

@@ -1,0 +1,116 @@
+//! `kin simulate` (measurements with a known truth, exact transforms) and `kin eval`
+//! (the first-order model's prediction at given poses).
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use kin_compiler::units::Dim;
+use kin_runtime::data::{self, Observations, WriteOptions};
+use kin_runtime::simulate::{self, Options};
+
+use crate::load::{self, Failed};
+
+/// Which error components a point file holds.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum Components {
+    /// ex, ey, ez
+    Position,
+    /// ex, ey, ez, erx, ery, erz
+    Pose,
+}
+
+impl Components {
+    fn mask(self) -> [bool; 6] {
+        match self {
+            Components::Position => [true, true, true, false, false, false],
+            Components::Pose => [true; 6],
+        }
+    }
+}
+
+pub struct SimulateArgs {
+    pub machine: PathBuf,
+    pub params: Option<PathBuf>,
+    pub poses: Option<PathBuf>,
+    pub sample: Option<usize>,
+    pub output: Option<PathBuf>,
+    pub noise: Option<String>,
+    pub noise_tilt: Option<String>,
+    pub seed: u64,
+    pub components: Components,
+    pub color: bool,
+}
+
+fn finish(result: Result<(), Failed>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Failed) => ExitCode::from(1),
+    }
+}
+
+pub fn simulate(a: SimulateArgs) -> ExitCode {
+    finish(run_simulate(a))
+}
+
+fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
+    let compiled = load::machine(&a.machine, a.params.as_deref(), a.color)?;
+    let m = &compiled.machine;
+    let poses = match (&a.poses, a.sample) {
+        (Some(p), None) => load::observations(p, &compiled, true)?,
+        (None, Some(n)) => Observations::Points(simulate::sample_points(m, n, a.seed)),
+        _ => {
+            eprintln!("error: give either a poses file (--poses FILE) or --sample N");
+            return Err(Failed);
+        }
+    };
+    let parse = |text: &Option<String>, dim, what| -> Result<f64, Failed> {
+        match text {
+            None => Ok(0.0),
+            Some(t) => load::quantity(t, dim, what).map_err(|e| {
+                eprintln!("error: {e}");
+                Failed
+            }),
+        }
+    };
+    let options = Options {
+        observe: a.components.mask(),
+        noise: parse(&a.noise, Dim::LENGTH, "--noise")?,
+        noise_tilt: parse(&a.noise_tilt, Dim::ANGLE, "--noise-tilt")?,
+        seed: a.seed,
+    };
+    let out = simulate::simulate(m, &m.beta, &poses, &options).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed
+    })?;
+    let comments = vec![
+        format!("simulated by kin from `{}` (exact transforms)", a.machine.display()),
+        format!("noise {} (positions), {} (rotations), seed {}", a.noise.as_deref().unwrap_or("0"), a.noise_tilt.as_deref().unwrap_or("0"), a.seed),
+    ];
+    write(&out, m, a.output.as_deref(), comments)
+}
+
+fn write(out: &Observations, m: &kin_compiler::ir::Machine, path: Option<&Path>, comments: Vec<String>) -> Result<(), Failed> {
+    let options = WriteOptions { comments, ..WriteOptions::default() };
+    let result = match (path, out) {
+        (Some(p), _) => data::write_file(p, m, out, &options),
+        (None, Observations::Points(p)) => data::write_points(std::io::stdout().lock(), m, p, &options),
+        (None, Observations::Lengths(l)) => data::write_lengths(std::io::stdout().lock(), m, l, &options),
+    };
+    result.map_err(|e| {
+        eprintln!("error: {e}");
+        Failed
+    })
+}
+
+pub fn eval(machine: &Path, params: Option<&Path>, poses: &Path, output: Option<&Path>, components: Components, color: bool) -> ExitCode {
+    finish((|| {
+        let compiled = load::machine(machine, params, color)?;
+        let m = &compiled.machine;
+        let poses = load::observations(poses, &compiled, true)?;
+        let out = simulate::predict(m, &m.beta, &poses, components.mask()).map_err(|e| {
+            eprintln!("error: {e}");
+            Failed
+        })?;
+        write(&out, m, output, vec![format!("predicted by kin from `{}` (first-order model, eq. 2.24)", machine.display())])
+    })())
+}

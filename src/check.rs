@@ -33,6 +33,9 @@ impl From<ObserveArg> for Observe {
 /// Identifiability on states sampled over the ranges: enough rows to see every coefficient
 /// several times over, with a fixed seed so `kin check` is reproducible.
 fn identify(c: &Compiled, observe: Observe, aligned: bool) -> Vec<kin_compiler::Diagnostic> {
+    if c.machine.coefficients.is_empty() {
+        return Vec::new();
+    }
     let n = (2 * c.machine.coefficients.len()).max(200);
     match kin_runtime::identify::sampled(&c.machine, observe, aligned, n, 0x6b696e) {
         Ok(report) => kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned),

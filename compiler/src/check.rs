@@ -249,6 +249,9 @@ impl Checker<'_> {
                 return None;
             }
         };
+        if self.st.broken.contains(&frame_name) {
+            return None;
+        }
         let frame = if let Some(i) = self.st.axis_index(&frame_name) {
             // An axis outside every chain was reported already (E0401) and the compilation will
             // fail; its models are still checked under a frame that no IR will ever hold, so
@@ -345,6 +348,9 @@ impl Checker<'_> {
     }
 
     fn variable(&mut self, n: &str, span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        if self.st.broken.iter().any(|b| b == n) {
+            return None;
+        }
         if let Some(i) = self.st.axis_index(n) {
             let dim = match self.st.axes.get(i).map(|a| a.kind) {
                 Some(JointKind::Revolute) => Dim::ANGLE,

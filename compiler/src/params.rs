@@ -17,13 +17,43 @@ pub fn bind(machine: &mut ir::Machine, params: &ast::ParamsBlock) -> Vec<Diagnos
     if machine.beta.len() != machine.coefficients.len() {
         machine.beta = vec![0.0; machine.coefficients.len()];
     }
+    let mut bound = Bound::default();
     for def in &params.defs {
-        bind_one(machine, def, &mut sink);
+        if let Some(add) = def.add {
+            sink.push(
+                Diagnostic::error("E0501", "parameter values are set with `=`, not `+=`", add)
+                    .with_label("not an assignment of a value"),
+            );
+            continue;
+        }
+        bind_one(machine, def, &mut bound, &mut sink);
     }
     sink.diagnostics
 }
 
-fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, sink: &mut Sink) {
+/// Where each coefficient and non-linear parameter was first set, to refuse a second value.
+#[derive(Default)]
+struct Bound {
+    coefficients: std::collections::HashMap<usize, Span>,
+    nonlinear: std::collections::HashMap<usize, Span>,
+}
+
+impl Bound {
+    fn claim(map: &mut std::collections::HashMap<usize, Span>, k: usize, name: &str, span: Span, sink: &mut Sink) -> bool {
+        if let Some(first) = map.get(&k) {
+            sink.push(
+                Diagnostic::error("E0102", format!("`{name}` is given a value twice"), span)
+                    .with_label("second value")
+                    .with_secondary(*first, "first set here"),
+            );
+            return false;
+        }
+        map.insert(k, span);
+        true
+    }
+}
+
+fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, sink: &mut Sink) {
     let path: Vec<&str> = def.path.iter().map(|n| n.node.as_str()).collect();
     let full = path.join(".");
     let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
@@ -36,6 +66,9 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, sink: &mut Sink) {
         _ => full.clone(),
     };
     if let Some(k) = machine.nonlinear.iter().position(|p| p.name == nl_name) {
+        if !Bound::claim(&mut bound.nonlinear, k, &nl_name, def.span, sink) {
+            return;
+        }
         let Some(p) = machine.nonlinear.get(k) else { return };
         let unit = p.unit.clone();
         if let Some(v) = scalar_value(&def.value, &unit, sink) {
@@ -76,11 +109,15 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, sink: &mut Sink) {
         (Some(i), value) => {
             let Some(&k) = usize::try_from(i.node).ok().and_then(|i| members.get(i)) else {
                 sink.push(
-                    Diagnostic::error("E0501", format!("`{full}` has {} coefficients; index {} is out of range", members.len(), i.node), i.span)
+                    Diagnostic::error("E0501", format!("`{full}` has {} coefficient{}; index {} is out of range", members.len(), if members.len() == 1 { "" } else { "s" }, i.node), i.span)
                         .with_label(format!("valid indices: 0..{}", members.len().saturating_sub(1))),
                 );
                 return;
             };
+            let name = machine.coefficients.get(k).map(|c| c.name.clone()).unwrap_or_default();
+            if !Bound::claim(&mut bound.coefficients, k, &name, def.span, sink) {
+                return;
+            }
             let unit = machine.coefficients.get(k).map(|c| c.unit.clone()).unwrap_or_else(Unit::dimensionless);
             if let Some(v) = scalar_value(value, &unit, sink) {
                 if let Some(b) = machine.beta.get_mut(k) {
@@ -103,6 +140,12 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, sink: &mut Sink) {
                 },
                 None => None,
             };
+            for k in &members {
+                let name = machine.coefficients.get(*k).map(|c| c.name.clone()).unwrap_or_default();
+                if !Bound::claim(&mut bound.coefficients, *k, &name, def.span, sink) {
+                    return;
+                }
+            }
             for (k, v) in members.iter().zip(values) {
                 let Some(coef) = machine.coefficients.get(*k) else { continue };
                 let unit = match &given {
@@ -121,10 +164,19 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, sink: &mut Sink) {
             }
         }
         (None, ParamValue::Scalar(e)) => {
+            let (label, help) = if members.len() == 1 {
+                ("a value without an index", format!("write `{full}[0] = …`, or a list `{full} = [ … ] unit`"))
+            } else {
+                ("a single value for several coefficients", format!("give them all, `{full} = [ … ] unit`, or one, `{full}[0] = …`"))
+            };
             sink.push(
-                Diagnostic::error("E0501", format!("`{full}` has {} coefficients", members.len()), e.span)
-                    .with_label("a single value for several coefficients")
-                    .with_help(format!("give them all, `{full} = [ … ] unit`, or one, `{full}[0] = …`")),
+                Diagnostic::error(
+                    "E0501",
+                    format!("`{full}` has {} coefficient{}", members.len(), if members.len() == 1 { "" } else { "s" }),
+                    e.span,
+                )
+                .with_label(label)
+                .with_help(help),
             );
         }
     }

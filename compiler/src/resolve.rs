@@ -44,6 +44,9 @@ pub(crate) struct Structure {
     pub tools: Vec<ir::Tool>,
     pub tool_spans: Vec<Span>,
     pub workpiece: ir::Shape,
+    /// Axes and inputs whose declaration was wrong (and reported): later uses stay silent
+    /// rather than cascade into "unknown name".
+    pub broken: Vec<String>,
 }
 
 impl Structure {
@@ -223,6 +226,7 @@ pub(crate) fn resolve(machine: &ast::Machine, sink: &mut Sink) -> Structure {
         tools: Vec::new(),
         tool_spans: Vec::new(),
         workpiece: ir::Shape::default(),
+        broken: Vec::new(),
     };
     // Names of axes, inputs and tools share one namespace: an error target or a variable must
     // mean exactly one thing.
@@ -255,6 +259,8 @@ pub(crate) fn resolve(machine: &ast::Machine, sink: &mut Sink) -> Structure {
                         st.axes.push(axis);
                         st.axis_spans.push(a.name.span);
                         st.axis_frame.push(None);
+                    } else {
+                        st.broken.push(a.name.node.clone());
                     }
                 }
             }
@@ -264,6 +270,8 @@ pub(crate) fn resolve(machine: &ast::Machine, sink: &mut Sink) -> Structure {
                         st.inputs.push(input);
                         st.input_spans.push(i.name.span);
                         st.input_ranges.push(range);
+                    } else {
+                        st.broken.push(i.name.node.clone());
                     }
                 }
             }
@@ -580,7 +588,9 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
             match ci {
                 ast::ChainItem::Element { axis, frame, placement, span } => {
                     let Some(index) = st.axis_index(&axis.node) else {
-                        sink.push(not_an_axis(axis, st));
+                        if !st.broken.contains(&axis.node) {
+                            sink.push(not_an_axis(axis, st));
+                        }
                         continue;
                     };
                     if let Some(first) = axis_use.get(index).copied().flatten() {

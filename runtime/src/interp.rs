@@ -251,7 +251,13 @@ impl<'m> Interpreter<'m> {
             *first = scale;
         }
         for f in &term.factors {
-            let x = var(f.var, state, self.machine)?;
+            let mut x = var(f.var, state, self.machine)?;
+            if let Var::Axis(a) = f.var {
+                // A continuous axis may turn many times: its families live on one turn.
+                if self.machine.axes.get(a).is_some_and(|axis| axis.continuous) {
+                    x = x.rem_euclid(std::f64::consts::TAU);
+                }
+            }
             let size = f.basis.size();
             let fv = self.factor.get_mut(..size).unwrap_or(&mut []);
             f.basis.eval(x, &self.nonlinear, fv);

@@ -254,6 +254,8 @@ pub struct ParamsBlock {
 pub struct ParamDef {
     pub path: Vec<Name>,
     pub index: Option<Spanned<i64>>,
+    /// The span of a `+=`, which parameter values do not take (reported by the binder).
+    pub add: Option<Span>,
     pub value: ParamValue,
     pub span: Span,
 }

@@ -416,7 +416,10 @@ fn build_option(pair: P) -> Result<OptionArg> {
         Rule::at_list => {
             let mut items = Vec::new();
             let mut unit = None;
-            for p in value_pair.into_inner() {
+            for p in value_pair.into_inner().flat_map(|p| match p.as_rule() {
+                Rule::at_items => p.into_inner().collect::<Vec<_>>(),
+                _ => vec![p],
+            }) {
                 match p.as_rule() {
                     Rule::expr => items.push(build_expr(p)?),
                     Rule::unit => unit = Some(name(p)),
@@ -466,14 +469,18 @@ fn build_params(pair: P) -> Result<ParamsBlock> {
                 _ => {}
             }
         }
-        let _assign = next(&mut it, "assignment")?;
+        let assign = next(&mut it, "assignment")?;
+        let add = (assign.as_str() == "+=").then(|| span(&assign));
         let value_pair = next(&mut it, "parameter value")?;
         let inner = next(&mut value_pair.into_inner(), "parameter value")?;
         let vsp = span(&inner);
         let value = if inner.as_rule() == Rule::list_q {
             let mut values = Vec::new();
             let mut unit = None;
-            for p in inner.into_inner() {
+            for p in inner.into_inner().flat_map(|p| match p.as_rule() {
+                Rule::list_items => p.into_inner().collect::<Vec<_>>(),
+                _ => vec![p],
+            }) {
                 match p.as_rule() {
                     Rule::number => values.push(parse_number(&p)?),
                     Rule::unit => unit = Some(name(p)),
@@ -484,7 +491,7 @@ fn build_params(pair: P) -> Result<ParamsBlock> {
         } else {
             ParamValue::Scalar(build_quantity(inner)?)
         };
-        defs.push(ParamDef { path, index, value, span: dsp });
+        defs.push(ParamDef { path, index, add, value, span: dsp });
     }
     Ok(ParamsBlock { defs, span: sp })
 }
@@ -538,11 +545,11 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::add_op => "`+` or `-`",
         Rule::mul_op => "`*` or `/`",
         Rule::neg => "`-`",
-        Rule::option | Rule::at_list => "an option such as `knots 5`",
+        Rule::option | Rule::at_list | Rule::at_items => "an option such as `knots 5`",
         Rule::error_def | Rule::target => "an error definition such as `X.tx = spline(X, knots 4)`",
         Rule::element => "a chain element such as `X moving`",
         Rule::param_def | Rule::param_ref => "a parameter such as `X.tx[0] = 1.5 um`",
-        Rule::param_value | Rule::list_q => "a value such as `1.5 um` or `[1, 2] um`",
+        Rule::param_value | Rule::list_q | Rule::list_items => "a value such as `1.5 um` or `[1, 2] um`",
         Rule::machine => "`machine`",
         Rule::params => "`params`",
         Rule::interval => "a range such as `0 mm .. 600 mm`",

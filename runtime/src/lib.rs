@@ -7,3 +7,4 @@ pub mod lag;
 pub mod states;
 pub mod identify;
 pub mod simulate;
+pub mod engine;

@@ -1,0 +1,41 @@
+//! What the fit and the commands need from an evaluator, so the interpreter and the JIT are
+//! interchangeable (`--engine interp|jit`) and can be checked one against the other.
+
+use kin_compiler::ir::Machine;
+
+use crate::interp::{EvalError, Interpreter, State};
+
+/// Evaluation of one machine's tool-location error and its β-Jacobian.
+pub trait Evaluator {
+    fn machine(&self) -> &Machine;
+
+    /// Replaces the non-linear parameter values (wavelengths, time constants).
+    fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError>;
+
+    /// The error (task sign) at `state` for `beta`.
+    fn error(&mut self, state: &State, beta: &[f64]) -> Result<[f64; 6], EvalError>;
+
+    /// The error and its Jacobian with respect to β (6 × n, row-major): `error = fixed + jac·β`.
+    fn error_and_jacobian(&mut self, state: &State, beta: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError>;
+
+    /// A length observation (eq. 4.5) and its design-matrix row.
+    fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError>;
+}
+
+impl Evaluator for Interpreter<'_> {
+    fn machine(&self) -> &Machine {
+        Interpreter::machine(self)
+    }
+    fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError> {
+        Interpreter::set_nonlinear(self, values)
+    }
+    fn error(&mut self, state: &State, beta: &[f64]) -> Result<[f64; 6], EvalError> {
+        Interpreter::error(self, state, beta)
+    }
+    fn error_and_jacobian(&mut self, state: &State, beta: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError> {
+        Interpreter::error_and_jacobian(self, state, beta, err, jac)
+    }
+    fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError> {
+        Interpreter::length_and_row(self, s1, s2, beta, row)
+    }
+}

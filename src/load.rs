@@ -33,7 +33,17 @@ pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compil
         return Err(Failed);
     };
     if let Some(p) = params {
-        let text = read_text(p)?;
+        let mut text = read_text(p)?;
+        // A FIT.json carries its fitted values as a `params` block.
+        if text.trim_start().starts_with('{') {
+            match serde_json::from_str::<serde_json::Value>(&text).ok().and_then(|v| v.get("params")?.as_str().map(str::to_string)) {
+                Some(params) => text = params,
+                None => {
+                    eprintln!("error: `{}` is JSON but not a fit report with `params`", p.display());
+                    return Err(Failed);
+                }
+            }
+        }
         let diagnostics = bind_params(&mut compiled.machine, &text);
         report(p, &text, &diagnostics, color);
         if diagnostics.iter().any(Diagnostic::is_error) {

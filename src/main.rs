@@ -1,6 +1,7 @@
 //! `kin`: check, simulate, evaluate and fit models of multi-axis machines.
 
 mod check;
+mod fit;
 mod load;
 mod render;
 mod simulate;
@@ -69,9 +70,41 @@ enum Command {
         noise_tilt: Option<String>,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Standard deviation of each artifact's unknown placement: shift (e.g. `50um`) …
+        #[arg(long)]
+        artifact_shift: Option<String>,
+        /// … and rotation (e.g. `20urad`), drawn once per `artifact` label of a point file.
+        #[arg(long)]
+        artifact_rotation: Option<String>,
+        /// Standard deviation of the unknown length error of each artifact of a length file.
+        #[arg(long)]
+        artifact_length: Option<String>,
         /// Which error components a point file holds.
         #[arg(long, value_enum, default_value_t = simulate::Components::Position)]
         components: simulate::Components,
+        #[arg(long, default_value = "auto")]
+        color: String,
+    },
+    /// Fit the model's coefficients to measurement files by least squares.
+    Fit {
+        machine: PathBuf,
+        /// Point and length files (contract §3).
+        #[arg(required = true)]
+        data: Vec<PathBuf>,
+        /// Files to check the fitted model against, not fitted to.
+        #[arg(long)]
+        validate: Vec<PathBuf>,
+        /// Write FIT.json here (and the fitted `params { … }` next to it, as FIT.params).
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        #[arg(long, value_enum, default_value_t = fit::SolverArg::Qr)]
+        solver: fit::SolverArg,
+        /// Relative tolerance of the rank decision on the unit-scaled design.
+        #[arg(long, default_value_t = 1e-10)]
+        tolerance: f64,
+        /// Fit only what the data can see (minimum norm) when the design is rank-deficient.
+        #[arg(long)]
+        min_norm: bool,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -106,7 +139,7 @@ fn main() -> ExitCode {
             let identify = (!no_identify).then_some((observe, aligned));
             check::run(&file, format, color, identify)
         }
-        Command::Simulate { machine, params, poses, sample, output, noise, noise_tilt, seed, components, color } => {
+        Command::Simulate { machine, params, poses, sample, output, noise, noise_tilt, seed, artifact_shift, artifact_rotation, artifact_length, components, color } => {
             simulate::simulate(simulate::SimulateArgs {
                 machine,
                 params,
@@ -116,10 +149,23 @@ fn main() -> ExitCode {
                 noise,
                 noise_tilt,
                 seed,
+                artifact_shift,
+                artifact_rotation,
+                artifact_length,
                 components,
                 color: use_color(&color),
             })
         }
+        Command::Fit { machine, data, validate, output, solver, tolerance, min_norm, color } => fit::run(fit::FitArgs {
+            machine,
+            data,
+            validate,
+            output,
+            solver,
+            tolerance,
+            min_norm,
+            color: use_color(&color),
+        }),
         Command::Eval { machine, poses, params, output, components, color } => {
             simulate::eval(&machine, params.as_deref(), &poses, output.as_deref(), components, use_color(&color))
         }

@@ -37,6 +37,9 @@ pub struct SimulateArgs {
     pub noise: Option<String>,
     pub noise_tilt: Option<String>,
     pub seed: u64,
+    pub artifact_shift: Option<String>,
+    pub artifact_rotation: Option<String>,
+    pub artifact_length: Option<String>,
     pub components: Components,
     pub color: bool,
 }
@@ -77,6 +80,9 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
         noise: parse(&a.noise, Dim::LENGTH, "--noise")?,
         noise_tilt: parse(&a.noise_tilt, Dim::ANGLE, "--noise-tilt")?,
         seed: a.seed,
+        artifact_shift: parse(&a.artifact_shift, Dim::LENGTH, "--artifact-shift")?,
+        artifact_rotation: parse(&a.artifact_rotation, Dim::ANGLE, "--artifact-rotation")?,
+        artifact_length: parse(&a.artifact_length, Dim::LENGTH, "--artifact-length")?,
     };
     let out = simulate::simulate(m, &m.beta, &poses, &options).map_err(|e| {
         eprintln!("error: {e}");

@@ -4,6 +4,7 @@
 use kin_compiler::ir::Machine;
 
 use crate::interp::{EvalError, Interpreter, State};
+use crate::kinematics::{FirstOrderModel, Pose};
 
 /// Evaluation of one machine's tool-location error and its β-Jacobian.
 pub trait Evaluator {
@@ -20,6 +21,15 @@ pub trait Evaluator {
 
     /// A length observation (eq. 4.5) and its design-matrix row.
     fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError>;
+
+    /// The nominal tool position in wr at `state` (where an artifact's placement acts).
+    fn nominal_position(&mut self, state: &State) -> Result<[f64; 3], EvalError> {
+        // A generic fallback; engines override it with their own per-pose pass.
+        let first = FirstOrderModel::new(self.machine())?;
+        let mut sens = first.sensitivities();
+        first.evaluate(&Pose { q: state.q, tool: state.tool, tool_offset: state.tool_offset }, &mut sens)?;
+        Ok(sens.location().position.into())
+    }
 }
 
 impl Evaluator for Interpreter<'_> {
@@ -37,5 +47,8 @@ impl Evaluator for Interpreter<'_> {
     }
     fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError> {
         Interpreter::length_and_row(self, s1, s2, beta, row)
+    }
+    fn nominal_position(&mut self, state: &State) -> Result<[f64; 3], EvalError> {
+        Interpreter::nominal_position(self, state)
     }
 }

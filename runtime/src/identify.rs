@@ -36,6 +36,8 @@ pub enum Observe {
     Pose,
     /// Lengths between pairs of poses (ball bar, step gauge, laser): eq. 4.5.
     Length,
+    /// The rows of measurement files (the fit's own data).
+    Data,
 }
 
 /// A column of the design matrix: a model coefficient or a nuisance parameter.
@@ -44,6 +46,8 @@ pub enum Column {
     Coefficient(usize),
     /// Alignment of the artifact: translation along or rotation about axis 0..3 of wr.
     Alignment { rotation: bool, axis: usize },
+    /// Another nuisance parameter of a fit, by name (an artifact's placement or length).
+    Nuisance(String),
 }
 
 /// One invisible direction: `column` is (numerically) the combination `Σ w·c` of earlier ones.
@@ -92,7 +96,7 @@ pub fn design(m: &Machine, states: &States, observe: Observe, aligned: bool) -> 
     let mut err = [0.0; 6];
     let mut out = Vec::new();
     match observe {
-        Observe::Position | Observe::Pose => {
+        Observe::Position | Observe::Pose | Observe::Data => {
             let comps = if observe == Observe::Position { 3 } else { 6 };
             let mut jq = vec![nalgebra::Vector6::zeros(); m.axes.len()];
             for r in 0..states.len() {
@@ -243,13 +247,14 @@ fn column_name(m: &Machine, c: &Column) -> String {
                 format!("the artifact's shift along {a}")
             }
         }
+        Column::Nuisance(name) => name.clone(),
     }
 }
 
 fn column_span(map: &SourceMap, c: &Column) -> Option<Span> {
     match c {
         Column::Coefficient(j) => map.coefficients.get(*j).copied(),
-        Column::Alignment { .. } => None,
+        Column::Alignment { .. } | Column::Nuisance(_) => None,
     }
 }
 
@@ -261,6 +266,7 @@ pub fn diagnostics(m: &Machine, map: &SourceMap, report: &Report, observe: Obser
         (Observe::Pose, false) => "position and rotation errors over the axis ranges",
         (Observe::Pose, true) => "position and rotation errors on an artifact of unknown placement",
         (Observe::Length, _) => "lengths between poses spread over the axis ranges",
+        (Observe::Data, _) => "the rows of the measurement files",
     };
     let mut out = Vec::new();
     for d in &report.dependencies {
@@ -302,7 +308,7 @@ pub fn diagnostics(m: &Machine, map: &SourceMap, report: &Report, observe: Obser
                 parts.join(" "),
                 if more > 0 { format!(" and {more} more") } else { String::new() }
             ))
-            .with_help(if matches!(d.combination.first(), Some((Column::Alignment { .. }, _))) {
+            .with_help(if matches!(d.combination.first(), Some((Column::Alignment { .. } | Column::Nuisance(_), _))) {
                 "the artifact's alignment absorbs it: remove the term or fix the placement".to_string()
             } else {
                 "remove one of them, or use a family without this component (straightness, no_once_per_rev)".to_string()

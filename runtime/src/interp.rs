@@ -217,6 +217,13 @@ impl<'m> Interpreter<'m> {
         Ok(self.first.nominal_jacobian(&state.pose(), &mut self.sens, out)?)
     }
 
+    /// The nominal tool position in wr at `state`.
+    pub fn nominal_position(&mut self, state: &State) -> Result<[f64; 3], EvalError> {
+        self.check_state(state)?;
+        self.first.evaluate(&state.pose(), &mut self.sens)?;
+        Ok(self.sens.location().position.into())
+    }
+
     /// A length observation between two states (eq. 4.5): `dL = u · (Δp₂ − Δp₁)` with the
     /// task's sign, and its row of the design matrix (`dL = fixed + row · β`).
     pub fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError> {

@@ -8,3 +8,5 @@ pub mod states;
 pub mod identify;
 pub mod simulate;
 pub mod engine;
+pub mod jit;
+pub mod fit;

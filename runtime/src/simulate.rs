@@ -45,11 +45,25 @@ pub struct Options {
     pub noise: f64,
     pub noise_tilt: f64,
     pub seed: u64,
+    /// Standard deviations of the unknown placement of each artifact of a point file (a shift
+    /// in m and a small rotation in rad per wr axis), and of the unknown length error of each
+    /// artifact of a length file (m). Zero places artifacts nominally.
+    pub artifact_shift: f64,
+    pub artifact_rotation: f64,
+    pub artifact_length: f64,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { observe: [true, true, true, false, false, false], noise: 0.0, noise_tilt: 0.0, seed: 0 }
+        Options {
+            observe: [true, true, true, false, false, false],
+            noise: 0.0,
+            noise_tilt: 0.0,
+            seed: 0,
+            artifact_shift: 0.0,
+            artifact_rotation: 0.0,
+            artifact_length: 0.0,
+        }
     }
 }
 
@@ -93,9 +107,32 @@ fn run(m: &Machine, beta: &[f64], poses: &Observations, options: &Options, engin
                     *slot = Some(Vec::with_capacity(states.len()));
                 }
             }
+            // Each artifact's true placement: a rigid displacement (t, ω) drawn once per label.
+            let labels = p.rows.artifact.as_ref().map(|g| g.labels.len()).unwrap_or(0);
+            let placements: Vec<[f64; 6]> = (0..labels)
+                .map(|_| {
+                    let mut d = [0.0; 6];
+                    for (k, v) in d.iter_mut().enumerate() {
+                        *v = gauss(if k < 3 { options.artifact_shift } else { options.artifact_rotation });
+                    }
+                    d
+                })
+                .collect();
             for r in 0..states.len() {
                 let line = states.line.get(r).copied().unwrap_or(0);
-                let e = model.error(&states.get(r), line)?;
+                let mut e = model.error(&states.get(r), line)?;
+                if let Some(d) = p.rows.artifact_of(r).and_then(|a| placements.get(a as usize)) {
+                    // A point p of a displaced artifact is found at p + t + ω × p: the observed
+                    // error grows by that, and the orientation by ω (first order in the
+                    // displacement, which the fit models the same way).
+                    let pos = model.position(&states.get(r), line)?;
+                    let w = [d[3], d[4], d[5]];
+                    let cross = [w[1] * pos[2] - w[2] * pos[1], w[2] * pos[0] - w[0] * pos[2], w[0] * pos[1] - w[1] * pos[0]];
+                    for k in 0..3 {
+                        e[k] += d[k] + cross[k];
+                        e[3 + k] += w[k];
+                    }
+                }
                 for (k, col) in observed.iter_mut().enumerate() {
                     if let Some(col) = col {
                         let sigma = if k < 3 { options.noise } else { options.noise_tilt };
@@ -109,10 +146,13 @@ fn run(m: &Machine, beta: &[f64], poses: &Observations, options: &Options, engin
             let [p1, p2] = &l.poses;
             let s1 = States::new(m, &l.rows, p1, "_1")?;
             let s2 = States::new(m, &l.rows, p2, "_2")?;
+            let labels = l.rows.artifact.as_ref().map(|g| g.labels.len()).unwrap_or(0);
+            let lengths: Vec<f64> = (0..labels).map(|_| gauss(options.artifact_length)).collect();
             let mut dl = Vec::with_capacity(s1.len());
             for r in 0..s1.len() {
                 let line = s1.line.get(r).copied().unwrap_or(0);
-                dl.push(model.length(&s1.get(r), &s2.get(r), line)? + gauss(options.noise));
+                let artifact = l.rows.artifact_of(r).and_then(|a| lengths.get(a as usize)).copied().unwrap_or(0.0);
+                dl.push(model.length(&s1.get(r), &s2.get(r), line)? + artifact + gauss(options.noise));
             }
             Ok(Observations::Lengths(LengthData { rows: l.rows.clone(), poses: l.poses.clone(), dl }))
         }
@@ -148,6 +188,11 @@ impl<'m> Model<'m> {
                 Ok((e * self.m.task.sign()).into())
             }
         }
+    }
+
+    /// The nominal tool position in wr.
+    fn position(&mut self, s: &State, line: usize) -> Result<[f64; 3], SimulateError> {
+        self.it.nominal_position(s).map_err(|source| SimulateError::Eval { line, source })
     }
 
     /// The reported length error between two states.

@@ -1,0 +1,263 @@
+//! The rows of the least-squares problem: one per observed value of every file.
+//!
+//! A point row observes one component of the tool-location error (eq. 2.24), a length row the
+//! error of a length (eq. 4.5). The unknowns are the model's coefficients β and the nuisance
+//! parameters the data asks for: a rigid placement (three shifts, three small rotations about
+//! the wr axes) per artifact of a point file, an unknown length error per artifact of a length
+//! file (thesis §4.2: "the vector β has to be expanded to include these dimensions").
+
+use std::path::PathBuf;
+
+use kin_compiler::ir::Machine;
+use serde::Serialize;
+
+use crate::data::Observations;
+use crate::engine::Evaluator;
+use crate::interp::EvalError;
+use crate::states::{StateError, States};
+
+/// One measurement file, read.
+#[derive(Debug, Clone)]
+pub struct DataSet {
+    pub path: PathBuf,
+    pub observations: Observations,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NuisanceKind {
+    /// Shift of the artifact along wr axis 0..3.
+    Shift(usize),
+    /// Small rotation of the artifact about wr axis 0..3.
+    Rotation(usize),
+    /// Error of the artifact's unknown reference length.
+    Length,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Nuisance {
+    pub file: usize,
+    pub artifact: String,
+    pub kind: NuisanceKind,
+}
+
+impl Nuisance {
+    pub fn name(&self) -> String {
+        let axis = |a: usize| ["x", "y", "z"].get(a).copied().unwrap_or("?");
+        match self.kind {
+            NuisanceKind::Shift(a) => format!("artifact `{}` shift {}", self.artifact, axis(a)),
+            NuisanceKind::Rotation(a) => format!("artifact `{}` rotation about {}", self.artifact, axis(a)),
+            NuisanceKind::Length => format!("artifact `{}` length error", self.artifact),
+        }
+    }
+}
+
+/// The columns: the model's coefficients first, then the nuisance parameters.
+#[derive(Debug, Clone)]
+pub struct Layout {
+    pub coefficients: usize,
+    pub nuisance: Vec<Nuisance>,
+    /// Per file, per artifact id: the column of its first nuisance parameter.
+    first: Vec<Vec<usize>>,
+}
+
+impl Layout {
+    pub fn new(m: &Machine, files: &[DataSet]) -> Layout {
+        let coefficients = m.coefficients.len();
+        let mut nuisance = Vec::new();
+        let mut first = Vec::with_capacity(files.len());
+        for (f, file) in files.iter().enumerate() {
+            let rows = file.observations.rows();
+            let labels = rows.artifact.as_ref().map(|g| g.labels.clone()).unwrap_or_default();
+            let mut starts = Vec::with_capacity(labels.len());
+            for label in labels {
+                starts.push(coefficients + nuisance.len());
+                let kinds: Vec<NuisanceKind> = match file.observations {
+                    Observations::Points(_) => (0..3).map(NuisanceKind::Shift).chain((0..3).map(NuisanceKind::Rotation)).collect(),
+                    Observations::Lengths(_) => vec![NuisanceKind::Length],
+                };
+                nuisance.extend(kinds.into_iter().map(|kind| Nuisance { file: f, artifact: label.clone(), kind }));
+            }
+            first.push(starts);
+        }
+        Layout { coefficients, nuisance, first }
+    }
+
+    pub fn columns(&self) -> usize {
+        self.coefficients + self.nuisance.len()
+    }
+
+    fn first_of(&self, file: usize, artifact: Option<u32>) -> Option<usize> {
+        self.first.get(file)?.get(artifact? as usize).copied()
+    }
+}
+
+/// Where a row comes from. `component` 0..6 is ex..erz, 6 is a length.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct RowMeta {
+    pub file: u32,
+    pub line: u32,
+    pub component: u8,
+}
+
+pub const LENGTH: u8 = 6;
+
+/// The evaluation states of one file (two for a length file: its ends).
+#[derive(Debug, Clone)]
+pub enum FileStates {
+    Points(States),
+    Lengths(States, States),
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DesignError {
+    #[error("{path}: {source}")]
+    State {
+        path: String,
+        #[source]
+        source: StateError,
+    },
+    #[error("{path}, line {line}: {source}")]
+    Eval {
+        path: String,
+        line: usize,
+        #[source]
+        source: EvalError,
+    },
+}
+
+/// Builds the states of every file once (they change only when a time constant does).
+pub fn states(m: &Machine, files: &[DataSet]) -> Result<Vec<FileStates>, DesignError> {
+    files
+        .iter()
+        .map(|f| {
+            let path = f.path.display().to_string();
+            let err = |source| DesignError::State { path: path.clone(), source };
+            Ok(match &f.observations {
+                Observations::Points(p) => FileStates::Points(States::new(m, &p.rows, &p.pose, "").map_err(err)?),
+                Observations::Lengths(l) => {
+                    let [p1, p2] = &l.poses;
+                    FileStates::Lengths(States::new(m, &l.rows, p1, "_1").map_err(err)?, States::new(m, &l.rows, p2, "_2").map_err(err)?)
+                }
+            })
+        })
+        .collect()
+}
+
+/// The weight of rotation rows: one tilt unit counts as much as one error unit (µrad as µm
+/// with the default units), so a fit mixing both does not depend on SI's choice of metre and
+/// radian.
+pub fn rotation_weight(m: &Machine) -> f64 {
+    m.units.error.scale / m.units.tilt.scale
+}
+
+/// Calls `row(meta, x, y)` for every observed value: `x` the design row (all columns), `y` the
+/// observation minus the model's fixed (known) part, both weighted.
+pub fn for_each_row(
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    states: &[FileStates],
+    layout: &Layout,
+    mut row: impl FnMut(RowMeta, &[f64], f64),
+) -> Result<(), DesignError> {
+    let n = layout.coefficients;
+    let width = layout.columns();
+    let zero = vec![0.0; n];
+    let mut jac = vec![0.0; 6 * n];
+    let mut x = vec![0.0; width];
+    let mut lrow = vec![0.0; n];
+    let mut err = [0.0; 6];
+    let w_rot = rotation_weight(engine.machine());
+    for (f, (file, st)) in files.iter().zip(states).enumerate() {
+        let path = || file.path.display().to_string();
+        let rows = file.observations.rows();
+        match (&file.observations, st) {
+            (Observations::Points(p), FileStates::Points(s)) => {
+                for r in 0..s.len() {
+                    let line = s.line.get(r).copied().unwrap_or(0);
+                    let state = s.get(r);
+                    engine
+                        .error_and_jacobian(&state, &zero, &mut err, &mut jac)
+                        .map_err(|source| DesignError::Eval { path: path(), line, source })?;
+                    let artifact = layout.first_of(f, rows.artifact_of(r));
+                    let position = match artifact {
+                        Some(_) => Some(engine.nominal_position(&state).map_err(|source| DesignError::Eval { path: path(), line, source })?),
+                        None => None,
+                    };
+                    for (c, column) in p.observed.iter().enumerate() {
+                        let Some(obs) = column.as_ref().and_then(|v| v.get(r)).copied().filter(|v| !v.is_nan()) else {
+                            continue;
+                        };
+                        let w = if c < 3 { 1.0 } else { w_rot };
+                        x.fill(0.0);
+                        for (slot, v) in x.iter_mut().zip(jac.get(c * n..(c + 1) * n).unwrap_or(&[])) {
+                            *slot = v * w;
+                        }
+                        if let (Some(first), Some(p)) = (artifact, position) {
+                            // A rigid displacement (t, ω) of the artifact changes the observed
+                            // error by t + ω × p at a point p, and by ω in orientation.
+                            if c < 3 {
+                                set(&mut x, first + c, 1.0);
+                                for k in 0..3 {
+                                    let e_k = unit(k);
+                                    let moved = cross(e_k, p);
+                                    set(&mut x, first + 3 + k, moved[c]);
+                                }
+                            } else {
+                                set(&mut x, first + c, w);
+                            }
+                        }
+                        let y = (obs - err[c]) * w;
+                        row(RowMeta { file: f as u32, line: line as u32, component: c as u8 }, &x, y);
+                    }
+                }
+            }
+            (Observations::Lengths(l), FileStates::Lengths(s1, s2)) => {
+                for r in 0..s1.len() {
+                    let line = s1.line.get(r).copied().unwrap_or(0);
+                    let fixed = engine
+                        .length_and_row(&s1.get(r), &s2.get(r), &zero, &mut lrow)
+                        .map_err(|source| DesignError::Eval { path: path(), line, source })?;
+                    let Some(obs) = l.dl.get(r).copied().filter(|v| !v.is_nan()) else { continue };
+                    x.fill(0.0);
+                    x.get_mut(..n).unwrap_or(&mut []).copy_from_slice(&lrow);
+                    if let Some(first) = layout.first_of(f, rows.artifact_of(r)) {
+                        set(&mut x, first, 1.0);
+                    }
+                    row(RowMeta { file: f as u32, line: line as u32, component: LENGTH }, &x, obs - fixed);
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+fn set(x: &mut [f64], i: usize, v: f64) {
+    if let Some(slot) = x.get_mut(i) {
+        *slot = v;
+    }
+}
+
+fn unit(k: usize) -> [f64; 3] {
+    let mut e = [0.0; 3];
+    if let Some(s) = e.get_mut(k) {
+        *s = 1.0;
+    }
+    e
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// Number of observed values (rows of the problem) in the files.
+pub fn count_rows(files: &[DataSet]) -> usize {
+    files
+        .iter()
+        .map(|f| match &f.observations {
+            Observations::Points(p) => p.observed.iter().flatten().map(|v| v.iter().filter(|x| !x.is_nan()).count()).sum(),
+            Observations::Lengths(l) => l.dl.iter().filter(|x| !x.is_nan()).count(),
+        })
+        .sum()
+}

@@ -1,0 +1,267 @@
+//! Least-squares fitting of a model to measurement files (thesis §3.2.2, §4.2–4.3).
+//!
+//! Two passes over the data. The first streams the weighted rows of `[X | y]` through a QR
+//! accumulator (memory ∝ columns², not rows); the solve, the rank decision and the covariance
+//! (eq. 4.11) work on the small triangle. The second pass recomputes each row for its residual,
+//! leverage (eq. 4.12's quadratic form), studentized residual and Cook's distance.
+
+mod design;
+mod qr;
+pub mod report;
+mod solve;
+
+use faer::Mat;
+use kin_compiler::{Compiled, Diagnostic};
+use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
+use thiserror::Error;
+
+pub use design::{count_rows, for_each_row, rotation_weight, states, DataSet, DesignError, FileStates, Layout, Nuisance, NuisanceKind, RowMeta, LENGTH};
+pub use qr::{Reduced, StreamingQr};
+pub use solve::{Solution, Solver};
+
+use crate::engine::Evaluator;
+use crate::identify::{self, Column, Observe};
+
+#[derive(Debug, Error)]
+pub enum FitError {
+    #[error(transparent)]
+    Design(#[from] DesignError),
+    #[error("the files hold no observed value")]
+    NoRows,
+    #[error("{rows} observed values cannot determine {rank} parameters with a noise estimate left over")]
+    TooFewRows { rows: usize, rank: usize },
+    #[error("the design is rank-deficient: rank {rank} of {columns} columns")]
+    RankDeficient { rank: usize, columns: usize, diagnostics: Vec<Diagnostic> },
+}
+
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub solver: Solver,
+    /// Relative tolerance of the rank decision on the unit-scaled problem.
+    pub tolerance: f64,
+    /// Fit the visible part of a rank-deficient problem (minimum norm) instead of stopping.
+    pub min_norm: bool,
+    /// Rows per block streamed through the QR.
+    pub block: usize,
+    /// Family-wise significance level for flagging outliers (Bonferroni over all rows).
+    pub outlier_alpha: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { solver: Solver::Qr, tolerance: 1e-10, min_norm: false, block: 4096, outlier_alpha: 0.05 }
+    }
+}
+
+/// One observed value after the fit. Values are weighted (rotation rows scaled so a tilt unit
+/// weighs as an error unit); `report` converts to display units.
+#[derive(Debug, Clone, Copy)]
+pub struct ResidualRow {
+    pub meta: RowMeta,
+    pub observed: f64,
+    pub residual: f64,
+    pub leverage: f64,
+    pub studentized: f64,
+    pub cook: f64,
+}
+
+/// Everything a fit found.
+#[derive(Debug, Clone)]
+pub struct FitResult {
+    pub layout: Layout,
+    pub solution: Solution,
+    pub rows: usize,
+    pub sigma: f64,
+    pub r2: f64,
+    pub residuals: Vec<ResidualRow>,
+    /// |studentized| above this is flagged (Bonferroni at `outlier_alpha`).
+    pub outlier_threshold: f64,
+    /// Cook's distance above this (median of F(rank, dof)) is flagged as influential.
+    pub cook_threshold: f64,
+    /// When `min_norm` fitted a deficient problem: what was constrained, as diagnostics.
+    pub constrained: Vec<Diagnostic>,
+    pub validation: Vec<ResidualRow>,
+}
+
+/// Progress callback: rows done in the current pass, and the pass name.
+pub type Progress<'a> = &'a mut dyn FnMut(&'static str, usize);
+
+/// Fits `files` (and checks against `validate`).
+pub fn fit(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    validate: &[DataSet],
+    options: &Options,
+    progress: Progress,
+) -> Result<FitResult, FitError> {
+    let m = &compiled.machine;
+    let layout = Layout::new(m, files);
+    let p = layout.columns();
+    let states = design::states(m, files)?;
+
+    // Pass 1: the triangle of [X | y].
+    let mut acc = StreamingQr::new(p, options.block);
+    let mut done = 0usize;
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        acc.push(x, y);
+        done += 1;
+        if done % 8192 == 0 {
+            progress("factorising", done);
+        }
+    })?;
+    progress("factorising", done);
+    let red = acc.finish();
+    if red.rows == 0 {
+        return Err(FitError::NoRows);
+    }
+
+    let solution = match solve::solve(&red, options.solver, options.tolerance, options.min_norm) {
+        Ok(s) => s,
+        Err(s) => {
+            return Err(FitError::RankDeficient { rank: s.rank, columns: p, diagnostics: name_invisible(compiled, &layout, &red) });
+        }
+    };
+    let constrained = if solution.rank < p { name_invisible(compiled, &layout, &red) } else { Vec::new() };
+    let dof = red.rows.saturating_sub(solution.rank);
+    if dof == 0 {
+        return Err(FitError::TooFewRows { rows: red.rows, rank: solution.rank });
+    }
+    let sigma2 = solution.rss / dof as f64;
+    let sigma = sigma2.sqrt();
+    let sst = red.y_sumsq - red.y_sum * red.y_sum / red.rows as f64;
+    let r2 = if sst > 0.0 { 1.0 - solution.rss / sst } else { f64::NAN };
+
+    // Pass 2: residuals and influence, leverages in blocks (one matrix product per block).
+    let mut residuals = Vec::with_capacity(red.rows);
+    let mut block = Block::new(options.block, p);
+    let mut done = 0usize;
+    design::for_each_row(engine, files, &states, &layout, |meta, x, y| {
+        block.push(meta, x, y);
+        if block.full() {
+            block.drain(&solution, &mut residuals);
+        }
+        done += 1;
+        if done % 8192 == 0 {
+            progress("residuals", done);
+        }
+    })?;
+    block.drain(&solution, &mut residuals);
+    progress("residuals", done);
+    let rank = solution.rank.max(1) as f64;
+    for r in &mut residuals {
+        let room = (1.0 - r.leverage).max(1e-15);
+        r.studentized = r.residual / (sigma * room.sqrt());
+        r.cook = r.studentized.powi(2) * r.leverage / (rank * room);
+    }
+
+    let n = red.rows as f64;
+    let outlier_threshold = Normal::new(0.0, 1.0).map(|d| d.inverse_cdf(1.0 - options.outlier_alpha / (2.0 * n))).unwrap_or(4.0);
+    let cook_threshold = FisherSnedecor::new(rank, dof as f64).map(|d| d.inverse_cdf(0.5)).unwrap_or(1.0);
+
+    let validation = if validate.is_empty() { Vec::new() } else { validation_residuals(compiled, engine, validate, &solution, options)? };
+
+    Ok(FitResult { layout, solution, rows: red.rows, sigma, r2, residuals, outlier_threshold, cook_threshold, constrained, validation })
+}
+
+/// Rows buffered for the residual pass.
+struct Block {
+    x: Mat<f64>,
+    y: Vec<f64>,
+    meta: Vec<RowMeta>,
+}
+
+impl Block {
+    fn new(rows: usize, p: usize) -> Self {
+        Block { x: Mat::zeros(rows.max(1), p), y: Vec::with_capacity(rows), meta: Vec::with_capacity(rows) }
+    }
+    fn full(&self) -> bool {
+        self.y.len() == self.x.nrows()
+    }
+    fn push(&mut self, meta: RowMeta, x: &[f64], y: f64) {
+        let i = self.y.len();
+        for (j, v) in x.iter().enumerate().take(self.x.ncols()) {
+            self.x[(i, j)] = *v;
+        }
+        self.y.push(y);
+        self.meta.push(meta);
+    }
+    fn drain(&mut self, s: &Solution, out: &mut Vec<ResidualRow>) {
+        let b = self.y.len();
+        if b == 0 {
+            return;
+        }
+        let x = self.x.get(..b, ..);
+        let beta = Mat::from_fn(s.beta.len(), 1, |i, _| s.beta[i]);
+        let fitted = x * &beta;
+        let gx = x * s.g.transpose();
+        for i in 0..b {
+            let h: f64 = (0..gx.ncols()).map(|k| gx[(i, k)].powi(2)).sum();
+            out.push(ResidualRow {
+                meta: self.meta[i],
+                observed: self.y[i],
+                residual: self.y[i] - fitted[(i, 0)],
+                leverage: h,
+                studentized: 0.0,
+                cook: 0.0,
+            });
+        }
+        self.y.clear();
+        self.meta.clear();
+    }
+}
+
+/// Residuals of validation files with β fixed; their own artifacts' placements are fitted.
+fn validation_residuals(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    solution: &Solution,
+    options: &Options,
+) -> Result<Vec<ResidualRow>, FitError> {
+    let m = &compiled.machine;
+    let layout = Layout::new(m, files);
+    let n = layout.coefficients;
+    let states = design::states(m, files)?;
+    let beta = solution.beta.get(..n).unwrap_or(&[]);
+    let extra = layout.nuisance.len();
+    // First the nuisance (placements) by least squares on y − Xβ, then the residuals.
+    let mut acc = StreamingQr::new(extra, options.block);
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        let pred: f64 = x.iter().zip(beta).map(|(a, b)| a * b).sum();
+        acc.push(x.get(n..).unwrap_or(&[]), y - pred);
+    })?;
+    let nuisance = if extra > 0 {
+        let red = acc.finish();
+        match solve::solve(&red, Solver::Svd, options.tolerance, true) {
+            Ok(s) | Err(s) => s.beta,
+        }
+    } else {
+        Vec::new()
+    };
+    let mut out = Vec::new();
+    design::for_each_row(engine, files, &states, &layout, |meta, x, y| {
+        let pred: f64 = x.iter().zip(beta.iter().chain(&nuisance)).map(|(a, b)| a * b).sum();
+        out.push(ResidualRow { meta, observed: y, residual: y - pred, leverage: f64::NAN, studentized: f64::NAN, cook: f64::NAN });
+    })?;
+    Ok(out)
+}
+
+/// Names the invisible combinations of a deficient problem with the identifiability analysis
+/// run on the data's own scaled triangle (it has the same column dependencies as X).
+fn name_invisible(compiled: &Compiled, layout: &Layout, red: &Reduced) -> Vec<Diagnostic> {
+    let (rs, _) = solve::scaled_triangle(red);
+    let columns: Vec<Column> = (0..layout.coefficients)
+        .map(Column::Coefficient)
+        .chain(layout.nuisance.iter().map(|n| Column::Nuisance(n.name())))
+        .collect();
+    // Nuisance first, so a model term they absorb is reported as absorbed.
+    let order: Vec<usize> = (layout.coefficients..layout.columns()).chain(0..layout.coefficients).collect();
+    let p = layout.columns();
+    let reordered: Vec<f64> = (0..p).flat_map(|i| order.iter().map(move |&j| (i, j))).map(|(i, j)| rs[i * p + j]).collect();
+    let cols: Vec<Column> = order.iter().map(|&j| columns[j].clone()).collect();
+    match identify::analyse(&reordered, &cols) {
+        Ok(report) => identify::diagnostics(&compiled.machine, &compiled.map, &report, Observe::Data, false),
+        Err(e) => vec![Diagnostic::error("E0601", format!("the invisible combinations could not be named: {e}"), Default::default())],
+    }
+}

@@ -1,0 +1,288 @@
+//! What a fit reports: `FIT.json` (every coefficient with its unit, value and standard error,
+//! the noise estimate, the rank, residuals and outliers) and the bound parameters as `.kin`
+//! text that `kin eval`, `kin simulate` and compensation load back.
+
+use kin_compiler::ir::Machine;
+use serde::{Deserialize, Serialize};
+
+use super::design::{NuisanceKind, LENGTH};
+use super::{solve, FitResult, Options, ResidualRow};
+use crate::data::OBSERVED;
+use crate::fit::DataSet;
+
+/// Format version of `FIT.json`.
+pub const VERSION: u32 = 1;
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FitReport {
+    pub version: u32,
+    pub machine: String,
+    /// FNV-1a hash of the model's source text: which revision of the model this fit belongs to.
+    pub model_hash: String,
+    pub engine: String,
+    pub solver: String,
+    pub tolerance: f64,
+    pub columns: usize,
+    pub rank: usize,
+    pub condition: f64,
+    pub rows: usize,
+    pub dof: usize,
+    /// Noise estimate σ̂, residual RMS and largest |residual|, in `error_unit` (rotation rows
+    /// count a tilt unit as an error unit).
+    pub sigma: f64,
+    pub rms: f64,
+    pub max: f64,
+    pub r2: f64,
+    pub error_unit: String,
+    pub tilt_unit: String,
+    pub files: Vec<FileSummary>,
+    pub coefficients: Vec<Estimate>,
+    pub nonlinear: Vec<Estimate>,
+    pub nuisance: Vec<Estimate>,
+    /// Covariance of the coefficients (eq. 4.11), SI, row-major `n × n`.
+    pub covariance: Vec<f64>,
+    pub outlier_threshold: f64,
+    pub cook_threshold: f64,
+    pub outliers: Vec<Residual>,
+    /// Every row's residual, unless there were more than [`MAX_RESIDUALS`].
+    pub residuals: Vec<Residual>,
+    pub residuals_omitted: usize,
+    pub validation: Vec<FileSummary>,
+    pub validation_residuals: Vec<Residual>,
+    /// Messages naming what a minimum-norm fit of a deficient problem constrained.
+    pub constrained: Vec<String>,
+    /// The fitted values as a `params { … }` block.
+    pub params: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Estimate {
+    pub name: String,
+    pub label: String,
+    pub unit: String,
+    pub value: f64,
+    pub se: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FileSummary {
+    pub path: String,
+    pub kind: String,
+    pub rows: usize,
+    /// Per observed quantity (`ex`, …, `dL`): rows, RMS and max |residual|, display units.
+    pub components: Vec<ComponentSummary>,
+    pub rms: f64,
+    pub max: f64,
+    pub outliers: usize,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ComponentSummary {
+    pub name: String,
+    pub unit: String,
+    pub rows: usize,
+    pub rms: f64,
+    pub max: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Residual {
+    pub file: u32,
+    pub line: u32,
+    pub component: String,
+    pub observed: f64,
+    pub residual: f64,
+    pub studentized: f64,
+    pub leverage: f64,
+    pub cook: f64,
+}
+
+/// Beyond this many rows the per-row residuals are left out of `FIT.json` (summaries and
+/// outliers stay).
+pub const MAX_RESIDUALS: usize = 200_000;
+
+pub fn component_name(c: u8) -> &'static str {
+    if c == LENGTH {
+        "dL"
+    } else {
+        OBSERVED.get(c as usize).copied().unwrap_or("?")
+    }
+}
+
+/// FNV-1a, 64 bit: stable across runs and platforms, enough to tell model revisions apart.
+pub fn model_hash(source: &str) -> String {
+    let mut h: u64 = 0xcbf29ce484222325;
+    for b in source.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x100000001b3);
+    }
+    format!("{h:016x}")
+}
+
+fn residual(m: &Machine, r: &ResidualRow) -> Residual {
+    // Rows are weighted so that one tilt unit counts as one error unit: dividing by the error
+    // unit's scale gives display units for both kinds.
+    let s = m.units.error.scale;
+    Residual {
+        file: r.meta.file,
+        line: r.meta.line,
+        component: component_name(r.meta.component).to_string(),
+        observed: r.observed / s,
+        residual: r.residual / s,
+        studentized: r.studentized,
+        leverage: r.leverage,
+        cook: r.cook,
+    }
+}
+
+fn summaries(m: &Machine, files: &[DataSet], rows: &[ResidualRow], threshold: f64) -> Vec<FileSummary> {
+    let s = m.units.error.scale;
+    files
+        .iter()
+        .enumerate()
+        .map(|(f, file)| {
+            let mine: Vec<&ResidualRow> = rows.iter().filter(|r| r.meta.file as usize == f).collect();
+            let mut components = Vec::new();
+            for c in 0..=LENGTH {
+                let vals: Vec<f64> = mine.iter().filter(|r| r.meta.component == c).map(|r| r.residual / s).collect();
+                if vals.is_empty() {
+                    continue;
+                }
+                let unit = if (3..6).contains(&c) { &m.units.tilt } else { &m.units.error };
+                components.push(ComponentSummary {
+                    name: component_name(c).to_string(),
+                    unit: unit.name.clone(),
+                    rows: vals.len(),
+                    rms: rms(&vals),
+                    max: vals.iter().fold(0.0f64, |a, v| a.max(v.abs())),
+                });
+            }
+            let all: Vec<f64> = mine.iter().map(|r| r.residual / s).collect();
+            FileSummary {
+                path: file.path.display().to_string(),
+                kind: match file.observations {
+                    crate::data::Observations::Points(_) => "points".into(),
+                    crate::data::Observations::Lengths(_) => "lengths".into(),
+                },
+                rows: all.len(),
+                components,
+                rms: rms(&all),
+                max: all.iter().fold(0.0f64, |a, v| a.max(v.abs())),
+                outliers: mine.iter().filter(|r| r.studentized.abs() > threshold).count(),
+            }
+        })
+        .collect()
+}
+
+pub fn rms(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// Builds the report of a fit.
+#[allow(clippy::too_many_arguments)]
+pub fn build(
+    m: &Machine,
+    source: &str,
+    engine: &str,
+    files: &[DataSet],
+    validate: &[DataSet],
+    result: &FitResult,
+    options: &Options,
+    nonlinear: Vec<Estimate>,
+) -> FitReport {
+    let sol = &result.solution;
+    let sigma2 = result.sigma * result.sigma;
+    let var = solve::variances(&sol.g, sigma2);
+    let n = m.coefficients.len();
+    let coefficients: Vec<Estimate> = m
+        .coefficients
+        .iter()
+        .enumerate()
+        .map(|(j, c)| Estimate {
+            name: c.name.clone(),
+            label: c.label.clone(),
+            unit: c.unit.name.clone(),
+            value: sol.beta.get(j).copied().unwrap_or(0.0) / c.unit.scale,
+            se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / c.unit.scale,
+        })
+        .collect();
+    let nuisance: Vec<Estimate> = result
+        .layout
+        .nuisance
+        .iter()
+        .enumerate()
+        .map(|(k, nu)| {
+            let unit = if matches!(nu.kind, NuisanceKind::Rotation(_)) { &m.units.tilt } else { &m.units.error };
+            let j = n + k;
+            Estimate {
+                name: nu.name(),
+                label: files.get(nu.file).map(|f| f.path.display().to_string()).unwrap_or_default(),
+                unit: unit.name.clone(),
+                value: sol.beta.get(j).copied().unwrap_or(0.0) / unit.scale,
+                se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / unit.scale,
+            }
+        })
+        .collect();
+    let cov_full = solve::covariance(&sol.g, sigma2);
+    let covariance: Vec<f64> = (0..n).flat_map(|a| (0..n).map(move |b| (a, b))).map(|(a, b)| cov_full[(a, b)]).collect();
+    let s = m.units.error.scale;
+    let all: Vec<f64> = result.residuals.iter().map(|r| r.residual / s).collect();
+    let outliers: Vec<Residual> = result
+        .residuals
+        .iter()
+        .filter(|r| r.studentized.abs() > result.outlier_threshold || r.cook > result.cook_threshold)
+        .map(|r| residual(m, r))
+        .collect();
+    let keep = result.residuals.len() <= MAX_RESIDUALS;
+    FitReport {
+        version: VERSION,
+        machine: m.name.clone(),
+        model_hash: model_hash(source),
+        engine: engine.to_string(),
+        solver: format!("{:?}", options.solver).to_lowercase(),
+        tolerance: options.tolerance,
+        columns: result.layout.columns(),
+        rank: sol.rank,
+        condition: sol.condition,
+        rows: result.rows,
+        dof: result.rows.saturating_sub(sol.rank),
+        sigma: result.sigma / s,
+        rms: rms(&all),
+        max: all.iter().fold(0.0f64, |a, v| a.max(v.abs())),
+        r2: result.r2,
+        error_unit: m.units.error.name.clone(),
+        tilt_unit: m.units.tilt.name.clone(),
+        files: summaries(m, files, &result.residuals, result.outlier_threshold),
+        params: params_text(m, &sol.beta, &nonlinear),
+        coefficients,
+        nonlinear,
+        nuisance,
+        covariance,
+        outlier_threshold: result.outlier_threshold,
+        cook_threshold: result.cook_threshold,
+        outliers,
+        residuals: if keep { result.residuals.iter().map(|r| residual(m, r)).collect() } else { Vec::new() },
+        residuals_omitted: if keep { 0 } else { result.residuals.len() },
+        validation: summaries(m, validate, &result.validation, f64::INFINITY),
+        validation_residuals: result.validation.iter().map(|r| residual(m, r)).collect(),
+        constrained: result.constrained.iter().map(|d| d.message.clone()).collect(),
+    }
+}
+
+/// The fitted values as a `params { … }` block, each coefficient in its own unit, with enough
+/// digits to round-trip.
+pub fn params_text(m: &Machine, beta: &[f64], nonlinear: &[Estimate]) -> String {
+    let mut out = String::from("params {\n");
+    for (j, c) in m.coefficients.iter().enumerate() {
+        let v = beta.get(j).copied().unwrap_or(0.0) / c.unit.scale;
+        out.push_str(&format!("    {} = {:?} {}\n", c.name, v, c.unit.name));
+    }
+    for p in nonlinear {
+        out.push_str(&format!("    {} = {:?} {}\n", p.name, p.value, p.unit));
+    }
+    out.push_str("}\n");
+    out
+}

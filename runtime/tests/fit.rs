@@ -1,0 +1,278 @@
+//! The fit on data with a known truth: simulated by the exact simulator, fitted back.
+
+use faer::linalg::solvers::{DenseSolveCore, SolveLstsq};
+use faer::Mat;
+use kin_compiler::{compile, Compiled};
+use kin_runtime::data::{Groups, Observations};
+use kin_runtime::fit::{self, DataSet, FitError, Options, Solver};
+use kin_runtime::interp::Interpreter;
+use kin_runtime::simulate::{self, sample_points};
+use rand::{Rng, SeedableRng};
+
+/// A small 3-axis CMM: squareness, scales, a straightness, a yaw with its Abbe arm and a
+/// backlash, 14 coefficients.
+const CMM: &str = r#"
+machine cmm3 {
+    task measure
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 800 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 500) mm
+        tool probe at (0, 0, -100) mm
+        tool side at (60, 40, -100) mm
+    }
+    workpiece chain { workpiece }
+    errors {
+        X.tx = spline(X, knots 2)
+        X.rz = const + linear(X)
+        Y.ty = linear(Y) + backlash(Y)
+        Y.tx = straightness(Y, knots 2)
+        X.ry = const
+        Y.rx = const
+        Z.tz = linear(Z)
+    }
+}
+"#;
+
+fn machine(src: &str) -> Compiled {
+    let out = compile(src);
+    out.compiled.unwrap_or_else(|| panic!("{:#?}", out.diagnostics))
+}
+
+fn truth(c: &Compiled, seed: u64) -> Vec<f64> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    c.machine.coefficients.iter().map(|co| co.unit.scale * rng.random_range(-5.0..5.0)).collect()
+}
+
+fn simulated(c: &Compiled, beta: &[f64], n: usize, noise: f64, seed: u64, artifacts: usize) -> DataSet {
+    let mut poses = sample_points(&c.machine, n, seed);
+    if artifacts > 0 {
+        poses.rows.artifact = Some(Groups { of_row: (0..n).map(|r| Some((r % artifacts) as u32)).collect(), labels: (0..artifacts).map(|a| format!("plate{a}")).collect() });
+    }
+    let options = simulate::Options { noise, seed: seed + 1, artifact_shift: 50e-6, artifact_rotation: 20e-6, ..simulate::Options::default() };
+    let obs = simulate::simulate(&c.machine, beta, &Observations::Points(poses), &options).expect("simulate");
+    DataSet { path: format!("sim{seed}.csv").into(), observations: obs }
+}
+
+fn run(c: &Compiled, files: &[DataSet], options: &Options) -> Result<fit::FitResult, FitError> {
+    let mut it = Interpreter::new(&c.machine).expect("interpreter");
+    fit::fit(c, &mut it, files, &[], options, &mut |_, _| {})
+}
+
+fn standard_errors(r: &fit::FitResult) -> Vec<f64> {
+    let g = &r.solution.g;
+    (0..g.ncols()).map(|j| r.sigma * (0..g.nrows()).map(|k| g[(k, j)].powi(2)).sum::<f64>().sqrt()).collect()
+}
+
+#[test]
+fn estimates_cover_the_truth_at_the_stated_rate() {
+    // Over many seeds, β̂ falls within 1.96 standard errors of the truth ~95 % of the time and
+    // the z-scores have unit variance: the standard errors mean what they say.
+    let c = machine(CMM);
+    let sigma = 0.3e-6;
+    let (mut inside, mut total, mut z2) = (0usize, 0usize, 0.0);
+    let mut sigma_ratio = Vec::new();
+    for seed in 0..60 {
+        let beta = truth(&c, seed);
+        let data = simulated(&c, &beta, 300, sigma, 1000 + seed, 0);
+        let r = run(&c, &[data], &Options::default()).expect("fit");
+        let se = standard_errors(&r);
+        for (j, b) in beta.iter().enumerate() {
+            let z = (r.solution.beta[j] - b) / se[j];
+            inside += usize::from(z.abs() < 1.96);
+            z2 += z * z;
+            total += 1;
+        }
+        sigma_ratio.push(r.sigma / sigma);
+    }
+    let rate = inside as f64 / total as f64;
+    let var = z2 / total as f64;
+    let mean_sigma = sigma_ratio.iter().sum::<f64>() / sigma_ratio.len() as f64;
+    // 840 z-scores: the binomial standard deviation of the rate is 0.0075.
+    assert!((0.925..0.975).contains(&rate), "coverage {rate}");
+    assert!((0.85..1.15).contains(&var), "var(z) {var}");
+    assert!((0.97..1.03).contains(&mean_sigma), "σ̂/σ {mean_sigma}");
+}
+
+#[test]
+fn every_number_matches_a_dense_reference_solve() {
+    let c = machine(CMM);
+    let beta = truth(&c, 7);
+    let data = simulated(&c, &beta, 200, 0.5e-6, 8, 2);
+    let files = [data];
+    // Small blocks, so the streaming QR really streams.
+    let options = Options { block: 37, ..Options::default() };
+    let r = run(&c, &files, &options).expect("fit");
+
+    let mut it = Interpreter::new(&c.machine).unwrap();
+    let layout = fit::Layout::new(&c.machine, &files);
+    let states = fit::states(&c.machine, &files).unwrap();
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    fit::for_each_row(&mut it, &files, &states, &layout, |_, x, y| {
+        xs.push(x.to_vec());
+        ys.push(y);
+    })
+    .unwrap();
+    let (m, p) = (xs.len(), layout.columns());
+    assert_eq!(p, 14 + 12, "two artifacts bring six placement parameters each");
+    let x = Mat::from_fn(m, p, |i, j| xs[i][j]);
+    let y = Mat::from_fn(m, 1, |i, _| ys[i]);
+    let dense = x.qr().solve_lstsq(&y);
+    for j in 0..p {
+        let scale = dense[(j, 0)].abs().max(1e-9);
+        assert!((r.solution.beta[j] - dense[(j, 0)]).abs() < 1e-7 * scale + 1e-15, "β[{j}]: {} vs {}", r.solution.beta[j], dense[(j, 0)]);
+    }
+    let resid: Vec<f64> = (0..m).map(|i| ys[i] - (0..p).map(|j| xs[i][j] * dense[(j, 0)]).sum::<f64>()).collect();
+    let rss: f64 = resid.iter().map(|v| v * v).sum();
+    assert!((r.solution.rss - rss).abs() < 1e-8 * rss, "rss {} vs {rss}", r.solution.rss);
+    // Covariance σ̂²(XᵀX)⁻¹ (eq. 4.11) and leverages diag X(XᵀX)⁻¹Xᵀ.
+    let xtx = x.transpose() * &x;
+    let inv = xtx.partial_piv_lu().inverse();
+    let sigma2 = rss / (m - p) as f64;
+    let se = standard_errors(&r);
+    for j in 0..p {
+        let want = (sigma2 * inv[(j, j)]).sqrt();
+        assert!((se[j] - want).abs() < 1e-6 * want, "se[{j}] {} vs {want}", se[j]);
+    }
+    for (i, row) in r.residuals.iter().enumerate() {
+        let h: f64 = (0..p).map(|a| (0..p).map(|b| xs[i][a] * inv[(a, b)] * xs[i][b]).sum::<f64>()).sum();
+        assert!((row.leverage - h).abs() < 1e-7, "leverage {i}: {} vs {h}", row.leverage);
+        assert!((row.residual - resid[i]).abs() < 1e-9 * rss.sqrt(), "residual {i}");
+    }
+    let sum_h: f64 = r.residuals.iter().map(|r| r.leverage).sum();
+    assert!((sum_h - p as f64).abs() < 1e-6, "the leverages sum to the number of parameters: {sum_h}");
+}
+
+#[test]
+fn artifact_placements_are_fitted_and_do_not_bias_the_model() {
+    let c = machine(CMM);
+    let beta = truth(&c, 21);
+    // Three plates placed with 50 µm / 20 µrad uncertainty: without nuisance parameters this
+    // would swamp 0.2 µm noise.
+    let data = simulated(&c, &beta, 900, 0.2e-6, 22, 3);
+    let r = run(&c, &[data], &Options::default()).expect("fit");
+    assert!((r.sigma / 0.2e-6 - 1.0).abs() < 0.1, "σ̂ {}", r.sigma);
+    let se = standard_errors(&r);
+    // Offsets of the model that a placement absorbs are not in this model (it has no constant
+    // translation): every coefficient is estimable and unbiased.
+    for (j, b) in beta.iter().enumerate() {
+        assert!(((r.solution.beta[j] - b) / se[j]).abs() < 4.5, "{}: {} vs {b}", c.machine.coefficients[j].name, r.solution.beta[j]);
+    }
+}
+
+#[test]
+fn a_rank_deficient_design_is_named_not_solved() {
+    // X.tx's constant is a shift, which the plates' placements absorb.
+    let src = CMM.replace("X.tx = spline(X, knots 2)", "X.tx = spline(X, knots 2) + const");
+    let c = machine(&src);
+    let beta = vec![1e-6; c.machine.coefficients.len()];
+    let data = simulated(&c, &beta, 300, 0.2e-6, 3, 2);
+    match run(&c, std::slice::from_ref(&data), &Options::default()) {
+        Err(FitError::RankDeficient { rank, columns, diagnostics }) => {
+            assert_eq!(columns - rank, 1, "one invisible direction");
+            let all: String = diagnostics.iter().map(|d| d.message.clone()).collect::<Vec<_>>().join("\n");
+            assert!(all.contains("X.tx[") && all.contains("artifact `plate"), "{all}");
+            let labelled = diagnostics.iter().flat_map(|d| &d.labels).any(|l| &src[l.span.start..l.span.end] == "const");
+            assert!(labelled, "points at the declaration");
+        }
+        other => panic!("expected a rank-deficiency error, got {:?}", other.map(|r| r.solution.rank)),
+    }
+    // With --min-norm the visible part is fitted and what was constrained is said.
+    let r = run(&c, &[data], &Options { min_norm: true, ..Options::default() }).expect("min-norm fit");
+    assert_eq!(r.solution.rank, r.layout.columns() - 1);
+    assert!(!r.constrained.is_empty());
+    assert!((r.sigma / 0.2e-6 - 1.0).abs() < 0.15, "the visible part still fits: σ̂ {}", r.sigma);
+}
+
+#[test]
+fn svd_and_pivoted_qr_agree() {
+    let c = machine(CMM);
+    let beta = truth(&c, 31);
+    let data = [simulated(&c, &beta, 300, 0.3e-6, 32, 0)];
+    let a = run(&c, &data, &Options::default()).unwrap();
+    let b = run(&c, &data, &Options { solver: Solver::Svd, ..Options::default() }).unwrap();
+    assert_eq!(a.solution.rank, b.solution.rank);
+    for (x, y) in a.solution.beta.iter().zip(&b.solution.beta) {
+        assert!((x - y).abs() < 1e-9 * x.abs().max(1e-6));
+    }
+}
+
+#[test]
+fn lengths_with_unknown_reference_lengths() {
+    // The thesis' 2-D example (§4.4) with ball bars of unknown calibration: each artifact's
+    // length error is a nuisance parameter; squareness and scales come back.
+    let src = r#"
+machine cmm2d {
+    task measure
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 1000 mm
+    tool chain {
+        X moving
+        Y moving
+        tool probe
+    }
+    errors {
+        X.rz = const
+        X.tx = linear(X)
+        Y.ty = linear(Y)
+    }
+}
+"#;
+    let c = machine(src);
+    let beta: Vec<f64> = vec![8e-6, 5e-6, -3e-6];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+    // Bars of three lengths in many orientations, each bar one artifact.
+    let n = 240;
+    let mut l = kin_runtime::data::LengthData::default();
+    l.rows.line = (1..=n).collect();
+    l.rows.tool = vec![0; n];
+    l.rows.inputs = vec![];
+    for end in 0..2 {
+        l.poses[end].axes = vec![Vec::new(), Vec::new()];
+        l.poses[end].dir = vec![None, None];
+    }
+    let mut of_row = Vec::new();
+    for r in 0..n {
+        let bar = r % 3;
+        let len = [0.3, 0.5, 0.7][bar];
+        let a: f64 = rng.random_range(0.0..std::f64::consts::PI);
+        let (cx, cy) = (rng.random_range(0.4..0.6), rng.random_range(0.4..0.6));
+        let (dx, dy) = (len / 2.0 * a.cos(), len / 2.0 * a.sin());
+        l.poses[0].axes[0].push(cx - dx);
+        l.poses[0].axes[1].push(cy - dy);
+        l.poses[1].axes[0].push(cx + dx);
+        l.poses[1].axes[1].push(cy + dy);
+        // The 300 mm bar is calibrated (no artifact label: its length is known); the other two
+        // are not. Without one known length a uniform scale would be invisible (§4.2).
+        of_row.push(if bar == 0 { None } else { Some(bar as u32 - 1) });
+    }
+    l.rows.artifact = Some(Groups { of_row, labels: vec!["bar500".into(), "bar700".into()] });
+    l.dl = vec![0.0; n];
+    let options = simulate::Options { noise: 0.1e-6, artifact_length: 2e-6, seed: 4, ..simulate::Options::default() };
+    let obs = simulate::simulate(&c.machine, &beta, &Observations::Lengths(l), &options).unwrap();
+    let mut uncalibrated = obs.clone();
+    let r = run(&c, &[DataSet { path: "bars.csv".into(), observations: obs }], &Options::default()).expect("fit");
+    assert_eq!(r.layout.columns(), 3 + 2);
+    let se = standard_errors(&r);
+    for j in 0..3 {
+        assert!(((r.solution.beta[j] - beta[j]) / se[j]).abs() < 4.0, "β[{j}] {} vs {}", r.solution.beta[j], beta[j]);
+    }
+
+    // Every bar of unknown length: the uniform scale is invisible, and the fit says so.
+    if let Observations::Lengths(l) = &mut uncalibrated {
+        if let Some(g) = &mut l.rows.artifact {
+            g.of_row = (0..n).map(|r| Some((r % 3) as u32)).collect();
+            g.labels = vec!["bar300".into(), "bar500".into(), "bar700".into()];
+        }
+    }
+    match run(&c, &[DataSet { path: "bars.csv".into(), observations: uncalibrated }], &Options::default()) {
+        Err(FitError::RankDeficient { rank: 5, columns: 6, diagnostics }) => {
+            assert!(diagnostics[0].message.contains("length error"), "{}", diagnostics[0].message);
+        }
+        other => panic!("expected the uniform scale to be invisible, got {:?}", other.map(|r| r.solution.rank)),
+    }
+}

@@ -1,0 +1,174 @@
+//! `kin fit`: least squares from measurement files, with the statistics a metrologist needs.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use kin_runtime::fit::{self, report, DataSet, FitError, Options, Solver};
+use kin_runtime::interp::Interpreter;
+
+use crate::load::{self, Failed};
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum SolverArg {
+    Qr,
+    Svd,
+}
+
+pub struct FitArgs {
+    pub machine: PathBuf,
+    pub data: Vec<PathBuf>,
+    pub validate: Vec<PathBuf>,
+    pub output: Option<PathBuf>,
+    pub solver: SolverArg,
+    pub tolerance: f64,
+    pub min_norm: bool,
+    pub color: bool,
+}
+
+pub fn run(a: FitArgs) -> ExitCode {
+    match fit_command(&a) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Failed) => ExitCode::from(1),
+    }
+}
+
+fn read_all(paths: &[PathBuf], compiled: &kin_compiler::Compiled) -> Result<Vec<DataSet>, Failed> {
+    paths
+        .iter()
+        .map(|p| Ok(DataSet { path: p.clone(), observations: load::observations(p, compiled, false)? }))
+        .collect()
+}
+
+fn fit_command(a: &FitArgs) -> Result<(), Failed> {
+    let source = std::fs::read_to_string(&a.machine).map_err(|e| {
+        eprintln!("error: cannot read `{}`: {e}", a.machine.display());
+        Failed
+    })?;
+    let compiled = load::machine(&a.machine, None, a.color)?;
+    let m = &compiled.machine;
+    let files = read_all(&a.data, &compiled)?;
+    let validate = read_all(&a.validate, &compiled)?;
+    let options = Options {
+        solver: match a.solver {
+            SolverArg::Qr => Solver::Qr,
+            SolverArg::Svd => Solver::Svd,
+        },
+        tolerance: a.tolerance,
+        min_norm: a.min_norm,
+        ..Options::default()
+    };
+    let total = fit::count_rows(&files) as u64;
+    let bar = ProgressBar::new(2 * total);
+    bar.set_style(ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} rows ({eta})").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    let mut engine = Interpreter::new(m).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed
+    })?;
+    let mut progress = |pass: &'static str, done: usize| {
+        bar.set_message(pass);
+        bar.set_position(if pass == "residuals" { total + done as u64 } else { done as u64 });
+    };
+    let result = fit::fit(&compiled, &mut engine, &files, &validate, &options, &mut progress);
+    bar.finish_and_clear();
+    let result = match result {
+        Ok(r) => r,
+        Err(FitError::RankDeficient { rank, columns, diagnostics }) => {
+            let mut stderr = std::io::stderr().lock();
+            let _ = crate::render::human(&a.machine.display().to_string(), &source, &diagnostics, a.color, &mut stderr);
+            eprintln!(
+                "error: the data determine only {rank} of {columns} parameters; the combinations above are invisible to them.\n\
+                 Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
+            );
+            return Err(Failed);
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            return Err(Failed);
+        }
+    };
+    let rep = report::build(m, &source, "interp", &files, &validate, &result, &options, Vec::new());
+    print!("{}", summary(&rep));
+    if let Some(out) = &a.output {
+        write_report(out, &rep)?;
+    }
+    Ok(())
+}
+
+fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
+    let json = serde_json::to_string_pretty(rep).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed
+    })?;
+    std::fs::write(path, json).map_err(|e| {
+        eprintln!("error: cannot write `{}`: {e}", path.display());
+        Failed
+    })?;
+    let params = path.with_extension("params");
+    std::fs::write(&params, &rep.params).map_err(|e| {
+        eprintln!("error: cannot write `{}`: {e}", params.display());
+        Failed
+    })?;
+    println!("wrote {} and {}", path.display(), params.display());
+    Ok(())
+}
+
+/// The terminal summary: the fit, a table per observation file, a table per error component.
+pub fn summary(r: &report::FitReport) -> String {
+    let mut s = String::new();
+    let u = &r.error_unit;
+    let _ = &r.tilt_unit;
+    s.push_str(&format!(
+        "fit of `{}`: {} observations, {} parameters (rank {}, condition {:.3e}), {} degrees of freedom\n",
+        r.machine, r.rows, r.columns, r.rank, r.condition, r.dof
+    ));
+    s.push_str(&format!("  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n", r.sigma, r.rms, r.max, r.r2));
+    s.push_str("\n  file                                   rows      RMS      max  outliers\n");
+    for f in &r.files {
+        s.push_str(&format!("  {:<36} {:>6} {:>8.4} {:>8.4} {:>9}\n", short(&f.path, 36), f.rows, f.rms, f.max, f.outliers));
+        for c in &f.components {
+            s.push_str(&format!("    {:<34} {:>6} {:>8.4} {:>8.4}   {}\n", c.name, c.rows, c.rms, c.max, c.unit));
+        }
+    }
+    for f in &r.validation {
+        s.push_str(&format!("  {:<36} {:>6} {:>8.4} {:>8.4}  (validation)\n", short(&f.path, 36), f.rows, f.rms, f.max));
+    }
+    s.push_str("\n  error component   coefficients (value ± standard error)\n");
+    let mut i = 0;
+    while i < r.coefficients.len() {
+        let base = r.coefficients[i].name.rsplit_once('[').map(|(b, _)| b.to_string()).unwrap_or_default();
+        let unit = r.coefficients[i].unit.clone();
+        let mut parts = Vec::new();
+        while i < r.coefficients.len() && r.coefficients[i].name.starts_with(&format!("{base}[")) {
+            let c = &r.coefficients[i];
+            // Coefficients of scaled terms carry derived units: name them where they differ.
+            let own = if c.unit == unit { String::new() } else { format!(" {}", c.unit) };
+            parts.push(format!("{:.3}±{:.3}{own}", c.value, c.se));
+            i += 1;
+        }
+        s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
+    }
+    for n in &r.nuisance {
+        s.push_str(&format!("  {:<40} {:.4} ± {:.4} {}\n", n.name, n.value, n.se, n.unit));
+    }
+    if !r.outliers.is_empty() {
+        s.push_str(&format!("\n  {} flagged observations (|studentized| > {:.2} or Cook's distance > {:.3}):\n", r.outliers.len(), r.outlier_threshold, r.cook_threshold));
+        for o in r.outliers.iter().take(10) {
+            let path = r.files.get(o.file as usize).map(|f| f.path.as_str()).unwrap_or("?");
+            s.push_str(&format!("    {path}:{} {} residual {:.4} studentized {:.2} Cook {:.3}\n", o.line, o.component, o.residual, o.studentized, o.cook));
+        }
+    }
+    for c in &r.constrained {
+        s.push_str(&format!("  constrained (minimum norm): {c}\n"));
+    }
+    s
+}
+
+fn short(p: &str, n: usize) -> String {
+    let count = p.chars().count();
+    if count <= n {
+        p.to_string()
+    } else {
+        format!("…{}", p.chars().skip(count - n + 1).collect::<String>())
+    }
+}

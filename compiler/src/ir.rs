@@ -80,6 +80,9 @@ pub struct Input {
     pub unit: Unit,
     /// Absolute temperatures convert with the 273.15 offset; rises do not.
     pub absolute: bool,
+    /// The declared range in SI, if any: where sampled states draw it from.
+    #[serde(default)]
+    pub range: Option<[f64; 2]>,
 }
 
 /// Which of the six parametric errors of a frame (contract §2): translations then rotations.

@@ -559,7 +559,7 @@ fn resolve_input(
             Some([l, h])
         }
     };
-    Some((ir::Input { name: i.name.node.clone(), unit, absolute }, range))
+    Some((ir::Input { name: i.name.node.clone(), unit, absolute, range }, range))
 }
 
 fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {

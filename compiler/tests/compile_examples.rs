@@ -1,22 +1,37 @@
-//! Every bundled example compiles without diagnostics.
+//! Every bundled example compiles without diagnostics, and the IR is consistent with itself.
 use kin_compiler::compile;
 
-fn check(path: &str) -> kin_compiler::Compiled {
-    let src = std::fs::read_to_string(path).expect("example readable");
-    let out = compile(&src);
-    assert!(out.diagnostics.is_empty(), "{path}: {:#?}", out.diagnostics);
-    out.compiled.expect("compiled")
-}
-
 #[test]
-fn bridge_cmm_checks_clean() {
-    let c = check("../examples/bridge_cmm.kin");
-    let m = &c.machine;
-    assert_eq!(m.axes.len(), 3);
-    assert_eq!(m.tools.len(), 2);
-    assert_eq!(m.coefficients.len(), c.map.coefficients.len());
-    for coef in &m.coefficients {
-        eprintln!("{:12} {:10} {}", coef.name, coef.unit.name, coef.label);
+fn every_example_checks_clean() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../examples");
+    let mut seen = 0;
+    for entry in std::fs::read_dir(dir).expect("examples") {
+        let path = entry.expect("entry").path();
+        if path.extension().and_then(|e| e.to_str()) != Some("kin") {
+            continue;
+        }
+        seen += 1;
+        let src = std::fs::read_to_string(&path).expect("readable");
+        let out = compile(&src);
+        assert!(out.diagnostics.is_empty(), "{}: {:#?}", path.display(), out.diagnostics);
+        let c = out.compiled.expect("compiled");
+        let m = &c.machine;
+        assert_eq!(m.coefficients.len(), c.map.coefficients.len());
+        assert_eq!(m.errors.len(), c.map.errors.len());
+        // Terms tile the coefficient vector exactly once.
+        let mut covered = vec![0; m.coefficients.len()];
+        for (e, model) in m.errors.iter().enumerate() {
+            for t in &model.terms {
+                for k in t.first..t.first + t.coefficients {
+                    covered[k] += 1;
+                    assert_eq!(m.coefficients[k].error, e);
+                }
+                let size: usize = t.factors.iter().map(|f| f.basis.size()).product();
+                assert!(t.coefficients == 0 || t.coefficients == size);
+            }
+        }
+        assert!(covered.iter().all(|&n| n == 1), "{}", path.display());
+        assert!(!m.tools.is_empty());
     }
-    eprintln!("{} coefficients; nonlinear {:?}", m.coefficients.len(), m.nonlinear);
+    assert!(seen >= 3);
 }

@@ -232,7 +232,9 @@ impl States {
                 .inputs
                 .iter()
                 .map(|i| {
+                    // Without a declared range: a plausible spread around a neutral value.
                     let (lo, hi) = match i.unit.dim {
+                        _ if i.range.is_some() => i.range.map(|r| (r[0], r[1])).unwrap_or((0.0, 1.0)),
                         d if d == kin_compiler::units::Dim::TEMPERATURE && i.absolute => (291.15, 295.15),
                         d if d == kin_compiler::units::Dim::TEMPERATURE => (0.0, 4.0),
                         d if d == kin_compiler::units::Dim::FORCE => (0.0, 1000.0),

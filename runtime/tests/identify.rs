@@ -15,6 +15,7 @@ fn names(c: &kin_compiler::Compiled, cols: impl IntoIterator<Item = Column>) -> 
         .map(|col| match col {
             Column::Coefficient(j) => c.machine.coefficients[j].name.clone(),
             Column::Alignment { rotation, axis } => format!("align:{}{axis}", if rotation { "r" } else { "t" }),
+            Column::Nuisance(name) => name,
         })
         .collect()
 }

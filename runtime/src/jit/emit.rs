@@ -1,0 +1,363 @@
+//! Expression graphs to native code with Cranelift.
+//!
+//! Every generated function has the signature `extern "C" fn(*const Args)` and is one basic
+//! block: it loads the pointers it needs from the argument block, computes the live nodes of its
+//! graph in the order the stores first need them (so a value is computed next to its use and
+//! register pressure stays local), and stores into `out` and `jac`. It reads and writes memory
+//! only at the fixed offsets the graph names, which `lower::validate` and the safe API in
+//! `mod.rs` keep inside the buffers.
+//!
+//! `sin`/`cos` go through one imported `libm::sincos` call per argument and `%` through
+//! `libm::fmod`, so the generated code and the interpreter agree bit for bit on them.
+
+use std::mem::offset_of;
+
+use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
+use cranelift_codegen::ir::immediates::Ieee64;
+use cranelift_codegen::ir::{
+    types, AbiParam, InstBuilder, MemFlagsData, StackSlotData, StackSlotKind,
+    UserFuncName, Value,
+};
+use cranelift_codegen::settings::{self, Configurable};
+use cranelift_codegen::Context;
+use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
+use cranelift_jit::{JITBuilder, JITModule};
+use cranelift_module::{default_libcall_names, FuncId, Linkage, Module};
+
+use super::graph::{Cmp, Dst, Graph, Id, Node, Src};
+use super::JitError;
+
+/// The argument block of every generated function. Pointers may dangle for arrays the function
+/// does not read (an empty slice's pointer); the others point at buffers at least as long as
+/// the graph's largest index, which the safe API checks before each call.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Args {
+    pub q: *const f64,
+    pub inputs: *const f64,
+    pub lags: *const f64,
+    pub dirs: *const f64,
+    pub beta: *const f64,
+    pub nonlinear: *const f64,
+    /// 12 values: the selected tool's offset rotation (row-major) and translation.
+    pub tool_tf: *const f64,
+    pub out: *mut f64,
+    pub jac: *mut f64,
+    pub time: f64,
+    pub tool: u64,
+}
+
+/// A generated function. Calling it is only sound with an `Args` whose buffers are long enough
+/// (see `JitModel::call` in `mod.rs`).
+pub(super) type RawFn = unsafe extern "C" fn(*const Args);
+
+/// The `sin`/`cos` the generated code calls: both values from one argument reduction, written
+/// to `out[0]`, `out[1]`.
+extern "C" fn kin_jit_sincos(x: f64, out: *mut f64) {
+    let (s, c) = libm::sincos(x);
+    // SAFETY: only generated code calls this, always with the address of its own 16-byte,
+    // 8-aligned stack slot (`emit_function`), so both writes are in bounds and aligned.
+    unsafe {
+        out.write(s);
+        out.add(1).write(c);
+    }
+}
+
+/// `a % b` for the continuous-axis reduction (`f64::rem_euclid`); fmod is exact, so this
+/// agrees with Rust's `%` bit for bit.
+extern "C" fn kin_jit_fmod(a: f64, b: f64) -> f64 {
+    libm::fmod(a, b)
+}
+
+const SINCOS: &str = "kin_jit_sincos";
+const FMOD: &str = "kin_jit_fmod";
+
+fn codegen(e: impl std::fmt::Display) -> JitError {
+    JitError::Codegen { message: e.to_string() }
+}
+
+/// A JIT module holding the compiled functions, in the order of the graphs given.
+pub(super) struct Emitted {
+    pub module: JITModule,
+    pub functions: Vec<*const u8>,
+}
+
+/// Compiles `graphs` (name, graph) into one module. With `dump`, the Cranelift IR of each
+/// function is appended to it before compilation (the `--dump clif` view).
+pub(super) fn compile(graphs: &[(&str, &Graph)], mut dump: Option<&mut String>) -> Result<Emitted, JitError> {
+    let mut flags = settings::builder();
+    // The JIT links by absolute address (crate notes: is_pic=false, no colocated libcalls).
+    flags.set("use_colocated_libcalls", "false").map_err(codegen)?;
+    flags.set("is_pic", "false").map_err(codegen)?;
+    flags.set("opt_level", "speed").map_err(codegen)?;
+    // The graphs are straight-line code built by one routine; the verifier would double the
+    // compile time to re-check that on every model. Debug builds keep it.
+    flags.set("enable_verifier", if cfg!(debug_assertions) { "true" } else { "false" }).map_err(codegen)?;
+    let isa = cranelift_native::builder()
+        .map_err(|m| JitError::Host { message: m.to_string() })?
+        .finish(settings::Flags::new(flags))
+        .map_err(codegen)?;
+    if isa.pointer_bytes() != 8 {
+        return Err(JitError::Host { message: "the JIT needs a 64-bit target".into() });
+    }
+    let mut jb = JITBuilder::with_isa(isa, default_libcall_names());
+    jb.symbol(SINCOS, kin_jit_sincos as extern "C" fn(f64, *mut f64) as *const u8);
+    jb.symbol(FMOD, kin_jit_fmod as extern "C" fn(f64, f64) -> f64 as *const u8);
+    let mut module = JITModule::new(jb);
+
+    let result = define_all(&mut module, graphs, &mut dump);
+    let ids = match result {
+        Ok(ids) => ids,
+        Err(e) => {
+            // SAFETY: nothing from this module was handed out: no pointer into it exists.
+            unsafe { module.free_memory() };
+            return Err(e);
+        }
+    };
+    if let Err(e) = module.finalize_definitions() {
+        // SAFETY: as above, no function pointer was taken yet.
+        unsafe { module.free_memory() };
+        return Err(codegen(e));
+    }
+    let functions = ids.iter().map(|id| module.get_finalized_function(*id)).collect();
+    Ok(Emitted { module, functions })
+}
+
+fn define_all(module: &mut JITModule, graphs: &[(&str, &Graph)], dump: &mut Option<&mut String>) -> Result<Vec<FuncId>, JitError> {
+    let ptr = module.target_config().pointer_type();
+    let mut sincos_sig = module.make_signature();
+    sincos_sig.params.push(AbiParam::new(types::F64));
+    sincos_sig.params.push(AbiParam::new(ptr));
+    let sincos = module.declare_function(SINCOS, Linkage::Import, &sincos_sig).map_err(codegen)?;
+    let mut fmod_sig = module.make_signature();
+    fmod_sig.params.push(AbiParam::new(types::F64));
+    fmod_sig.params.push(AbiParam::new(types::F64));
+    fmod_sig.returns.push(AbiParam::new(types::F64));
+    let fmod = module.declare_function(FMOD, Linkage::Import, &fmod_sig).map_err(codegen)?;
+
+    let mut sig = module.make_signature();
+    sig.params.push(AbiParam::new(ptr));
+    let mut ctx = module.make_context();
+    let mut fctx = FunctionBuilderContext::new();
+    let mut ids = Vec::with_capacity(graphs.len());
+    for (name, graph) in graphs {
+        let id = module.declare_function(name, Linkage::Local, &sig).map_err(codegen)?;
+        ctx.func.signature = sig.clone();
+        ctx.func.name = UserFuncName::user(0, id.as_u32());
+        let imports = Imports {
+            sincos: module.declare_func_in_func(sincos, &mut ctx.func),
+            fmod: module.declare_func_in_func(fmod, &mut ctx.func),
+        };
+        emit_function(&mut ctx, &mut fctx, graph, &imports, ptr, module.target_config());
+        if let Some(d) = dump.as_deref_mut() {
+            d.push_str(&format!("; {name}\n{}\n", ctx.func.display()));
+        }
+        module.define_function(id, &mut ctx).map_err(|e| JitError::Codegen { message: format!("{name}: {e:?}") })?;
+        module.clear_context(&mut ctx);
+        ids.push(id);
+    }
+    Ok(ids)
+}
+
+struct Imports {
+    sincos: cranelift_codegen::ir::FuncRef,
+    fmod: cranelift_codegen::ir::FuncRef,
+}
+
+/// Byte offset of an argument-block field.
+fn field(src: Src) -> i32 {
+    let o = match src {
+        Src::Q => offset_of!(Args, q),
+        Src::Inputs => offset_of!(Args, inputs),
+        Src::Lags => offset_of!(Args, lags),
+        Src::Dirs => offset_of!(Args, dirs),
+        Src::Beta => offset_of!(Args, beta),
+        Src::Nonlinear => offset_of!(Args, nonlinear),
+        Src::ToolTf => offset_of!(Args, tool_tf),
+        Src::Time => offset_of!(Args, time),
+    };
+    // The block is a handful of words.
+    o as i32
+}
+
+fn dst_field(dst: Dst) -> i32 {
+    (match dst {
+        Dst::Out => offset_of!(Args, out),
+        Dst::Jac => offset_of!(Args, jac),
+    }) as i32
+}
+
+/// Byte offset of element `index` of an f64 array; `validate` bounds it far below `i32::MAX`.
+fn elem(index: u32) -> i32 {
+    i32::try_from(u64::from(index) * 8).unwrap_or(i32::MAX)
+}
+
+fn emit_function(ctx: &mut Context, fctx: &mut FunctionBuilderContext, graph: &Graph, imports: &Imports, ptr: types::Type, config: cranelift_codegen::isa::TargetFrontendConfig) {
+    let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
+    let block = b.create_block();
+    b.append_block_params_for_function_params(block);
+    b.switch_to_block(block);
+    let args = b.block_params(block).first().copied();
+    let slot = b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, 16, 3));
+    let mut e = Emitter {
+        graph,
+        values: vec![None; graph.nodes().len()],
+        bases: Default::default(),
+        tool: None,
+        args,
+        ptr,
+        slot,
+        imports,
+    };
+    let flags = MemFlagsData::trusted();
+    for &(dst, index, value) in graph.stores() {
+        let v = e.value(&mut b, value);
+        let base = e.base_ptr(&mut b, dst_field(dst));
+        if let (Some(v), Some(base)) = (v, base) {
+            b.ins().store(flags, v, base, elem(index));
+        }
+    }
+    b.ins().return_(&[]);
+    b.seal_all_blocks();
+    b.finalize(config);
+}
+
+struct Emitter<'g> {
+    graph: &'g Graph,
+    values: Vec<Option<Value>>,
+    /// Pointers loaded from the argument block, by field offset.
+    bases: std::collections::HashMap<i32, Value>,
+    tool: Option<Value>,
+    args: Option<Value>,
+    ptr: types::Type,
+    slot: cranelift_codegen::ir::StackSlot,
+    imports: &'g Imports,
+}
+
+impl Emitter<'_> {
+    fn base_ptr(&mut self, b: &mut FunctionBuilder, offset: i32) -> Option<Value> {
+        if let Some(v) = self.bases.get(&offset) {
+            return Some(*v);
+        }
+        let v = b.ins().load(self.ptr, MemFlagsData::trusted(), self.args?, offset);
+        self.bases.insert(offset, v);
+        Some(v)
+    }
+
+    fn get(&self, id: Id) -> Option<Value> {
+        self.values.get(id.index()).copied().flatten()
+    }
+
+    fn set(&mut self, id: Id, v: Value) {
+        if let Some(slot) = self.values.get_mut(id.index()) {
+            *slot = Some(v);
+        }
+    }
+
+    /// Emits `root` and whatever it needs, depth first without recursion (sums over hundreds
+    /// of coefficients make deep operand chains).
+    fn value(&mut self, b: &mut FunctionBuilder, root: Id) -> Option<Value> {
+        let mut stack = vec![(root, false)];
+        while let Some((id, ready)) = stack.pop() {
+            if self.get(id).is_some() {
+                continue;
+            }
+            let node = self.graph.node(id);
+            if !ready {
+                stack.push((id, true));
+                for op in super::graph::operands(node) {
+                    if self.get(op).is_none() {
+                        stack.push((op, false));
+                    }
+                }
+                continue;
+            }
+            let v = self.emit(b, id, node)?;
+            self.set(id, v);
+        }
+        self.get(root)
+    }
+
+    fn emit(&mut self, b: &mut FunctionBuilder, id: Id, node: Node) -> Option<Value> {
+        let flags = MemFlagsData::trusted();
+        Some(match node {
+            Node::Const(bits) => b.ins().f64const(Ieee64::with_bits(bits)),
+            Node::Load(Src::Time, _) => b.ins().load(types::F64, flags, self.args?, field(Src::Time)),
+            Node::Load(src, i) => {
+                let base = self.base_ptr(b, field(src))?;
+                b.ins().load(types::F64, flags, base, elem(i))
+            }
+            Node::Add(x, y) => b.ins().fadd(self.get(x)?, self.get(y)?),
+            Node::Sub(x, y) => b.ins().fsub(self.get(x)?, self.get(y)?),
+            Node::Mul(x, y) => b.ins().fmul(self.get(x)?, self.get(y)?),
+            Node::Div(x, y) => b.ins().fdiv(self.get(x)?, self.get(y)?),
+            Node::Neg(x) => b.ins().fneg(self.get(x)?),
+            Node::Floor(x) => b.ins().floor(self.get(x)?),
+            Node::Sin(x) | Node::Cos(x) => {
+                // One call gives both; the partner node, when the graph has it, takes the other.
+                let arg = self.get(x)?;
+                let addr = b.ins().stack_addr(self.ptr, self.slot, 0);
+                b.ins().call(self.imports.sincos, &[arg, addr]);
+                let s = b.ins().stack_load(types::F64, self.slot, 0);
+                let c = b.ins().stack_load(types::F64, self.slot, 8);
+                let (mine, other, other_node) = match node {
+                    Node::Sin(_) => (s, c, Node::Cos(x)),
+                    _ => (c, s, Node::Sin(x)),
+                };
+                if let Some(partner) = self.graph.find(&other_node) {
+                    if partner != id {
+                        self.set(partner, other);
+                    }
+                }
+                mine
+            }
+            Node::Fmod(x, y) => {
+                let (x, y) = (self.get(x)?, self.get(y)?);
+                let call = b.ins().call(self.imports.fmod, &[x, y]);
+                b.inst_results(call).first().copied()?
+            }
+            Node::Select(cmp, x, y, t, e) => {
+                let cc = match cmp {
+                    Cmp::Gt => FloatCC::GreaterThan,
+                    Cmp::Ge => FloatCC::GreaterThanOrEqual,
+                };
+                let c = b.ins().fcmp(cc, self.get(x)?, self.get(y)?);
+                b.ins().select(c, self.get(t)?, self.get(e)?)
+            }
+            Node::IfTool(i, x) => {
+                let tool = match self.tool {
+                    Some(t) => t,
+                    None => {
+                        let t = b.ins().load(types::I64, flags, self.args?, offset_of!(Args, tool) as i32);
+                        self.tool = Some(t);
+                        t
+                    }
+                };
+                let c = b.ins().icmp_imm(IntCC::Equal, tool, i64::from(i));
+                let zero = b.ins().f64const(0.0);
+                b.ins().select(c, self.get(x)?, zero)
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn sincos_is_sin_and_cos_bit_for_bit() {
+        // The generated code takes both from one `sincos` call; the interpreter calls `sin` and
+        // `cos` separately. They must agree exactly, tiny and huge arguments included.
+        let mut x = 1e-300f64;
+        let mut checked = 0;
+        while x < 1e22 {
+            for v in [x, -x, x * 1.37, x * 0.71] {
+                let (s, c) = libm::sincos(v);
+                assert_eq!(s.to_bits(), libm::sin(v).to_bits(), "sin {v:e}");
+                assert_eq!(c.to_bits(), libm::cos(v).to_bits(), "cos {v:e}");
+                checked += 1;
+            }
+            x *= 1.01;
+        }
+        assert!(checked > 10_000);
+    }
+}

@@ -23,14 +23,13 @@ pub struct FitArgs {
     pub solver: SolverArg,
     pub tolerance: f64,
     pub min_norm: bool,
+    pub stepwise: Option<f64>,
+    pub enter: Option<f64>,
     pub color: bool,
 }
 
 pub fn run(a: FitArgs) -> ExitCode {
-    match fit_command(&a) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(Failed) => ExitCode::from(1),
-    }
+    Failed::exit(fit_command(&a))
 }
 
 fn read_all(paths: &[PathBuf], compiled: &kin_compiler::Compiled) -> Result<Vec<DataSet>, Failed> {
@@ -43,7 +42,7 @@ fn read_all(paths: &[PathBuf], compiled: &kin_compiler::Compiled) -> Result<Vec<
 fn fit_command(a: &FitArgs) -> Result<(), Failed> {
     let source = std::fs::read_to_string(&a.machine).map_err(|e| {
         eprintln!("error: cannot read `{}`: {e}", a.machine.display());
-        Failed
+        Failed::USAGE
     })?;
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
@@ -56,6 +55,7 @@ fn fit_command(a: &FitArgs) -> Result<(), Failed> {
         },
         tolerance: a.tolerance,
         min_norm: a.min_norm,
+        stepwise: a.stepwise.map(|remove| fit::Stepwise { remove, enter: a.enter }),
         ..Options::default()
     };
     let total = fit::count_rows(&files) as u64;
@@ -63,7 +63,7 @@ fn fit_command(a: &FitArgs) -> Result<(), Failed> {
     bar.set_style(ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} rows ({eta})").unwrap_or_else(|_| ProgressStyle::default_bar()));
     let mut engine = Interpreter::new(m).map_err(|e| {
         eprintln!("error: {e}");
-        Failed
+        Failed::INPUT
     })?;
     let mut progress = |pass: &'static str, done: usize| {
         bar.set_message(pass);
@@ -80,11 +80,11 @@ fn fit_command(a: &FitArgs) -> Result<(), Failed> {
                 "error: the data determine only {rank} of {columns} parameters; the combinations above are invisible to them.\n\
                  Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
             );
-            return Err(Failed);
+            return Err(Failed::INPUT);
         }
         Err(e) => {
             eprintln!("error: {e}");
-            return Err(Failed);
+            return Err(Failed::INPUT);
         }
     };
     let rep = report::build(m, &source, "interp", &files, &validate, &result, &options, Vec::new());
@@ -98,16 +98,16 @@ fn fit_command(a: &FitArgs) -> Result<(), Failed> {
 fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
     let json = serde_json::to_string_pretty(rep).map_err(|e| {
         eprintln!("error: {e}");
-        Failed
+        Failed::USAGE
     })?;
     std::fs::write(path, json).map_err(|e| {
         eprintln!("error: cannot write `{}`: {e}", path.display());
-        Failed
+        Failed::USAGE
     })?;
     let params = path.with_extension("params");
     std::fs::write(&params, &rep.params).map_err(|e| {
         eprintln!("error: cannot write `{}`: {e}", params.display());
-        Failed
+        Failed::USAGE
     })?;
     println!("wrote {} and {}", path.display(), params.display());
     Ok(())
@@ -143,7 +143,11 @@ pub fn summary(r: &report::FitReport) -> String {
             let c = &r.coefficients[i];
             // Coefficients of scaled terms carry derived units: name them where they differ.
             let own = if c.unit == unit { String::new() } else { format!(" {}", c.unit) };
-            parts.push(format!("{:.3}±{:.3}{own}", c.value, c.se));
+            if c.kept {
+                parts.push(format!("{:.3}±{:.3}{own}", c.value, c.se));
+            } else {
+                parts.push("—".to_string());
+            }
             i += 1;
         }
         s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
@@ -156,6 +160,13 @@ pub fn summary(r: &report::FitReport) -> String {
         for o in r.outliers.iter().take(10) {
             let path = r.files.get(o.file as usize).map(|f| f.path.as_str()).unwrap_or("?");
             s.push_str(&format!("    {path}:{} {} residual {:.4} studentized {:.2} Cook {:.3}\n", o.line, o.component, o.residual, o.studentized, o.cook));
+        }
+    }
+    if let Some(sw) = &r.stepwise {
+        let removed: usize = sw.components.iter().map(|c| c.removed.len()).sum();
+        s.push_str(&format!("\n  stepwise selection (remove at p > {}): {} regressors removed\n", sw.alpha_remove, removed));
+        for c in sw.components.iter().filter(|c| !c.removed.is_empty()) {
+            s.push_str(&format!("    {:<14} kept {}; removed {}\n", c.component, c.kept.join(", "), c.removed.join(", ")));
         }
     }
     for c in &r.constrained {

@@ -8,13 +8,28 @@ use kin_runtime::data::{self, Observations, ReadOptions};
 
 use crate::render;
 
-/// Why a command stopped; the message (if any) has been printed already.
-pub struct Failed;
+/// Why a command stopped, as its exit code; the message has been printed already.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Failed(pub u8);
+
+impl Failed {
+    /// The user's machine, parameters or data are wrong (diagnostics were printed).
+    pub const INPUT: Failed = Failed(1);
+    /// The command line or the file system: a missing file, an unwritable output, bad options.
+    pub const USAGE: Failed = Failed(2);
+
+    pub fn exit(result: Result<(), Failed>) -> std::process::ExitCode {
+        match result {
+            Ok(()) => std::process::ExitCode::SUCCESS,
+            Err(Failed(code)) => std::process::ExitCode::from(code),
+        }
+    }
+}
 
 fn read_text(path: &Path) -> Result<String, Failed> {
     std::fs::read_to_string(path).map_err(|e| {
         eprintln!("error: cannot read `{}`: {e}", path.display());
-        Failed
+        Failed::USAGE
     })
 }
 
@@ -30,7 +45,7 @@ pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compil
     report(path, &source, &out.diagnostics, color);
     let Some(mut compiled) = out.compiled else {
         eprintln!("{}: the machine has errors", path.display());
-        return Err(Failed);
+        return Err(Failed::INPUT);
     };
     if let Some(p) = params {
         let mut text = read_text(p)?;
@@ -40,14 +55,14 @@ pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compil
                 Some(params) => text = params,
                 None => {
                     eprintln!("error: `{}` is JSON but not a fit report with `params`", p.display());
-                    return Err(Failed);
+                    return Err(Failed::INPUT);
                 }
             }
         }
         let diagnostics = bind_params(&mut compiled.machine, &text);
         report(p, &text, &diagnostics, color);
         if diagnostics.iter().any(Diagnostic::is_error) {
-            return Err(Failed);
+            return Err(Failed::INPUT);
         }
     }
     if compiled.machine.beta.is_empty() {
@@ -62,7 +77,10 @@ pub fn observations(path: &Path, compiled: &Compiled, poses: bool) -> Result<Obs
     let options = ReadOptions { poses, ..ReadOptions::default() };
     data::read_file(path, &compiled.machine, &options).map_err(|e| {
         eprintln!("error: {e}");
-        Failed
+        match e {
+            data::ReadError::Io { .. } => Failed::USAGE,
+            _ => Failed::INPUT,
+        }
     })
 }
 

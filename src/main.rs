@@ -105,6 +105,13 @@ enum Command {
         /// Fit only what the data can see (minimum norm) when the design is rank-deficient.
         #[arg(long)]
         min_norm: bool,
+        /// Stepwise selection: remove regressors whose partial F-test p-value exceeds this
+        /// level (the thesis used 1e-4, i.e. 99.99 % significance).
+        #[arg(long, value_name = "ALPHA")]
+        stepwise: Option<f64>,
+        /// With --stepwise: re-admit removed regressors whose p-value falls below this level.
+        #[arg(long, value_name = "ALPHA", requires = "stepwise")]
+        enter: Option<f64>,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -156,7 +163,7 @@ fn main() -> ExitCode {
                 color: use_color(&color),
             })
         }
-        Command::Fit { machine, data, validate, output, solver, tolerance, min_norm, color } => fit::run(fit::FitArgs {
+        Command::Fit { machine, data, validate, output, solver, tolerance, min_norm, stepwise, enter, color } => fit::run(fit::FitArgs {
             machine,
             data,
             validate,
@@ -164,6 +171,8 @@ fn main() -> ExitCode {
             solver,
             tolerance,
             min_norm,
+            stepwise,
+            enter,
             color: use_color(&color),
         }),
         Command::Eval { machine, poses, params, output, components, color } => {

@@ -45,10 +45,7 @@ pub struct SimulateArgs {
 }
 
 fn finish(result: Result<(), Failed>) -> ExitCode {
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(Failed) => ExitCode::from(1),
-    }
+    Failed::exit(result)
 }
 
 pub fn simulate(a: SimulateArgs) -> ExitCode {
@@ -63,7 +60,7 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
         (None, Some(n)) => Observations::Points(simulate::sample_points(m, n, a.seed)),
         _ => {
             eprintln!("error: give either a poses file (--poses FILE) or --sample N");
-            return Err(Failed);
+            return Err(Failed::USAGE);
         }
     };
     let parse = |text: &Option<String>, dim, what| -> Result<f64, Failed> {
@@ -71,7 +68,7 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
             None => Ok(0.0),
             Some(t) => load::quantity(t, dim, what).map_err(|e| {
                 eprintln!("error: {e}");
-                Failed
+                Failed::USAGE
             }),
         }
     };
@@ -86,7 +83,7 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
     };
     let out = simulate::simulate(m, &m.beta, &poses, &options).map_err(|e| {
         eprintln!("error: {e}");
-        Failed
+        Failed::INPUT
     })?;
     let comments = vec![
         format!("simulated by kin from `{}` (exact transforms)", a.machine.display()),
@@ -104,7 +101,7 @@ fn write(out: &Observations, m: &kin_compiler::ir::Machine, path: Option<&Path>,
     };
     result.map_err(|e| {
         eprintln!("error: {e}");
-        Failed
+        Failed::USAGE
     })
 }
 
@@ -115,7 +112,7 @@ pub fn eval(machine: &Path, params: Option<&Path>, poses: &Path, output: Option<
         let poses = load::observations(poses, &compiled, true)?;
         let out = simulate::predict(m, &m.beta, &poses, components.mask()).map_err(|e| {
             eprintln!("error: {e}");
-            Failed
+            Failed::INPUT
         })?;
         write(&out, m, output, vec![format!("predicted by kin from `{}` (first-order model, eq. 2.24)", machine.display())])
     })())

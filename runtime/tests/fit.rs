@@ -276,3 +276,34 @@ machine cmm2d {
         other => panic!("expected the uniform scale to be invisible, got {:?}", other.map(|r| r.solution.rank)),
     }
 }
+
+#[test]
+fn stepwise_keeps_the_real_effects_and_drops_the_absent_ones() {
+    let c = machine(CMM);
+    // Only some coefficients are non-zero in the truth.
+    let mut beta = vec![0.0; c.machine.coefficients.len()];
+    let real = ["X.tx[0]", "X.rz[0]", "Y.ty[1]", "Z.tz[0]"];
+    for (j, co) in c.machine.coefficients.iter().enumerate() {
+        if real.contains(&co.name.as_str()) {
+            beta[j] = 4.0 * co.unit.scale;
+        }
+    }
+    let mut false_keeps = 0;
+    for seed in 0..10 {
+        let data = simulated(&c, &beta, 400, 0.3e-6, 500 + seed, 0);
+        let options = Options { stepwise: Some(fit::Stepwise { remove: 1e-4, enter: Some(1e-5) }), ..Options::default() };
+        let r = run(&c, &[data], &options).expect("fit");
+        let sel = r.selection.as_ref().expect("selection");
+        for (j, co) in c.machine.coefficients.iter().enumerate() {
+            if real.contains(&co.name.as_str()) {
+                assert!(sel.kept[j], "seed {seed}: {} is real and must stay", co.name);
+            } else if sel.kept[j] {
+                false_keeps += 1;
+            } else {
+                assert_eq!(r.solution.beta[j], 0.0, "a removed coefficient is zero");
+            }
+        }
+    }
+    // 10 absent coefficients × 10 seeds at α = 1e-4: essentially none survive by chance.
+    assert!(false_keeps <= 2, "{false_keeps} absent coefficients kept");
+}

@@ -9,6 +9,7 @@ mod design;
 mod qr;
 pub mod report;
 mod solve;
+pub mod stepwise;
 
 use faer::Mat;
 use kin_compiler::{Compiled, Diagnostic};
@@ -45,11 +46,21 @@ pub struct Options {
     pub block: usize,
     /// Family-wise significance level for flagging outliers (Bonferroni over all rows).
     pub outlier_alpha: f64,
+    /// Stepwise selection of the coefficients (§3.2.2), if asked.
+    pub stepwise: Option<Stepwise>,
+}
+
+/// Significance levels of the partial F-tests: a coefficient whose p-value exceeds `remove`
+/// is dropped; a dropped one whose p-value falls below `enter` comes back.
+#[derive(Debug, Clone, Copy)]
+pub struct Stepwise {
+    pub remove: f64,
+    pub enter: Option<f64>,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { solver: Solver::Qr, tolerance: 1e-10, min_norm: false, block: 4096, outlier_alpha: 0.05 }
+        Options { solver: Solver::Qr, tolerance: 1e-10, min_norm: false, block: 4096, outlier_alpha: 0.05, stepwise: None }
     }
 }
 
@@ -81,6 +92,8 @@ pub struct FitResult {
     /// When `min_norm` fitted a deficient problem: what was constrained, as diagnostics.
     pub constrained: Vec<Diagnostic>,
     pub validation: Vec<ResidualRow>,
+    /// The stepwise selection, when asked for.
+    pub selection: Option<stepwise::Selection>,
 }
 
 /// Progress callback: rows done in the current pass, and the pass name.
@@ -116,13 +129,21 @@ pub fn fit(
         return Err(FitError::NoRows);
     }
 
-    let solution = match solve::solve(&red, options.solver, options.tolerance, options.min_norm) {
+    let selection = options.stepwise.map(|sw| stepwise::select(&red, layout.coefficients, sw.remove, sw.enter));
+    let solved = match &selection {
+        Some(sel) => solve::solve(&stepwise::restrict(&red, &sel.kept), options.solver, options.tolerance, options.min_norm)
+            .map(|s| solve::expand(s, &sel.kept))
+            .map_err(|s| solve::expand(s, &sel.kept)),
+        None => solve::solve(&red, options.solver, options.tolerance, options.min_norm),
+    };
+    let solution = match solved {
         Ok(s) => s,
         Err(s) => {
             return Err(FitError::RankDeficient { rank: s.rank, columns: p, diagnostics: name_invisible(compiled, &layout, &red) });
         }
     };
-    let constrained = if solution.rank < p { name_invisible(compiled, &layout, &red) } else { Vec::new() };
+    let active = selection.as_ref().map(|s| s.kept.iter().filter(|&&k| k).count()).unwrap_or(p);
+    let constrained = if solution.rank < active { name_invisible(compiled, &layout, &red) } else { Vec::new() };
     let dof = red.rows.saturating_sub(solution.rank);
     if dof == 0 {
         return Err(FitError::TooFewRows { rows: red.rows, rank: solution.rank });
@@ -161,7 +182,7 @@ pub fn fit(
 
     let validation = if validate.is_empty() { Vec::new() } else { validation_residuals(compiled, engine, validate, &solution, options)? };
 
-    Ok(FitResult { layout, solution, rows: red.rows, sigma, r2, residuals, outlier_threshold, cook_threshold, constrained, validation })
+    Ok(FitResult { layout, solution, rows: red.rows, sigma, r2, residuals, outlier_threshold, cook_threshold, constrained, validation, selection })
 }
 
 /// Rows buffered for the residual pass.

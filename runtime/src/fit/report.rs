@@ -51,8 +51,35 @@ pub struct FitReport {
     pub validation_residuals: Vec<Residual>,
     /// Messages naming what a minimum-norm fit of a deficient problem constrained.
     pub constrained: Vec<String>,
+    /// The stepwise selection: its steps, and which regressors of each term survived.
+    pub stepwise: Option<StepwiseReport>,
     /// The fitted values as a `params { … }` block.
     pub params: String,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StepwiseReport {
+    pub alpha_remove: f64,
+    pub alpha_enter: Option<f64>,
+    pub steps: Vec<StepReport>,
+    /// Per error component: the labels of the regressors kept and removed.
+    pub components: Vec<Survivors>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StepReport {
+    pub name: String,
+    pub label: String,
+    pub action: String,
+    pub f: f64,
+    pub p: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Survivors {
+    pub component: String,
+    pub kept: Vec<String>,
+    pub removed: Vec<String>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -62,6 +89,13 @@ pub struct Estimate {
     pub unit: String,
     pub value: f64,
     pub se: f64,
+    /// False for a coefficient stepwise selection removed (its value is 0 by decision).
+    #[serde(default = "yes")]
+    pub kept: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -207,6 +241,7 @@ pub fn build(
             unit: c.unit.name.clone(),
             value: sol.beta.get(j).copied().unwrap_or(0.0) / c.unit.scale,
             se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / c.unit.scale,
+            kept: result.selection.as_ref().is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
         })
         .collect();
     let nuisance: Vec<Estimate> = result
@@ -223,6 +258,7 @@ pub fn build(
                 unit: unit.name.clone(),
                 value: sol.beta.get(j).copied().unwrap_or(0.0) / unit.scale,
                 se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / unit.scale,
+                kept: true,
             }
         })
         .collect();
@@ -257,6 +293,7 @@ pub fn build(
         tilt_unit: m.units.tilt.name.clone(),
         files: summaries(m, files, &result.residuals, result.outlier_threshold),
         params: params_text(m, &sol.beta, &nonlinear),
+        stepwise: result.selection.as_ref().map(|sel| stepwise_report(m, sel, options)),
         coefficients,
         nonlinear,
         nuisance,
@@ -270,6 +307,39 @@ pub fn build(
         validation_residuals: result.validation.iter().map(|r| residual(m, r)).collect(),
         constrained: result.constrained.iter().map(|d| d.message.clone()).collect(),
     }
+}
+
+fn stepwise_report(m: &Machine, sel: &super::stepwise::Selection, options: &Options) -> StepwiseReport {
+    let (alpha_remove, alpha_enter) = options.stepwise.map(|s| (s.remove, s.enter)).unwrap_or((f64::NAN, None));
+    let steps = sel
+        .steps
+        .iter()
+        .map(|st| {
+            let c = m.coefficients.get(st.column);
+            StepReport {
+                name: c.map(|c| c.name.clone()).unwrap_or_default(),
+                label: c.map(|c| c.label.clone()).unwrap_or_default(),
+                action: format!("{:?}", st.action).to_lowercase(),
+                f: st.f,
+                p: st.p,
+            }
+        })
+        .collect();
+    let mut components: Vec<Survivors> = Vec::new();
+    for (j, c) in m.coefficients.iter().enumerate() {
+        let base = c.name.rsplit_once('[').map(|(b, _)| b.to_string()).unwrap_or_default();
+        if components.last().map(|s| s.component != base).unwrap_or(true) {
+            components.push(Survivors { component: base, kept: Vec::new(), removed: Vec::new() });
+        }
+        if let Some(s) = components.last_mut() {
+            if sel.kept.get(j).copied().unwrap_or(true) {
+                s.kept.push(c.label.clone());
+            } else {
+                s.removed.push(c.label.clone());
+            }
+        }
+    }
+    StepwiseReport { alpha_remove, alpha_enter, steps, components }
 }
 
 /// The fitted values as a `params { … }` block, each coefficient in its own unit, with enough

@@ -114,6 +114,28 @@ pub fn solve(red: &Reduced, solver: Solver, tol: f64, min_norm: bool) -> Result<
     Ok(solution)
 }
 
+/// A solution of the sub-problem of the `kept` columns, widened back to all columns: dropped
+/// coefficients are zero and carry no variance.
+pub fn expand(s: Solution, kept: &[bool]) -> Solution {
+    let p = kept.len();
+    let index: Vec<usize> = (0..p).filter(|&j| kept[j]).collect();
+    let mut beta = vec![0.0; p];
+    let mut scale = vec![0.0; p];
+    for (k, &j) in index.iter().enumerate() {
+        beta[j] = s.beta.get(k).copied().unwrap_or(0.0);
+        scale[j] = s.scale.get(k).copied().unwrap_or(0.0);
+    }
+    let g = Mat::from_fn(s.g.nrows(), p, |r, j| match index.iter().position(|&i| i == j) {
+        Some(k) => s.g[(r, k)],
+        None => 0.0,
+    });
+    let null = Mat::from_fn(p, s.null.ncols(), |j, c| match index.iter().position(|&i| i == j) {
+        Some(k) => s.null[(k, c)],
+        None => 0.0,
+    });
+    Solution { beta, rank: s.rank, rss: s.rss, g, null, condition: s.condition, scale }
+}
+
 /// `σ̂² GᵀG` restricted to the diagonal: variances of every column.
 pub fn variances(g: &Mat<f64>, sigma2: f64) -> Vec<f64> {
     (0..g.ncols()).map(|j| sigma2 * (0..g.nrows()).map(|k| g[(k, j)].powi(2)).sum::<f64>()).collect()

@@ -87,7 +87,7 @@ fn fit_command(a: &FitArgs) -> Result<(), Failed> {
             return Err(Failed::INPUT);
         }
     };
-    let rep = report::build(m, &source, "interp", &files, &validate, &result, &options, Vec::new());
+    let rep = report::build(m, &source, "interp", &files, &validate, &result, &options);
     print!("{}", summary(&rep));
     if let Some(out) = &a.output {
         write_report(out, &rep)?;
@@ -151,6 +151,9 @@ pub fn summary(r: &report::FitReport) -> String {
             i += 1;
         }
         s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
+    }
+    for n in &r.nonlinear {
+        s.push_str(&format!("  {:<40} {:.4} ± {:.4} {} ({})\n", n.name, n.value, n.se, n.unit, n.label));
     }
     for n in &r.nuisance {
         s.push_str(&format!("  {:<40} {:.4} ± {:.4} {}\n", n.name, n.value, n.se, n.unit));

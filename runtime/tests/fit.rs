@@ -307,3 +307,55 @@ fn stepwise_keeps_the_real_effects_and_drops_the_absent_ones() {
     // 10 absent coefficients × 10 seeds at α = 1e-4: essentially none survive by chance.
     assert!(false_keeps <= 2, "{false_keeps} absent coefficients kept");
 }
+
+#[test]
+fn time_constant_and_wavelength_are_estimated_with_honest_uncertainty() {
+    let src = r#"
+machine thermal {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 500 mm
+    input T : temperature rise range 0 K .. 5 K
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = linear(X) + periodic(X, wavelength fit 20 mm, knots 2)
+        t.tz = lag(T, tau fit 30 min) * const
+    }
+}
+"#;
+    let mut c = machine(src);
+    // The truth: τ = 40 min, λ = 20.3 mm; the model starts from 30 min and 20 mm.
+    let truth_nl = [40.0 * 60.0, 20.3e-3];
+    let names: Vec<String> = c.machine.nonlinear.iter().map(|p| p.name.clone()).collect();
+    assert_eq!(names, ["X.tx.wavelength", "t.tz.tau"]);
+    let start: Vec<f64> = c.machine.nonlinear.iter().map(|p| p.value).collect();
+    let beta = vec![3e-6, 0.5e-6, -0.3e-6, 2e-6 / 1.0];
+    // A six-hour warm-up: the spindle-side temperature steps up by 4 K after one hour, readings
+    // every two minutes at random X.
+    let n = 180;
+    let mut poses = sample_points(&c.machine, n, 9);
+    poses.rows.time = Some((0..n).map(|r| 120.0 * r as f64).collect());
+    poses.rows.inputs = vec![Some((0..n).map(|r| if r < 30 { 0.0 } else { 4.0 }).collect())];
+    let truth_machine = {
+        let mut m = c.machine.clone();
+        m.nonlinear[0].value = truth_nl[1];
+        m.nonlinear[1].value = truth_nl[0];
+        m
+    };
+    let options = simulate::Options { noise: 0.1e-6, seed: 10, ..simulate::Options::default() };
+    let obs = simulate::simulate(&truth_machine, &beta, &Observations::Points(poses), &options).unwrap();
+    c.machine.nonlinear[0].value = start[0];
+    c.machine.nonlinear[1].value = start[1];
+    let r = run(&c, &[DataSet { path: "warmup.csv".into(), observations: obs }], &Options::default()).expect("fit");
+    let nl = r.nonlinear.as_ref().expect("non-linear fit");
+    let (lambda, tau) = (nl.values[0], nl.values[1]);
+    let (se_lambda, se_tau) = (nl.se[0].unwrap(), nl.se[1].unwrap());
+    assert!(se_tau.is_finite() && se_lambda.is_finite());
+    assert!(((tau - truth_nl[0]) / se_tau).abs() < 4.0, "τ = {} ± {} min", tau / 60.0, se_tau / 60.0);
+    assert!(((lambda - truth_nl[1]) / se_lambda).abs() < 4.0, "λ = {} ± {} mm", lambda * 1e3, se_lambda * 1e3);
+    assert!((tau / 60.0 - 40.0).abs() < 4.0, "τ near 40 min: {}", tau / 60.0);
+    assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
+}

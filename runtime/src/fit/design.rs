@@ -126,18 +126,33 @@ pub enum DesignError {
     },
 }
 
-/// Builds the states of every file once (they change only when a time constant does).
+/// Builds the states of every file once (they change only when a time constant does), with
+/// lags integrated for the machine's own non-linear values.
 pub fn states(m: &Machine, files: &[DataSet]) -> Result<Vec<FileStates>, DesignError> {
+    let values: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    states_with(m, files, &values)
+}
+
+/// As [`states`], with lags integrated for the given non-linear parameter values.
+pub fn states_with(m: &Machine, files: &[DataSet], values: &[f64]) -> Result<Vec<FileStates>, DesignError> {
     files
         .iter()
         .map(|f| {
             let path = f.path.display().to_string();
             let err = |source| DesignError::State { path: path.clone(), source };
             Ok(match &f.observations {
-                Observations::Points(p) => FileStates::Points(States::new(m, &p.rows, &p.pose, "").map_err(err)?),
+                Observations::Points(p) => {
+                    let mut s = States::new(m, &p.rows, &p.pose, "").map_err(err)?;
+                    s.integrate_lags(m, &p.rows, values);
+                    FileStates::Points(s)
+                }
                 Observations::Lengths(l) => {
                     let [p1, p2] = &l.poses;
-                    FileStates::Lengths(States::new(m, &l.rows, p1, "_1").map_err(err)?, States::new(m, &l.rows, p2, "_2").map_err(err)?)
+                    let mut a = States::new(m, &l.rows, p1, "_1").map_err(err)?;
+                    let mut b = States::new(m, &l.rows, p2, "_2").map_err(err)?;
+                    a.integrate_lags(m, &l.rows, values);
+                    b.integrate_lags(m, &l.rows, values);
+                    FileStates::Lengths(a, b)
                 }
             })
         })

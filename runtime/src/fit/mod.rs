@@ -6,6 +6,7 @@
 //! leverage (eq. 4.12's quadratic form), studentized residual and Cook's distance.
 
 mod design;
+pub mod nonlinear;
 mod qr;
 pub mod report;
 mod solve;
@@ -94,6 +95,8 @@ pub struct FitResult {
     pub validation: Vec<ResidualRow>,
     /// The stepwise selection, when asked for.
     pub selection: Option<stepwise::Selection>,
+    /// The fitted non-linear parameters, when the model has any.
+    pub nonlinear: Option<nonlinear::NonlinearFit>,
 }
 
 /// Progress callback: rows done in the current pass, and the pass name.
@@ -111,7 +114,14 @@ pub fn fit(
     let m = &compiled.machine;
     let layout = Layout::new(m, files);
     let p = layout.columns();
-    let states = design::states(m, files)?;
+    // Fitted wavelengths and time constants first: the linear problem below is the one at
+    // their optimum.
+    let nonlinear = nonlinear::optimise(compiled, engine, files, options)?;
+    let values: Vec<f64> = match &nonlinear {
+        Some(n) => n.values.clone(),
+        None => m.nonlinear.iter().map(|p| p.value).collect(),
+    };
+    let states = design::states_with(m, files, &values)?;
 
     // Pass 1: the triangle of [X | y].
     let mut acc = StreamingQr::new(p, options.block);
@@ -180,9 +190,9 @@ pub fn fit(
     let outlier_threshold = Normal::new(0.0, 1.0).map(|d| d.inverse_cdf(1.0 - options.outlier_alpha / (2.0 * n))).unwrap_or(4.0);
     let cook_threshold = FisherSnedecor::new(rank, dof as f64).map(|d| d.inverse_cdf(0.5)).unwrap_or(1.0);
 
-    let validation = if validate.is_empty() { Vec::new() } else { validation_residuals(compiled, engine, validate, &solution, options)? };
+    let validation = if validate.is_empty() { Vec::new() } else { validation_residuals(compiled, engine, validate, &solution, &values, options)? };
 
-    Ok(FitResult { layout, solution, rows: red.rows, sigma, r2, residuals, outlier_threshold, cook_threshold, constrained, validation, selection })
+    Ok(FitResult { layout, solution, rows: red.rows, sigma, r2, residuals, outlier_threshold, cook_threshold, constrained, validation, selection, nonlinear })
 }
 
 /// Rows buffered for the residual pass.
@@ -238,12 +248,13 @@ fn validation_residuals(
     engine: &mut dyn Evaluator,
     files: &[DataSet],
     solution: &Solution,
+    values: &[f64],
     options: &Options,
 ) -> Result<Vec<ResidualRow>, FitError> {
     let m = &compiled.machine;
     let layout = Layout::new(m, files);
     let n = layout.coefficients;
-    let states = design::states(m, files)?;
+    let states = design::states_with(m, files, values)?;
     let beta = solution.beta.get(..n).unwrap_or(&[]);
     let extra = layout.nuisance.len();
     // First the nuisance (placements) by least squares on y − Xβ, then the residuals.

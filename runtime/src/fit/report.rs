@@ -225,8 +225,19 @@ pub fn build(
     validate: &[DataSet],
     result: &FitResult,
     options: &Options,
-    nonlinear: Vec<Estimate>,
 ) -> FitReport {
+    let nonlinear: Vec<Estimate> = m
+        .nonlinear
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let (value, se) = match &result.nonlinear {
+                Some(n) => (n.values.get(i).copied().unwrap_or(p.value), n.se.get(i).copied().flatten().unwrap_or(0.0)),
+                None => (p.value, 0.0),
+            };
+            Estimate { name: p.name.clone(), label: if p.fitted { "fitted".into() } else { "fixed".into() }, unit: p.unit.name.clone(), value: p.unit.from_si(value), se: se / p.unit.scale, kept: true }
+        })
+        .collect();
     let sol = &result.solution;
     let sigma2 = result.sigma * result.sigma;
     let var = solve::variances(&sol.g, sigma2);

@@ -1,0 +1,150 @@
+//! Non-linear parameters (fitted wavelengths, thermal time constants) by variable projection:
+//! Levenberg–Marquardt over them, with the linear coefficients β solved by least squares inside
+//! every evaluation (thesis §3.2.4: "only the various wavelengths enter the regression in a
+//! nonlinear fashion").
+//!
+//! The parameters are positive, so the search runs over their logarithms. The Jacobian of the
+//! projected residual `r(θ) = y − X(θ)β̂(θ)` is taken by forward differences; at the optimum
+//! `σ̂²(JᵀJ)⁻¹` is the covariance of the non-linear parameters with β profiled out
+//! (Golub & Pereyra), mapped back by the delta method.
+
+use faer::Mat;
+use kin_compiler::Compiled;
+
+use super::design::{self, DataSet, Layout};
+use super::qr::StreamingQr;
+use super::{solve, FitError, Options, Solver};
+use crate::engine::Evaluator;
+
+/// The outcome: every non-linear parameter's value (fixed ones unchanged) and, for fitted
+/// ones, its standard error.
+#[derive(Debug, Clone)]
+pub struct NonlinearFit {
+    pub values: Vec<f64>,
+    pub se: Vec<Option<f64>>,
+    pub iterations: usize,
+    pub rss: f64,
+}
+
+/// The weighted residual vector of the linear fit at `values`.
+fn residuals(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], values: &[f64], options: &Options) -> Result<(Vec<f64>, usize), FitError> {
+    let m = &compiled.machine;
+    engine.set_nonlinear(values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
+    let states = design::states_with(m, files, values)?;
+    let layout = Layout::new(m, files);
+    let mut acc = StreamingQr::new(layout.columns(), options.block);
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| acc.push(x, y))?;
+    let red = acc.finish();
+    // Minimum norm: a deficiency is reported by the linear fit that follows, not here.
+    let sol = match solve::solve(&red, Solver::Svd, options.tolerance, true) {
+        Ok(s) | Err(s) => s,
+    };
+    let mut r = Vec::with_capacity(red.rows);
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        r.push(y - x.iter().zip(&sol.beta).map(|(a, b)| a * b).sum::<f64>());
+    })?;
+    Ok((r, sol.rank))
+}
+
+fn sumsq(r: &[f64]) -> f64 {
+    r.iter().map(|v| v * v).sum()
+}
+
+/// Optimises the fitted non-linear parameters. Returns `None` when the model has none.
+pub fn optimise(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], options: &Options) -> Result<Option<NonlinearFit>, FitError> {
+    let m = &compiled.machine;
+    let fitted: Vec<usize> = m.nonlinear.iter().enumerate().filter(|(_, p)| p.fitted).map(|(i, _)| i).collect();
+    if fitted.is_empty() {
+        return Ok(None);
+    }
+    let k = fitted.len();
+    let mut values: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let with = |values: &[f64], phi: &[f64]| -> Vec<f64> {
+        let mut v = values.to_vec();
+        for (&i, f) in fitted.iter().zip(phi) {
+            v[i] = f.exp();
+        }
+        v
+    };
+    let mut phi: Vec<f64> = fitted.iter().map(|&i| values[i].ln()).collect();
+    let (mut r, mut rank) = residuals(compiled, engine, files, &values, options)?;
+    let mut rss = sumsq(&r);
+    let mut lambda = 1e-3;
+    let mut iterations = 0;
+    let mut jac = Mat::<f64>::zeros(r.len(), k);
+    // A step of 1e-6 in log space: a relative change of one part per million.
+    let h = 1e-6;
+    for _ in 0..40 {
+        iterations += 1;
+        for (c, _) in fitted.iter().enumerate() {
+            let mut p = phi.clone();
+            p[c] += h;
+            let (rp, _) = residuals(compiled, engine, files, &with(&values, &p), options)?;
+            for (i, (a, b)) in rp.iter().zip(&r).enumerate() {
+                jac[(i, c)] = (a - b) / h;
+            }
+        }
+        let a = jac.transpose() * &jac;
+        let g: Vec<f64> = (0..k).map(|c| (0..r.len()).map(|i| jac[(i, c)] * r[i]).sum()).collect();
+        let mut improved = false;
+        for _ in 0..12 {
+            let damped = Mat::from_fn(k, k, |i, j| a[(i, j)] + if i == j { lambda * a[(i, i)].max(1e-300) } else { 0.0 });
+            let (step, _) = solve_small(&damped, &g.iter().map(|v| -v).collect::<Vec<_>>());
+            let trial: Vec<f64> = phi.iter().zip(&step).map(|(p, d)| p + d.clamp(-2.0, 2.0)).collect();
+            let (rt, rank_t) = residuals(compiled, engine, files, &with(&values, &trial), options)?;
+            let rss_t = sumsq(&rt);
+            if rss_t < rss {
+                let gain = (rss - rss_t) / rss.max(f64::MIN_POSITIVE);
+                phi = trial;
+                r = rt;
+                rank = rank_t;
+                rss = rss_t;
+                lambda = (lambda / 3.0).max(1e-12);
+                improved = gain > 1e-12;
+                break;
+            }
+            lambda *= 4.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    values = with(&values, &phi);
+    // Covariance of log θ from the projected Jacobian at the optimum.
+    let dof = r.len().saturating_sub(rank + k).max(1) as f64;
+    let sigma2 = rss / dof;
+    let a = jac.transpose() * &jac;
+    let mut se = vec![None; m.nonlinear.len()];
+    for (c, &i) in fitted.iter().enumerate() {
+        let mut e = vec![0.0; k];
+        e[c] = 1.0;
+        let (col, singular) = solve_small(&a, &e);
+        let var_log = sigma2 * col[c];
+        se[i] = Some(if singular { f64::INFINITY } else { values[i] * var_log.max(0.0).sqrt() });
+    }
+    engine.set_nonlinear(&values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
+    Ok(Some(NonlinearFit { values, se, iterations, rss }))
+}
+
+/// Solves a small symmetric system with the pseudo-inverse; the flag says whether a direction
+/// was singular (a parameter without effect on the residuals: zero step, unbounded variance).
+fn solve_small(a: &Mat<f64>, b: &[f64]) -> (Vec<f64>, bool) {
+    let k = b.len();
+    let Ok(svd) = a.thin_svd() else { return (vec![0.0; k], true) };
+    let (u, s, v) = (svd.U(), svd.S().column_vector(), svd.V());
+    let top = s.iter().copied().fold(0.0, f64::max);
+    let mut x = vec![0.0; k];
+    let mut singular = false;
+    for c in 0..k {
+        let sc = s[c];
+        if sc <= 1e-14 * top || sc == 0.0 {
+            singular = true;
+            continue;
+        }
+        let ub: f64 = (0..k).map(|i| u[(i, c)] * b[i]).sum();
+        for j in 0..k {
+            x[j] += v[(j, c)] * ub / sc;
+        }
+    }
+    (x, singular)
+}

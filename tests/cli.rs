@@ -119,3 +119,55 @@ fn a_missing_column_the_model_needs_is_named() {
     let err = text(&out.stderr);
     assert!(err.contains("the file has no such column"), "{err}");
 }
+
+#[test]
+fn fit_recovers_the_truth_and_its_parameters_load_back() {
+    let params = tmp("fit-truth.params");
+    std::fs::write(&params, PARAMS).unwrap();
+    let sim = tmp("fit-data.csv");
+    let out = kin(&["simulate", "examples/bridge_cmm.kin", "--params", params.to_str().unwrap(), "--sample", "1500", "--noise", "0.2um", "--seed", "4", "-o", sim.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report = tmp("fit.json");
+    let out = kin(&["fit", "examples/bridge_cmm.kin", sim.to_str().unwrap(), "-o", report.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("σ̂ = ") && stdout.contains("error component"), "{stdout}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let sigma = v["sigma"].as_f64().unwrap();
+    assert!((sigma - 0.2).abs() < 0.02, "σ̂ {sigma} µm for 0.2 µm noise");
+    assert_eq!(v["rank"], v["columns"]);
+    let coef = |name: &str| v["coefficients"].as_array().unwrap().iter().find(|c| c["name"] == name).cloned().unwrap();
+    let x0 = coef("X.tx[0]");
+    assert!(((x0["value"].as_f64().unwrap() - 2.0) / x0["se"].as_f64().unwrap()).abs() < 4.0, "{x0}");
+    // The fitted parameters (FIT.json or FIT.params) load into eval: predictions match the
+    // data to the noise.
+    let eval = tmp("fit-eval.csv");
+    let out = kin(&["eval", "examples/bridge_cmm.kin", sim.to_str().unwrap(), "--params", report.to_str().unwrap(), "--components", "position", "-o", eval.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let (a, b) = (column(&sim, "ey"), column(&eval, "ey"));
+    let rms = (a.iter().zip(&b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt();
+    assert!(rms < 0.25, "residual RMS {rms} µm");
+    assert!(report.with_extension("params").exists());
+}
+
+#[test]
+fn fit_names_a_bad_cell_and_an_invisible_term() {
+    let csv = tmp("fit-nan.csv");
+    std::fs::write(&csv, "Y,X,Z,dir_Y,T_scale,T_room,time,ex\n1,2,-3,+1,20,1,0,NaN\n").unwrap();
+    let out = kin(&["fit", "examples/bridge_cmm.kin", csv.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("line 2, column 18 (`ex`)"), "{}", text(&out.stderr));
+
+    // Only ex observed along a line in x: most terms are invisible; the fit says which, at the
+    // declarations, instead of returning numbers.
+    let line = tmp("fit-line.csv");
+    let mut s = String::from("Y,X,Z,dir_Y,T_scale,T_room,time,ex\n");
+    for i in 0..50 {
+        s.push_str(&format!("100,{},-200,+1,20,1,{i},0.1\n", 10 * i));
+    }
+    std::fs::write(&line, s).unwrap();
+    let out = kin(&["fit", "examples/bridge_cmm.kin", line.to_str().unwrap(), "--color", "never"]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = text(&out.stderr);
+    assert!(err.contains("E0601") && err.contains("examples/bridge_cmm.kin:") && err.contains("--min-norm"), "{err}");
+}

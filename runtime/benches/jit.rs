@@ -1,1 +1,180 @@
-fn main() {}
+//! JIT throughput against the interpreter and a hand-written baseline, in one run (issue 4):
+//! poses per second for the error plus its full β-Jacobian (written into a reused buffer) and
+//! for the error alone, on every bundled example; the hand-written Rust evaluator of the
+//! 5-axis mill; and the compile time from IR to callable functions.
+//!
+//! Besides criterion's report, a summary with the ratios is printed at the start
+//! (`cargo bench -p kin-runtime --bench jit`).
+
+mod baseline_5axis;
+
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use kin_compiler::ir::Machine;
+use kin_runtime::interp::Interpreter;
+use kin_runtime::jit;
+use kin_runtime::states::States;
+
+const POSES: usize = 1000;
+const EXAMPLES: [&str; 3] = ["milling_5axis", "bridge_cmm", "robot_6axis"];
+
+fn machine(name: &str) -> Machine {
+    let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
+    let src = std::fs::read_to_string(path).expect("example");
+    kin_compiler::compile(&src).compiled.expect("compiles").machine
+}
+
+struct Setup {
+    m: Machine,
+    states: States,
+    beta: Vec<f64>,
+    nonlinear: Vec<f64>,
+}
+
+fn setup(name: &str) -> Setup {
+    let m = machine(name);
+    let n = m.coefficients.len();
+    let states = States::sample(&m, POSES, 1);
+    let beta = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
+    let nonlinear = m.nonlinear.iter().map(|p| p.value).collect();
+    Setup { m, states, beta, nonlinear }
+}
+
+/// Poses per second of `f` run over all poses, best of a few rounds of about `budget`.
+fn rate(budget: Duration, mut f: impl FnMut()) -> f64 {
+    f();
+    let mut best: f64 = 0.0;
+    for _ in 0..5 {
+        let start = Instant::now();
+        let mut rounds = 0u32;
+        while start.elapsed() < budget / 5 {
+            f();
+            rounds += 1;
+        }
+        best = best.max(f64::from(rounds) * POSES as f64 / start.elapsed().as_secs_f64());
+    }
+    best
+}
+
+/// The summary: every figure measured here, in this run, so the ratios compare like with like.
+fn summary() {
+    let budget = Duration::from_millis(1500);
+    eprintln!("\n{:<16} {:>6} {:>14} {:>14} {:>8} {:>14} {:>8} {:>12}", "machine", "β", "interp p/s", "jit p/s", "×interp", "baseline p/s", "base/jit", "compile ms");
+    for name in EXAMPLES {
+        let s = setup(name);
+        let n = s.m.coefficients.len();
+        let mut jac = vec![0.0; 6 * n];
+        let mut err = [0.0; 6];
+        let mut it = Interpreter::new(&s.m).expect("interpreter");
+        let interp = rate(budget, || {
+            for r in 0..POSES {
+                it.error_and_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac).expect("eval");
+            }
+            black_box(&jac);
+        });
+        let compile_ms = (0..5)
+            .map(|_| jit::compile(&s.m).expect("compiles").compile_time().as_secs_f64() * 1e3)
+            .fold(f64::INFINITY, f64::min);
+        let model = jit::compile(&s.m).expect("compiles");
+        let fast = rate(budget, || {
+            for r in 0..POSES {
+                model.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac).expect("eval");
+            }
+            black_box(&jac);
+        });
+        let base = (name == "milling_5axis").then(|| {
+            let mut b = baseline_5axis::Baseline::new(&s.m);
+            rate(budget, || {
+                for r in 0..POSES {
+                    b.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac);
+                }
+                black_box(&jac);
+            })
+        });
+        let (base_text, ratio_text) = match base {
+            Some(b) => (format!("{b:.0}"), format!("{:.2}", b / fast)),
+            None => ("-".into(), "-".into()),
+        };
+        eprintln!("{name:<16} {n:>6} {interp:>14.0} {fast:>14.0} {:>8.1} {base_text:>14} {ratio_text:>8} {compile_ms:>12.2}", fast / interp);
+    }
+    eprintln!("(error + full β-Jacobian per pose into a reused buffer; compile: IR to callable, best of 5)\n");
+}
+
+fn bench(c: &mut Criterion) {
+    summary();
+    let mut group = c.benchmark_group("error+jacobian");
+    group.throughput(Throughput::Elements(POSES as u64));
+    for name in EXAMPLES {
+        let s = setup(name);
+        let n = s.m.coefficients.len();
+        let label = format!("{name} ({n} coefficients)");
+        let mut jac = vec![0.0; 6 * n];
+        let mut err = [0.0; 6];
+        let mut it = Interpreter::new(&s.m).expect("interpreter");
+        group.bench_with_input(BenchmarkId::new("interpreter", &label), &(), |b, _| {
+            b.iter(|| {
+                for r in 0..POSES {
+                    it.error_and_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac).expect("eval");
+                }
+                black_box(&jac);
+            })
+        });
+        let model = jit::compile(&s.m).expect("compiles");
+        group.bench_with_input(BenchmarkId::new("jit", &label), &(), |b, _| {
+            b.iter(|| {
+                for r in 0..POSES {
+                    model.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac).expect("eval");
+                }
+                black_box(&jac);
+            })
+        });
+        if name == "milling_5axis" {
+            let mut base = baseline_5axis::Baseline::new(&s.m);
+            group.bench_with_input(BenchmarkId::new("baseline", &label), &(), |b, _| {
+                b.iter(|| {
+                    for r in 0..POSES {
+                        base.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac);
+                    }
+                    black_box(&jac);
+                })
+            });
+        }
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("error");
+    group.throughput(Throughput::Elements(POSES as u64));
+    for name in EXAMPLES {
+        let s = setup(name);
+        let label = format!("{name} ({} coefficients)", s.m.coefficients.len());
+        let mut it = Interpreter::new(&s.m).expect("interpreter");
+        group.bench_with_input(BenchmarkId::new("interpreter", &label), &(), |b, _| {
+            b.iter(|| {
+                for r in 0..POSES {
+                    black_box(it.error(&s.states.get(r), &s.beta).expect("eval"));
+                }
+            })
+        });
+        let model = jit::compile(&s.m).expect("compiles");
+        group.bench_with_input(BenchmarkId::new("jit", &label), &(), |b, _| {
+            b.iter(|| {
+                for r in 0..POSES {
+                    black_box(model.error(&s.states.get(r), &s.beta, &s.nonlinear).expect("eval"));
+                }
+            })
+        });
+    }
+    group.finish();
+
+    let mut group = c.benchmark_group("compile");
+    for name in EXAMPLES {
+        let m = machine(name);
+        group.bench_with_input(BenchmarkId::new("ir to callable", name), &(), |b, _| b.iter(|| black_box(jit::compile(&m).expect("compiles"))));
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -359,3 +359,24 @@ machine thermal {
     assert!((tau / 60.0 - 40.0).abs() < 4.0, "τ near 40 min: {}", tau / 60.0);
     assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
 }
+
+#[test]
+fn prediction_variance_at_a_training_pose_is_sigma_squared_times_its_leverage() {
+    // Eq. 4.12 at the state of a fitted row equals σ̂²·h for that row (no nuisance here).
+    let c = machine(CMM);
+    let beta = truth(&c, 41);
+    let data = simulated(&c, &beta, 200, 0.3e-6, 42, 0);
+    let files = [data];
+    let r = run(&c, &files, &Options::default()).unwrap();
+    let rep = kin_runtime::fit::report::build(&c.machine, CMM, "interp", &files, &[], &r, &Options::default());
+    let states = fit::states(&c.machine, &files).unwrap();
+    let fit::FileStates::Points(s) = &states[0] else { panic!() };
+    let mut it = Interpreter::new(&c.machine).unwrap();
+    for row in r.residuals.iter().take(30) {
+        let k = (row.meta.line - 1) as usize;
+        let var = rep.prediction_variance(&mut it, &s.get(k)).unwrap();
+        let want = r.sigma.powi(2) * row.leverage;
+        let got = var[row.meta.component as usize];
+        assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
+    }
+}

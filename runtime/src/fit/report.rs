@@ -367,3 +367,30 @@ pub fn params_text(m: &Machine, beta: &[f64], nonlinear: &[Estimate]) -> String 
     out.push_str("}\n");
     out
 }
+
+impl FitReport {
+    /// The variance of the model's predicted error at `state` (eq. 4.12):
+    /// `Var(ê_c) = g_cᵀ Cov(β̂) g_c` for each component c, with `g_c` row c of the β-Jacobian.
+    /// SI² (m², rad²). The nuisance parameters do not enter: a prediction is of the machine.
+    pub fn prediction_variance(&self, engine: &mut dyn crate::engine::Evaluator, state: &crate::interp::State) -> Result<[f64; 6], crate::interp::EvalError> {
+        let n = self.coefficients.len();
+        let mut jac = vec![0.0; 6 * n];
+        let mut err = [0.0; 6];
+        let beta = vec![0.0; n];
+        engine.error_and_jacobian(state, &beta, &mut err, &mut jac)?;
+        let mut out = [0.0; 6];
+        for (c, slot) in out.iter_mut().enumerate() {
+            let g = jac.get(c * n..(c + 1) * n).unwrap_or(&[]);
+            let mut v = 0.0;
+            for (a, ga) in g.iter().enumerate() {
+                if *ga == 0.0 {
+                    continue;
+                }
+                let row = self.covariance.get(a * n..(a + 1) * n).unwrap_or(&[]);
+                v += ga * row.iter().zip(g).map(|(c, gb)| c * gb).sum::<f64>();
+            }
+            *slot = v;
+        }
+        Ok(out)
+    }
+}

@@ -298,8 +298,8 @@ impl Emitter<'_> {
                 let arg = self.get(x)?;
                 let addr = b.ins().stack_addr(self.ptr, self.slot, 0);
                 b.ins().call(self.imports.sincos, &[arg, addr]);
-                let s = b.ins().stack_load(types::F64, self.slot, 0);
-                let c = b.ins().stack_load(types::F64, self.slot, 8);
+                let s = b.ins().load(types::F64, flags, addr, 0);
+                let c = b.ins().load(types::F64, flags, addr, 8);
                 let (mine, other, other_node) = match node {
                     Node::Sin(_) => (s, c, Node::Cos(x)),
                     _ => (c, s, Node::Sin(x)),
@@ -333,7 +333,7 @@ impl Emitter<'_> {
                         t
                     }
                 };
-                let c = b.ins().icmp_imm(IntCC::Equal, tool, i64::from(i));
+                let c = b.ins().icmp_imm_u(IntCC::Equal, tool, i64::from(i));
                 let zero = b.ins().f64const(0.0);
                 b.ins().select(c, self.get(x)?, zero)
             }

@@ -1,1 +1,565 @@
-//! placeholder
+//! The Cranelift JIT: native error and Jacobian functions specialised to one machine.
+//!
+//! [`compile`] turns a lowered [`Machine`] into three native functions — the tool-location
+//! error, the error with its β-Jacobian, and the nominal tool location with its joint
+//! Jacobian — that compute what the [interpreter](crate::interp) computes, with every constant
+//! of the model folded in and nothing evaluated that the model does not use. The pipeline:
+//!
+//! 1. `lower`: the IR as expression graphs (`graph`), one per function — kinematics
+//!    (eq. 2.35–2.38), the F-matrix columns of the components that carry errors (eq. 2.24–2.28),
+//!    the basis values of `kin_compiler::basis` operation for operation, and per coefficient its
+//!    six Jacobian entries.
+//! 2. `emit`: each graph as one straight-line Cranelift function, `sin`/`cos`/`%` through the
+//!    same `libm` routines the interpreter uses.
+//!
+//! # Safety and threads
+//!
+//! The generated code reads and writes only at offsets fixed at compile time, all inside the
+//! buffers whose lengths this module checks before every call; a call allocates nothing and
+//! takes no lock. A [`JitModel`] is `Send + Sync` and cheap to clone: many threads may call it
+//! at once, each with its own output buffers (or its own [`JitEvaluator`]).
+//!
+//! ```
+//! # use kin_runtime::jit;
+//! # use kin_runtime::states::States;
+//! let src = "machine m {
+//!     task position
+//!     axis X prismatic along x range 0 mm .. 500 mm
+//!     tool chain { X moving tool t at (0, 0, -100) mm }
+//!     errors { X.tx = spline(X, knots 2) }
+//! }";
+//! let machine = kin_compiler::compile(src).compiled.expect("valid source").machine;
+//! let model = jit::compile(&machine).expect("compiles");
+//! let states = States::sample(&machine, 1, 7);
+//! let beta = vec![1e-6; machine.coefficients.len()];
+//! let mut err = [0.0; 6];
+//! let mut jac = vec![0.0; 6 * beta.len()];
+//! model.error_and_jacobian(&states.get(0), &beta, &[], &mut err, &mut jac).expect("evaluates");
+//! ```
+
+mod emit;
+mod graph;
+mod lower;
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use cranelift_jit::JITModule;
+use kin_compiler::ir::{FrameRef, Machine, Scalar, Var};
+use nalgebra::{Matrix3, Vector3};
+use thiserror::Error;
+
+use crate::engine::Evaluator;
+use crate::interp::{var_name, EvalError, State};
+use crate::kinematics::{length_direction, length_error, KinematicsError, ToolLocation};
+use emit::{Args, RawFn};
+use lower::Kind;
+
+/// Why a machine could not be compiled.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum JitError {
+    /// The IR refers to something it does not have (a hand-built or corrupted machine).
+    #[error("the machine cannot be compiled: {message}")]
+    Model { message: String },
+    /// Cranelift does not support this host.
+    #[error("this host cannot run generated code: {message}")]
+    Host { message: String },
+    #[error("code generation failed: {message}")]
+    Codegen { message: String },
+}
+
+/// Why a batch evaluation stopped.
+#[derive(Debug, PartialEq, Error)]
+pub enum BatchError {
+    #[error("{what} holds {got} values, {expected} are needed for {rows} rows")]
+    Size { what: &'static str, rows: usize, expected: usize, got: usize },
+    #[error("row {row}: {source}")]
+    Row { row: usize, source: EvalError },
+}
+
+/// Many observation states, row-major: row `r` of `q` is `q[r·axes .. (r+1)·axes]`, and so on
+/// for `inputs`, `lags` and `dirs`; `time` and `tool` hold one value per row, `tool_offset`
+/// one per row or none at all. The number of rows is `time.len()`.
+#[derive(Debug, Clone, Copy)]
+pub struct StateRows<'a> {
+    pub q: &'a [f64],
+    pub inputs: &'a [f64],
+    pub lags: &'a [f64],
+    pub time: &'a [f64],
+    pub dirs: &'a [f64],
+    pub tool: &'a [usize],
+    pub tool_offset: &'a [Option<[f64; 3]>],
+}
+
+impl<'a> StateRows<'a> {
+    pub fn len(&self) -> usize {
+        self.time.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.time.is_empty()
+    }
+
+    /// Row `r`; a row outside the arrays gives empty slices, which the evaluation rejects.
+    pub fn get(&self, r: usize) -> State<'a> {
+        let row = |v: &'a [f64], width: usize| -> &'a [f64] {
+            v.get(r * width..(r + 1) * width).unwrap_or(&[])
+        };
+        let width = |v: &[f64]| if self.is_empty() { 0 } else { v.len() / self.len() };
+        State {
+            q: row(self.q, width(self.q)),
+            inputs: row(self.inputs, width(self.inputs)),
+            lags: row(self.lags, width(self.lags)),
+            time: self.time.get(r).copied().unwrap_or(f64::NAN),
+            dirs: row(self.dirs, width(self.dirs)),
+            tool: self.tool.get(r).copied().unwrap_or(usize::MAX),
+            tool_offset: self.tool_offset.get(r).copied().flatten(),
+        }
+    }
+}
+
+/// Compiles `machine` to native code. See the module docs.
+pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
+    let start = Instant::now();
+    lower::validate(machine)?;
+    let tools = tool_transforms(machine);
+    let rotation = common_rotation(&tools);
+    let graphs = [Kind::Error, Kind::Jacobian, Kind::Nominal].map(|k| lower::build(machine, k, rotation));
+    let named = [("error", &graphs[0]), ("error_jacobian", &graphs[1]), ("nominal", &graphs[2])];
+    let emitted = emit::compile(&named, None)?;
+    let [error, jacobian, nominal] = match emitted.functions.as_slice() {
+        [a, b, c] => [*a, *b, *c],
+        _ => {
+            // SAFETY: no pointer into the module survives this branch.
+            unsafe { emitted.module.free_memory() };
+            return Err(JitError::Codegen { message: "missing function".into() });
+        }
+    };
+    // SAFETY: each pointer is the entry of a function just compiled with the signature
+    // `fn(pointer)` and no result in the host's default (C) calling convention, which is
+    // `RawFn`. It stays valid while `module` lives, and `module` lives as long as the `Inner`
+    // that holds these pointers (its `Drop` frees the code).
+    let [error, jacobian, nominal] = [error, jacobian, nominal].map(|p| unsafe { std::mem::transmute::<*const u8, RawFn>(p) });
+    let used = (0..machine.tools.len()).map(|t| used_vars(machine, t)).collect();
+    let inner = Inner {
+        machine: machine.clone(),
+        error,
+        jacobian,
+        nominal,
+        tools,
+        used,
+        nodes: graphs.iter().map(|g| g.live().iter().filter(|l| **l).count()).sum(),
+        compile_time: Duration::ZERO,
+        module: Mutex::new(Some(emitted.module)),
+    };
+    let mut inner = inner;
+    inner.compile_time = start.elapsed();
+    Ok(JitModel { inner: Arc::new(inner) })
+}
+
+/// The Cranelift IR of the three functions of `machine`, for `--dump clif` and golden tests.
+pub fn dump_clif(machine: &Machine) -> Result<String, JitError> {
+    lower::validate(machine)?;
+    let rotation = common_rotation(&tool_transforms(machine));
+    let graphs = [Kind::Error, Kind::Jacobian, Kind::Nominal].map(|k| lower::build(machine, k, rotation));
+    let named = [("error", &graphs[0]), ("error_jacobian", &graphs[1]), ("nominal", &graphs[2])];
+    let mut text = String::new();
+    let emitted = emit::compile(&named, Some(&mut text))?;
+    // SAFETY: only the text is kept; no pointer into the module was taken.
+    unsafe { emitted.module.free_memory() };
+    Ok(text)
+}
+
+/// A compiled machine. Cloning shares the code.
+#[derive(Clone)]
+pub struct JitModel {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    machine: Machine,
+    error: RawFn,
+    jacobian: RawFn,
+    nominal: RawFn,
+    /// Per tool: offset rotation (row-major) and translation, as the generated code reads them.
+    tools: Vec<[f64; 12]>,
+    /// Per tool: the state variables the acting error models read, in the interpreter's order
+    /// of evaluation, so that a missing one is reported as the interpreter reports it.
+    used: Vec<Vec<Var>>,
+    nodes: usize,
+    compile_time: Duration,
+    /// Owns the code; touched only when dropped. The mutex makes the model `Sync` (the module
+    /// itself is only `Send`); no call ever locks it.
+    module: Mutex<Option<JITModule>>,
+}
+
+impl Drop for Inner {
+    fn drop(&mut self) {
+        let module = match self.module.get_mut() {
+            Ok(m) => m.take(),
+            Err(poisoned) => poisoned.into_inner().take(),
+        };
+        if let Some(module) = module {
+            // SAFETY: the function pointers live only in this `Inner`; every call borrows it
+            // (through `&JitModel` or a `JitEvaluator`'s clone), so none is running and none
+            // can follow once it is dropped.
+            unsafe { module.free_memory() };
+        }
+    }
+}
+
+impl std::fmt::Debug for JitModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("JitModel")
+            .field("machine", &self.inner.machine.name)
+            .field("nodes", &self.inner.nodes)
+            .field("compile_time", &self.inner.compile_time)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Which generated function to call, and so which buffers it needs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Function {
+    Error,
+    Jacobian,
+    Nominal,
+}
+
+/// Outputs of one call: error and position, or position and rotation (see `lower::Kind`).
+type Out = [f64; 12];
+
+impl JitModel {
+    pub fn machine(&self) -> &Machine {
+        &self.inner.machine
+    }
+
+    /// Wall time of [`compile`], from the IR to callable functions.
+    pub fn compile_time(&self) -> Duration {
+        self.inner.compile_time
+    }
+
+    /// Number of graph nodes emitted over the three functions (a measure of code size).
+    pub fn nodes(&self) -> usize {
+        self.inner.nodes
+    }
+
+    /// An [`Evaluator`] holding the machine's non-linear parameter values and the scratch a
+    /// length row needs; one per thread.
+    pub fn evaluator(&self) -> JitEvaluator {
+        let n = self.inner.machine.coefficients.len();
+        JitEvaluator {
+            model: self.clone(),
+            nonlinear: self.inner.machine.nonlinear.iter().map(|p| p.value).collect(),
+            jac1: vec![0.0; 6 * n],
+            jac2: vec![0.0; 6 * n],
+            joint: vec![0.0; 6 * self.inner.machine.axes.len()],
+        }
+    }
+
+    /// The tool-location error at `state` (task sign, eq. 2.24/2.31/2.34) for coefficients
+    /// `beta` and non-linear parameter values `nonlinear` (indexed like `Machine::nonlinear`).
+    pub fn error(&self, state: &State, beta: &[f64], nonlinear: &[f64]) -> Result<[f64; 6], EvalError> {
+        let mut out = [0.0; 12];
+        self.call(Function::Error, state, beta, nonlinear, &mut out, &mut [])?;
+        Ok(first6(&out))
+    }
+
+    /// The error and its Jacobian with respect to β, 6 × n row-major (row r is error component
+    /// r): `error = fixed + jac·β`.
+    pub fn error_and_jacobian(&self, state: &State, beta: &[f64], nonlinear: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError> {
+        let mut out = [0.0; 12];
+        self.call(Function::Jacobian, state, beta, nonlinear, &mut out, jac)?;
+        *err = first6(&out);
+        Ok(())
+    }
+
+    /// The nominal location of the tool in wr and its Jacobian with respect to the joint
+    /// positions: `jac[6j..6j+6]` is `(dp/dq_j, ω_j)` in wr axes, as
+    /// `Interpreter::nominal_jacobian` gives `out[j]`.
+    pub fn nominal_jacobian(&self, state: &State, jac: &mut [f64]) -> Result<ToolLocation, EvalError> {
+        let mut out = [0.0; 12];
+        self.call(Function::Nominal, state, &[], &[], &mut out, jac)?;
+        Ok(ToolLocation {
+            position: Vector3::new(out[0], out[1], out[2]),
+            rotation: Matrix3::new(out[3], out[4], out[5], out[6], out[7], out[8], out[9], out[10], out[11]),
+        })
+    }
+
+    /// [`JitModel::error`] over many rows: `err` holds 6 values per row.
+    pub fn error_rows(&self, rows: &StateRows, beta: &[f64], nonlinear: &[f64], err: &mut [f64]) -> Result<(), BatchError> {
+        self.check_rows(rows)?;
+        check_len("the error rows", rows.len(), 6 * rows.len(), err.len())?;
+        let mut out = [0.0; 12];
+        for (r, e) in err.chunks_exact_mut(6).enumerate() {
+            self.call(Function::Error, &rows.get(r), beta, nonlinear, &mut out, &mut [])
+                .map_err(|source| BatchError::Row { row: r, source })?;
+            e.copy_from_slice(&out[..6]);
+        }
+        Ok(())
+    }
+
+    /// [`JitModel::error_and_jacobian`] over many rows: `err` holds 6 values per row and `jac`
+    /// one 6 × n block per row, rows one after the other — the design-matrix rows of a fit.
+    pub fn error_and_jacobian_rows(&self, rows: &StateRows, beta: &[f64], nonlinear: &[f64], err: &mut [f64], jac: &mut [f64]) -> Result<(), BatchError> {
+        self.check_rows(rows)?;
+        let block = 6 * self.inner.machine.coefficients.len();
+        check_len("the error rows", rows.len(), 6 * rows.len(), err.len())?;
+        check_len("the Jacobian rows", rows.len(), block * rows.len(), jac.len())?;
+        let mut out = [0.0; 12];
+        // A machine without coefficients has empty Jacobian blocks; chunks of 0 are not allowed.
+        let mut blocks = jac.chunks_exact_mut(block.max(1));
+        for (r, e) in err.chunks_exact_mut(6).enumerate() {
+            let j: &mut [f64] = if block == 0 { &mut [] } else { blocks.next().unwrap_or(&mut []) };
+            self.call(Function::Jacobian, &rows.get(r), beta, nonlinear, &mut out, j)
+                .map_err(|source| BatchError::Row { row: r, source })?;
+            e.copy_from_slice(&out[..6]);
+        }
+        Ok(())
+    }
+
+    fn check_rows(&self, rows: &StateRows) -> Result<(), BatchError> {
+        let m = &self.inner.machine;
+        let n = rows.len();
+        check_len("q", n, n * m.axes.len(), rows.q.len())?;
+        check_len("inputs", n, n * m.inputs.len(), rows.inputs.len())?;
+        check_len("lags", n, n * m.lags.len(), rows.lags.len())?;
+        check_len("dirs", n, n * m.axes.len(), rows.dirs.len())?;
+        check_len("tool", n, n, rows.tool.len())?;
+        if !rows.tool_offset.is_empty() {
+            check_len("tool_offset", n, n, rows.tool_offset.len())?;
+        }
+        Ok(())
+    }
+
+    /// Checks everything a call relies on and calls. This is the only place generated code is
+    /// entered.
+    fn call(&self, f: Function, state: &State, beta: &[f64], nonlinear: &[f64], out: &mut Out, jac: &mut [f64]) -> Result<(), EvalError> {
+        let inner = &*self.inner;
+        let m = &inner.machine;
+        let sizes = [
+            ("axis positions", m.axes.len(), state.q.len()),
+            ("inputs", m.inputs.len(), state.inputs.len()),
+            ("lag states", m.lags.len(), state.lags.len()),
+            ("directions", m.axes.len(), state.dirs.len()),
+        ];
+        for (what, expected, got) in sizes {
+            if expected != got {
+                return Err(EvalError::StateSize { what, expected, got });
+            }
+        }
+        let n = m.coefficients.len();
+        if f != Function::Nominal {
+            buffer("the β", n, beta.len())?;
+            buffer("the non-linear parameter", m.nonlinear.len(), nonlinear.len())?;
+        }
+        match f {
+            Function::Error => {}
+            Function::Jacobian => buffer("the Jacobian", 6 * n, jac.len())?,
+            Function::Nominal => buffer("the joint Jacobian", 6 * m.axes.len(), jac.len())?,
+        }
+        let Some(tool) = inner.tools.get(state.tool) else {
+            return Err(KinematicsError::ToolIndex { index: state.tool, count: m.tools.len() }.into());
+        };
+        let mut tool_tf = *tool;
+        if let Some(t) = state.tool_offset {
+            // S_tl = Trans(t)·R: the override replaces the translation and keeps the rotation.
+            tool_tf[9..].copy_from_slice(&t);
+        }
+        if f != Function::Nominal {
+            for &v in inner.used.get(state.tool).map_or(&[][..], |u| u.as_slice()) {
+                if value(v, state).is_none_or(f64::is_nan) {
+                    return Err(EvalError::Missing { name: var_name(v, m) });
+                }
+            }
+        }
+        let function = match f {
+            Function::Error => inner.error,
+            Function::Jacobian => inner.jacobian,
+            Function::Nominal => inner.nominal,
+        };
+        let args = Args {
+            q: state.q.as_ptr(),
+            inputs: state.inputs.as_ptr(),
+            lags: state.lags.as_ptr(),
+            dirs: state.dirs.as_ptr(),
+            beta: beta.as_ptr(),
+            nonlinear: nonlinear.as_ptr(),
+            tool_tf: tool_tf.as_ptr(),
+            out: out.as_mut_ptr(),
+            jac: jac.as_mut_ptr(),
+            time: state.time,
+            tool: state.tool as u64,
+        };
+        // SAFETY: `function` was compiled from this machine by `compile` and is alive while
+        // `self` is. It reads `q`, `dirs` at axis indices, `inputs`, `lags` at their indices,
+        // `beta` below n, `nonlinear` below the parameter count and `tool_tf` below 12 — all
+        // checked by `lower::validate` against the machine and above against the slices (β and
+        // the parameters only for the error functions, which alone read them). It writes `out`
+        // below 12 and `jac` below 6·n (error functions) or 6·axes (nominal), the lengths
+        // checked above; the error function writes no `jac`. Every slice outlives the call and
+        // the outputs are exclusively borrowed, so nothing else touches them meanwhile.
+        unsafe { function(&args) };
+        Ok(())
+    }
+}
+
+fn first6(out: &Out) -> [f64; 6] {
+    [out[0], out[1], out[2], out[3], out[4], out[5]]
+}
+
+fn buffer(what: &'static str, expected: usize, got: usize) -> Result<(), EvalError> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(EvalError::Buffer { what, expected, got })
+    }
+}
+
+fn check_len(what: &'static str, rows: usize, expected: usize, got: usize) -> Result<(), BatchError> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(BatchError::Size { what, rows, expected, got })
+    }
+}
+
+fn value(v: Var, s: &State) -> Option<f64> {
+    match v {
+        Var::Axis(i) => s.q.get(i).copied(),
+        Var::Input(i) => s.inputs.get(i).copied(),
+        Var::Lag(i) => s.lags.get(i).copied(),
+        Var::Time => Some(s.time),
+        Var::Direction(i) => s.dirs.get(i).copied(),
+    }
+}
+
+/// The variables read by the error models acting for `tool`, first occurrence first, in the
+/// order the interpreter evaluates them (models, terms, the scale left to right, factors).
+fn used_vars(m: &Machine, tool: usize) -> Vec<Var> {
+    fn walk(s: &Scalar, out: &mut Vec<Var>) {
+        match s {
+            Scalar::Num(_) => {}
+            Scalar::Var(v) => out.push(*v),
+            Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => walk(a, out),
+            Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+                walk(a, out);
+                walk(b, out);
+            }
+        }
+    }
+    let mut all = Vec::new();
+    for model in &m.errors {
+        if matches!(model.frame, FrameRef::ToolEnd(Some(i)) if i != tool) {
+            continue;
+        }
+        for term in &model.terms {
+            walk(&term.scale, &mut all);
+            all.extend(term.factors.iter().map(|f| f.var));
+        }
+    }
+    let mut out: Vec<Var> = Vec::new();
+    for v in all {
+        if !out.contains(&v) {
+            out.push(v);
+        }
+    }
+    out
+}
+
+/// Every tool's offset as the generated code reads it.
+fn tool_transforms(m: &Machine) -> Vec<[f64; 12]> {
+    m.tools
+        .iter()
+        .map(|t| {
+            let (r, p) = lower::shape_transform(&t.offset);
+            let mut tf = [0.0; 12];
+            for (i, row) in r.iter().enumerate() {
+                for (j, v) in row.iter().enumerate() {
+                    tf[3 * i + j] = *v;
+                }
+            }
+            tf[9..].copy_from_slice(&p);
+            tf
+        })
+        .collect()
+}
+
+/// The tools' rotation when they all share it bit for bit (usually the identity): it is then
+/// folded into the code instead of loaded.
+fn common_rotation(tools: &[[f64; 12]]) -> Option<[[f64; 3]; 3]> {
+    let first = tools.first()?;
+    let same = tools.iter().all(|t| t[..9].iter().zip(&first[..9]).all(|(a, b)| a.to_bits() == b.to_bits()));
+    same.then(|| [0, 1, 2].map(|i| [0, 1, 2].map(|j| first[3 * i + j])))
+}
+
+/// The JIT behind the [`Evaluator`] interface: holds the non-linear parameter values and the
+/// scratch of a length row, so no call allocates. Not shared between threads: make one each.
+#[derive(Debug, Clone)]
+pub struct JitEvaluator {
+    model: JitModel,
+    nonlinear: Vec<f64>,
+    jac1: Vec<f64>,
+    jac2: Vec<f64>,
+    /// Scratch for the joint Jacobian of `nominal_position`.
+    joint: Vec<f64>,
+}
+
+impl JitEvaluator {
+    pub fn model(&self) -> &JitModel {
+        &self.model
+    }
+
+    pub fn nonlinear(&self) -> &[f64] {
+        &self.nonlinear
+    }
+
+    pub fn nominal_jacobian(&self, state: &State, jac: &mut [f64]) -> Result<ToolLocation, EvalError> {
+        self.model.nominal_jacobian(state, jac)
+    }
+}
+
+impl Evaluator for JitEvaluator {
+    fn machine(&self) -> &Machine {
+        self.model.machine()
+    }
+
+    fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError> {
+        buffer("the non-linear parameter", self.nonlinear.len(), values.len())?;
+        self.nonlinear.copy_from_slice(values);
+        Ok(())
+    }
+
+    fn error(&mut self, state: &State, beta: &[f64]) -> Result<[f64; 6], EvalError> {
+        self.model.error(state, beta, &self.nonlinear)
+    }
+
+    fn error_and_jacobian(&mut self, state: &State, beta: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError> {
+        self.model.error_and_jacobian(state, beta, &self.nonlinear, err, jac)
+    }
+
+    /// Eq. 4.5: `dL = u·(Δp₂ − Δp₁)` and its row `uᵀ(J₂ − J₁)` over the position rows, from
+    /// two calls of the Jacobian function (which also returns the nominal positions for `u`).
+    fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError> {
+        let n = self.model.machine().coefficients.len();
+        buffer("the length row", n, row.len())?;
+        let (mut o1, mut o2) = ([0.0; 12], [0.0; 12]);
+        self.model.call(Function::Jacobian, s1, beta, &self.nonlinear, &mut o1, &mut self.jac1)?;
+        self.model.call(Function::Jacobian, s2, beta, &self.nonlinear, &mut o2, &mut self.jac2)?;
+        let p1 = Vector3::new(o1[6], o1[7], o1[8]);
+        let p2 = Vector3::new(o2[6], o2[7], o2[8]);
+        let u = length_direction(&p1, &p2)?;
+        for (j, slot) in row.iter_mut().enumerate() {
+            let at = |jac: &[f64], r: usize| jac.get(r * n + j).copied().unwrap_or(0.0);
+            *slot = (0..3).map(|r| u[r] * (at(&self.jac2, r) - at(&self.jac1, r))).sum();
+        }
+        let dp1 = Vector3::new(o1[0], o1[1], o1[2]);
+        let dp2 = Vector3::new(o2[0], o2[1], o2[2]);
+        Ok(length_error(&u, &dp1, &dp2))
+    }
+
+    fn nominal_position(&mut self, state: &State) -> Result<[f64; 3], EvalError> {
+        let location = self.model.nominal_jacobian(state, &mut self.joint)?;
+        Ok(location.position.into())
+    }
+}

@@ -1,0 +1,729 @@
+//! Two engines, one truth: the JIT against the interpreter on randomly generated machines and
+//! error models (random `.kin` source, compiled by the real compiler) and on every example.
+//!
+//! Agreement is measured relative to the magnitude of what is compared, per output row:
+//! a Jacobian row against its largest entry, an error component against `|fixed| + Σ|J·β|`
+//! (entries of a row cancel, so the result itself can be ~0 while its parts are not).
+
+#[path = "../benches/baseline_5axis.rs"]
+mod baseline;
+
+use kin_compiler::ir::{JointKind, Machine};
+use kin_runtime::engine::Evaluator;
+use kin_runtime::interp::{EvalError, Interpreter, State};
+use kin_runtime::jit::{self, BatchError, JitModel, StateRows};
+use nalgebra::Vector6;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+const TOLERANCE: f64 = 1e-12;
+
+fn example(name: &str) -> Machine {
+    let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
+    let src = std::fs::read_to_string(&path).expect("example readable");
+    compile_source(&src)
+}
+
+fn compile_source(src: &str) -> Machine {
+    let out = kin_compiler::compile(src);
+    match out.compiled {
+        Some(c) => c.machine,
+        None => panic!("does not compile:\n{src}\n{:#?}", out.diagnostics),
+    }
+}
+
+/// Owned storage for one random state.
+struct OwnedState {
+    q: Vec<f64>,
+    inputs: Vec<f64>,
+    lags: Vec<f64>,
+    dirs: Vec<f64>,
+    time: f64,
+    tool: usize,
+    tool_offset: Option<[f64; 3]>,
+}
+
+impl OwnedState {
+    fn get(&self) -> State<'_> {
+        State { q: &self.q, inputs: &self.inputs, lags: &self.lags, time: self.time, dirs: &self.dirs, tool: self.tool, tool_offset: self.tool_offset }
+    }
+}
+
+/// A state anywhere near the declared ranges: a little outside them (extrapolation), and
+/// continuous axes over several turns (the basis factors reduce them modulo 2π).
+fn random_state(rng: &mut StdRng, m: &Machine) -> OwnedState {
+    let q = m
+        .axes
+        .iter()
+        .map(|a| {
+            if a.continuous {
+                rng.random_range(-4.0 * std::f64::consts::PI..6.0 * std::f64::consts::PI)
+            } else {
+                let span = a.range[1] - a.range[0];
+                rng.random_range(a.range[0] - 0.1 * span..a.range[1] + 0.1 * span)
+            }
+        })
+        .collect();
+    let inputs: Vec<f64> = m
+        .inputs
+        .iter()
+        .map(|i| if i.absolute { rng.random_range(288.0..298.0) } else { rng.random_range(0.0..1000.0) })
+        .collect();
+    let lags = m.lags.iter().map(|l| inputs.get(l.input).copied().unwrap_or(0.0) * rng.random_range(0.5..1.0)).collect();
+    let dirs = m.axes.iter().map(|_| if rng.random_bool(0.5) { 1.0 } else { -1.0 }).collect();
+    let tool = rng.random_range(0..m.tools.len());
+    let tool_offset = rng.random_bool(0.3).then(|| [0, 1, 2].map(|_| rng.random_range(-0.3..0.3)));
+    OwnedState { q, inputs, lags, dirs, time: rng.random_range(0.0..5000.0), tool, tool_offset }
+}
+
+/// The largest relative difference so far, for the report.
+#[derive(Default, Debug)]
+struct Worst {
+    error: f64,
+    jacobian: f64,
+    nominal: f64,
+    length: f64,
+}
+
+/// `max_r max_j |a − b| / scale_r` over a `rows × cols` row-major block.
+fn row_relative(a: &[f64], b: &[f64], rows: usize, scale: impl Fn(usize) -> f64) -> f64 {
+    let cols = a.len() / rows.max(1);
+    let mut worst: f64 = 0.0;
+    for r in 0..rows {
+        let s = scale(r);
+        for j in 0..cols {
+            let d = (a[r * cols + j] - b[r * cols + j]).abs();
+            let rel = if s > 0.0 { d / s } else if d == 0.0 { 0.0 } else { f64::INFINITY };
+            worst = worst.max(rel);
+        }
+    }
+    worst
+}
+
+/// Compares the JIT with the interpreter on `states`, returning the worst relative differences.
+fn compare(m: &Machine, model: &JitModel, states: &[OwnedState], rng: &mut StdRng, label: &str) -> Worst {
+    let n = m.coefficients.len();
+    let axes = m.axes.len();
+    let mut it = Interpreter::new(m).expect("interpreter");
+    let mut ev = model.evaluator();
+    // Random non-linear parameters (fitted wavelengths move), the same in both engines.
+    let nonlinear: Vec<f64> = m.nonlinear.iter().map(|p| p.value * rng.random_range(0.8..1.25)).collect();
+    it.set_nonlinear(&nonlinear).expect("set");
+    ev.set_nonlinear(&nonlinear).expect("set");
+    let beta: Vec<f64> = (0..n).map(|_| rng.random_range(-1e-5..1e-5)).collect();
+    let zero = vec![0.0; n];
+    let (mut ji, mut jj) = (vec![0.0; 6 * n], vec![0.0; 6 * n]);
+    let (mut ei, mut ej, mut e0) = ([0.0; 6], [0.0; 6], [0.0; 6]);
+    let mut worst = Worst::default();
+    for (k, s) in states.iter().enumerate() {
+        let st = s.get();
+        let ctx = || format!("{label}, state {k}");
+        it.error_and_jacobian(&st, &zero, &mut e0, &mut ji).unwrap_or_else(|e| panic!("{}: {e}", ctx()));
+        it.error_and_jacobian(&st, &beta, &mut ei, &mut ji).unwrap_or_else(|e| panic!("{}: {e}", ctx()));
+        // Poison the JIT's buffer: every entry must be written.
+        jj.fill(f64::NAN);
+        ev.error_and_jacobian(&st, &beta, &mut ej, &mut jj).unwrap_or_else(|e| panic!("{}: {e}", ctx()));
+        let jac_scale = |r: usize| (0..n).map(|j| ji[r * n + j].abs()).fold(0.0, f64::max);
+        let dj = row_relative(&ji, &jj, 6, jac_scale);
+        assert!(dj <= TOLERANCE, "{}: Jacobian differs by {dj:e}", ctx());
+        let err_scale = |r: usize| e0[r].abs() + (0..n).map(|j| (ji[r * n + j] * beta[j]).abs()).sum::<f64>();
+        let de = row_relative(&ei, &ej, 6, err_scale);
+        assert!(de <= TOLERANCE, "{}: error differs by {de:e}: {ei:?} vs {ej:?}", ctx());
+        // The error-only function and the plain interpreter path.
+        let plain_i = it.error(&st, &beta).expect("interp error");
+        let plain_j = ev.error(&st, &beta).expect("jit error");
+        let dp = row_relative(&plain_i, &plain_j, 6, err_scale);
+        assert!(dp <= TOLERANCE, "{}: error-only differs by {dp:e}", ctx());
+        worst.jacobian = worst.jacobian.max(dj);
+        worst.error = worst.error.max(de).max(dp);
+
+        // Nominal location and joint Jacobian.
+        let mut vi = vec![Vector6::zeros(); axes];
+        let mut vj = vec![f64::NAN; 6 * axes];
+        let li = it.nominal_jacobian(&st, &mut vi).expect("interp nominal");
+        let lj = model.nominal_jacobian(&st, &mut vj).expect("jit nominal");
+        let flat: Vec<f64> = vi.iter().flat_map(|v| v.iter().copied()).collect();
+        // Per row of (dp/dq, ω): scale by the largest entry of that row over all axes, or the
+        // machine size for a position.
+        let size = li.position.norm().max(1.0);
+        let dn = row_relative(&flat, &vj, axes, |_| flat.iter().fold(size, |a, v| a.max(v.abs())));
+        let dpos = (li.position - lj.position).amax() / size;
+        let drot = (li.rotation - lj.rotation).amax();
+        assert!(dn.max(dpos).max(drot) <= TOLERANCE, "{}: nominal differs: {dn:e} {dpos:e} {drot:e}", ctx());
+        worst.nominal = worst.nominal.max(dn).max(dpos).max(drot);
+    }
+    // Length rows between consecutive states of the same tool (eq. 4.5).
+    for pair in states.windows(2) {
+        let s1 = pair[0].get();
+        let mut second = pair[1].get();
+        second.tool = s1.tool;
+        second.tool_offset = s1.tool_offset;
+        let (mut ri, mut rj) = (vec![0.0; n], vec![0.0; n]);
+        let li = it.length_and_row(&s1, &second, &beta, &mut ri);
+        let lj = ev.length_and_row(&s1, &second, &beta, &mut rj);
+        let (li, lj) = match (li, lj) {
+            (Ok(a), Ok(b)) => (a, b),
+            (Err(a), Err(b)) => {
+                assert_eq!(a, b);
+                continue;
+            }
+            (a, b) => panic!("{label}: length {a:?} vs {b:?}"),
+        };
+        let mut r0 = vec![0.0; n];
+        let l0 = it.length_and_row(&s1, &second, &zero, &mut r0).expect("length");
+        let row_scale = ri.iter().fold(0.0, |a: f64, v| a.max(v.abs()));
+        let dr = row_relative(&ri, &rj, 1, |_| row_scale);
+        let l_scale = l0.abs() + ri.iter().zip(&beta).map(|(r, b)| (r * b).abs()).sum::<f64>();
+        let dl = if l_scale > 0.0 { (li - lj).abs() / l_scale } else { (li - lj).abs() };
+        assert!(dr.max(dl) <= TOLERANCE, "{label}: length row {dr:e}, length {dl:e}");
+        worst.length = worst.length.max(dr).max(dl);
+    }
+    worst
+}
+
+#[test]
+fn examples_agree_with_the_interpreter() {
+    let mut rng = StdRng::seed_from_u64(1);
+    for name in ["milling_5axis", "bridge_cmm", "robot_6axis"] {
+        let m = example(name);
+        let model = jit::compile(&m).expect("compiles");
+        let states: Vec<OwnedState> = (0..40).map(|_| random_state(&mut rng, &m)).collect();
+        let w = compare(&m, &model, &states, &mut rng, name);
+        eprintln!("{name}: {w:?}, {} nodes, compiled in {:?}", model.nodes(), model.compile_time());
+    }
+}
+
+/// Random `.kin` sources: chains of 0–4 elements each side, moving/fixed, revolute/prismatic
+/// in random directions, shapes with rotations, several tools, both tasks, and error models
+/// drawing on every factor family, products, known scalings and fixed terms.
+struct Gen {
+    rng: StdRng,
+}
+
+#[derive(Clone)]
+struct AxisDecl {
+    name: String,
+    revolute: bool,
+    /// Range in the declared unit (mm or deg).
+    lo: f64,
+    hi: f64,
+}
+
+impl Gen {
+    fn f(&mut self, lo: f64, hi: f64) -> f64 {
+        self.rng.random_range(lo..hi)
+    }
+
+    fn pick<'a, T>(&mut self, items: &'a [T]) -> &'a T {
+        &items[self.rng.random_range(0..items.len())]
+    }
+
+    fn chance(&mut self, p: f64) -> bool {
+        self.rng.random_bool(p)
+    }
+
+    fn vector(&mut self, scale: f64) -> String {
+        let v: Vec<String> = (0..3).map(|_| format!("{:.3}", self.f(-scale, scale))).collect();
+        format!("({})", v.join(", "))
+    }
+
+    fn placement(&mut self) -> String {
+        let mut p = String::new();
+        if self.chance(0.8) {
+            p += &format!(" at {} mm", self.vector(400.0));
+        }
+        if self.chance(0.4) {
+            p += &format!(" rot {} deg", self.vector(90.0));
+        }
+        p
+    }
+
+    fn direction(&mut self) -> String {
+        if self.chance(0.5) {
+            let sign = self.pick(&["", "-", "+"]).to_string();
+            let axis = self.pick(&["x", "y", "z"]).to_string();
+            format!("{sign}{axis}")
+        } else {
+            loop {
+                let v = [0, 1, 2].map(|_| self.f(-1.0, 1.0));
+                if v.iter().map(|x| x * x).sum::<f64>() > 0.1 {
+                    return format!("({:.3}, {:.3}, {:.3})", v[0], v[1], v[2]);
+                }
+            }
+        }
+    }
+
+    fn machine(&mut self, index: usize) -> String {
+        let tool_len = self.rng.random_range(0..=4);
+        let wp_len = self.rng.random_range(0..=4);
+        let mut axes = Vec::new();
+        let mut src = format!("machine random_{index} {{\n");
+        src += &format!("    task {}\n", if self.chance(0.5) { "position" } else { "measure" });
+        for k in 0..tool_len + wp_len {
+            let revolute = self.chance(0.45);
+            let name = format!("A{k}");
+            let dir = self.direction();
+            let decl = if revolute {
+                if self.chance(0.35) {
+                    src += &format!("    axis {name} revolute about {dir} continuous\n");
+                    AxisDecl { name, revolute, lo: 0.0, hi: 360.0 }
+                } else {
+                    let lo = self.f(-180.0, 30.0);
+                    let hi = lo + self.f(60.0, 300.0);
+                    src += &format!("    axis {name} revolute about {dir} range {lo:.2} deg .. {hi:.2} deg\n");
+                    AxisDecl { name, revolute, lo: (lo * 100.0).round() / 100.0, hi: (hi * 100.0).round() / 100.0 }
+                }
+            } else {
+                let lo = self.f(-500.0, 200.0);
+                let hi = lo + self.f(100.0, 900.0);
+                src += &format!("    axis {name} prismatic along {dir} range {lo:.2} mm .. {hi:.2} mm\n");
+                AxisDecl { name, revolute, lo: (lo * 100.0).round() / 100.0, hi: (hi * 100.0).round() / 100.0 }
+            };
+            axes.push(decl);
+        }
+        src += "    input T0 : temperature rise range 0 degC .. 5 degC\n";
+        src += "    input Tabs : temperature absolute range 15 degC .. 25 degC\n";
+        src += "    input F0 : force range 0 N .. 1000 N\n";
+        let tools: Vec<String> = (0..self.rng.random_range(1..=3)).map(|i| format!("t{i}")).collect();
+        src += "    tool chain {\n";
+        for a in axes.iter().take(tool_len) {
+            let kind = if self.chance(0.5) { "moving" } else { "fixed" };
+            src += &format!("        {} {kind}{}\n", a.name, self.placement());
+        }
+        for t in &tools {
+            src += &format!("        tool {t}{}\n", self.placement());
+        }
+        src += "    }\n    workpiece chain {\n";
+        for a in axes.iter().skip(tool_len) {
+            let kind = if self.chance(0.5) { "moving" } else { "fixed" };
+            src += &format!("        {} {kind}{}\n", a.name, self.placement());
+        }
+        if self.chance(0.7) {
+            src += &format!("        workpiece{}\n", self.placement());
+        }
+        src += "    }\n    errors {\n";
+        let mut frames: Vec<String> = axes.iter().map(|a| a.name.clone()).collect();
+        frames.extend(tools.iter().cloned());
+        frames.push("tool".into());
+        frames.push("workpiece".into());
+        let mut defined = std::collections::HashSet::new();
+        for _ in 0..self.rng.random_range(1..=8) {
+            let frame = self.pick(&frames).clone();
+            let comp = *self.pick(&["tx", "ty", "tz", "rx", "ry", "rz"]);
+            let first = defined.insert((frame.clone(), comp));
+            let op = if first { "=" } else { "+=" };
+            let expr = self.expr(&axes, comp.starts_with('r'));
+            src += &format!("        {frame}.{comp} {op} {expr}\n");
+        }
+        src += "    }\n}\n";
+        src
+    }
+
+    /// A variable for a ranged family: an axis or the ranged inputs.
+    fn ranged_var(&mut self, axes: &[AxisDecl]) -> (String, f64, &'static str) {
+        if axes.is_empty() || self.chance(0.15) {
+            return match self.rng.random_range(0..3) {
+                0 => ("T0".into(), 5.0, "degC"),
+                1 => ("Tabs".into(), 10.0, "degC"),
+                _ => ("F0".into(), 1000.0, "N"),
+            };
+        }
+        let a = self.pick(axes).clone();
+        (a.name, a.hi - a.lo, if a.revolute { "deg" } else { "mm" })
+    }
+
+    /// One basis-factor call. `avoid` holds the variables already used in the product.
+    fn family(&mut self, axes: &[AxisDecl], avoid: &mut Vec<String>) -> Option<String> {
+        let revolute: Vec<AxisDecl> = axes.iter().filter(|a| a.revolute && !avoid.contains(&a.name)).cloned().collect();
+        for _ in 0..20 {
+            let kind = self.rng.random_range(0..10);
+            let call = match kind {
+                0 => "const".to_string(),
+                1 | 2 => {
+                    let (v, _, _) = self.ranged_var(axes);
+                    if avoid.contains(&v) {
+                        continue;
+                    }
+                    avoid.push(v.clone());
+                    match kind {
+                        1 => format!("linear({v})"),
+                        _ => format!("poly({v}, degree {})", self.rng.random_range(1..=5)),
+                    }
+                }
+                3 | 4 => {
+                    let (v, span, unit) = self.ranged_var(axes);
+                    if avoid.contains(&v) {
+                        continue;
+                    }
+                    let degree = self.rng.random_range(1..=4u32);
+                    let smooth = self.rng.random_range(0..degree);
+                    let knots = self.rng.random_range(0..=3usize);
+                    let straight = kind == 4;
+                    if straight && degree + knots as u32 * (degree - smooth) < 2 {
+                        continue;
+                    }
+                    // `knots at (…) degC` on an absolute temperature is rejected by the checker (it compares
+                    // the knots as differences against an absolute range), so positions are only given
+                    // for the other variables.
+                    let knot_text = if knots > 0 && v != "Tabs" && self.chance(0.4) {
+                        let lo = axes.iter().find(|a| a.name == v).map_or(if v == "Tabs" { 15.0 } else { 0.0 }, |a| a.lo);
+                        let mut ts: Vec<f64> = (0..knots).map(|k| (k as f64 + 0.3 + 0.4 * self.f(0.0, 1.0)) / knots as f64).collect();
+                        ts.sort_by(f64::total_cmp);
+                        let list: Vec<String> = ts.iter().map(|t| format!("{:.3}", lo + t * span)).collect();
+                        format!("knots at ({}) {unit}", list.join(", "))
+                    } else {
+                        format!("knots {knots}")
+                    };
+                    avoid.push(v.clone());
+                    let family = if straight { "straightness" } else { "spline" };
+                    format!("{family}({v}, {knot_text}, degree {degree}, smooth {smooth})")
+                }
+                5 if !revolute.is_empty() => {
+                    let a = self.pick(&revolute).clone();
+                    if avoid.contains(&a.name) {
+                        continue;
+                    }
+                    avoid.push(a.name.clone());
+                    format!("spline({}, knots {}, no_once_per_rev)", a.name, self.rng.random_range(1..=3))
+                }
+                6 if !revolute.is_empty() => {
+                    let a = self.pick(&revolute).clone();
+                    if avoid.contains(&a.name) {
+                        continue;
+                    }
+                    avoid.push(a.name.clone());
+                    let h = match self.rng.random_range(0..3) {
+                        0 => {
+                            let lo = self.rng.random_range(1..4);
+                            format!("{lo}..{}", lo + self.rng.random_range(0..3))
+                        }
+                        1 => format!("({}, {})", self.rng.random_range(1..5), self.rng.random_range(5..200)),
+                        _ => format!("{}", self.rng.random_range(1..50)),
+                    };
+                    format!("fourier({}, harmonics {h})", a.name)
+                }
+                7 => {
+                    let (v, span, unit) = self.ranged_var(axes);
+                    if avoid.contains(&v) {
+                        continue;
+                    }
+                    let degree = self.rng.random_range(1..=4u32);
+                    let smooth = self.rng.random_range(0..degree);
+                    let knots = self.rng.random_range(0..=3u32);
+                    if (knots + 1) * (degree - smooth) < 2 {
+                        continue;
+                    }
+                    avoid.push(v.clone());
+                    let lambda = span / f64::from(self.rng.random_range(2..9u32));
+                    let fit = if self.chance(0.5) { "fit " } else { "" };
+                    let phase = if self.chance(0.4) { format!(", phase {:.3} {unit}", self.f(0.0, lambda)) } else { String::new() };
+                    format!("periodic({v}, wavelength {fit}{lambda:.4} {unit}, knots {knots}, degree {degree}, smooth {smooth}{phase})")
+                }
+                8 if !axes.is_empty() => {
+                    let a = self.pick(axes).clone();
+                    let dir = format!("dir_{}", a.name);
+                    if avoid.contains(&dir) {
+                        continue;
+                    }
+                    avoid.push(dir);
+                    format!("{}({})", if self.chance(0.5) { "backlash" } else { "direction" }, a.name)
+                }
+                _ => continue,
+            };
+            return Some(call);
+        }
+        None
+    }
+
+    /// A known scalar that scales a term (any dimension).
+    fn known_scale(&mut self, axes: &[AxisDecl]) -> String {
+        let revolute: Vec<&AxisDecl> = axes.iter().filter(|a| a.revolute).collect();
+        match self.rng.random_range(0..7) {
+            0 if !revolute.is_empty() => format!("sin({})", self.pick(&revolute).name),
+            1 if revolute.len() >= 2 => format!("cos({} + {})", revolute[0].name, revolute[1].name),
+            2 if !revolute.is_empty() => format!("cos(2 * {} - 10 deg)", self.pick(&revolute).name),
+            3 => "F0 / 500 N".into(),
+            4 => format!("lag(T0, tau {}{:.1} s)", if self.chance(0.5) { "fit " } else { "" }, self.f(10.0, 500.0)),
+            5 => "time / 1000 s".into(),
+            _ => format!("{:.3}", self.f(-3.0, 3.0)),
+        }
+    }
+
+    /// A known fixed error of the component's dimension (length or angle).
+    fn fixed(&mut self, axes: &[AxisDecl], rotation: bool) -> String {
+        let unit = if rotation { "urad" } else { "um" };
+        let revolute: Vec<&AxisDecl> = axes.iter().filter(|a| a.revolute).collect();
+        let prismatic: Vec<&AxisDecl> = axes.iter().filter(|a| !a.revolute).collect();
+        match self.rng.random_range(0..6) {
+            0 => format!("{:.3} {unit}/K * (Tabs - 20 degC)", self.f(-10.0, 10.0)),
+            1 if !revolute.is_empty() => format!("{:.3} {unit} * sin({})", self.f(-5.0, 5.0), self.pick(&revolute).name),
+            2 if !prismatic.is_empty() => format!("{:.3} {unit}/mm * {}", self.f(-0.01, 0.01), self.pick(&prismatic).name),
+            3 => format!("{:.3} {unit}/K * T0", self.f(-2.0, 2.0)),
+            4 => format!("{:.3} {unit}/N * F0 * cos(30 deg)", self.f(-0.01, 0.01)),
+            _ => format!("{:.3} {unit}", self.f(-5.0, 5.0)),
+        }
+    }
+
+    fn term(&mut self, axes: &[AxisDecl], rotation: bool) -> String {
+        let mut avoid = Vec::new();
+        match self.rng.random_range(0..8) {
+            0 => self.fixed(axes, rotation),
+            1 => format!("{} * {}", self.known_scale(axes), self.family(axes, &mut avoid).unwrap_or("const".into())),
+            2 | 3 => {
+                let a = self.family(axes, &mut avoid).unwrap_or("const".into());
+                let b = self.family(axes, &mut avoid).unwrap_or("const".into());
+                format!("{a} * {b}")
+            }
+            4 => {
+                let a = self.family(axes, &mut avoid).unwrap_or("const".into());
+                let b = self.family(axes, &mut avoid).unwrap_or("const".into());
+                let c = self.family(axes, &mut avoid).unwrap_or("const".into());
+                format!("({a} + {:.2} * {b}) * {c}", self.f(0.5, 2.0))
+            }
+            5 => format!("{} / {:.2}", self.family(axes, &mut avoid).unwrap_or("const".into()), self.f(1.0, 4.0)),
+            _ => self.family(axes, &mut avoid).unwrap_or("const".into()),
+        }
+    }
+
+    fn expr(&mut self, axes: &[AxisDecl], rotation: bool) -> String {
+        let mut e = self.term(axes, rotation);
+        for _ in 0..self.rng.random_range(0..3) {
+            let op = if self.chance(0.7) { "+" } else { "-" };
+            e = format!("{e}\n            {op} {}", self.term(axes, rotation));
+        }
+        if self.chance(0.1) {
+            e = format!("-({e})");
+        }
+        e
+    }
+}
+
+#[test]
+fn random_machines_agree_with_the_interpreter() {
+    let mut gen = Gen { rng: StdRng::seed_from_u64(20240601) };
+    let mut rng = StdRng::seed_from_u64(99);
+    let mut worst = Worst::default();
+    let mut coefficients = 0;
+    let mut revolute = 0;
+    const MACHINES: usize = 200;
+    for index in 0..MACHINES {
+        let src = gen.machine(index);
+        let m = compile_source(&src);
+        coefficients += m.coefficients.len();
+        revolute += m.axes.iter().filter(|a| a.kind == JointKind::Revolute).count();
+        let model = jit::compile(&m).unwrap_or_else(|e| panic!("{src}\n{e}"));
+        let states: Vec<OwnedState> = (0..6).map(|_| random_state(&mut rng, &m)).collect();
+        let w = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| compare(&m, &model, &states, &mut rng, &format!("machine {index}"))));
+        let w = match w {
+            Ok(w) => w,
+            Err(e) => {
+                eprintln!("failing source:\n{src}");
+                std::panic::resume_unwind(e);
+            }
+        };
+        worst.error = worst.error.max(w.error);
+        worst.jacobian = worst.jacobian.max(w.jacobian);
+        worst.nominal = worst.nominal.max(w.nominal);
+        worst.length = worst.length.max(w.length);
+    }
+    eprintln!("{MACHINES} random machines, {coefficients} coefficients, {revolute} revolute axes; worst relative differences {worst:?}");
+    assert!(coefficients > 10 * MACHINES, "the generator makes too small models");
+}
+
+#[test]
+fn every_family_is_generated() {
+    // The generator's reach, checked on its text so a change cannot quietly drop a family.
+    let mut gen = Gen { rng: StdRng::seed_from_u64(20240601) };
+    let text: String = (0..200).map(|i| gen.machine(i)).collect();
+    for needle in ["const", "linear(", "poly(", "spline(", "straightness(", "no_once_per_rev", "fourier(", "periodic(", "wavelength fit", "phase", "backlash(", "direction(", "lag(", "tau fit", "sin(", "cos(", "knots at", "moving", "fixed", "revolute", "prismatic", "continuous", "rot (", "task measure", "task position", "tool.", "workpiece.", "t1.", "time /", "+=", "Tabs - 20 degC"] {
+        assert!(text.contains(needle), "no `{needle}` in the generated sources");
+    }
+}
+
+#[test]
+fn the_model_is_shared_between_threads() {
+    let m = example("milling_5axis");
+    let model = jit::compile(&m).expect("compiles");
+    let n = m.coefficients.len();
+    let mut rng = StdRng::seed_from_u64(5);
+    let states: Vec<OwnedState> = (0..64).map(|_| random_state(&mut rng, &m)).collect();
+    let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64).sin()).collect();
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let reference: Vec<[f64; 6]> = states.iter().map(|s| model.error(&s.get(), &beta, &nl).expect("eval")).collect();
+    std::thread::scope(|scope| {
+        for t in 0..4 {
+            let (model, states, beta, nl, reference) = (&model, &states, &beta, &nl, &reference);
+            scope.spawn(move || {
+                let mut jac = vec![0.0; 6 * n];
+                let mut err = [0.0; 6];
+                for round in 0..50 {
+                    let k = (t * 17 + round * 5) % states.len();
+                    model.error_and_jacobian(&states[k].get(), beta, nl, &mut err, &mut jac).expect("eval");
+                    assert_eq!(err, reference[k]);
+                }
+            });
+        }
+    });
+}
+
+#[test]
+fn batch_rows_match_single_calls() {
+    let m = example("bridge_cmm");
+    let model = jit::compile(&m).expect("compiles");
+    let n = m.coefficients.len();
+    let mut rng = StdRng::seed_from_u64(8);
+    let states: Vec<OwnedState> = (0..25).map(|_| random_state(&mut rng, &m)).collect();
+    let flat = |f: &dyn Fn(&OwnedState) -> Vec<f64>| -> Vec<f64> { states.iter().flat_map(f).collect() };
+    let q = flat(&|s| s.q.clone());
+    let inputs = flat(&|s| s.inputs.clone());
+    let lags = flat(&|s| s.lags.clone());
+    let dirs = flat(&|s| s.dirs.clone());
+    let time: Vec<f64> = states.iter().map(|s| s.time).collect();
+    let tool: Vec<usize> = states.iter().map(|s| s.tool).collect();
+    let tool_offset: Vec<Option<[f64; 3]>> = states.iter().map(|s| s.tool_offset).collect();
+    let rows = StateRows { q: &q, inputs: &inputs, lags: &lags, time: &time, dirs: &dirs, tool: &tool, tool_offset: &tool_offset };
+    let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64).cos()).collect();
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let mut err = vec![0.0; 6 * rows.len()];
+    let mut jac = vec![0.0; 6 * n * rows.len()];
+    model.error_and_jacobian_rows(&rows, &beta, &nl, &mut err, &mut jac).expect("batch");
+    let mut plain = vec![0.0; 6 * rows.len()];
+    model.error_rows(&rows, &beta, &nl, &mut plain).expect("batch");
+    let mut one = vec![0.0; 6 * n];
+    let mut e = [0.0; 6];
+    for (r, s) in states.iter().enumerate() {
+        model.error_and_jacobian(&s.get(), &beta, &nl, &mut e, &mut one).expect("single");
+        assert_eq!(&err[6 * r..6 * r + 6], &e[..]);
+        assert_eq!(&jac[6 * n * r..6 * n * (r + 1)], &one[..]);
+        assert_eq!(model.error(&s.get(), &beta, &nl).expect("single"), <[f64; 6]>::try_from(&plain[6 * r..6 * r + 6]).expect("6"));
+    }
+    // Wrong sizes are errors, not panics or overruns.
+    assert!(matches!(model.error_and_jacobian_rows(&rows, &beta, &nl, &mut err, &mut jac[1..]), Err(BatchError::Size { .. })));
+    let short = StateRows { q: &q[1..], ..rows };
+    assert!(matches!(model.error_rows(&short, &beta, &nl, &mut plain), Err(BatchError::Size { what: "q", .. })));
+    let mut bad_tool = tool.clone();
+    bad_tool[3] = 99;
+    let bad = StateRows { tool: &bad_tool, ..rows };
+    assert!(matches!(model.error_rows(&bad, &beta, &nl, &mut plain), Err(BatchError::Row { row: 3, .. })));
+}
+
+#[test]
+fn bad_calls_are_errors_like_the_interpreter() {
+    let m = example("milling_5axis");
+    let model = jit::compile(&m).expect("compiles");
+    let mut it = Interpreter::new(&m).expect("interpreter");
+    let n = m.coefficients.len();
+    let mut rng = StdRng::seed_from_u64(3);
+    let s = random_state(&mut rng, &m);
+    let beta = vec![0.0; n];
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let mut err = [0.0; 6];
+    let mut jac = vec![0.0; 6 * n];
+    let mut ev = model.evaluator();
+    let check = |a: Result<(), EvalError>, b: Result<(), EvalError>| assert_eq!(a, b);
+
+    // Short state, β, Jacobian, non-linear parameters.
+    let q = &s.q[1..];
+    let short = State { q, ..s.get() };
+    check(ev.error_and_jacobian(&short, &beta, &mut err, &mut jac), it.error_and_jacobian(&short, &beta, &mut err, &mut jac));
+    check(ev.error_and_jacobian(&s.get(), &beta[1..], &mut err, &mut jac), it.error_and_jacobian(&s.get(), &beta[1..], &mut err, &mut jac));
+    let mut short_jac = vec![0.0; 6 * n - 1];
+    check(ev.error_and_jacobian(&s.get(), &beta, &mut err, &mut short_jac), it.error_and_jacobian(&s.get(), &beta, &mut err, &mut short_jac));
+    assert!(model.error(&s.get(), &beta, &nl[1..]).is_err());
+    assert_eq!(ev.set_nonlinear(&[]), it.set_nonlinear(&[]));
+    let mut joint = vec![0.0; 6 * m.axes.len() + 1];
+    assert!(model.nominal_jacobian(&s.get(), &mut joint).is_err());
+
+    // A tool that does not exist.
+    let bad_tool = State { tool: 7, ..s.get() };
+    check(ev.error_and_jacobian(&bad_tool, &beta, &mut err, &mut jac), it.error_and_jacobian(&bad_tool, &beta, &mut err, &mut jac));
+
+    // A variable the model needs and the state does not give: named, as by the interpreter.
+    for input in 0..m.inputs.len() {
+        let mut inputs = s.inputs.clone();
+        inputs[input] = f64::NAN;
+        let missing = State { inputs: &inputs, ..s.get() };
+        check(ev.error_and_jacobian(&missing, &beta, &mut err, &mut jac), it.error_and_jacobian(&missing, &beta, &mut err, &mut jac));
+        assert_eq!(ev.error(&missing, &beta).map(|_| ()), it.error(&missing, &beta).map(|_| ()));
+    }
+    let dirs = vec![f64::NAN; m.axes.len()];
+    let no_dirs = State { dirs: &dirs, ..s.get() };
+    let e = ev.error(&no_dirs, &beta).unwrap_err();
+    assert_eq!(e, it.error(&no_dirs, &beta).unwrap_err());
+}
+
+#[test]
+fn only_the_selected_tool_reads_its_variables() {
+    // `t1.tx` reads the load; a row measured with t0 need not give it (as in the interpreter).
+    let src = "machine tools {
+        task position
+        axis X prismatic along x range 0 mm .. 500 mm
+        input F0 : force range 0 N .. 1000 N
+        tool chain { X moving tool t0 at (0, 0, -100) mm tool t1 at (0, 0, -150) mm rot (0, 10, 0) deg }
+        errors { X.tx = spline(X, knots 2) t1.tx = F0 / 1000 N * const t1.rz = const }
+    }";
+    let m = compile_source(src);
+    let model = jit::compile(&m).expect("compiles");
+    let mut it = Interpreter::new(&m).expect("interpreter");
+    let n = m.coefficients.len();
+    let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j + 1) as f64).collect();
+    let inputs = [f64::NAN];
+    let q = [0.2];
+    let dirs = [1.0];
+    let s = State { q: &q, inputs: &inputs, lags: &[], time: 0.0, dirs: &dirs, tool: 0, tool_offset: None };
+    let (mut ei, mut ej) = ([0.0; 6], [0.0; 6]);
+    let (mut ji, mut jj) = (vec![0.0; 6 * n], vec![f64::NAN; 6 * n]);
+    it.error_and_jacobian(&s, &beta, &mut ei, &mut ji).expect("interp");
+    model.error_and_jacobian(&s, &beta, &[], &mut ej, &mut jj).expect("jit");
+    assert_eq!(ji, jj);
+    assert!(ei.iter().zip(&ej).all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
+    let t1 = State { tool: 1, ..s };
+    assert!(model.error(&t1, &beta, &[]).is_err());
+}
+
+#[test]
+fn the_hand_written_baseline_agrees_with_the_interpreter() {
+    let m = example("milling_5axis");
+    let n = m.coefficients.len();
+    let mut it = Interpreter::new(&m).expect("interpreter");
+    let mut base = baseline::Baseline::new(&m);
+    let mut rng = StdRng::seed_from_u64(12);
+    let beta: Vec<f64> = (0..n).map(|_| rng.random_range(-1e-5..1e-5)).collect();
+    let zero = vec![0.0; n];
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let (mut ji, mut jb) = (vec![0.0; 6 * n], vec![f64::NAN; 6 * n]);
+    let (mut ei, mut eb, mut e0) = ([0.0; 6], [0.0; 6], [0.0; 6]);
+    let mut worst: f64 = 0.0;
+    for _ in 0..200 {
+        let s = random_state(&mut rng, &m);
+        let st = s.get();
+        it.error_and_jacobian(&st, &zero, &mut e0, &mut ji).expect("interp");
+        it.error_and_jacobian(&st, &beta, &mut ei, &mut ji).expect("interp");
+        base.error_and_jacobian(&st, &beta, &nl, &mut eb, &mut jb);
+        let dj = row_relative(&ji, &jb, 6, |r| (0..n).map(|j| ji[r * n + j].abs()).fold(0.0, f64::max));
+        let de = row_relative(&ei, &eb, 6, |r| e0[r].abs() + (0..n).map(|j| (ji[r * n + j] * beta[j]).abs()).sum::<f64>());
+        assert!(dj <= TOLERANCE && de <= TOLERANCE, "baseline: Jacobian {dj:e}, error {de:e}: {ei:?} vs {eb:?}, fixed {e0:?}");
+        worst = worst.max(dj).max(de);
+    }
+    eprintln!("baseline vs interpreter: worst relative difference {worst:e}");
+}
+
+#[test]
+fn clif_dump_names_the_three_functions() {
+    let m = example("robot_6axis");
+    let text = jit::dump_clif(&m).expect("dump");
+    for f in ["; error\n", "; error_jacobian\n", "; nominal\n"] {
+        assert!(text.contains(f), "{f}");
+    }
+    assert!(text.contains("call fn"), "sin/cos are calls");
+}
+
+#[test]
+fn inconsistent_ir_is_rejected_at_compile_time() {
+    let mut m = example("bridge_cmm");
+    m.coefficients.pop();
+    assert!(matches!(jit::compile(&m), Err(jit::JitError::Model { .. })));
+    let mut m = example("bridge_cmm");
+    m.tool_chain[0].axis = 17;
+    assert!(matches!(jit::compile(&m), Err(jit::JitError::Model { .. })));
+}

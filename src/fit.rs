@@ -25,6 +25,8 @@ pub struct FitArgs {
     pub min_norm: bool,
     pub stepwise: Option<f64>,
     pub enter: Option<f64>,
+    pub holdout: Option<f64>,
+    pub seed: u64,
     pub color: bool,
 }
 
@@ -47,7 +49,15 @@ fn fit_command(a: &FitArgs) -> Result<(), Failed> {
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
     let files = read_all(&a.data, &compiled)?;
-    let validate = read_all(&a.validate, &compiled)?;
+    let mut validate = read_all(&a.validate, &compiled)?;
+    let files = match a.holdout {
+        Some(f) => {
+            let (fitted, held) = fit::holdout(&files, f, a.seed);
+            validate.extend(held);
+            fitted
+        }
+        None => files,
+    };
     let options = Options {
         solver: match a.solver {
             SolverArg::Qr => Solver::Qr,
@@ -118,8 +128,10 @@ pub fn summary(r: &report::FitReport) -> String {
     let mut s = String::new();
     let u = &r.error_unit;
     let _ = &r.tilt_unit;
+    let kept = r.coefficients.iter().filter(|c| c.kept).count() + r.nuisance.len();
+    let selected = if kept < r.columns { format!(", {kept} kept by stepwise selection") } else { String::new() };
     s.push_str(&format!(
-        "fit of `{}`: {} observations, {} parameters (rank {}, condition {:.3e}), {} degrees of freedom\n",
+        "fit of `{}`: {} observations, {} parameters{selected} (rank {}, condition {:.3e}), {} degrees of freedom\n",
         r.machine, r.rows, r.columns, r.rank, r.condition, r.dof
     ));
     s.push_str(&format!("  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n", r.sigma, r.rms, r.max, r.r2));

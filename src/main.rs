@@ -112,6 +112,12 @@ enum Command {
         /// With --stepwise: re-admit removed regressors whose p-value falls below this level.
         #[arg(long, value_name = "ALPHA", requires = "stepwise")]
         enter: Option<f64>,
+        /// Hold out this fraction of the rows (whole runs where lags need them) as validation.
+        #[arg(long, value_name = "FRACTION")]
+        holdout: Option<f64>,
+        /// Seed of the held-out draw.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -163,7 +169,7 @@ fn main() -> ExitCode {
                 color: use_color(&color),
             })
         }
-        Command::Fit { machine, data, validate, output, solver, tolerance, min_norm, stepwise, enter, color } => fit::run(fit::FitArgs {
+        Command::Fit { machine, data, validate, output, solver, tolerance, min_norm, stepwise, enter, holdout, seed, color } => fit::run(fit::FitArgs {
             machine,
             data,
             validate,
@@ -173,6 +179,8 @@ fn main() -> ExitCode {
             min_norm,
             stepwise,
             enter,
+            holdout,
+            seed,
             color: use_color(&color),
         }),
         Command::Eval { machine, poses, params, output, components, color } => {

@@ -173,7 +173,52 @@ impl LengthData {
     }
 }
 
+fn pick<T: Clone>(v: &[T], rows: &[usize]) -> Vec<T> {
+    rows.iter().filter_map(|&r| v.get(r).cloned()).collect()
+}
+
+impl Pose {
+    fn select(&self, rows: &[usize]) -> Pose {
+        Pose {
+            axes: self.axes.iter().map(|c| pick(c, rows)).collect(),
+            dir: self.dir.iter().map(|c| c.as_ref().map(|c| pick(c, rows))).collect(),
+        }
+    }
+}
+
+impl Rows {
+    /// The rows `rows` (in that order); groups keep their labels so ids stay valid.
+    pub fn select(&self, rows: &[usize]) -> Rows {
+        Rows {
+            line: pick(&self.line, rows),
+            time: self.time.as_ref().map(|t| pick(t, rows)),
+            run: self.run.as_ref().map(|g| Groups { of_row: pick(&g.of_row, rows), labels: g.labels.clone() }),
+            artifact: self.artifact.as_ref().map(|g| Groups { of_row: pick(&g.of_row, rows), labels: g.labels.clone() }),
+            tool: pick(&self.tool, rows),
+            tool_offset: self.tool_offset.as_ref().map(|[x, y, z]| [pick(x, rows), pick(y, rows), pick(z, rows)]),
+            inputs: self.inputs.iter().map(|c| c.as_ref().map(|c| pick(c, rows))).collect(),
+        }
+    }
+}
+
 impl Observations {
+    /// The observations of rows `rows` (indices into this file's rows), e.g. for a held-out
+    /// split.
+    pub fn select(&self, rows: &[usize]) -> Observations {
+        match self {
+            Observations::Points(p) => Observations::Points(PointData {
+                rows: p.rows.select(rows),
+                pose: p.pose.select(rows),
+                observed: std::array::from_fn(|k| p.observed.get(k).cloned().flatten().map(|c| pick(&c, rows))),
+            }),
+            Observations::Lengths(l) => Observations::Lengths(LengthData {
+                rows: l.rows.select(rows),
+                poses: [l.poses[0].select(rows), l.poses[1].select(rows)],
+                dl: pick(&l.dl, rows),
+            }),
+        }
+    }
+
     pub fn rows(&self) -> &Rows {
         match self {
             Observations::Points(p) => &p.rows,

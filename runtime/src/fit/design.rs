@@ -266,6 +266,37 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
+/// Splits each file into a fitted part and a held-out part: a fraction `holdout` of the
+/// rows, drawn with `seed`. Lag states need whole runs, so a file with lags is split by run.
+pub fn holdout(files: &[DataSet], holdout: f64, seed: u64) -> (Vec<DataSet>, Vec<DataSet>) {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let mut fitted = Vec::new();
+    let mut held = Vec::new();
+    for f in files {
+        let rows = f.observations.rows();
+        let runs = rows.run.as_ref().map(|g| g.labels.len()).unwrap_or(1);
+        let by_run = rows.time.is_some() && runs > 1;
+        let draws: Vec<bool> = (0..runs).map(|_| rng.random_bool(holdout.clamp(0.0, 1.0))).collect();
+        let (mut keep, mut out) = (Vec::new(), Vec::new());
+        for r in 0..rows.len() {
+            let hold = if by_run { draws.get(rows.run_of(r) as usize).copied().unwrap_or(false) } else { rng.random_bool(holdout.clamp(0.0, 1.0)) };
+            if hold {
+                out.push(r);
+            } else {
+                keep.push(r);
+            }
+        }
+        fitted.push(DataSet { path: f.path.clone(), observations: f.observations.select(&keep) });
+        if !out.is_empty() {
+            let mut path = f.path.clone().into_os_string();
+            path.push(" (held out)");
+            held.push(DataSet { path: path.into(), observations: f.observations.select(&out) });
+        }
+    }
+    (fitted, held)
+}
+
 /// Number of observed values (rows of the problem) in the files.
 pub fn count_rows(files: &[DataSet]) -> usize {
     files

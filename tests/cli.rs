@@ -171,3 +171,15 @@ fn fit_names_a_bad_cell_and_an_invisible_term() {
     let err = text(&out.stderr);
     assert!(err.contains("E0601") && err.contains("examples/bridge_cmm.kin:") && err.contains("--min-norm"), "{err}");
 }
+
+/// The README's first command: the bundled data fit back to their truth.
+#[test]
+fn the_readme_main_command_fits_the_bundled_data() {
+    let out = kin(&["fit", "examples/bridge_cmm.kin", "examples/data/bridge_cmm_points.csv", "--stepwise", "1e-4"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    let sigma: f64 = s.split("σ̂ = ").nth(1).and_then(|t| t.split_whitespace().next()).and_then(|v| v.parse().ok()).expect("σ̂ printed");
+    assert!((sigma - 0.2).abs() < 0.02, "σ̂ {sigma} for 0.2 µm simulated noise");
+    // The planted backlash (0.8 µm) survives selection.
+    assert!(s.contains("0.800±"), "{s}");
+}

@@ -180,8 +180,12 @@ pub fn summary(r: &report::FitReport) -> String {
     if let Some(sw) = &r.stepwise {
         let removed: usize = sw.components.iter().map(|c| c.removed.len()).sum();
         s.push_str(&format!("\n  stepwise selection (remove at p > {}): {} regressors removed\n", sw.alpha_remove, removed));
-        for c in sw.components.iter().filter(|c| !c.removed.is_empty()) {
-            s.push_str(&format!("    {:<14} kept {}; removed {}\n", c.component, c.kept.join(", "), c.removed.join(", ")));
+        for c in sw.components.iter().filter(|c| !c.kept.is_empty() && !c.removed.is_empty()) {
+            s.push_str(&format!("    {:<14} kept {}\n", c.component, c.kept.join(", ")));
+        }
+        let gone: Vec<&str> = sw.components.iter().filter(|c| c.kept.is_empty()).map(|c| c.component.as_str()).collect();
+        if !gone.is_empty() {
+            s.push_str(&format!("    removed entirely: {}\n", gone.join(", ")));
         }
     }
     for c in &r.constrained {

@@ -69,6 +69,36 @@ fn rss(red: &Reduced, kept: &[bool]) -> f64 {
     sub.r[(q - 1, q - 1)].powi(2)
 }
 
+/// The kept candidate with the smallest partial F, `F_j = β_j² / Var(β_j)` with
+/// `Var(β_j) = s²‖row j of R⁻¹‖²` on the sub-model's triangle.
+fn weakest(red: &Reduced, kept: &[bool], candidates: usize, rss: f64, dof: f64) -> Option<(usize, f64)> {
+    let sub = restrict(red, kept);
+    let q = sub.r.nrows().saturating_sub(1);
+    let cols: Vec<usize> = (0..kept.len()).filter(|&j| kept[j]).collect();
+    // R⁻¹ by back substitution, column by column of the identity.
+    let mut inv = Mat::<f64>::zeros(q, q);
+    for c in 0..q {
+        for i in (0..=c).rev() {
+            let mut v = if i == c { 1.0 } else { 0.0 };
+            for k in i + 1..=c {
+                v -= sub.r[(i, k)] * inv[(k, c)];
+            }
+            let d = sub.r[(i, i)];
+            inv[(i, c)] = if d != 0.0 { v / d } else { f64::INFINITY };
+        }
+    }
+    let s2 = rss / dof;
+    (0..q)
+        .filter(|&i| cols.get(i).is_some_and(|&j| j < candidates))
+        .map(|i| {
+            let beta: f64 = (i..q).map(|k| inv[(i, k)] * sub.r[(k, q)]).sum();
+            let var: f64 = s2 * (i..q).map(|k| inv[(i, k)].powi(2)).sum::<f64>();
+            let f = if var.is_finite() && var > 0.0 { beta * beta / var } else { 0.0 };
+            (cols[i], if f.is_finite() { f } else { 0.0 })
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+}
+
 /// Backward elimination of the model's coefficients (`0..candidates`; nuisance columns after
 /// them are always kept) at significance `alpha_remove`, re-admitting removed ones whose
 /// F-to-enter is significant at `alpha_enter` when given (`alpha_enter < alpha_remove`
@@ -92,18 +122,9 @@ pub fn select(red: &Reduced, candidates: usize, alpha_remove: f64, alpha_enter: 
         if dof <= 0.0 {
             break;
         }
-        // Weakest kept coefficient: smallest increase of RSS when dropped.
-        let in_model: Vec<usize> = (0..candidates).filter(|&j| kept[j]).collect();
-        let weakest = in_model
-            .into_iter()
-            .map(|j| {
-                kept[j] = false;
-                let without = rss(red, &kept);
-                kept[j] = true;
-                (j, (without - base) / (base / dof))
-            })
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((j, f)) = weakest {
+        // Weakest kept coefficient: the partial F of dropping one regressor is its t², read
+        // off one factorisation of the current sub-model instead of one per candidate.
+        if let Some((j, f)) = weakest(red, &kept, candidates, base, dof) {
             let pv = p_value(f, dof);
             if pv > alpha_remove {
                 kept[j] = false;

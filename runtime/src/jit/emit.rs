@@ -2,7 +2,7 @@
 //!
 //! Every generated function has the signature `extern "C" fn(*const Args)` and is one basic
 //! block: it loads the pointers it needs from the argument block, computes the live nodes of its
-//! graph in the order the stores first need them (so a value is computed next to its use and
+//! graph in the order the effects first need them (so a value is computed next to its use and
 //! register pressure stays local), and stores into `out` and `jac`. It reads and writes memory
 //! only at the fixed offsets the graph names, which `lower::validate` and the safe API in
 //! `mod.rs` keep inside the buffers.
@@ -24,7 +24,7 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::{JITBuilder, JITModule};
 use cranelift_module::{default_libcall_names, FuncId, Linkage, Module};
 
-use super::graph::{Cmp, Dst, Graph, Id, Node, Src};
+use super::graph::{Cmp, Dst, Effect, Graph, Id, Node, Src};
 use super::JitError;
 
 /// The argument block of every generated function. Pointers may dangle for arrays the function
@@ -89,7 +89,7 @@ pub(super) fn compile(graphs: &[(&str, &Graph)], mut dump: Option<&mut String>) 
     // The JIT links by absolute address (crate notes: is_pic=false, no colocated libcalls).
     flags.set("use_colocated_libcalls", "false").map_err(codegen)?;
     flags.set("is_pic", "false").map_err(codegen)?;
-    flags.set("opt_level", "speed").map_err(codegen)?;
+    flags.set("opt_level", "none").map_err(codegen)?;
     // The graphs are straight-line code built by one routine; the verifier would double the
     // compile time to re-check that on every model. Debug builds keep it.
     flags.set("enable_verifier", if cfg!(debug_assertions) { "true" } else { "false" }).map_err(codegen)?;
@@ -152,7 +152,14 @@ fn define_all(module: &mut JITModule, graphs: &[(&str, &Graph)], dump: &mut Opti
         if let Some(d) = dump.as_deref_mut() {
             d.push_str(&format!("; {name}\n{}\n", ctx.func.display()));
         }
+        let disasm = std::env::var_os("KIN_JIT_DISASM").is_some();
+        ctx.set_disasm(disasm);
         module.define_function(id, &mut ctx).map_err(|e| JitError::Codegen { message: format!("{name}: {e:?}") })?;
+        if disasm {
+            if let Some(text) = ctx.compiled_code().and_then(|c| c.vcode.clone()) {
+                let _ = std::fs::write(format!("/tmp/kin_jit_{name}.s"), text);
+            }
+        }
         module.clear_context(&mut ctx);
         ids.push(id);
     }
@@ -210,11 +217,26 @@ fn emit_function(ctx: &mut Context, fctx: &mut FunctionBuilderContext, graph: &G
         imports,
     };
     let flags = MemFlagsData::trusted();
-    for &(dst, index, value) in graph.stores() {
-        let v = e.value(&mut b, value);
-        let base = e.base_ptr(&mut b, dst_field(dst));
-        if let (Some(v), Some(base)) = (v, base) {
-            b.ins().store(flags, v, base, elem(index));
+    // Calls first: the C calling convention saves no float register across a call, so every
+    // value live at a call is spilled. At the top only the calls' own inputs and results are.
+    let live = graph.live();
+    for (i, node) in graph.nodes().iter().enumerate() {
+        if live.get(i).copied().unwrap_or(false) && matches!(node, Node::Sin(_) | Node::Cos(_) | Node::Fmod(..)) {
+            e.value(&mut b, Id::new(i));
+        }
+    }
+    for &effect in graph.effects() {
+        match effect {
+            Effect::Eval(value) => {
+                e.value(&mut b, value);
+            }
+            Effect::Store(dst, index, value) => {
+                let v = e.value(&mut b, value);
+                let base = e.base_ptr(&mut b, dst_field(dst));
+                if let (Some(v), Some(base)) = (v, base) {
+                    b.ins().store(flags, v, base, elem(index));
+                }
+            }
         }
     }
     b.ins().return_(&[]);

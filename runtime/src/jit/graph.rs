@@ -23,6 +23,10 @@ impl Id {
     pub(super) fn index(self) -> usize {
         self.0 as usize
     }
+
+    pub(super) fn new(index: usize) -> Id {
+        Id(u32::try_from(index).unwrap_or(u32::MAX))
+    }
 }
 
 /// The arrays of the argument block (`Args` in `mod.rs`) a load reads from.
@@ -87,12 +91,21 @@ pub(super) enum Node {
     IfTool(u32, Id),
 }
 
-/// Nodes in creation order (operands always precede their users) and the stores to perform.
+/// What the generated function does, in order: store a value, or compute one at this point
+/// (a schedule hint: a running sum is brought up to date after each component instead of
+/// keeping every part alive until the final store).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Effect {
+    Store(Dst, u32, Id),
+    Eval(Id),
+}
+
+/// Nodes in creation order (operands always precede their users) and the effects to perform.
 #[derive(Debug, Default)]
 pub(super) struct Graph {
     nodes: Vec<Node>,
     index: HashMap<Node, Id>,
-    stores: Vec<(Dst, u32, Id)>,
+    effects: Vec<Effect>,
 }
 
 impl Graph {
@@ -100,8 +113,8 @@ impl Graph {
         &self.nodes
     }
 
-    pub(super) fn stores(&self) -> &[(Dst, u32, Id)] {
-        &self.stores
+    pub(super) fn effects(&self) -> &[Effect] {
+        &self.effects
     }
 
     pub(super) fn node(&self, id: Id) -> Node {
@@ -127,7 +140,14 @@ impl Graph {
 
     pub(super) fn store(&mut self, dst: Dst, index: usize, value: Id) {
         let index = u32::try_from(index).unwrap_or(u32::MAX);
-        self.stores.push((dst, index, value));
+        self.effects.push(Effect::Store(dst, index, value));
+    }
+
+    /// Asks for `value` to be computed here, before the effects that follow.
+    pub(super) fn eval(&mut self, value: Id) {
+        if !matches!(self.node(value), Node::Const(_)) {
+            self.effects.push(Effect::Eval(value));
+        }
     }
 
     pub(super) fn konst(&mut self, v: f64) -> Id {
@@ -260,10 +280,12 @@ impl Graph {
         acc.unwrap_or_else(|| self.konst(0.0))
     }
 
-    /// Which nodes the stores need, directly or through operands.
+    /// Which nodes the effects need, directly or through operands.
     pub(super) fn live(&self) -> Vec<bool> {
         let mut live = vec![false; self.nodes.len()];
-        for (_, _, v) in &self.stores {
+        for v in self.effects.iter().map(|e| match e {
+            Effect::Store(_, _, v) | Effect::Eval(v) => v,
+        }) {
             if let Some(l) = live.get_mut(v.index()) {
                 *l = true;
             }

@@ -588,7 +588,10 @@ impl Builder<'_> {
         let mut models: Vec<&ErrorModel> = m.errors.iter().collect();
         models.sort_by_key(|e| frame_order(e.frame));
         let mut written = vec![false; n];
-        let mut error: [Vec<Id>; 6] = Default::default();
+        // Running sums, brought up to date after every component so that no component's
+        // column outlives it.
+        let zero = self.c(0.0);
+        let mut error = [zero; 6];
         for model in models {
             let Some(f) = Self::frame(kin, model.frame) else { continue };
             let f = *f;
@@ -606,12 +609,22 @@ impl Builder<'_> {
                 Some(i) => g.if_tool(i, v),
                 None => v,
             };
-            let mut parts = Vec::new();
+            // The component's value Σ v·β (+ fixed terms), as a running sum kept current after
+            // each coefficient, so each basis value dies right after its six stores.
+            let mut value: Option<Id> = None;
+            let mut accumulate = |g: &mut Graph, x: Id| {
+                let v = match value {
+                    None => x,
+                    Some(a) => g.add(a, x),
+                };
+                g.eval(v);
+                value = Some(v);
+            };
             for term in &model.terms {
                 let values = self.term(term);
                 if term.coefficients == 0 {
                     if let Some(&v) = values.first() {
-                        parts.push(v);
+                        accumulate(&mut self.g, v);
                     }
                     continue;
                 }
@@ -628,16 +641,16 @@ impl Builder<'_> {
                         }
                     }
                     let b = self.g.load(Src::Beta, j);
-                    parts.push(self.g.mul(v, b));
+                    let vb = self.g.mul(v, b);
+                    accumulate(&mut self.g, vb);
                 }
             }
-            let value = self.g.sum(parts);
-            for (r, &c) in col.iter().enumerate() {
+            let value = value.unwrap_or(zero);
+            for (e, &c) in error.iter_mut().zip(&col) {
                 let p = self.g.mul(c, value);
                 let p = gate(&mut self.g, p);
-                if let Some(e) = error.get_mut(r) {
-                    e.push(p);
-                }
+                *e = self.g.add(*e, p);
+                self.g.eval(*e);
             }
         }
         if jacobian {
@@ -648,8 +661,7 @@ impl Builder<'_> {
                 }
             }
         }
-        for (r, parts) in error.into_iter().enumerate() {
-            let e = self.g.sum(parts);
+        for (r, e) in error.into_iter().enumerate() {
             self.g.store(Dst::Out, r, e);
         }
         for (i, &p) in kin.position.iter().enumerate() {

@@ -145,6 +145,19 @@ fn every_number_matches_a_dense_reference_solve() {
     }
     let sum_h: f64 = r.residuals.iter().map(|r| r.leverage).sum();
     assert!((sum_h - p as f64).abs() < 1e-6, "the leverages sum to the number of parameters: {sum_h}");
+    // σ̂, R², studentized residuals and Cook's distance by their textbook formulas.
+    let sigma = sigma2.sqrt();
+    assert!((r.sigma - sigma).abs() < 1e-9 * sigma);
+    let mean = ys.iter().sum::<f64>() / m as f64;
+    let sst: f64 = ys.iter().map(|y| (y - mean).powi(2)).sum();
+    assert!((r.r2 - (1.0 - rss / sst)).abs() < 1e-9);
+    for (i, row) in r.residuals.iter().enumerate() {
+        let h: f64 = (0..p).map(|a| (0..p).map(|b| xs[i][a] * inv[(a, b)] * xs[i][b]).sum::<f64>()).sum();
+        let t = resid[i] / (sigma * (1.0 - h).sqrt());
+        let d = resid[i].powi(2) / (p as f64 * sigma2) * h / (1.0 - h).powi(2);
+        assert!((row.studentized - t).abs() < 1e-6 * t.abs().max(1.0), "t {i}: {} vs {t}", row.studentized);
+        assert!((row.cook - d).abs() < 1e-6 * d.max(1e-6), "Cook {i}: {} vs {d}", row.cook);
+    }
 }
 
 #[test]
@@ -349,7 +362,8 @@ machine thermal {
     let obs = simulate::simulate(&truth_machine, &beta, &Observations::Points(poses), &options).unwrap();
     c.machine.nonlinear[0].value = start[0];
     c.machine.nonlinear[1].value = start[1];
-    let r = run(&c, &[DataSet { path: "warmup.csv".into(), observations: obs }], &Options::default()).expect("fit");
+    let files = [DataSet { path: "warmup.csv".into(), observations: obs }];
+    let r = run(&c, &files, &Options::default()).expect("fit");
     let nl = r.nonlinear.as_ref().expect("non-linear fit");
     let (lambda, tau) = (nl.values[0], nl.values[1]);
     let (se_lambda, se_tau) = (nl.se[0].unwrap(), nl.se[1].unwrap());
@@ -358,6 +372,46 @@ machine thermal {
     assert!(((lambda - truth_nl[1]) / se_lambda).abs() < 4.0, "λ = {} ± {} mm", lambda * 1e3, se_lambda * 1e3);
     assert!((tau / 60.0 - 40.0).abs() < 4.0, "τ near 40 min: {}", tau / 60.0);
     assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
+
+    // Reference: plain Gauss–Newton over all parameters at the optimum. J = [X | ∂(Xβ̂)/∂θ]
+    // by central differences; the θ block of σ̂²(JᵀJ)⁻¹ must equal the projected estimate.
+    let mut at = c.clone();
+    at.machine.nonlinear[0].value = lambda;
+    at.machine.nonlinear[1].value = tau;
+    let design = |mach: &kin_compiler::ir::Machine| -> (Vec<Vec<f64>>, Vec<f64>) {
+        let mut it = Interpreter::new(mach).unwrap();
+        let layout = fit::Layout::new(mach, &files);
+        let states = fit::states(mach, &files).unwrap();
+        let (mut xs, mut ys) = (Vec::new(), Vec::new());
+        fit::for_each_row(&mut it, &files, &states, &layout, |_, x, y| {
+            xs.push(x.to_vec());
+            ys.push(y);
+        })
+        .unwrap();
+        (xs, ys)
+    };
+    let (x0, _) = design(&at.machine);
+    let bhat = &r.solution.beta;
+    let pred = |xs: &Vec<Vec<f64>>| -> Vec<f64> { xs.iter().map(|x| x.iter().zip(bhat).map(|(a, b)| a * b).sum()).collect() };
+    let mut dcols = Vec::new();
+    for k in 0..2 {
+        let mut up = at.machine.clone();
+        let mut dn = at.machine.clone();
+        let h = 1e-5 * at.machine.nonlinear[k].value;
+        up.nonlinear[k].value += h;
+        dn.nonlinear[k].value -= h;
+        let (pu, pd) = (pred(&design(&up).0), pred(&design(&dn).0));
+        dcols.push(pu.iter().zip(&pd).map(|(a, b)| (a - b) / (2.0 * h)).collect::<Vec<f64>>());
+    }
+    let rows = x0.len();
+    let pl = bhat.len();
+    let jf = Mat::from_fn(rows, pl + 2, |i, j| if j < pl { x0[i][j] } else { dcols[j - pl][i] });
+    let cov = (jf.transpose() * &jf).partial_piv_lu().inverse();
+    let s2 = r.sigma.powi(2) * (rows - pl) as f64 / (rows - pl - 2) as f64;
+    for (k, se) in [(0, se_lambda), (1, se_tau)] {
+        let want = (s2 * cov[(pl + k, pl + k)]).sqrt();
+        assert!((se / want - 1.0).abs() < 0.02, "se of {}: projected {se} vs full {want}", names[k]);
+    }
 }
 
 #[test]

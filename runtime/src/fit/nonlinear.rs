@@ -26,8 +26,14 @@ pub struct NonlinearFit {
     pub rss: f64,
 }
 
-/// The weighted residual vector of the linear fit at `values`.
+/// The weighted residual vector of the linear fit at `values`, and its rank.
 fn residuals(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], values: &[f64], options: &Options) -> Result<(Vec<f64>, usize), FitError> {
+    let (r, rank, _) = linear_fit(compiled, engine, files, values, options)?;
+    Ok((r, rank))
+}
+
+/// The linear fit at `values`: residuals, rank and β̂.
+fn linear_fit(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], values: &[f64], options: &Options) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
     let m = &compiled.machine;
     engine.set_nonlinear(values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
     let states = design::states_with(m, files, values)?;
@@ -43,7 +49,76 @@ fn residuals(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet],
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
         r.push(y - x.iter().zip(&sol.beta).map(|(a, b)| a * b).sum::<f64>());
     })?;
-    Ok((r, sol.rank))
+    Ok((r, sol.rank, sol.beta))
+}
+
+/// The predictions `X(values)·β` of every row, β held fixed.
+fn predictions(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], values: &[f64], beta: &[f64]) -> Result<Vec<f64>, FitError> {
+    let m = &compiled.machine;
+    engine.set_nonlinear(values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
+    let states = design::states_with(m, files, values)?;
+    let layout = Layout::new(m, files);
+    let mut out = Vec::new();
+    design::for_each_row(engine, files, &states, &layout, |_, x, _| out.push(x.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>()))?;
+    Ok(out)
+}
+
+/// Standard errors of the fitted non-linear parameters at the optimum: the θ block of the
+/// Gauss–Newton covariance over all parameters, `σ̂²[D_θᵀ(I − P_X)D_θ]⁻¹` with
+/// `D_θ = ∂(Xβ̂)/∂θ` at fixed β̂ (central differences). It is the trailing block of the QR of
+/// `[X | D_θ]`, so the linear parameters are profiled out exactly.
+#[allow(clippy::too_many_arguments)]
+fn covariance(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    fitted: &[usize],
+    rss: f64,
+    rank: usize,
+    options: &Options,
+) -> Result<Vec<Option<f64>>, FitError> {
+    let m = &compiled.machine;
+    let (_, _, beta) = linear_fit(compiled, engine, files, values, options)?;
+    let k = fitted.len();
+    let mut d: Vec<Vec<f64>> = Vec::with_capacity(k);
+    for &i in fitted {
+        let h = 1e-5 * values[i].abs().max(f64::MIN_POSITIVE);
+        let (mut up, mut dn) = (values.to_vec(), values.to_vec());
+        up[i] += h;
+        dn[i] -= h;
+        let pu = predictions(compiled, engine, files, &up, &beta)?;
+        let pd = predictions(compiled, engine, files, &dn, &beta)?;
+        d.push(pu.iter().zip(&pd).map(|(a, b)| (a - b) / (2.0 * h)).collect());
+    }
+    engine.set_nonlinear(values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
+    let states = design::states_with(m, files, values)?;
+    let layout = Layout::new(m, files);
+    let p = layout.columns();
+    let mut acc = StreamingQr::new(p + k, options.block);
+    let mut row = vec![0.0; p + k];
+    let mut i = 0usize;
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        row[..p].copy_from_slice(x);
+        for (c, col) in d.iter().enumerate() {
+            row[p + c] = col.get(i).copied().unwrap_or(0.0);
+        }
+        acc.push(&row, y);
+        i += 1;
+    })?;
+    let red = acc.finish();
+    let r22 = Mat::from_fn(k, k, |a, b| red.r[(p + a, p + b)]);
+    let schur = r22.transpose() * &r22;
+    let dof = red.rows.saturating_sub(rank + k).max(1) as f64;
+    let sigma2 = rss / dof;
+    let mut se = vec![None; m.nonlinear.len()];
+    for (c, &i) in fitted.iter().enumerate() {
+        let mut e = vec![0.0; k];
+        e[c] = 1.0;
+        let (col, singular) = solve_small(&schur, &e);
+        se[i] = Some(if singular { f64::INFINITY } else { (sigma2 * col[c]).max(0.0).sqrt() });
+    }
+    Ok(se)
 }
 
 fn sumsq(r: &[f64]) -> f64 {
@@ -110,18 +185,7 @@ pub fn optimise(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSe
         }
     }
     values = with(&values, &phi);
-    // Covariance of log θ from the projected Jacobian at the optimum.
-    let dof = r.len().saturating_sub(rank + k).max(1) as f64;
-    let sigma2 = rss / dof;
-    let a = jac.transpose() * &jac;
-    let mut se = vec![None; m.nonlinear.len()];
-    for (c, &i) in fitted.iter().enumerate() {
-        let mut e = vec![0.0; k];
-        e[c] = 1.0;
-        let (col, singular) = solve_small(&a, &e);
-        let var_log = sigma2 * col[c];
-        se[i] = Some(if singular { f64::INFINITY } else { values[i] * var_log.max(0.0).sqrt() });
-    }
+    let se = covariance(compiled, engine, files, &values, &fitted, rss, rank, options)?;
     engine.set_nonlinear(&values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
     Ok(Some(NonlinearFit { values, se, iterations, rss }))
 }

@@ -10,3 +10,4 @@ pub mod simulate;
 pub mod engine;
 pub mod jit;
 pub mod fit;
+pub mod diagnose;

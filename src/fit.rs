@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use kin_runtime::fit::{self, report, DataSet, FitError, Options, Solver};
+use kin_runtime::history;
 use kin_runtime::interp::Interpreter;
 
 use crate::load::{self, Failed};
@@ -31,7 +32,7 @@ pub struct FitArgs {
 }
 
 pub fn run(a: FitArgs) -> ExitCode {
-    Failed::exit(fit_command(&a))
+    Failed::exit(fit_command(&a).map(|_| ()))
 }
 
 fn read_all(paths: &[PathBuf], compiled: &kin_compiler::Compiled) -> Result<Vec<DataSet>, Failed> {
@@ -41,7 +42,30 @@ fn read_all(paths: &[PathBuf], compiled: &kin_compiler::Compiled) -> Result<Vec<
         .collect()
 }
 
-fn fit_command(a: &FitArgs) -> Result<(), Failed> {
+/// A finished fit and what it was made from, for commands built on it (`diagnose`).
+pub struct Fitted {
+    pub source: String,
+    pub compiled: kin_compiler::Compiled,
+    pub files: Vec<DataSet>,
+    pub options: Options,
+    pub result: fit::FitResult,
+    pub report: report::FitReport,
+}
+
+/// Fits, prints the summary, records the history (with a before/after comparison when the
+/// model changed) and writes the report files.
+pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
+    let fitted = fit_quietly(a)?;
+    print!("{}", summary(&fitted.report));
+    record(&a.machine, &fitted.report);
+    if let Some(out) = &a.output {
+        write_report(out, &fitted.report)?;
+    }
+    Ok(fitted)
+}
+
+/// The fit alone: diagnostics of the inputs are printed, results are returned.
+pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     let source = std::fs::read_to_string(&a.machine).map_err(|e| {
         eprintln!("error: cannot read `{}`: {e}", a.machine.display());
         Failed::USAGE
@@ -97,12 +121,58 @@ fn fit_command(a: &FitArgs) -> Result<(), Failed> {
             return Err(Failed::INPUT);
         }
     };
-    let rep = report::build(m, &source, "interp", &files, &validate, &result, &options);
-    print!("{}", summary(&rep));
-    if let Some(out) = &a.output {
-        write_report(out, &rep)?;
+    let report = report::build(m, &source, "interp", &files, &validate, &result, &options);
+    Ok(Fitted { source, compiled, files, options, result, report })
+}
+
+/// Appends this fit to the model's history and prints how it compares with the previous
+/// revision of the model, if there was one. A history that cannot be read or written is
+/// reported but does not fail the fit.
+pub fn record(model: &Path, r: &report::FitReport) {
+    let entry = history::Entry {
+        time: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
+        model_hash: r.model_hash.clone(),
+        parameters: r.coefficients.iter().filter(|c| c.kept).count(),
+        rows: r.rows,
+        sigma: r.sigma,
+        rms: r.rms,
+        error_unit: r.error_unit.clone(),
+        files: r.files.iter().map(|f| history::FileRms { path: f.path.clone(), rms: f.rms }).collect(),
+    };
+    let entries = match history::read(model) {
+        Ok(e) => e,
+        Err(e) => {
+            eprintln!("warning: {e}");
+            Vec::new()
+        }
+    };
+    if let Some(before) = history::previous_revision(&entries, &r.model_hash) {
+        print!("{}", comparison(before, &entry));
     }
-    Ok(())
+    if let Err(e) = history::append(model, &entry) {
+        eprintln!("warning: {e}");
+    }
+}
+
+/// "Before → after" of two revisions of a model.
+pub fn comparison(before: &history::Entry, after: &history::Entry) -> String {
+    let u = &after.error_unit;
+    let mut s = format!(
+        "\n  model revised: {} → {} parameters   σ̂ {:.4} → {:.4} {u}   RMS {:.4} → {:.4} {u} ({:+.1} %)\n",
+        before.parameters,
+        after.parameters,
+        before.sigma,
+        after.sigma,
+        before.rms,
+        after.rms,
+        100.0 * (after.rms - before.rms) / before.rms.max(f64::MIN_POSITIVE)
+    );
+    for f in &after.files {
+        if let Some(b) = before.files.iter().find(|b| b.path == f.path) {
+            s.push_str(&format!("    {:<36} RMS {:.4} → {:.4} {u}\n", short(&f.path, 36), b.rms, f.rms));
+        }
+    }
+    s
 }
 
 fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {

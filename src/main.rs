@@ -1,9 +1,11 @@
 //! `kin`: check, simulate, evaluate and fit models of multi-axis machines.
 
 mod check;
+mod diagnose;
 mod fit;
 mod load;
 mod render;
+mod report;
 mod simulate;
 
 use std::io::IsTerminal;
@@ -121,6 +123,23 @@ enum Command {
         #[arg(long, default_value = "auto")]
         color: String,
     },
+    /// Where the fitted model fails, and which physical effect is missing from it.
+    Diagnose {
+        machine: PathBuf,
+        #[arg(required = true)]
+        data: Vec<PathBuf>,
+        /// Family-wise significance level of the candidate tests.
+        #[arg(long, default_value_t = 0.01)]
+        alpha: f64,
+        /// Write DIAGNOSE.json here.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Add candidate N (as numbered in the list) to the model file and refit.
+        #[arg(long, value_name = "N")]
+        apply: Option<usize>,
+        #[arg(long, default_value = "auto")]
+        color: String,
+    },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     Eval {
         machine: PathBuf,
@@ -131,6 +150,24 @@ enum Command {
         output: Option<PathBuf>,
         #[arg(long, value_enum, default_value_t = simulate::Components::Pose)]
         components: simulate::Components,
+        #[arg(long, default_value = "auto")]
+        color: String,
+    },
+    /// A self-contained HTML page about a fit: residuals along every axis, the residual
+    /// spectrum and candidate effects (from `kin diagnose -o`), the history of the model's
+    /// revisions, and the fitted parametric errors with their confidence bands.
+    Report {
+        machine: PathBuf,
+        /// The fit report written by `kin fit -o`.
+        #[arg(long)]
+        fit: PathBuf,
+        /// The diagnosis written by `kin diagnose -o`.
+        #[arg(long)]
+        diagnose: Option<PathBuf>,
+        /// The fitted data files, in the fit's order (default: the paths FIT.json records).
+        data: Vec<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -183,8 +220,28 @@ fn main() -> ExitCode {
             seed,
             color: use_color(&color),
         }),
+        Command::Diagnose { machine, data, alpha, output, apply, color } => diagnose::run(diagnose::DiagnoseArgs {
+            fit: fit::FitArgs {
+                machine,
+                data,
+                validate: Vec::new(),
+                output: None,
+                solver: fit::SolverArg::Qr,
+                tolerance: 1e-10,
+                min_norm: false,
+                stepwise: None,
+                enter: None,
+                holdout: None,
+                seed: 0,
+                color: use_color(&color),
+            },
+            alpha,
+            output,
+            apply,
+        }),
         Command::Eval { machine, poses, params, output, components, color } => {
             simulate::eval(&machine, params.as_deref(), &poses, output.as_deref(), components, use_color(&color))
         }
+        Command::Report { machine, fit, diagnose, data, output, color } => report::run(report::ReportArgs { machine, fit, diagnose, data, output, color: use_color(&color) }),
     }
 }

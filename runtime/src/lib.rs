@@ -11,3 +11,4 @@ pub mod engine;
 pub mod jit;
 pub mod fit;
 pub mod diagnose;
+pub mod history;

@@ -120,3 +120,8 @@ pub struct Diagnosis {
     /// Ranked: significant first, by explained variance.
     pub findings: Vec<Finding>,
 }
+
+mod analyse;
+pub mod library;
+
+pub use analyse::{diagnose, DiagnoseError, Settings};

@@ -17,7 +17,7 @@ use kin_compiler::{Compiled, Diagnostic};
 use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
 use thiserror::Error;
 
-pub use design::{count_rows, for_each_row, holdout, rotation_weight, states, DataSet, DesignError, FileStates, Layout, Nuisance, NuisanceKind, RowMeta, LENGTH};
+pub use design::{count_rows, for_each_row, holdout, rotation_weight, states, states_with, DataSet, DesignError, FileStates, Layout, Nuisance, NuisanceKind, RowMeta, LENGTH};
 pub use qr::{Reduced, StreamingQr};
 pub use solve::{Solution, Solver};
 

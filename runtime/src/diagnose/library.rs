@@ -1,0 +1,300 @@
+//! The library of candidate physical effects: terms a model may lack, generated from the
+//! machine's structure and what the data can show (a backlash needs directions of motion, a
+//! thermal lag needs time and the input).
+
+use kin_compiler::ir::{Component, FrameRef, JointKind, Machine, Var};
+use kin_compiler::units::Dim;
+
+use super::{Candidate, Family};
+
+/// What the measurement files offer for candidates to use.
+#[derive(Debug, Clone, Default)]
+pub struct Available {
+    /// Axes with a direction-of-motion column in every file.
+    pub directions: Vec<bool>,
+    /// Inputs given in every file.
+    pub inputs: Vec<bool>,
+    pub time: bool,
+}
+
+/// A candidate and the text actually compiled to test it: non-linear parameters are tested at
+/// a fixed value (chosen by a scan) but suggested as `fit`.
+#[derive(Debug, Clone)]
+pub struct Proposal {
+    pub candidate: Candidate,
+    pub test_text: String,
+    /// Candidates of one group (e.g. a lag at several time constants) compete: only the best of
+    /// a group is reported, but every member counts in the multiple-testing correction.
+    pub group: String,
+}
+
+fn frame_name(m: &Machine, f: FrameRef) -> Option<String> {
+    let axis = |chain: &[kin_compiler::ir::Element], k: usize| chain.get(k).and_then(|e| m.axes.get(e.axis)).map(|a| a.name.clone());
+    match f {
+        FrameRef::Tool(k) => axis(&m.tool_chain, k),
+        FrameRef::Workpiece(k) => axis(&m.workpiece_chain, k),
+        FrameRef::ToolEnd(None) => Some("tool".into()),
+        FrameRef::ToolEnd(Some(i)) => m.tools.get(i).map(|t| t.name.clone()),
+        FrameRef::WorkpieceEnd => Some("workpiece".into()),
+    }
+}
+
+/// The frame of each axis, in chain order.
+fn axis_frames(m: &Machine) -> Vec<(usize, FrameRef)> {
+    let mut out: Vec<(usize, FrameRef)> = m.tool_chain.iter().enumerate().map(|(k, e)| (e.axis, FrameRef::Tool(k))).collect();
+    out.extend(m.workpiece_chain.iter().enumerate().map(|(k, e)| (e.axis, FrameRef::Workpiece(k))));
+    out
+}
+
+/// Which of tx, ty, tz lies along a unit direction (the largest component).
+fn along(direction: [f64; 3]) -> Component {
+    let k = (0..3).max_by(|&a, &b| direction[a].abs().total_cmp(&direction[b].abs())).unwrap_or(0);
+    [Component::Tx, Component::Ty, Component::Tz][k]
+}
+
+fn rotation_about(direction: [f64; 3]) -> Component {
+    match along(direction) {
+        Component::Tx => Component::Rx,
+        Component::Ty => Component::Ry,
+        _ => Component::Rz,
+    }
+}
+
+/// Whether a model already has a term of the given shape on a target.
+fn has(m: &Machine, frame: FrameRef, comp: Component, test: impl Fn(&kin_compiler::ir::Term) -> bool) -> bool {
+    m.errors.iter().filter(|e| e.frame == frame && e.component == comp).flat_map(|e| &e.terms).any(test)
+}
+
+fn is_const(t: &kin_compiler::ir::Term) -> bool {
+    t.coefficients == 1 && t.factors.is_empty()
+}
+
+fn uses(t: &kin_compiler::ir::Term, v: Var) -> bool {
+    t.factors.iter().any(|f| f.var == v)
+}
+
+/// Every candidate the library proposes for `m` given what the data offer. `wavelengths` are
+/// spectral peaks found along axes (axis index → wavelength in SI), `taus` the time constants
+/// scanned for lags (SI).
+pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)], taus: &[f64]) -> Vec<Proposal> {
+    let mut out = Vec::new();
+    let mut push = |family: Family, target: String, text: String, test_text: Option<String>, explanation: String, group: Option<String>| {
+        let test_text = test_text.unwrap_or_else(|| text.clone());
+        let group = group.unwrap_or_else(|| test_text.clone());
+        out.push(Proposal { candidate: Candidate { family, target, text, explanation }, test_text, group });
+    };
+    let length = &m.units.length;
+    let angle = &m.units.angle;
+    let fmt_len = |v: f64| format!("{} {}", round(length.from_si(v)), length.name);
+    for (a, frame) in axis_frames(m) {
+        let Some(axis) = m.axes.get(a) else { continue };
+        let Some(name) = frame_name(m, frame) else { continue };
+        let own = Var::Axis(a);
+        let revolute = axis.kind == JointKind::Revolute;
+        let motion = along(axis.direction);
+
+        // Missing squareness / axis-location constants.
+        for comp in Component::ALL {
+            if (comp.is_rotation() || revolute) && !has(m, frame, comp, is_const) {
+                let target = format!("{name}.{}", comp.name());
+                let what = if comp.is_rotation() {
+                    format!("a constant rotation of the {name} axis about {} (a squareness or tilt of the axes it carries)", &comp.name()[1..])
+                } else {
+                    format!("a constant offset of the {name} axis line along {} (an axis-location error)", &comp.name()[1..])
+                };
+                push(Family::Constant, target.clone(), format!("{target} += const"), None, what, None);
+            }
+        }
+
+        // Angular errors seen through the tool's Abbe offset.
+        if !revolute {
+            for comp in [Component::Rx, Component::Ry, Component::Rz] {
+                if !has(m, frame, comp, |t| uses(t, own)) {
+                    let target = format!("{name}.{}", comp.name());
+                    push(
+                        Family::AbbeAngular,
+                        target.clone(),
+                        format!("{target} += spline({}, knots 2)", axis.name),
+                        None,
+                        format!("the {} carriage tilts about {} as it travels; the tool sees the tilt times its Abbe offset", axis.name, &comp.name()[1..]),
+                        None,
+                    );
+                }
+            }
+        }
+
+        // Backlash and hysteresis with the direction of motion.
+        if available.directions.get(a).copied().unwrap_or(false) {
+            let dir = Var::Direction(a);
+            let comps: Vec<Component> = if revolute { vec![rotation_about(axis.direction)] } else { vec![motion, Component::Rx, Component::Ry, Component::Rz] };
+            for comp in comps {
+                if !has(m, frame, comp, |t| uses(t, dir)) {
+                    let target = format!("{name}.{}", comp.name());
+                    push(
+                        Family::Backlash,
+                        target.clone(),
+                        format!("{target} += backlash({})", axis.name),
+                        None,
+                        format!("{target} steps with the direction of motion of {}: backlash or hysteresis in its drive or guideways", axis.name),
+                        None,
+                    );
+                }
+            }
+        }
+
+        // Periodic errors along a prismatic axis, at the spectral peak found for it.
+        if !revolute {
+            for &(pa, lambda) in wavelengths.iter().filter(|(pa, _)| *pa == a) {
+                let _ = pa;
+                if lambda > 0.0 && lambda < axis.range[1] - axis.range[0] {
+                    for comp in [motion] {
+                        let target = format!("{name}.{}", comp.name());
+                        push(
+                            Family::Periodic,
+                            target.clone(),
+                            format!("{target} += periodic({}, wavelength fit {}, knots 2)", axis.name, fmt_len(lambda)),
+                            Some(format!("{target} += periodic({}, wavelength {}, knots 2)", axis.name, fmt_len(lambda))),
+                            format!("a periodic error of wavelength ≈ {} along {}: a leadscrew pitch, a scale or encoder period", fmt_len(lambda), axis.name),
+                            None,
+                        );
+                    }
+                }
+            }
+        }
+
+        // Error motions of a revolute axis at 2, 3, 4 per revolution.
+        if revolute {
+            for comp in Component::ALL {
+                if !has(m, frame, comp, |t| uses(t, own)) {
+                    let target = format!("{name}.{}", comp.name());
+                    push(
+                        Family::RevoluteHarmonics,
+                        target.clone(),
+                        format!("{target} += fourier({}, harmonics 2..4)", axis.name),
+                        None,
+                        format!("an error motion of the {} axis at 2 to 4 per revolution ({} of its bearing or drive)", axis.name, if comp.is_rotation() { "tilt" } else { "runout" }),
+                        None,
+                    );
+                }
+            }
+        }
+
+        // Too stiff a model: a spline with more knots on a component that already depends on
+        // the axis. The extra functions are what the existing ones cannot follow.
+        for comp in Component::ALL {
+            if has(m, frame, comp, |t| uses(t, own)) && !revolute {
+                let target = format!("{name}.{}", comp.name());
+                let family = if !comp.is_rotation() && comp != motion { "straightness" } else { "spline" };
+                push(
+                    Family::MoreKnots,
+                    target.clone(),
+                    format!("{target} += {family}({}, knots 7)", axis.name),
+                    None,
+                    format!("{target} varies along {} faster than its model's knots allow: more knots", axis.name),
+                    None,
+                );
+            }
+        }
+
+        // Cross-coupling with the other axes and ranged inputs (eq. 3.19: weight of a moving
+        // carriage, load).
+        for comp in Component::ALL {
+            for (b, other) in m.axes.iter().enumerate() {
+                if b == a || has(m, frame, comp, |t| uses(t, Var::Axis(b))) {
+                    continue;
+                }
+                let target = format!("{name}.{}", comp.name());
+                let (text, what) = if revolute {
+                    (format!("{target} += linear({})", other.name), format!("{target} changes with the position of {}", other.name))
+                } else {
+                    (
+                        format!("{target} += linear({}) + linear({}) * linear({})", other.name, other.name, axis.name),
+                        format!("{target} changes with the position of {} (its weight or moment on {}'s guideways)", other.name, axis.name),
+                    )
+                };
+                push(Family::CrossCoupling, target, text, None, what, None);
+            }
+            for (i, input) in m.inputs.iter().enumerate() {
+                if !available.inputs.get(i).copied().unwrap_or(false) || input.range.is_none() || input.unit.dim == Dim::TEMPERATURE {
+                    continue;
+                }
+                if has(m, frame, comp, |t| uses(t, Var::Input(i))) {
+                    continue;
+                }
+                let target = format!("{name}.{}", comp.name());
+                push(
+                    Family::CrossCoupling,
+                    target.clone(),
+                    format!("{target} += linear({}) + linear({}) * linear({})", input.name, input.name, axis.name),
+                    None,
+                    format!("{target} changes with {} (a load deflecting the structure)", input.name),
+                    None,
+                );
+            }
+        }
+        let _ = angle;
+    }
+
+    // Thermal drift: a temperature input through a lag, on the tool (growth of the spindle or
+    // ram) and on each prismatic axis' scale.
+    for (i, input) in m.inputs.iter().enumerate() {
+        if input.unit.dim != Dim::TEMPERATURE || !available.inputs.get(i).copied().unwrap_or(false) {
+            continue;
+        }
+        let value = if input.absolute { format!("({} - 20 degC)", input.name) } else { input.name.clone() };
+        let mut targets: Vec<(String, String)> = [Component::Tx, Component::Ty, Component::Tz]
+            .iter()
+            .map(|c| (format!("tool.{}", c.name()), "const".to_string()))
+            .collect();
+        for (a, frame) in axis_frames(m) {
+            let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else { continue };
+            if axis.kind == JointKind::Prismatic {
+                targets.push((format!("{name}.{}", along(axis.direction).name()), format!("linear({})", axis.name)));
+            }
+        }
+        for (target, factor) in targets {
+            if available.time && !input.absolute {
+                for &tau in taus {
+                    let t = format!("{} min", round(tau / 60.0));
+                    push(
+                        Family::Thermal,
+                        target.clone(),
+                        format!("{target} += lag({}, tau fit {t}) * {factor}", input.name),
+                        Some(format!("{target} += lag({}, tau {t}) * {factor}", input.name)),
+                        format!("{target} follows {} with a thermal lag (time constant ≈ {t})", input.name),
+                        Some(format!("thermal {target} {}", input.name)),
+                    );
+                }
+            }
+            push(
+                Family::Thermal,
+                target.clone(),
+                format!("{target} += {value} * {factor}"),
+                None,
+                format!("{target} follows {} directly (thermal expansion)", input.name),
+                Some(format!("thermal {target} {}", input.name)),
+            );
+        }
+    }
+
+    // A slow drift in time of the tool relative to the workpiece.
+    if available.time {
+        for comp in [Component::Tx, Component::Ty, Component::Tz] {
+            let target = format!("tool.{}", comp.name());
+            push(
+                Family::Drift,
+                target.clone(),
+                format!("{target} += time * const"),
+                None,
+                format!("the tool drifts along {} over time (an unmeasured warm-up)", &comp.name()[1..]),
+                None,
+            );
+        }
+    }
+    out
+}
+
+fn round(v: f64) -> f64 {
+    let p = 10f64.powi(4 - v.abs().log10().ceil().max(0.0) as i32);
+    (v * p).round() / p
+}

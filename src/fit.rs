@@ -175,6 +175,11 @@ pub fn comparison(before: &history::Entry, after: &history::Entry) -> String {
     s
 }
 
+/// Writes FIT.json and FIT.params.
+pub fn write_report_files(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
+    write_report(path, rep)
+}
+
 fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
     let json = serde_json::to_string_pretty(rep).map_err(|e| {
         eprintln!("error: {e}");

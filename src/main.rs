@@ -1,6 +1,7 @@
 //! `kin`: check, simulate, evaluate and fit models of multi-axis machines.
 
 mod check;
+mod demo;
 mod diagnose;
 mod fit;
 mod load;
@@ -123,6 +124,18 @@ enum Command {
         #[arg(long, default_value = "auto")]
         color: String,
     },
+    /// The whole loop on a bundled example: fit, where it fails, the missing effect, add it,
+    /// watch the error fall.
+    Demo {
+        /// Where to put the working copy of the model and data (a temporary folder otherwise).
+        #[arg(long)]
+        dir: Option<PathBuf>,
+        /// At most this many effects added.
+        #[arg(long, default_value_t = 3)]
+        rounds: usize,
+        #[arg(long, default_value = "auto")]
+        color: String,
+    },
     /// Where the fitted model fails, and which physical effect is missing from it.
     Diagnose {
         machine: PathBuf,
@@ -220,6 +233,7 @@ fn main() -> ExitCode {
             seed,
             color: use_color(&color),
         }),
+        Command::Demo { dir, rounds, color } => demo::run(dir, rounds, use_color(&color)),
         Command::Diagnose { machine, data, alpha, output, apply, color } => diagnose::run(diagnose::DiagnoseArgs {
             fit: fit::FitArgs {
                 machine,

@@ -401,6 +401,26 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
     for &c in &comps {
         let mine: Vec<&Located> = rows.iter().filter(|r| r.component == c).collect();
         let cname = component_name(c).to_string();
+        // A component worse than the noise everywhere is one statement, not one per variable;
+        // the bins then look for where it is worse than the component's own level.
+        let (p_all, rms_all, allowed_all) = chi(&mine);
+        let throughout = p_all < settings.alpha / tests && rms_all > 1.2 * allowed_all;
+        if throughout {
+            found.push(Region {
+                component: cname.clone(),
+                conditions: vec!["throughout the workspace".into()],
+                ratio: rms_all / allowed_all.max(f64::MIN_POSITIVE),
+                rows: mine.len(),
+                p: p_all,
+                text: format!(
+                    "{cname} residuals are {:.1}× what the noise allows (σ̂ = {} {}) throughout the workspace",
+                    rms_all / allowed_all.max(f64::MIN_POSITIVE),
+                    nice(sigma),
+                    m.units.error.name
+                ),
+            });
+        }
+        let level = if throughout { rms_all / allowed_all.max(f64::MIN_POSITIVE) } else { 1.0 };
         for (v, (vname, unit)) in vars.iter().enumerate() {
             let vals: Vec<f64> = mine.iter().filter_map(|r| r.values.get(v).copied()).filter(|x| x.is_finite()).collect();
             if vals.len() < 2 * settings.bins {
@@ -421,8 +441,18 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
                 let (p, rms, allowed) = chi(&inside);
                 let mean = inside.iter().map(|r| r.residual).sum::<f64>() / inside.len() as f64;
                 bins.push(Bin { component: cname.clone(), variable: vname.clone(), unit: unit.clone(), lo: blo, hi: bhi, rows: inside.len(), mean, rms, allowed });
-                if p < settings.alpha / tests && rms > 1.5 * allowed {
-                    flagged.push((b, rms / allowed.max(f64::MIN_POSITIVE), p, inside.len()));
+                // Against the component's own level when it is raised everywhere: a bin is
+                // notable for being worse than the rest, not for sharing the common excess.
+                let ratio = rms / (allowed * level).max(f64::MIN_POSITIVE);
+                let excess = if throughout {
+                    let n = inside.len() as f64;
+                    let stat: f64 = inside.iter().map(|x| x.residual.powi(2) / (rms_all * rms_all)).sum();
+                    ChiSquared::new(n.max(1.0)).map(|d| 1.0 - d.cdf(stat)).unwrap_or(1.0)
+                } else {
+                    p
+                };
+                if excess < settings.alpha / tests && ratio > 1.5 {
+                    flagged.push((b, ratio, excess, inside.len()));
                 }
             }
             // Adjacent flagged bins form one region.
@@ -443,7 +473,12 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
                 } else {
                     format!("{} {unit} < {vname} < {} {unit}", nice(rlo), nice(rhi))
                 };
-                let ratio = flagged[i..=j].iter().map(|f| f.1).fold(0.0, f64::max);
+                if b0 == 0 && b1 + 1 == settings.bins {
+                    // Every bin: nothing local about it (said once above).
+                    i = j + 1;
+                    continue;
+                }
+                let ratio = flagged[i..=j].iter().map(|f| f.1).fold(0.0, f64::max) * level;
                 let p = flagged[i..=j].iter().map(|f| f.2).fold(1.0, f64::min);
                 let count = flagged[i..=j].iter().map(|f| f.3).sum();
                 found.push(Region {
@@ -467,7 +502,8 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
 fn combine(found: Vec<Region>) -> Vec<Region> {
     let mut out: Vec<Region> = Vec::new();
     for r in found {
-        if let Some(prev) = out.iter_mut().find(|o| o.component == r.component && o.conditions.len() == 1 && !o.conditions.iter().any(|c| c.split_whitespace().next() == r.conditions[0].split_whitespace().next())) {
+        let local = |o: &Region| o.conditions.iter().all(|c| c != "throughout the workspace");
+        if let Some(prev) = out.iter_mut().find(|o| local(o) && local(&r) && o.component == r.component && o.conditions.len() == 1 && !o.conditions.iter().any(|c| c.split_whitespace().next() == r.conditions[0].split_whitespace().next())) {
             prev.conditions.extend(r.conditions.clone());
             prev.text = format!("{} and {}", prev.text, r.conditions.join(" and "));
             continue;

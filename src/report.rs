@@ -1,0 +1,833 @@
+//! `kin report`: one self-contained HTML page about a fit — the summary, the residuals along
+//! every axis, the residual spectrum and candidate effects from `kin diagnose`, the history of
+//! the model's revisions, and the fitted parametric errors with their confidence bands.
+//!
+//! Self-contained means a file a user can mail or archive: inline CSS, inline SVG (plotters),
+//! no scripts, no fonts or images fetched from anywhere.
+
+mod curves;
+mod plot;
+
+use std::collections::{BTreeMap, HashMap};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use kin_compiler::ir::{Machine, Var};
+use kin_runtime::data::{self, Observations, ReadOptions};
+use kin_runtime::diagnose::{Diagnosis, Family};
+use kin_runtime::fit::report::{model_hash, FitReport, Residual};
+use kin_runtime::history::{self, Entry};
+use thiserror::Error;
+
+use crate::load::{self, Failed};
+use curves::Curves;
+use plot::{Chart, Series};
+
+#[derive(Debug, Error)]
+pub enum ReportError {
+    #[error("cannot read `{path}`: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("`{path}` is not a {what}: {source}")]
+    Json { path: PathBuf, what: &'static str, source: serde_json::Error },
+    #[error("cannot write `{path}`: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+    #[error(transparent)]
+    Plot(#[from] plot::PlotError),
+}
+
+impl ReportError {
+    fn exit_code(&self) -> Failed {
+        match self {
+            ReportError::Read { .. } | ReportError::Write { .. } => Failed::USAGE,
+            ReportError::Json { .. } | ReportError::Plot(_) => Failed::INPUT,
+        }
+    }
+}
+
+pub struct ReportArgs {
+    pub machine: PathBuf,
+    pub fit: PathBuf,
+    pub diagnose: Option<PathBuf>,
+    /// The fitted files, in the order they were fitted; FIT.json's own paths when empty.
+    pub data: Vec<PathBuf>,
+    pub output: PathBuf,
+    pub color: bool,
+}
+
+pub fn run(a: ReportArgs) -> ExitCode {
+    Failed::exit(report_command(&a))
+}
+
+fn fail(e: ReportError) -> Failed {
+    eprintln!("error: {e}");
+    e.exit_code()
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str) -> Result<T, ReportError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ReportError::Read { path: path.to_path_buf(), source })?;
+    serde_json::from_str(&text).map_err(|source| ReportError::Json { path: path.to_path_buf(), what, source })
+}
+
+pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
+    let source = std::fs::read_to_string(&a.machine).map_err(|source| fail(ReportError::Read { path: a.machine.clone(), source }))?;
+    let compiled = load::machine(&a.machine, None, a.color)?;
+    let m = &compiled.machine;
+    let fit: FitReport = read_json(&a.fit, "fit report (FIT.json)").map_err(fail)?;
+    let diagnosis: Option<Diagnosis> = match &a.diagnose {
+        Some(p) => Some(read_json(p, "diagnosis (DIAGNOSE.json)").map_err(fail)?),
+        None => None,
+    };
+    let mut notes = Vec::new();
+    if model_hash(&source) != fit.model_hash {
+        notes.push(format!(
+            "{} was fitted with another revision of the model (hash {}; the file is now {}). The curves below use the model as it is now.",
+            a.fit.display(),
+            fit.model_hash,
+            model_hash(&source)
+        ));
+    }
+    if let Some(d) = &diagnosis {
+        if d.model_hash != fit.model_hash {
+            notes.push(format!("the diagnosis was made for another revision of the model (hash {}) than the fit ({}).", d.model_hash, fit.model_hash));
+        }
+    }
+    let data = load_data(m, &fit, &a.fit, &a.data, &mut notes);
+    let history = match history::read(&a.machine) {
+        Ok(h) => h,
+        Err(e) => {
+            notes.push(e.to_string());
+            Vec::new()
+        }
+    };
+    let inputs = Inputs {
+        machine: m,
+        model_path: a.machine.display().to_string(),
+        fit: &fit,
+        diagnosis: diagnosis.as_ref(),
+        data,
+        history,
+        history_path: history::path_for(&a.machine).display().to_string(),
+        notes,
+    };
+    let page = html(&inputs).map_err(fail)?;
+    std::fs::write(&a.output, page).map_err(|source| fail(ReportError::Write { path: a.output.clone(), source }))?;
+    println!("wrote {}", a.output.display());
+    Ok(())
+}
+
+/// The fitted files, indexed like `fit.files`: from the command line, else from the paths the
+/// fit recorded (as given, then relative to FIT.json). A file that cannot be read only costs
+/// its residual plots, with a note saying why.
+fn load_data(m: &Machine, fit: &FitReport, fit_path: &Path, given: &[PathBuf], notes: &mut Vec<String>) -> Vec<Option<Observations>> {
+    if !given.is_empty() && given.len() != fit.files.len() {
+        notes.push(format!("{} data files were given but the fit used {}; they are matched in order.", given.len(), fit.files.len()));
+    }
+    let base = fit_path.parent().unwrap_or(Path::new("."));
+    fit.files
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let candidates: Vec<PathBuf> = match given.get(i) {
+                Some(p) => vec![p.clone()],
+                None if given.is_empty() => vec![PathBuf::from(&f.path), base.join(&f.path)],
+                None => Vec::new(),
+            };
+            let mut last = None;
+            for p in &candidates {
+                match data::read_file(p, m, &ReadOptions::default()) {
+                    Ok(o) => return Some(o),
+                    Err(e) => last = Some(e.to_string()),
+                }
+            }
+            notes.push(format!("no positions for the residuals of `{}`: {}", f.path, last.unwrap_or_else(|| "no data file given for it".into())));
+            None
+        })
+        .collect()
+}
+
+/// Everything a page is made of, loaded and checked.
+pub struct Inputs<'a> {
+    pub machine: &'a Machine,
+    pub model_path: String,
+    pub fit: &'a FitReport,
+    pub diagnosis: Option<&'a Diagnosis>,
+    /// The fitted files' observations, indexed like `fit.files`.
+    pub data: Vec<Option<Observations>>,
+    pub history: Vec<Entry>,
+    pub history_path: String,
+    /// Warnings shown at the top of the page.
+    pub notes: Vec<String>,
+}
+
+const CSS: &str = r#"
+*{box-sizing:border-box}
+body{margin:0;background:#eef0f3;color:#1d2330;font:15px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,"Helvetica Neue",Arial,sans-serif}
+main{max-width:1320px;margin:0 auto;padding:28px 36px 56px;background:#fff;min-height:100vh}
+h1{font-size:27px;margin:0 0 2px}
+h2{font-size:20px;margin:40px 0 10px;padding-bottom:5px;border-bottom:2px solid #e2e5ea}
+h3{font-size:15px;margin:22px 0 8px;color:#394150}
+p{margin:6px 0 10px}
+.meta{color:#5b6475;font-size:13.5px;margin-bottom:14px}
+.note{color:#5b6475;font-size:13.5px}
+.warn{background:#fff4e0;border-left:4px solid #e69f00;padding:8px 12px;margin:8px 0;font-size:14px}
+.ok{background:#e8f6f0;border-left:4px solid #009e73;padding:8px 12px;margin:8px 0;font-size:14px}
+.cards{display:grid;grid-template-columns:repeat(auto-fill,minmax(136px,1fr));gap:10px;margin:14px 0}
+.card{border:1px solid #e2e5ea;border-radius:8px;padding:10px 12px;background:#fafbfc}
+.card .v{font-size:18px;font-weight:600;font-variant-numeric:tabular-nums;white-space:nowrap}
+.card .k{font-size:12.5px;color:#5b6475}
+table{border-collapse:collapse;font-size:13.5px;margin:8px 0 14px;font-variant-numeric:tabular-nums}
+th,td{padding:5px 10px;border-bottom:1px solid #e6e8ec;text-align:right;vertical-align:top}
+th{background:#f2f4f7;font-weight:600;white-space:nowrap}
+td.l,th.l{text-align:left}
+td.nw{white-space:nowrap}
+tr.current td{background:#eef6fc;font-weight:600}
+code{font-family:ui-monospace,SFMono-Regular,Menlo,Consolas,monospace;font-size:12.5px;background:#f2f4f7;padding:1px 5px;border-radius:3px;white-space:pre-wrap}
+.why{display:block;color:#5b6475;font-size:12.5px;margin-top:3px}
+.sig{color:#b42318;font-weight:700}
+.grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(360px,1fr));gap:12px}
+.wide{display:grid;grid-template-columns:repeat(auto-fill,minmax(560px,1fr));gap:12px}
+figure{margin:0;border:1px solid #e2e5ea;border-radius:6px;padding:4px;background:#fff}
+figure svg{display:block;width:100%;height:auto}
+.legend{font-size:13px;color:#394150;margin:4px 0 8px}
+.sw{display:inline-block;width:13px;height:13px;border-radius:2px;vertical-align:-2px;margin:0 5px 0 14px}
+.sw:first-child{margin-left:0}
+.sw.dot{border-radius:50%;width:10px;height:10px;vertical-align:0}
+.sw.line{width:20px;height:3px;vertical-align:4px;border-radius:0}
+.sw.dash{width:20px;height:0;vertical-align:4px;border-radius:0;border-top:2px dashed;background:none!important}
+.sw.area{opacity:.3}
+figcaption{font-size:12.5px;color:#394150;padding:2px 8px 4px;line-height:1.7}
+details{margin:10px 0}
+summary{cursor:pointer;font-weight:600}
+nav{font-size:13.5px;margin:6px 0 0}
+nav a{color:#0072b2;text-decoration:none;margin-right:14px}
+footer{margin-top:40px;color:#8a92a3;font-size:12px}
+"#;
+
+/// The page.
+pub fn html(inp: &Inputs) -> Result<String, ReportError> {
+    let fit = inp.fit;
+    let mut s = String::with_capacity(1 << 20);
+    let _ = write!(
+        s,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n<title>kin report: {}</title>\n<style>{CSS}</style>\n</head>\n<body>\n<main>\n",
+        esc(&fit.machine)
+    );
+    let _ = write!(
+        s,
+        "<h1>Fit report: <code>{}</code></h1>\n<div class=\"meta\">model <code>{}</code> (hash {}) · {} observations in {} file{} · solver {} · engine {}</div>\n",
+        esc(&fit.machine),
+        esc(&inp.model_path),
+        esc(&fit.model_hash),
+        fit.rows,
+        fit.files.len(),
+        if fit.files.len() == 1 { "" } else { "s" },
+        esc(&fit.solver),
+        esc(&fit.engine)
+    );
+    s.push_str("<nav><a href=\"#summary\">Summary</a><a href=\"#residuals\">Residuals</a>");
+    if inp.diagnosis.is_some() {
+        s.push_str("<a href=\"#spectrum\">Spectrum</a><a href=\"#candidates\">Candidates</a>");
+    }
+    s.push_str("<a href=\"#history\">History</a><a href=\"#curves\">Parametric errors</a></nav>\n");
+    for n in &inp.notes {
+        let _ = writeln!(s, "<div class=\"warn\">{}</div>", esc(n));
+    }
+    summary(&mut s, inp);
+    residuals(&mut s, inp)?;
+    if let Some(d) = inp.diagnosis {
+        spectrum(&mut s, d)?;
+        candidates(&mut s, d);
+    }
+    history_section(&mut s, inp)?;
+    curves_section(&mut s, inp)?;
+    coefficients(&mut s, fit);
+    let _ = write!(s, "<footer>kin {} · a self-contained page: no scripts, no external resources.</footer>\n</main>\n</body>\n</html>\n", env!("CARGO_PKG_VERSION"));
+    Ok(s)
+}
+
+fn summary(s: &mut String, inp: &Inputs) {
+    let f = inp.fit;
+    let u = esc(&f.error_unit);
+    s.push_str("<section id=\"summary\">\n<h2>Summary</h2>\n<div class=\"cards\">\n");
+    let kept = f.coefficients.iter().filter(|c| c.kept).count() + f.nuisance.len();
+    let cards = [
+        (format!("{} {u}", num(f.sigma, 4)), "σ̂, noise estimate".to_string()),
+        (format!("{} {u}", num(f.rms, 4)), "residual RMS".to_string()),
+        (format!("{} {u}", num(f.max, 4)), "largest |residual|".to_string()),
+        (num(f.r2, 6), "R², variance explained".to_string()),
+        (format!("{}", f.rows), "observations".to_string()),
+        (format!("{kept} / {}", f.columns), "parameters kept / fitted".to_string()),
+        (format!("{}", f.rank), format!("rank (condition {})", num(f.condition, 3))),
+        (format!("{}", f.dof), "degrees of freedom".to_string()),
+    ];
+    for (v, k) in cards {
+        let _ = writeln!(s, "<div class=\"card\"><div class=\"v\">{v}</div><div class=\"k\">{}</div></div>", esc(&k));
+    }
+    s.push_str("</div>\n");
+    let rotations = f.files.iter().flat_map(|x| &x.components).any(|c| c.name.starts_with("er"));
+    if rotations && f.tilt_unit != f.error_unit {
+        let _ = writeln!(s, "<p class=\"note\">Rotation residuals are in {}; one {} counts as one {} in σ̂ and the RMS.</p>", esc(&f.tilt_unit), esc(&f.tilt_unit), u);
+    }
+    s.push_str("<table>\n<tr><th class=\"l\">file</th><th class=\"l\">kind</th><th>rows</th><th>RMS</th><th>max</th><th>outliers</th><th class=\"l\">per component: RMS (max)</th></tr>\n");
+    let rows = f.files.iter().map(|x| (x, "")).chain(f.validation.iter().map(|x| (x, " (validation)")));
+    for (file, tag) in rows {
+        let comps: Vec<String> = file.components.iter().map(|c| format!("{} {} ({}) {}", esc(&c.name), num(c.rms, 3), num(c.max, 3), esc(&c.unit))).collect();
+        let _ = writeln!(
+            s,
+            "<tr><td class=\"l\"><code>{}</code>{tag}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"l\">{}</td></tr>",
+            esc(&file.path),
+            esc(&file.kind),
+            file.rows,
+            num(file.rms, 4),
+            num(file.max, 4),
+            file.outliers,
+            comps.join(" · ")
+        );
+    }
+    s.push_str("</table>\n");
+    if !f.outliers.is_empty() {
+        let _ = writeln!(
+            s,
+            "<h3>Outliers</h3>\n<p class=\"note\">Rows with |studentized residual| &gt; {} or Cook's distance &gt; {}, largest first{}.</p>",
+            num(f.outlier_threshold, 3),
+            num(f.cook_threshold, 3),
+            if f.outliers.len() > 20 { " (the first 20)" } else { "" }
+        );
+        let mut out: Vec<&Residual> = f.outliers.iter().collect();
+        out.sort_by(|a, b| b.studentized.abs().total_cmp(&a.studentized.abs()));
+        s.push_str("<table>\n<tr><th class=\"l\">file:line</th><th class=\"l\">component</th><th>residual</th><th>studentized</th><th>leverage</th><th>Cook</th></tr>\n");
+        for r in out.iter().take(20) {
+            let path = f.files.get(r.file as usize).map(|x| x.path.as_str()).unwrap_or("?");
+            let _ = writeln!(
+                s,
+                "<tr><td class=\"l\"><code>{}:{}</code></td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(path),
+                r.line,
+                esc(&r.component),
+                num(r.residual, 4),
+                num(r.studentized, 3),
+                num(r.leverage, 3),
+                num(r.cook, 3)
+            );
+        }
+        s.push_str("</table>\n");
+    }
+    s.push_str("</section>\n");
+}
+
+/// The order components are shown in.
+const COMPONENTS: [&str; 7] = ["ex", "ey", "ez", "erx", "ery", "erz", "dL"];
+
+/// Beyond this many markers per plot the rows are thinned evenly (outliers always kept): the
+/// picture does not change, the page stays small enough to open.
+const MAX_MARKERS: usize = 5000;
+
+/// A residual's axis positions in SI: the row's pose for a point, the midpoint of the two
+/// ends for a length (its residual belongs to the whole segment).
+fn positions(obs: &Observations, row: usize, axes: usize) -> Vec<f64> {
+    (0..axes)
+        .map(|a| match obs {
+            Observations::Points(p) => p.pose.axes.get(a).and_then(|c| c.get(row)).copied().unwrap_or(f64::NAN),
+            Observations::Lengths(l) => {
+                let end = |e: usize| l.poses.get(e).and_then(|p| p.axes.get(a)).and_then(|c| c.get(row)).copied().unwrap_or(f64::NAN);
+                0.5 * (end(0) + end(1))
+            }
+        })
+        .collect()
+}
+
+fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
+    let m = inp.machine;
+    let f = inp.fit;
+    s.push_str("<section id=\"residuals\">\n<h2>Residuals along each axis</h2>\n");
+    if f.residuals.is_empty() {
+        let _ = writeln!(s, "<p class=\"note\">FIT.json holds no per-row residuals ({} rows were left out for size); the summary above still holds.</p>\n</section>", f.residuals_omitted);
+        return Ok(());
+    }
+    // Row of each source line, per file.
+    let lines: Vec<Option<HashMap<usize, usize>>> = inp.data.iter().map(|d| d.as_ref().map(|o| o.rows().line.iter().enumerate().map(|(r, &l)| (l, r)).collect())).collect();
+    let mut by_component: BTreeMap<usize, Vec<(Vec<f64>, f64, bool)>> = BTreeMap::new();
+    let mut unplaced = 0usize;
+    for r in &f.residuals {
+        let Some(c) = COMPONENTS.iter().position(|c| *c == r.component) else { continue };
+        let obs = inp.data.get(r.file as usize).and_then(|d| d.as_ref());
+        let row = lines.get(r.file as usize).and_then(|l| l.as_ref()).and_then(|l| l.get(&(r.line as usize)));
+        let (Some(obs), Some(&row)) = (obs, row) else {
+            unplaced += 1;
+            continue;
+        };
+        let outlier = r.studentized.abs() > f.outlier_threshold || r.cook > f.cook_threshold;
+        by_component.entry(c).or_default().push((positions(obs, row, m.axes.len()), r.residual, outlier));
+    }
+    let band = 3.0 * f.sigma;
+    let _ = writeln!(
+        s,
+        "<p>Each residual (measured − fitted) against the position of every axis. The green band is ±3σ̂ = ±{} {}: about 997 in 1000 residuals fall inside it when the model is complete. A pattern along an axis is an effect the model lacks.{}</p>",
+        num(band, 3),
+        esc(&f.error_unit),
+        if f.files.iter().any(|x| x.kind == "lengths") { " A length's residual is placed at the midpoint of its two ends." } else { "" }
+    );
+    let mut items = vec![Key::dot(plot::BLUE, "residual"), Key::dot(plot::RED, "outlier"), Key::area(plot::GREEN, "±3σ̂")];
+    if inp.diagnosis.is_some_and(|d| !d.bins.is_empty()) {
+        items.push(Key::line(plot::ORANGE, "binned RMS (±)"));
+        items.push(Key::dashed(plot::PURPLE, "allowed RMS (±), noise and model uncertainty"));
+    }
+    let _ = writeln!(s, "<div class=\"legend\">{}</div>", keys(&items));
+    if unplaced > 0 {
+        let _ = writeln!(s, "<p class=\"note\">{unplaced} residuals are not shown: their data file was not available (see the notes above).</p>");
+    }
+    for (c, points) in &by_component {
+        let name = COMPONENTS.get(*c).copied().unwrap_or("?");
+        let unit = if (3..6).contains(c) { &f.tilt_unit } else { &f.error_unit };
+        let shown = thin(points);
+        let _ = writeln!(
+            s,
+            "<h3>{} <span class=\"note\">({} rows{})</span></h3>\n<div class=\"grid\">",
+            esc(&component_title(name)),
+            points.len(),
+            if shown.len() < points.len() { format!(", {} shown", shown.len()) } else { String::new() }
+        );
+        for (a, axis) in m.axes.iter().enumerate() {
+            let xu = curves::var_unit(m, Var::Axis(a));
+            let mut chart = Chart::new(format!("{name} along {}", axis.name), format!("{} [{}]", axis.name, xu.name), format!("{name} residual [{unit}]"), (420, 290));
+            chart.y_symmetric = true;
+            chart.series.push(Series::HBand { lo: -band, hi: band, color: plot::GREEN, opacity: 0.13 });
+            let to_x = |p: &(Vec<f64>, f64, bool)| xu.from_si(p.0.get(a).copied().unwrap_or(f64::NAN));
+            let normal: Vec<(f64, f64)> = shown.iter().filter(|p| !p.2).map(|p| (to_x(p), p.1)).collect();
+            let outliers: Vec<(f64, f64)> = shown.iter().filter(|p| p.2).map(|p| (to_x(p), p.1)).collect();
+            chart.series.push(Series::Points { points: normal, color: plot::BLUE, radius: 2, opacity: 0.5 });
+            chart.series.push(Series::Points { points: outliers, color: plot::RED, radius: 3, opacity: 0.95 });
+            if let Some(d) = inp.diagnosis {
+                bins_overlay(&mut chart, d, name, &axis.name);
+            }
+            let _ = writeln!(s, "<figure>{}</figure>", chart.svg()?);
+        }
+        s.push_str("</div>\n");
+    }
+    s.push_str("</section>\n");
+    Ok(())
+}
+
+/// Every k-th point so at most [`MAX_MARKERS`] remain, plus every outlier.
+fn thin(points: &[(Vec<f64>, f64, bool)]) -> Vec<&(Vec<f64>, f64, bool)> {
+    let step = points.len().div_ceil(MAX_MARKERS).max(1);
+    points.iter().enumerate().filter(|(i, p)| p.2 || i % step == 0).map(|(_, p)| p).collect()
+}
+
+/// The diagnosis's binned residual RMS and what the noise and the model's uncertainty allow,
+/// as step lines (±) over the residuals of the same component and variable.
+fn bins_overlay(chart: &mut Chart, d: &Diagnosis, component: &str, variable: &str) {
+    let mut bins: Vec<_> = d.bins.iter().filter(|b| b.component == component && b.variable == variable && b.rows > 0).collect();
+    if bins.is_empty() {
+        return;
+    }
+    bins.sort_by(|a, b| a.lo.total_cmp(&b.lo));
+    let steps = |v: &dyn Fn(&kin_runtime::diagnose::Bin) -> f64, sign: f64| -> Vec<(f64, f64)> {
+        let mut pts = Vec::new();
+        for b in &bins {
+            pts.push((b.lo, sign * v(b)));
+            pts.push((b.hi, sign * v(b)));
+        }
+        pts
+    };
+    for sign in [1.0, -1.0] {
+        chart.series.push(Series::Line { points: steps(&|b| b.allowed, sign), color: plot::PURPLE, width: 1, dashed: true });
+        chart.series.push(Series::Line { points: steps(&|b| b.rms, sign), color: plot::ORANGE, width: 2, dashed: false });
+    }
+}
+
+fn component_title(c: &str) -> String {
+    let what = match c {
+        "ex" | "ey" | "ez" => format!("position error in {}", &c[1..]),
+        "erx" | "ery" | "erz" => format!("rotation error about {}", &c[2..]),
+        "dL" => "length error".to_string(),
+        _ => String::new(),
+    };
+    format!("{c}: {what}")
+}
+
+fn spectrum(s: &mut String, d: &Diagnosis) -> Result<(), ReportError> {
+    s.push_str("<section id=\"spectrum\">\n<h2>Residual spectrum</h2>\n");
+    if d.spectra.is_empty() {
+        s.push_str("<p class=\"note\">The diagnosis holds no spectrum.</p>\n</section>\n");
+        return Ok(());
+    }
+    s.push_str("<p>Lomb–Scargle periodogram of the residuals along each axis (the sampling need not be uniform). A peak that stands out names the wavelength of a periodic error the model lacks — a leadscrew pitch, a scale period. The false-alarm probability says how likely so high a peak is from noise alone.</p>\n<div class=\"grid\">\n");
+    for sp in &d.spectra {
+        let peak = sp.power.iter().enumerate().filter(|(_, p)| p.is_finite()).max_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i);
+        let mut chart = Chart::new(format!("{} along {}", sp.component, sp.variable), format!("wavelength [{}] (log scale)", sp.unit), "normalised power", (420, 290));
+        chart.x_log = true;
+        chart.y_zero = true;
+        let pts: Vec<(f64, f64)> = sp.wavelengths.iter().copied().zip(sp.power.iter().copied()).collect();
+        chart.series.push(Series::Line { points: pts, color: plot::BLUE, width: 1, dashed: false });
+        // The peak is named under the plot, not on it: a label at the plot's edge would be cut.
+        let mut caption = String::new();
+        if let Some(i) = peak {
+            if let (Some(&w), Some(&p)) = (sp.wavelengths.get(i), sp.power.get(i)) {
+                chart.series.push(Series::Points { points: vec![(w, p)], color: plot::RED, radius: 4, opacity: 1.0 });
+                caption = format!(
+                    "<figcaption>{}highest peak at λ = {} {}, false-alarm probability {}</figcaption>",
+                    keys(&[Key::dot(plot::RED, "")]),
+                    num(w, 4),
+                    esc(&sp.unit),
+                    pval(sp.peak_false_alarm)
+                );
+            }
+        }
+        let _ = writeln!(s, "<figure>{}{caption}</figure>", chart.svg()?);
+    }
+    s.push_str("</div>\n</section>\n");
+    Ok(())
+}
+
+fn family(f: Family) -> &'static str {
+    match f {
+        Family::CrossCoupling => "cross-coupling",
+        Family::MoreKnots => "more knots",
+        Family::Periodic => "periodic",
+        Family::Backlash => "backlash",
+        Family::Thermal => "thermal",
+        Family::Drift => "drift",
+        Family::RevoluteHarmonics => "revolute harmonics",
+        Family::AbbeAngular => "Abbe (angular)",
+        Family::Constant => "constant",
+    }
+}
+
+fn candidates(s: &mut String, d: &Diagnosis) {
+    s.push_str("<section id=\"candidates\">\n<h2>Where the model fails, and what is missing</h2>\n");
+    if d.regions.is_empty() {
+        s.push_str("<div class=\"ok\">No region of the workspace has residuals larger than the noise allows.</div>\n");
+    } else {
+        s.push_str("<ul>\n");
+        for r in &d.regions {
+            let _ = writeln!(s, "<li>{} <span class=\"note\">(RMS {}× σ̂ over {} rows, p = {})</span></li>", esc(&r.text), num(r.ratio, 3), r.rows, pval(r.p));
+        }
+        s.push_str("</ul>\n");
+    }
+    let significant = d.findings.iter().filter(|f| f.significant).count();
+    let _ = writeln!(
+        s,
+        "<h3>Candidate effects</h3>\n<p>Each candidate is a term that could be added to the model's <code>errors {{ … }}</code>, tested against the residuals with a partial F-test; p-values are adjusted for testing them all (Holm–Bonferroni) at a family-wise level α = {}. Ranked: significant first, then by the residual variance explained.</p>",
+        plot::tick(d.alpha)
+    );
+    if significant == 0 {
+        let _ = writeln!(s, "<div class=\"ok\">No candidate is significant at α = {}: nothing these data can show is missing from the model.</div>", plot::tick(d.alpha));
+    }
+    if d.findings.is_empty() {
+        s.push_str("</section>\n");
+        return;
+    }
+    let u = esc(&d.error_unit);
+    let _ = writeln!(s, "<table>\n<tr><th>rank</th><th class=\"l\">family</th><th class=\"l\">target</th><th class=\"l\">add to the model</th><th>explained</th><th>F</th><th>p</th><th>adjusted p</th><th class=\"l\">significant</th><th>RMS after [{u}]</th></tr>");
+    for (i, f) in d.findings.iter().enumerate() {
+        let c = &f.candidate;
+        let _ = writeln!(
+            s,
+            "<tr><td>{}</td><td class=\"l nw\">{}</td><td class=\"l\"><code>{}</code></td><td class=\"l\"><code>{}</code><span class=\"why\">{}</span></td><td>{} %</td><td>{}</td><td>{}</td><td>{}</td><td class=\"l\">{}</td><td>{}</td></tr>",
+            i + 1,
+            family(c.family),
+            esc(&c.target),
+            esc(&c.text),
+            esc(&c.explanation),
+            num(100.0 * f.explained, 3),
+            num(f.f, 4),
+            pval(f.p),
+            pval(f.p_adjusted),
+            if f.significant { "<span class=\"sig\">yes</span>" } else { "no" },
+            num(f.rms_after, 4)
+        );
+    }
+    s.push_str("</table>\n</section>\n");
+}
+
+/// The fits of the model's history, one per revision: consecutive fits of one revision show
+/// as the last of them.
+fn revisions(h: &[Entry]) -> Vec<&Entry> {
+    let mut out: Vec<&Entry> = Vec::new();
+    for e in h {
+        match out.last_mut() {
+            Some(last) if last.model_hash == e.model_hash => *last = e,
+            _ => out.push(e),
+        }
+    }
+    out
+}
+
+fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
+    s.push_str("<section id=\"history\">\n<h2>Error history across model revisions</h2>\n");
+    let revs = revisions(&inp.history);
+    if revs.is_empty() {
+        let _ = writeln!(s, "<p class=\"note\">No history yet: <code>kin fit</code> records each fit in <code>{}</code>.</p>\n</section>", esc(&inp.history_path));
+        return Ok(());
+    }
+    let u = revs.last().map(|e| e.error_unit.clone()).unwrap_or_else(|| inp.fit.error_unit.clone());
+    let _ = writeln!(s, "<p>Residual RMS and σ̂ of the last fit of each revision of the model (from <code>{}</code>). Adding the effect the data show makes the error fall towards the noise.</p>", esc(&inp.history_path));
+    let mut chart = Chart::new("Residual RMS per model revision", "revision", format!("RMS, σ̂ [{u}]"), (760, 320));
+    chart.x_integer = true;
+    chart.y_zero = true;
+    let at = |f: &dyn Fn(&Entry) -> f64| -> Vec<(f64, f64)> { revs.iter().enumerate().map(|(i, e)| ((i + 1) as f64, f(e))).collect() };
+    let mut items = vec![Key::line(plot::BLUE, "RMS, all files"), Key::dashed(plot::ORANGE, "σ̂")];
+    chart.series.push(Series::Line { points: at(&|e| e.rms), color: plot::BLUE, width: 3, dashed: false });
+    chart.series.push(Series::Points { points: at(&|e| e.rms), color: plot::BLUE, radius: 4, opacity: 1.0 });
+    chart.series.push(Series::Line { points: at(&|e| e.sigma), color: plot::ORANGE, width: 2, dashed: true });
+    let mut paths: Vec<&str> = Vec::new();
+    for e in &revs {
+        for f in &e.files {
+            if !paths.contains(&f.path.as_str()) {
+                paths.push(&f.path);
+            }
+        }
+    }
+    if paths.len() > 1 {
+        for (k, p) in paths.iter().enumerate() {
+            let pts: Vec<(f64, f64)> = revs.iter().enumerate().map(|(i, e)| ((i + 1) as f64, e.files.iter().find(|f| f.path == *p).map(|f| f.rms).unwrap_or(f64::NAN))).collect();
+            let color = plot::PALETTE.get(2 + k % 4).copied().unwrap_or(plot::GREY);
+            chart.series.push(Series::Line { points: pts, color, width: 1, dashed: false });
+            items.push(Key::line(color, &short(p, 40)));
+        }
+    }
+    let _ = writeln!(s, "<figure style=\"max-width:780px\">{}<figcaption>{}</figcaption></figure>", chart.svg()?, keys(&items));
+    let _ = writeln!(s, "<table>\n<tr><th>revision</th><th class=\"l\">fitted (UTC)</th><th class=\"l\">model hash</th><th>parameters</th><th>rows</th><th>σ̂ [{u}]</th><th>RMS [{u}]</th><th>change</th></tr>", u = esc(&u));
+    let mut before: Option<f64> = None;
+    for (i, e) in revs.iter().enumerate() {
+        let change = before.map(|b| format!("{:+.1} %", 100.0 * (e.rms - b) / b.max(f64::MIN_POSITIVE))).unwrap_or_else(|| "—".into());
+        let _ = writeln!(
+            s,
+            "<tr{}><td>{}</td><td class=\"l\">{}</td><td class=\"l\"><code>{}</code></td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            if e.model_hash == inp.fit.model_hash { " class=\"current\"" } else { "" },
+            i + 1,
+            utc(e.time),
+            esc(e.model_hash.get(..8).unwrap_or(&e.model_hash)),
+            e.parameters,
+            e.rows,
+            num(e.sigma, 4),
+            num(e.rms, 4),
+            change
+        );
+        before = Some(e.rms);
+    }
+    s.push_str("</table>\n</section>\n");
+    Ok(())
+}
+
+/// The ranges of the inputs and of time over the data, for the curves' axes.
+fn data_ranges(inp: &Inputs) -> curves::Ranges {
+    let mut out = curves::Ranges::new();
+    let mut add = |v: Var, values: &[f64]| {
+        for &x in values.iter().filter(|x| x.is_finite()) {
+            let e = out.entry(v).or_insert((x, x));
+            e.0 = e.0.min(x);
+            e.1 = e.1.max(x);
+        }
+    };
+    for o in inp.data.iter().flatten() {
+        let rows = o.rows();
+        for (i, col) in rows.inputs.iter().enumerate() {
+            if let Some(col) = col {
+                add(Var::Input(i), col);
+            }
+        }
+        if let Some(t) = &rows.time {
+            add(Var::Time, t);
+        }
+    }
+    out.retain(|_, (lo, hi)| hi > lo);
+    out
+}
+
+fn curves_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
+    let m = inp.machine;
+    s.push_str("<section id=\"curves\">\n<h2>Fitted parametric errors</h2>\n");
+    let c: Curves = match curves::curves(m, inp.fit, &data_ranges(inp)) {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = writeln!(s, "<div class=\"warn\">The parametric errors cannot be drawn: {}</div>\n</section>", esc(&e.to_string()));
+            return Ok(());
+        }
+    };
+    let _ = writeln!(
+        s,
+        "<p>The fitted part of each parametric error of the model, in its frame's own axes, along each variable it depends on, with the ≈ 95 % confidence band (± 2 standard errors from the coefficients' covariance, eq. 4.12). Known fixed terms are not included. The other variables are held at: {}.</p>",
+        esc(&c.reference.join(", "))
+    );
+    let _ = writeln!(
+        s,
+        "<p class=\"note\">Where an error also depends on another variable, it is drawn at that variable's lowest, middle and highest value; where it depends on the direction of motion, once for each direction.</p>\n<div class=\"legend\">{}</div>\n<div class=\"grid\">",
+        keys(&[Key::line(plot::BLUE, "fitted error"), Key::area(plot::BLUE, "≈ 95 % confidence band")])
+    );
+    for cv in &c.curves {
+        let mut chart = Chart::new(cv.target.clone(), format!("{} [{}]", cv.variable, cv.x_unit), format!("{} [{}]", cv.target, cv.y_unit), (420, 290));
+        let color = |k: usize| plot::PALETTE.get(k % plot::PALETTE.len()).copied().unwrap_or(plot::BLUE);
+        for (k, line) in cv.lines.iter().enumerate() {
+            let lower: Vec<f64> = line.value.iter().zip(&line.band).map(|(v, b)| v - b).collect();
+            let upper: Vec<f64> = line.value.iter().zip(&line.band).map(|(v, b)| v + b).collect();
+            let opacity = if cv.lines.len() > 1 { 0.14 } else { 0.22 };
+            chart.series.push(Series::Band { x: cv.x.clone(), lower, upper, color: color(k), opacity });
+        }
+        let mut items = Vec::new();
+        for (k, line) in cv.lines.iter().enumerate() {
+            chart.series.push(Series::Line { points: cv.x.iter().copied().zip(line.value.iter().copied()).collect(), color: color(k), width: 2, dashed: false });
+            items.push(Key::line(color(k), line.label.as_deref().unwrap_or("fitted")));
+        }
+        // A single line is explained by the section's legend.
+        let caption = if cv.lines.len() > 1 { format!("<figcaption>{}</figcaption>", keys(&items)) } else { String::new() };
+        let _ = writeln!(s, "<figure>{}{caption}</figure>", chart.svg()?);
+    }
+    s.push_str("</div>\n");
+    if !c.constants.is_empty() {
+        s.push_str("<h3>Constant parametric errors</h3>\n<p class=\"note\">Errors that depend on no variable: squareness and location constants.</p>\n<table>\n<tr><th class=\"l\">error</th><th>value</th><th>95 % band (±)</th><th class=\"l\">unit</th></tr>\n");
+        for k in &c.constants {
+            let _ = writeln!(s, "<tr><td class=\"l\"><code>{}</code></td><td>{}</td><td>{}</td><td class=\"l\">{}</td></tr>", esc(&k.target), num(k.value, 4), num(k.band, 3), esc(&k.unit));
+        }
+        s.push_str("</table>\n");
+    }
+    s.push_str("</section>\n");
+    Ok(())
+}
+
+fn coefficients(s: &mut String, f: &FitReport) {
+    let _ = writeln!(s, "<details>\n<summary>All {} coefficients</summary>\n<table>\n<tr><th class=\"l\">name</th><th class=\"l\">multiplies</th><th>value</th><th>standard error</th><th class=\"l\">unit</th><th class=\"l\">kept</th></tr>", f.coefficients.len() + f.nonlinear.len());
+    for c in f.coefficients.iter().chain(&f.nonlinear) {
+        let _ = writeln!(
+            s,
+            "<tr><td class=\"l\"><code>{}</code></td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td></tr>",
+            esc(&c.name),
+            esc(&c.label),
+            num(c.value, 5),
+            num(c.se, 3),
+            esc(&c.unit),
+            if c.kept { "yes" } else { "removed" }
+        );
+    }
+    s.push_str("</table>\n</details>\n");
+}
+
+/// One entry of a legend written in HTML under a figure (plotters' own legend box would sit
+/// on top of the data).
+struct Key {
+    color: plotters::style::RGBColor,
+    text: String,
+    class: &'static str,
+}
+
+impl Key {
+    fn line(color: plotters::style::RGBColor, text: &str) -> Key {
+        Key { color, text: text.to_string(), class: "line" }
+    }
+    fn dashed(color: plotters::style::RGBColor, text: &str) -> Key {
+        Key { color, text: text.to_string(), class: "dash" }
+    }
+    fn area(color: plotters::style::RGBColor, text: &str) -> Key {
+        Key { color, text: text.to_string(), class: "area" }
+    }
+    fn dot(color: plotters::style::RGBColor, text: &str) -> Key {
+        Key { color, text: text.to_string(), class: "dot" }
+    }
+}
+
+fn keys(items: &[Key]) -> String {
+    let mut out = String::new();
+    for k in items {
+        let c = plot::css(k.color);
+        let _ = write!(out, "<span class=\"sw {}\" style=\"color:{c};background-color:{c}\"></span>{}", k.class, esc(&k.text));
+    }
+    out
+}
+
+/// HTML text escaping.
+pub fn esc(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for ch in s.chars() {
+        match ch {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// `v` with `digits` significant digits; scientific outside 1e-3 .. 1e6; a dash when not a
+/// number, so a table never shows `NaN`.
+pub fn num(v: f64, digits: usize) -> String {
+    if !v.is_finite() {
+        return "—".into();
+    }
+    if v == 0.0 {
+        return "0".into();
+    }
+    let a = v.abs();
+    if !(1e-3..1e6).contains(&a) {
+        return format!("{:.*e}", digits.saturating_sub(1).min(3), v);
+    }
+    let decimals = (digits as i32 - 1 - a.log10().floor() as i32).clamp(0, 9) as usize;
+    format!("{v:.decimals$}")
+}
+
+fn pval(p: f64) -> String {
+    if !p.is_finite() {
+        "—".into()
+    } else if p < 1e-16 {
+        // Below double precision's resolution of 1 − CDF: the digits would mean nothing.
+        "< 1e-16".into()
+    } else if p < 1e-3 {
+        format!("{p:.1e}")
+    } else {
+        format!("{p:.3}")
+    }
+}
+
+fn short(p: &str, width: usize) -> String {
+    let n = p.chars().count();
+    if n <= width {
+        p.to_string()
+    } else {
+        format!("…{}", p.chars().skip(n + 1 - width).collect::<String>())
+    }
+}
+
+/// Unix seconds as `YYYY-MM-DD hh:mm` UTC (Hinnant's civil-from-days).
+fn utc(secs: u64) -> String {
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!("{year:04}-{month:02}-{d:02} {:02}:{:02}", rem / 3600, rem % 3600 / 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_and_text_are_safe_for_html() {
+        assert_eq!(esc("a<b & \"c\""), "a&lt;b &amp; &quot;c&quot;");
+        assert_eq!(num(0.195548, 4), "0.1955");
+        assert_eq!(num(f64::NAN, 4), "—");
+        assert_eq!(num(279.96, 3), "280");
+        assert_eq!(num(2.5e-6, 3), "2.50e-6");
+        assert_eq!(pval(3e-7), "3.0e-7");
+        assert_eq!(utc(0), "1970-01-01 00:00");
+        assert_eq!(utc(1_767_225_600 + 3_723), "2026-01-01 01:02");
+    }
+
+    #[test]
+    fn consecutive_fits_of_one_revision_collapse() {
+        let e = |hash: &str, rms: f64| Entry { time: 0, model_hash: hash.into(), parameters: 1, rows: 1, sigma: rms, rms, error_unit: "um".into(), files: Vec::new() };
+        let h = vec![e("a", 3.0), e("a", 2.5), e("b", 1.0), e("a", 2.0)];
+        let r: Vec<f64> = revisions(&h).iter().map(|e| e.rms).collect();
+        assert_eq!(r, vec![2.5, 1.0, 2.0]);
+    }
+}

@@ -103,6 +103,8 @@ struct Located {
     leverage: f64,
     /// Axis positions, then inputs, then time (NaN where unknown).
     values: Vec<f64>,
+    /// Direction of motion per axis (±1, NaN where not given).
+    dirs: Vec<f64>,
 }
 
 /// Names and units of the located variables, in `Located::values` order.
@@ -144,7 +146,11 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
                 values.push(rows.inputs.get(i).and_then(|c| c.as_ref()).and_then(|c| c.get(row)).map(|v| input.unit.from_si(*v)).unwrap_or(f64::NAN));
             }
             values.push(rows.time.as_ref().and_then(|t| t.get(row)).map(|t| m.units.time.from_si(*t)).unwrap_or(f64::NAN));
-            Some(Located { component: r.meta.component, residual: r.residual / s, leverage: r.leverage, values })
+            let dirs = match &f.observations {
+                Observations::Points(p) => (0..m.axes.len()).map(|a| p.pose.dir.get(a).and_then(|c| c.as_ref()).and_then(|c| c.get(row)).copied().unwrap_or(f64::NAN)).collect(),
+                Observations::Lengths(_) => vec![f64::NAN; m.axes.len()],
+            };
+            Some(Located { component: r.meta.component, residual: r.residual / s, leverage: r.leverage, values, dirs })
         })
         .collect()
 }
@@ -421,6 +427,35 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
             });
         }
         let level = if throughout { rms_all / allowed_all.max(f64::MIN_POSITIVE) } else { 1.0 };
+        // The direction of motion: a residual that shifts with it is a backlash or hysteresis.
+        for (a, axis) in m.axes.iter().enumerate() {
+            let side = |d: f64| -> Vec<f64> { mine.iter().filter(|r| r.dirs.get(a) == Some(&d)).map(|r| r.residual).collect() };
+            let (plus, minus) = (side(1.0), side(-1.0));
+            if plus.len() < 10 || minus.len() < 10 {
+                continue;
+            }
+            let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+            let shift = mean(&plus) - mean(&minus);
+            let se = sigma * (1.0 / plus.len() as f64 + 1.0 / minus.len() as f64).sqrt();
+            let z = shift / se.max(f64::MIN_POSITIVE);
+            let p = 2.0 * (1.0 - statrs::distribution::Normal::new(0.0, 1.0).map(|d| d.cdf(z.abs())).unwrap_or(1.0));
+            if p < settings.alpha / tests && shift.abs() > 0.5 * sigma {
+                found.push(Region {
+                    component: cname.clone(),
+                    conditions: vec![format!("direction of motion of {}", axis.name)],
+                    ratio: shift.abs() / sigma.max(f64::MIN_POSITIVE),
+                    rows: plus.len() + minus.len(),
+                    p,
+                    text: format!(
+                        "{cname} residuals shift by {} {} between the two directions of motion of {} ({:.1} σ̂)",
+                        nice(shift),
+                        m.units.error.name,
+                        axis.name,
+                        shift.abs() / sigma.max(f64::MIN_POSITIVE)
+                    ),
+                });
+            }
+        }
         for (v, (vname, unit)) in vars.iter().enumerate() {
             let vals: Vec<f64> = mine.iter().filter_map(|r| r.values.get(v).copied()).filter(|x| x.is_finite()).collect();
             if vals.len() < 2 * settings.bins {
@@ -502,7 +537,7 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
 fn combine(found: Vec<Region>) -> Vec<Region> {
     let mut out: Vec<Region> = Vec::new();
     for r in found {
-        let local = |o: &Region| o.conditions.iter().all(|c| c != "throughout the workspace");
+        let local = |o: &Region| o.conditions.iter().all(|c| c != "throughout the workspace" && !c.starts_with("direction of motion"));
         if let Some(prev) = out.iter_mut().find(|o| local(o) && local(&r) && o.component == r.component && o.conditions.len() == 1 && !o.conditions.iter().any(|c| c.split_whitespace().next() == r.conditions[0].split_whitespace().next())) {
             prev.conditions.extend(r.conditions.clone());
             prev.text = format!("{} and {}", prev.text, r.conditions.join(" and "));

@@ -183,3 +183,22 @@ fn the_readme_main_command_fits_the_bundled_data() {
     // The planted backlash (0.8 µm) survives selection.
     assert!(s.contains("0.800±"), "{s}");
 }
+
+/// The README's first command: the loop finds both hidden effects and ends at the noise.
+#[test]
+fn the_readme_demo_finds_both_hidden_effects() {
+    let dir = tmp("demo");
+    let out = kin(&["demo", "--dir", dir.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    assert!(s.contains("adding candidate 1 to the model: X.tx += backlash(X)"), "{s}");
+    assert!(s.contains("X.tx += periodic(X, wavelength fit 25."), "{s}");
+    assert!(s.contains("model revised") && s.contains("no candidate is significant"), "{s}");
+    let sigma: f64 = s.rsplit("σ̂ = ").next().and_then(|t| t.split_whitespace().next()).and_then(|v| v.parse().ok()).expect("final σ̂");
+    assert!(sigma < 1.2 * 0.2, "σ̂ {sigma} within 1.2× the 0.2 µm noise");
+    // The model file was changed (the copy, not the bundled one) and the history recorded.
+    let model = std::fs::read_to_string(dir.join("bridge_cmm.kin")).unwrap();
+    assert!(model.contains("// added by `kin diagnose`"));
+    assert!(!std::fs::read_to_string("examples/demo/start.kin").unwrap().contains("added by"));
+    assert!(dir.join("bridge_cmm.kin.history.jsonl").exists());
+}

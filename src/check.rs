@@ -38,12 +38,23 @@ fn identify(c: &Compiled, observe: Observe, aligned: bool) -> Vec<kin_compiler::
     }
     let n = (2 * c.machine.coefficients.len()).max(200);
     match kin_runtime::identify::sampled(&c.machine, observe, aligned, n, 0x6b696e) {
-        Ok(report) => kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned),
-        Err(e) => vec![kin_compiler::Diagnostic::error("E0601", format!("identifiability could not be analysed: {e}"), Default::default())],
+        Ok(report) => {
+            kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)
+        }
+        Err(e) => vec![kin_compiler::Diagnostic::error(
+            "E0601",
+            format!("identifiability could not be analysed: {e}"),
+            Default::default(),
+        )],
     }
 }
 
-pub fn run(path: &Path, format: Format, color: bool, identifiability: Option<(ObserveArg, bool)>) -> ExitCode {
+pub fn run(
+    path: &Path,
+    format: Format,
+    color: bool,
+    identifiability: Option<(ObserveArg, bool)>,
+) -> ExitCode {
     let name = path.display().to_string();
     let source = match std::fs::read_to_string(path) {
         Ok(s) => s,
@@ -127,15 +138,31 @@ pub struct Summary {
 impl Summary {
     pub fn of(m: &Machine) -> Summary {
         let element = |e: &kin_compiler::ir::Element| {
-            let name = m.axes.get(e.axis).map(|a| a.name.clone()).unwrap_or_default();
-            format!("{name} ({})", if e.frame == kin_compiler::ir::FrameKind::Moving { "moving" } else { "fixed" })
+            let name = m
+                .axes
+                .get(e.axis)
+                .map(|a| a.name.clone())
+                .unwrap_or_default();
+            format!(
+                "{name} ({})",
+                if e.frame == kin_compiler::ir::FrameKind::Moving {
+                    "moving"
+                } else {
+                    "fixed"
+                }
+            )
         };
         let mut units = BTreeMap::new();
         for c in &m.coefficients {
             *units.entry(c.unit.name.clone()).or_insert(0) += 1;
         }
         let terms: usize = m.errors.iter().map(|e| e.terms.len()).sum();
-        let fixed = m.errors.iter().flat_map(|e| &e.terms).filter(|t| t.coefficients == 0).count();
+        let fixed = m
+            .errors
+            .iter()
+            .flat_map(|e| &e.terms)
+            .filter(|t| t.coefficients == 0)
+            .count();
         Summary {
             machine: m.name.clone(),
             task: match m.task {
@@ -166,7 +193,11 @@ impl Summary {
             tool_chain: m.tool_chain.iter().map(element).collect(),
             workpiece_chain: m.workpiece_chain.iter().map(element).collect(),
             tools: m.tools.iter().map(|t| t.name.clone()).collect(),
-            inputs: m.inputs.iter().map(|i| format!("{} [{}]", i.name, i.unit.name)).collect(),
+            inputs: m
+                .inputs
+                .iter()
+                .map(|i| format!("{} [{}]", i.name, i.unit.name))
+                .collect(),
             error_models: m.errors.len(),
             terms,
             fixed_terms: fixed,
@@ -195,7 +226,10 @@ fn round(v: f64) -> f64 {
 
 fn frame_name(m: &Machine, f: FrameRef) -> String {
     let axis = |list: &[kin_compiler::ir::Element], k: usize| {
-        list.get(k).and_then(|e| m.axes.get(e.axis)).map(|a| a.name.clone()).unwrap_or_default()
+        list.get(k)
+            .and_then(|e| m.axes.get(e.axis))
+            .map(|a| a.name.clone())
+            .unwrap_or_default()
     };
     match f {
         FrameRef::Tool(k) => axis(&m.tool_chain, k),
@@ -217,8 +251,23 @@ pub fn summary_text(path: &str, c: &Compiled) -> String {
     line(format!("{path}: machine `{}` checks clean", s.machine));
     line(format!("  task       {}", s.task));
     line(format!("  axes       {}", s.axes.join(", ")));
-    line(format!("  tool chain base → {} → tool [{}]", if s.tool_chain.is_empty() { "(none)".into() } else { s.tool_chain.join(" → ") }, s.tools.join(", ")));
-    line(format!("  workpiece  base → {} → workpiece", if s.workpiece_chain.is_empty() { "(none)".into() } else { s.workpiece_chain.join(" → ") }));
+    line(format!(
+        "  tool chain base → {} → tool [{}]",
+        if s.tool_chain.is_empty() {
+            "(none)".into()
+        } else {
+            s.tool_chain.join(" → ")
+        },
+        s.tools.join(", ")
+    ));
+    line(format!(
+        "  workpiece  base → {} → workpiece",
+        if s.workpiece_chain.is_empty() {
+            "(none)".into()
+        } else {
+            s.workpiece_chain.join(" → ")
+        }
+    ));
     if !s.inputs.is_empty() {
         line(format!("  inputs     {}", s.inputs.join(", ")));
     }

@@ -57,10 +57,25 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         println!("━━ step {round}: fit {} ━━", model.display());
         let fitted = fitcmd::fit_quietly(&args)?;
         let r = &fitted.report;
-        println!("  {} observations, {} coefficients: σ̂ = {:.4} {u}, residual RMS {:.4} {u}", r.rows, r.columns, r.sigma, r.rms, u = r.error_unit);
+        println!(
+            "  {} observations, {} coefficients: σ̂ = {:.4} {u}, residual RMS {:.4} {u}",
+            r.rows,
+            r.columns,
+            r.sigma,
+            r.rms,
+            u = r.error_unit
+        );
         fitcmd::record(&model, r);
         let settings = Settings::default();
-        let d = diagnose::diagnose(&fitted.compiled, &fitted.source, &fitted.files, &fitted.result, &fitted.options, &settings).map_err(|e| {
+        let d = diagnose::diagnose(
+            &fitted.compiled,
+            &fitted.source,
+            &fitted.files,
+            &fitted.result,
+            &fitted.options,
+            &settings,
+        )
+        .map_err(|e| {
             eprintln!("error: {e}");
             Failed::INPUT
         })?;
@@ -78,8 +93,16 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
             println!("\n(stopping after {rounds} rounds)");
             return Ok(());
         }
-        println!("\n  → adding candidate 1 to the model: {}\n", top.candidate.text);
-        apply(&model, &fitted.source, &top.candidate.text, &top.candidate.explanation)?;
+        println!(
+            "\n  → adding candidate 1 to the model: {}\n",
+            top.candidate.text
+        );
+        apply(
+            &model,
+            &fitted.source,
+            &top.candidate.text,
+            &top.candidate.explanation,
+        )?;
     }
     Ok(())
 }

@@ -22,12 +22,26 @@ pub fn run(a: DiagnoseArgs) -> ExitCode {
 
 fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
     let fitted = fitcmd::fit_quietly(&a.fit)?;
-    let settings = Settings { alpha: a.alpha, ..Settings::default() };
-    let diagnosis = diagnose::diagnose(&fitted.compiled, &fitted.source, &fitted.files, &fitted.result, &fitted.options, &settings).map_err(|e| {
+    let settings = Settings {
+        alpha: a.alpha,
+        ..Settings::default()
+    };
+    let diagnosis = diagnose::diagnose(
+        &fitted.compiled,
+        &fitted.source,
+        &fitted.files,
+        &fitted.result,
+        &fitted.options,
+        &settings,
+    )
+    .map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
-    print!("{}", text(&diagnosis, fitted.report.sigma, fitted.report.rms));
+    print!(
+        "{}",
+        text(&diagnosis, fitted.report.sigma, fitted.report.rms)
+    );
     if let Some(out) = &a.output {
         let json = serde_json::to_string_pretty(&diagnosis).map_err(|e| {
             eprintln!("error: {e}");
@@ -41,11 +55,23 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
     }
     if let Some(n) = a.apply {
         let Some(finding) = n.checked_sub(1).and_then(|i| diagnosis.findings.get(i)) else {
-            eprintln!("error: there is no candidate {n}; the list has {}", diagnosis.findings.len());
+            eprintln!(
+                "error: there is no candidate {n}; the list has {}",
+                diagnosis.findings.len()
+            );
             return Err(Failed::USAGE);
         };
-        apply(&a.fit.machine, &fitted.source, &finding.candidate.text, &finding.candidate.explanation)?;
-        println!("\nadded to {}: {}\n", a.fit.machine.display(), finding.candidate.text);
+        apply(
+            &a.fit.machine,
+            &fitted.source,
+            &finding.candidate.text,
+            &finding.candidate.explanation,
+        )?;
+        println!(
+            "\nadded to {}: {}\n",
+            a.fit.machine.display(),
+            finding.candidate.text
+        );
         // The history of the fit before the change is recorded, so the refit prints the fall.
         fitcmd::record(&a.fit.machine, &fitted.report);
         fitcmd::fit_command(&a.fit)?;
@@ -69,7 +95,9 @@ pub fn apply(path: &Path, source: &str, line: &str, why: &str) -> Result<(), Fai
     };
     let before = source.get(..at).unwrap_or("").trim_end();
     let after = source.get(at..).unwrap_or("");
-    let text = format!("{before}\n\n        // added by `kin diagnose`: {why}\n        {line}\n    {after}");
+    let text = format!(
+        "{before}\n\n        // added by `kin diagnose`: {why}\n        {line}\n    {after}"
+    );
     std::fs::write(path, text).map_err(|e| {
         eprintln!("error: cannot write `{}`: {e}", path.display());
         Failed::USAGE
@@ -79,20 +107,35 @@ pub fn apply(path: &Path, source: &str, line: &str, why: &str) -> Result<(), Fai
 /// The terminal report: where, then what.
 pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     let u = &d.error_unit;
-    let mut s = format!("diagnosis of `{}`: σ̂ = {:.4} {u}, residual RMS {:.4} {u}\n", d.machine, sigma, rms);
+    let mut s = format!(
+        "diagnosis of `{}`: σ̂ = {:.4} {u}, residual RMS {:.4} {u}\n",
+        d.machine, sigma, rms
+    );
     s.push_str("\nwhere the model fails\n");
     if d.regions.is_empty() {
-        s.push_str("  nowhere: along every axis and input the residuals are what the noise allows\n");
+        s.push_str(
+            "  nowhere: along every axis and input the residuals are what the noise allows\n",
+        );
     }
     for r in d.regions.iter().take(8) {
-        s.push_str(&format!("  {} ({} observations, p = {:.1e})\n", r.text, r.rows, r.p));
+        s.push_str(&format!(
+            "  {} ({} observations, p = {:.1e})\n",
+            r.text, r.rows, r.p
+        ));
     }
     let significant: Vec<_> = d.findings.iter().filter(|f| f.significant).collect();
     s.push_str(&format!("\nwhich effect is missing (partial F-tests, Holm–Bonferroni at α = {} over {} candidates)\n", d.alpha, d.findings.len()));
     if significant.is_empty() {
-        s.push_str("  no candidate is significant: the model explains the data down to the noise\n");
+        s.push_str(
+            "  no candidate is significant: the model explains the data down to the noise\n",
+        );
         if let Some(best) = d.findings.first() {
-            s.push_str(&format!("  (the strongest, `{}`, would explain {:.2} % with adjusted p = {:.2})\n", best.candidate.text, 100.0 * best.explained, best.p_adjusted));
+            s.push_str(&format!(
+                "  (the strongest, `{}`, would explain {:.2} % with adjusted p = {:.2})\n",
+                best.candidate.text,
+                100.0 * best.explained,
+                best.p_adjusted
+            ));
         }
         return s;
     }
@@ -110,7 +153,10 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
         ));
     }
     if significant.len() > 10 {
-        s.push_str(&format!("  … and {} more significant candidates (see DIAGNOSE.json)\n", significant.len() - 10));
+        s.push_str(&format!(
+            "  … and {} more significant candidates (see DIAGNOSE.json)\n",
+            significant.len() - 10
+        ));
     }
     s.push_str("\n  add one with `kin diagnose … --apply N` (or paste its line into the errors block), then refit\n");
     s

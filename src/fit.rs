@@ -38,7 +38,12 @@ pub fn run(a: FitArgs) -> ExitCode {
 fn read_all(paths: &[PathBuf], compiled: &kin_compiler::Compiled) -> Result<Vec<DataSet>, Failed> {
     paths
         .iter()
-        .map(|p| Ok(DataSet { path: p.clone(), observations: load::observations(p, compiled, false)? }))
+        .map(|p| {
+            Ok(DataSet {
+                path: p.clone(),
+                observations: load::observations(p, compiled, false)?,
+            })
+        })
         .collect()
 }
 
@@ -89,27 +94,54 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         },
         tolerance: a.tolerance,
         min_norm: a.min_norm,
-        stepwise: a.stepwise.map(|remove| fit::Stepwise { remove, enter: a.enter }),
+        stepwise: a.stepwise.map(|remove| fit::Stepwise {
+            remove,
+            enter: a.enter,
+        }),
         ..Options::default()
     };
     let total = fit::count_rows(&files) as u64;
     let bar = ProgressBar::new(2 * total);
-    bar.set_style(ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} rows ({eta})").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} rows ({eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
     let mut engine = Interpreter::new(m).map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
     let mut progress = |pass: &'static str, done: usize| {
         bar.set_message(pass);
-        bar.set_position(if pass == "residuals" { total + done as u64 } else { done as u64 });
+        bar.set_position(if pass == "residuals" {
+            total + done as u64
+        } else {
+            done as u64
+        });
     };
-    let result = fit::fit(&compiled, &mut engine, &files, &validate, &options, &mut progress);
+    let result = fit::fit(
+        &compiled,
+        &mut engine,
+        &files,
+        &validate,
+        &options,
+        &mut progress,
+    );
     bar.finish_and_clear();
     let result = match result {
         Ok(r) => r,
-        Err(FitError::RankDeficient { rank, columns, diagnostics }) => {
+        Err(FitError::RankDeficient {
+            rank,
+            columns,
+            diagnostics,
+        }) => {
             let mut stderr = std::io::stderr().lock();
-            let _ = crate::render::human(&a.machine.display().to_string(), &source, &diagnostics, a.color, &mut stderr);
+            let _ = crate::render::human(
+                &a.machine.display().to_string(),
+                &source,
+                &diagnostics,
+                a.color,
+                &mut stderr,
+            );
             eprintln!(
                 "error: the data determine only {rank} of {columns} parameters; the combinations above are invisible to them.\n\
                  Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
@@ -122,7 +154,14 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         }
     };
     let report = report::build(m, &source, "interp", &files, &validate, &result, &options);
-    Ok(Fitted { source, compiled, files, options, result, report })
+    Ok(Fitted {
+        source,
+        compiled,
+        files,
+        options,
+        result,
+        report,
+    })
 }
 
 /// Appends this fit to the model's history and prints how it compares with the previous
@@ -130,14 +169,24 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
 /// reported but does not fail the fit.
 pub fn record(model: &Path, r: &report::FitReport) {
     let entry = history::Entry {
-        time: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0),
+        time: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0),
         model_hash: r.model_hash.clone(),
         parameters: r.coefficients.iter().filter(|c| c.kept).count(),
         rows: r.rows,
         sigma: r.sigma,
         rms: r.rms,
         error_unit: r.error_unit.clone(),
-        files: r.files.iter().map(|f| history::FileRms { path: f.path.clone(), rms: f.rms }).collect(),
+        files: r
+            .files
+            .iter()
+            .map(|f| history::FileRms {
+                path: f.path.clone(),
+                rms: f.rms,
+            })
+            .collect(),
     };
     let entries = match history::read(model) {
         Ok(e) => e,
@@ -169,7 +218,12 @@ pub fn comparison(before: &history::Entry, after: &history::Entry) -> String {
     );
     for f in &after.files {
         if let Some(b) = before.files.iter().find(|b| b.path == f.path) {
-            s.push_str(&format!("    {:<36} RMS {:.4} → {:.4} {u}\n", short(&f.path, 36), b.rms, f.rms));
+            s.push_str(&format!(
+                "    {:<36} RMS {:.4} → {:.4} {u}\n",
+                short(&f.path, 36),
+                b.rms,
+                f.rms
+            ));
         }
     }
     s
@@ -204,32 +258,63 @@ pub fn summary(r: &report::FitReport) -> String {
     let u = &r.error_unit;
     let _ = &r.tilt_unit;
     let kept = r.coefficients.iter().filter(|c| c.kept).count() + r.nuisance.len();
-    let selected = if kept < r.columns { format!(", {kept} kept by stepwise selection") } else { String::new() };
+    let selected = if kept < r.columns {
+        format!(", {kept} kept by stepwise selection")
+    } else {
+        String::new()
+    };
     s.push_str(&format!(
         "fit of `{}`: {} observations, {} parameters{selected} (rank {}, condition {:.3e}), {} degrees of freedom\n",
         r.machine, r.rows, r.columns, r.rank, r.condition, r.dof
     ));
-    s.push_str(&format!("  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n", r.sigma, r.rms, r.max, r.r2));
+    s.push_str(&format!(
+        "  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n",
+        r.sigma, r.rms, r.max, r.r2
+    ));
     s.push_str("\n  file                                   rows      RMS      max  outliers\n");
     for f in &r.files {
-        s.push_str(&format!("  {:<36} {:>6} {:>8.4} {:>8.4} {:>9}\n", short(&f.path, 36), f.rows, f.rms, f.max, f.outliers));
+        s.push_str(&format!(
+            "  {:<36} {:>6} {:>8.4} {:>8.4} {:>9}\n",
+            short(&f.path, 36),
+            f.rows,
+            f.rms,
+            f.max,
+            f.outliers
+        ));
         for c in &f.components {
-            s.push_str(&format!("    {:<34} {:>6} {:>8.4} {:>8.4}   {}\n", c.name, c.rows, c.rms, c.max, c.unit));
+            s.push_str(&format!(
+                "    {:<34} {:>6} {:>8.4} {:>8.4}   {}\n",
+                c.name, c.rows, c.rms, c.max, c.unit
+            ));
         }
     }
     for f in &r.validation {
-        s.push_str(&format!("  {:<36} {:>6} {:>8.4} {:>8.4}  (validation)\n", short(&f.path, 36), f.rows, f.rms, f.max));
+        s.push_str(&format!(
+            "  {:<36} {:>6} {:>8.4} {:>8.4}  (validation)\n",
+            short(&f.path, 36),
+            f.rows,
+            f.rms,
+            f.max
+        ));
     }
     s.push_str("\n  error component   coefficients (value ± standard error)\n");
     let mut i = 0;
     while i < r.coefficients.len() {
-        let base = r.coefficients[i].name.rsplit_once('[').map(|(b, _)| b.to_string()).unwrap_or_default();
+        let base = r.coefficients[i]
+            .name
+            .rsplit_once('[')
+            .map(|(b, _)| b.to_string())
+            .unwrap_or_default();
         let unit = r.coefficients[i].unit.clone();
         let mut parts = Vec::new();
         while i < r.coefficients.len() && r.coefficients[i].name.starts_with(&format!("{base}[")) {
             let c = &r.coefficients[i];
             // Coefficients of scaled terms carry derived units: name them where they differ.
-            let own = if c.unit == unit { String::new() } else { format!(" {}", c.unit) };
+            let own = if c.unit == unit {
+                String::new()
+            } else {
+                format!(" {}", c.unit)
+            };
             if c.kept {
                 parts.push(format!("{:.3}±{:.3}{own}", c.value, c.se));
             } else {
@@ -240,25 +325,59 @@ pub fn summary(r: &report::FitReport) -> String {
         s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
     }
     for n in &r.nonlinear {
-        s.push_str(&format!("  {:<40} {:.4} ± {:.4} {} ({})\n", n.name, n.value, n.se, n.unit, n.label));
+        s.push_str(&format!(
+            "  {:<40} {:.4} ± {:.4} {} ({})\n",
+            n.name, n.value, n.se, n.unit, n.label
+        ));
     }
     for n in &r.nuisance {
-        s.push_str(&format!("  {:<40} {:.4} ± {:.4} {}\n", n.name, n.value, n.se, n.unit));
+        s.push_str(&format!(
+            "  {:<40} {:.4} ± {:.4} {}\n",
+            n.name, n.value, n.se, n.unit
+        ));
     }
     if !r.outliers.is_empty() {
-        s.push_str(&format!("\n  {} flagged observations (|studentized| > {:.2} or Cook's distance > {:.3}):\n", r.outliers.len(), r.outlier_threshold, r.cook_threshold));
+        s.push_str(&format!(
+            "\n  {} flagged observations (|studentized| > {:.2} or Cook's distance > {:.3}):\n",
+            r.outliers.len(),
+            r.outlier_threshold,
+            r.cook_threshold
+        ));
         for o in r.outliers.iter().take(10) {
-            let path = r.files.get(o.file as usize).map(|f| f.path.as_str()).unwrap_or("?");
-            s.push_str(&format!("    {path}:{} {} residual {:.4} studentized {:.2} Cook {:.3}\n", o.line, o.component, o.residual, o.studentized, o.cook));
+            let path = r
+                .files
+                .get(o.file as usize)
+                .map(|f| f.path.as_str())
+                .unwrap_or("?");
+            s.push_str(&format!(
+                "    {path}:{} {} residual {:.4} studentized {:.2} Cook {:.3}\n",
+                o.line, o.component, o.residual, o.studentized, o.cook
+            ));
         }
     }
     if let Some(sw) = &r.stepwise {
         let removed: usize = sw.components.iter().map(|c| c.removed.len()).sum();
-        s.push_str(&format!("\n  stepwise selection (remove at p > {}): {} regressors removed\n", sw.alpha_remove, removed));
-        for c in sw.components.iter().filter(|c| !c.kept.is_empty() && !c.removed.is_empty()) {
-            s.push_str(&format!("    {:<14} kept {}\n", c.component, c.kept.join(", ")));
+        s.push_str(&format!(
+            "\n  stepwise selection (remove at p > {}): {} regressors removed\n",
+            sw.alpha_remove, removed
+        ));
+        for c in sw
+            .components
+            .iter()
+            .filter(|c| !c.kept.is_empty() && !c.removed.is_empty())
+        {
+            s.push_str(&format!(
+                "    {:<14} kept {}\n",
+                c.component,
+                c.kept.join(", ")
+            ));
         }
-        let gone: Vec<&str> = sw.components.iter().filter(|c| c.kept.is_empty()).map(|c| c.component.as_str()).collect();
+        let gone: Vec<&str> = sw
+            .components
+            .iter()
+            .filter(|c| c.kept.is_empty())
+            .map(|c| c.component.as_str())
+            .collect();
         if !gone.is_empty() {
             s.push_str(&format!("    removed entirely: {}\n", gone.join(", ")));
         }

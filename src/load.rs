@@ -35,7 +35,13 @@ fn read_text(path: &Path) -> Result<String, Failed> {
 
 fn report(path: &Path, source: &str, diagnostics: &[Diagnostic], color: bool) {
     let mut stderr = std::io::stderr().lock();
-    let _ = render::human(&path.display().to_string(), source, diagnostics, color, &mut stderr);
+    let _ = render::human(
+        &path.display().to_string(),
+        source,
+        diagnostics,
+        color,
+        &mut stderr,
+    );
 }
 
 /// Compiles a machine and binds `params` (a `params { … }` file) if given.
@@ -51,10 +57,16 @@ pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compil
         let mut text = read_text(p)?;
         // A FIT.json carries its fitted values as a `params` block.
         if text.trim_start().starts_with('{') {
-            match serde_json::from_str::<serde_json::Value>(&text).ok().and_then(|v| v.get("params")?.as_str().map(str::to_string)) {
+            match serde_json::from_str::<serde_json::Value>(&text)
+                .ok()
+                .and_then(|v| v.get("params")?.as_str().map(str::to_string))
+            {
                 Some(params) => text = params,
                 None => {
-                    eprintln!("error: `{}` is JSON but not a fit report with `params`", p.display());
+                    eprintln!(
+                        "error: `{}` is JSON but not a fit report with `params`",
+                        p.display()
+                    );
                     return Err(Failed::INPUT);
                 }
             }
@@ -74,7 +86,10 @@ pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compil
 /// Reads a measurement file (or, with `poses`, a file of poses whose observed columns may be
 /// absent).
 pub fn observations(path: &Path, compiled: &Compiled, poses: bool) -> Result<Observations, Failed> {
-    let options = ReadOptions { poses, ..ReadOptions::default() };
+    let options = ReadOptions {
+        poses,
+        ..ReadOptions::default()
+    };
     data::read_file(path, &compiled.machine, &options).map_err(|e| {
         eprintln!("error: {e}");
         match e {
@@ -87,12 +102,23 @@ pub fn observations(path: &Path, compiled: &Compiled, poses: bool) -> Result<Obs
 /// Parses `0.3um`, `0.3 um` or `2urad` into SI, checking the dimension.
 pub fn quantity(text: &str, dim: kin_compiler::units::Dim, what: &str) -> Result<f64, String> {
     let text = text.trim();
-    let split = text.find(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == '+' || c == 'e' || c == 'E')).unwrap_or(text.len());
+    let split = text
+        .find(|c: char| {
+            !(c.is_ascii_digit() || c == '.' || c == '-' || c == '+' || c == 'e' || c == 'E')
+        })
+        .unwrap_or(text.len());
     let (num, unit) = text.split_at(split);
-    let value: f64 = num.parse().map_err(|_| format!("{what}: `{text}` does not start with a number"))?;
-    let unit = kin_compiler::units::Unit::parse(unit.trim()).map_err(|e| format!("{what}: {e} in `{text}`"))?;
+    let value: f64 = num
+        .parse()
+        .map_err(|_| format!("{what}: `{text}` does not start with a number"))?;
+    let unit = kin_compiler::units::Unit::parse(unit.trim())
+        .map_err(|e| format!("{what}: {e} in `{text}`"))?;
     if unit.dim != dim {
-        return Err(format!("{what}: `{text}` is {}, expected {}", unit.dim.describe(), dim.describe()));
+        return Err(format!(
+            "{what}: `{text}` is {}, expected {}",
+            unit.dim.describe(),
+            dim.describe()
+        ));
     }
     Ok(unit.as_difference().to_si(value))
 }

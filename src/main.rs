@@ -16,7 +16,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 
 #[derive(Parser)]
-#[command(name = "kin", version, about = "Compiler and runtime for .kin models of multi-axis machine errors")]
+#[command(
+    name = "kin",
+    version,
+    about = "Compiler and runtime for .kin models of multi-axis machine errors"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -197,29 +201,61 @@ fn use_color(choice: &str) -> bool {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
-        Command::Check { file, format, color, observe, aligned, no_identify } => {
+        Command::Check {
+            file,
+            format,
+            color,
+            observe,
+            aligned,
+            no_identify,
+        } => {
             let color = use_color(&color);
             let identify = (!no_identify).then_some((observe, aligned));
             check::run(&file, format, color, identify)
         }
-        Command::Simulate { machine, params, poses, sample, output, noise, noise_tilt, seed, artifact_shift, artifact_rotation, artifact_length, components, color } => {
-            simulate::simulate(simulate::SimulateArgs {
-                machine,
-                params,
-                poses,
-                sample,
-                output,
-                noise,
-                noise_tilt,
-                seed,
-                artifact_shift,
-                artifact_rotation,
-                artifact_length,
-                components,
-                color: use_color(&color),
-            })
-        }
-        Command::Fit { machine, data, validate, output, solver, tolerance, min_norm, stepwise, enter, holdout, seed, color } => fit::run(fit::FitArgs {
+        Command::Simulate {
+            machine,
+            params,
+            poses,
+            sample,
+            output,
+            noise,
+            noise_tilt,
+            seed,
+            artifact_shift,
+            artifact_rotation,
+            artifact_length,
+            components,
+            color,
+        } => simulate::simulate(simulate::SimulateArgs {
+            machine,
+            params,
+            poses,
+            sample,
+            output,
+            noise,
+            noise_tilt,
+            seed,
+            artifact_shift,
+            artifact_rotation,
+            artifact_length,
+            components,
+            color: use_color(&color),
+        }),
+        Command::Fit {
+            machine,
+            data,
+            validate,
+            output,
+            solver,
+            tolerance,
+            min_norm,
+            stepwise,
+            enter,
+            holdout,
+            seed,
+            color,
+        } => fit::run(fit::FitArgs {
             machine,
             data,
             validate,
@@ -234,7 +270,14 @@ fn main() -> ExitCode {
             color: use_color(&color),
         }),
         Command::Demo { dir, rounds, color } => demo::run(dir, rounds, use_color(&color)),
-        Command::Diagnose { machine, data, alpha, output, apply, color } => diagnose::run(diagnose::DiagnoseArgs {
+        Command::Diagnose {
+            machine,
+            data,
+            alpha,
+            output,
+            apply,
+            color,
+        } => diagnose::run(diagnose::DiagnoseArgs {
             fit: fit::FitArgs {
                 machine,
                 data,
@@ -253,9 +296,35 @@ fn main() -> ExitCode {
             output,
             apply,
         }),
-        Command::Eval { machine, poses, params, output, components, color } => {
-            simulate::eval(&machine, params.as_deref(), &poses, output.as_deref(), components, use_color(&color))
-        }
-        Command::Report { machine, fit, diagnose, data, output, color } => report::run(report::ReportArgs { machine, fit, diagnose, data, output, color: use_color(&color) }),
+        Command::Eval {
+            machine,
+            poses,
+            params,
+            output,
+            components,
+            color,
+        } => simulate::eval(
+            &machine,
+            params.as_deref(),
+            &poses,
+            output.as_deref(),
+            components,
+            use_color(&color),
+        ),
+        Command::Report {
+            machine,
+            fit,
+            diagnose,
+            data,
+            output,
+            color,
+        } => report::run(report::ReportArgs {
+            machine,
+            fit,
+            diagnose,
+            data,
+            output,
+            color: use_color(&color),
+        }),
     }
 }

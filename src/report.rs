@@ -27,11 +27,21 @@ use plot::{Chart, Series};
 #[derive(Debug, Error)]
 pub enum ReportError {
     #[error("cannot read `{path}`: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("`{path}` is not a {what}: {source}")]
-    Json { path: PathBuf, what: &'static str, source: serde_json::Error },
+    Json {
+        path: PathBuf,
+        what: &'static str,
+        source: serde_json::Error,
+    },
     #[error("cannot write `{path}`: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error(transparent)]
     Plot(#[from] plot::PlotError),
 }
@@ -64,16 +74,115 @@ fn fail(e: ReportError) -> Failed {
     e.exit_code()
 }
 
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path, what: &'static str) -> Result<T, ReportError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ReportError::Read { path: path.to_path_buf(), source })?;
-    serde_json::from_str(&text).map_err(|source| ReportError::Json { path: path.to_path_buf(), what, source })
+fn read_json<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    what: &'static str,
+) -> Result<T, ReportError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ReportError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    serde_json::from_str(&text).map_err(|source| ReportError::Json {
+        path: path.to_path_buf(),
+        what,
+        source,
+    })
+}
+
+/// Stands in for a number JSON could not hold; no fitted quantity comes near it.
+const MISSING: f64 = f64::MAX;
+
+/// Reads FIT.json. serde_json writes a NaN (an unknown standard error, say) as `null` but will
+/// not read `null` back as an `f64`, so such nulls are read as [`MISSING`] and turned back into
+/// NaN, which the page shows as a dash.
+fn read_fit(path: &Path) -> Result<FitReport, ReportError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ReportError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let json = |source| ReportError::Json {
+        path: path.to_path_buf(),
+        what: "fit report (FIT.json)",
+        source,
+    };
+    match serde_json::from_str(&text) {
+        Ok(r) => Ok(r),
+        Err(first) => {
+            let mut v: serde_json::Value = serde_json::from_str(&text).map_err(json)?;
+            fill_nulls(&mut v, None);
+            let mut r: FitReport = serde_json::from_value(v).map_err(|_| json(first))?;
+            let nan = |x: &mut f64| {
+                if *x == MISSING {
+                    *x = f64::NAN;
+                }
+            };
+            for e in r
+                .coefficients
+                .iter_mut()
+                .chain(r.nonlinear.iter_mut())
+                .chain(r.nuisance.iter_mut())
+            {
+                nan(&mut e.value);
+                nan(&mut e.se);
+            }
+            for x in [
+                &mut r.sigma,
+                &mut r.rms,
+                &mut r.max,
+                &mut r.r2,
+                &mut r.condition,
+                &mut r.tolerance,
+                &mut r.outlier_threshold,
+                &mut r.cook_threshold,
+            ] {
+                nan(x);
+            }
+            r.covariance.iter_mut().for_each(nan);
+            for res in r
+                .residuals
+                .iter_mut()
+                .chain(r.outliers.iter_mut())
+                .chain(r.validation_residuals.iter_mut())
+            {
+                for x in [
+                    &mut res.observed,
+                    &mut res.residual,
+                    &mut res.studentized,
+                    &mut res.leverage,
+                    &mut res.cook,
+                ] {
+                    nan(x);
+                }
+            }
+            Ok(r)
+        }
+    }
+}
+
+/// Replaces nulls by [`MISSING`], except where null means "absent" (`stepwise`, `alpha_enter`).
+fn fill_nulls(v: &mut serde_json::Value, key: Option<&str>) {
+    match v {
+        serde_json::Value::Null if !matches!(key, Some("stepwise" | "alpha_enter")) => {
+            if let Some(n) = serde_json::Number::from_f64(MISSING) {
+                *v = serde_json::Value::Number(n);
+            }
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(|x| fill_nulls(x, key)),
+        serde_json::Value::Object(o) => o.iter_mut().for_each(|(k, x)| fill_nulls(x, Some(k))),
+        _ => {}
+    }
 }
 
 pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
-    let source = std::fs::read_to_string(&a.machine).map_err(|source| fail(ReportError::Read { path: a.machine.clone(), source }))?;
+    let source = std::fs::read_to_string(&a.machine).map_err(|source| {
+        fail(ReportError::Read {
+            path: a.machine.clone(),
+            source,
+        })
+    })?;
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
-    let fit: FitReport = read_json(&a.fit, "fit report (FIT.json)").map_err(fail)?;
+    let fit: FitReport = read_fit(&a.fit).map_err(fail)?;
     let diagnosis: Option<Diagnosis> = match &a.diagnose {
         Some(p) => Some(read_json(p, "diagnosis (DIAGNOSE.json)").map_err(fail)?),
         None => None,
@@ -111,7 +220,12 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
         notes,
     };
     let page = html(&inputs).map_err(fail)?;
-    std::fs::write(&a.output, page).map_err(|source| fail(ReportError::Write { path: a.output.clone(), source }))?;
+    std::fs::write(&a.output, page).map_err(|source| {
+        fail(ReportError::Write {
+            path: a.output.clone(),
+            source,
+        })
+    })?;
     println!("wrote {}", a.output.display());
     Ok(())
 }
@@ -119,9 +233,19 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
 /// The fitted files, indexed like `fit.files`: from the command line, else from the paths the
 /// fit recorded (as given, then relative to FIT.json). A file that cannot be read only costs
 /// its residual plots, with a note saying why.
-fn load_data(m: &Machine, fit: &FitReport, fit_path: &Path, given: &[PathBuf], notes: &mut Vec<String>) -> Vec<Option<Observations>> {
+fn load_data(
+    m: &Machine,
+    fit: &FitReport,
+    fit_path: &Path,
+    given: &[PathBuf],
+    notes: &mut Vec<String>,
+) -> Vec<Option<Observations>> {
     if !given.is_empty() && given.len() != fit.files.len() {
-        notes.push(format!("{} data files were given but the fit used {}; they are matched in order.", given.len(), fit.files.len()));
+        notes.push(format!(
+            "{} data files were given but the fit used {}; they are matched in order.",
+            given.len(),
+            fit.files.len()
+        ));
     }
     let base = fit_path.parent().unwrap_or(Path::new("."));
     fit.files
@@ -140,7 +264,11 @@ fn load_data(m: &Machine, fit: &FitReport, fit_path: &Path, given: &[PathBuf], n
                     Err(e) => last = Some(e.to_string()),
                 }
             }
-            notes.push(format!("no positions for the residuals of `{}`: {}", f.path, last.unwrap_or_else(|| "no data file given for it".into())));
+            notes.push(format!(
+                "no positions for the residuals of `{}`: {}",
+                f.path,
+                last.unwrap_or_else(|| "no data file given for it".into())
+            ));
             None
         })
         .collect()
@@ -180,13 +308,12 @@ table{border-collapse:collapse;font-size:13.5px;margin:8px 0 14px;font-variant-n
 th,td{padding:5px 10px;border-bottom:1px solid #e6e8ec;text-align:right;vertical-align:top}
 th{background:#f2f4f7;font-weight:600;white-space:nowrap}
 td.l,th.l{text-align:left}
-td.nw{white-space:nowrap}
+td:not(.l),td.nw{white-space:nowrap}
 tr.current td{background:#eef6fc;font-weight:600}
 code{font-family:ui-monospace,SFMono-Regular,Menlo,Consolas,monospace;font-size:12.5px;background:#f2f4f7;padding:1px 5px;border-radius:3px;white-space:pre-wrap}
 .why{display:block;color:#5b6475;font-size:12.5px;margin-top:3px}
 .sig{color:#b42318;font-weight:700}
-.grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(360px,1fr));gap:12px}
-.wide{display:grid;grid-template-columns:repeat(auto-fill,minmax(560px,1fr));gap:12px}
+.grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(360px,1fr));gap:12px;align-items:start}
 figure{margin:0;border:1px solid #e2e5ea;border-radius:6px;padding:4px;background:#fff}
 figure svg{display:block;width:100%;height:auto}
 .legend{font-size:13px;color:#394150;margin:4px 0 8px}
@@ -252,27 +379,65 @@ fn summary(s: &mut String, inp: &Inputs) {
     s.push_str("<section id=\"summary\">\n<h2>Summary</h2>\n<div class=\"cards\">\n");
     let kept = f.coefficients.iter().filter(|c| c.kept).count() + f.nuisance.len();
     let cards = [
-        (format!("{} {u}", num(f.sigma, 4)), "σ̂, noise estimate".to_string()),
+        (
+            format!("{} {u}", num(f.sigma, 4)),
+            "σ̂, noise estimate".to_string(),
+        ),
         (format!("{} {u}", num(f.rms, 4)), "residual RMS".to_string()),
-        (format!("{} {u}", num(f.max, 4)), "largest |residual|".to_string()),
+        (
+            format!("{} {u}", num(f.max, 4)),
+            "largest |residual|".to_string(),
+        ),
         (num(f.r2, 6), "R², variance explained".to_string()),
         (format!("{}", f.rows), "observations".to_string()),
-        (format!("{kept} / {}", f.columns), "parameters kept / fitted".to_string()),
-        (format!("{}", f.rank), format!("rank (condition {})", num(f.condition, 3))),
+        (
+            format!("{kept} / {}", f.columns),
+            "parameters kept / fitted".to_string(),
+        ),
+        (
+            format!("{}", f.rank),
+            format!("rank (condition {})", num(f.condition, 3)),
+        ),
         (format!("{}", f.dof), "degrees of freedom".to_string()),
     ];
     for (v, k) in cards {
-        let _ = writeln!(s, "<div class=\"card\"><div class=\"v\">{v}</div><div class=\"k\">{}</div></div>", esc(&k));
+        let _ = writeln!(
+            s,
+            "<div class=\"card\"><div class=\"v\">{v}</div><div class=\"k\">{}</div></div>",
+            esc(&k)
+        );
     }
     s.push_str("</div>\n");
-    let rotations = f.files.iter().flat_map(|x| &x.components).any(|c| c.name.starts_with("er"));
+    let rotations = f
+        .files
+        .iter()
+        .flat_map(|x| &x.components)
+        .any(|c| c.name.starts_with("er"));
     if rotations && f.tilt_unit != f.error_unit {
         let _ = writeln!(s, "<p class=\"note\">Rotation residuals are in {}; one {} counts as one {} in σ̂ and the RMS.</p>", esc(&f.tilt_unit), esc(&f.tilt_unit), u);
     }
-    s.push_str("<table>\n<tr><th class=\"l\">file</th><th class=\"l\">kind</th><th>rows</th><th>RMS</th><th>max</th><th>outliers</th><th class=\"l\">per component: RMS (max)</th></tr>\n");
-    let rows = f.files.iter().map(|x| (x, "")).chain(f.validation.iter().map(|x| (x, " (validation)")));
+    s.push_str(
+        "<table>\n<tr><th class=\"l\">file</th><th class=\"l\">kind</th><th>rows</th><th>RMS</th><th>max</th><th>outliers</th><th class=\"l\">per component: RMS (max)</th></tr>\n",
+    );
+    let rows = f
+        .files
+        .iter()
+        .map(|x| (x, ""))
+        .chain(f.validation.iter().map(|x| (x, " (validation)")));
     for (file, tag) in rows {
-        let comps: Vec<String> = file.components.iter().map(|c| format!("{} {} ({}) {}", esc(&c.name), num(c.rms, 3), num(c.max, 3), esc(&c.unit))).collect();
+        let comps: Vec<String> = file
+            .components
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} {} ({}) {}",
+                    esc(&c.name),
+                    num(c.rms, 3),
+                    num(c.max, 3),
+                    esc(&c.unit)
+                )
+            })
+            .collect();
         let _ = writeln!(
             s,
             "<tr><td class=\"l\"><code>{}</code>{tag}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td class=\"l\">{}</td></tr>",
@@ -298,7 +463,11 @@ fn summary(s: &mut String, inp: &Inputs) {
         out.sort_by(|a, b| b.studentized.abs().total_cmp(&a.studentized.abs()));
         s.push_str("<table>\n<tr><th class=\"l\">file:line</th><th class=\"l\">component</th><th>residual</th><th>studentized</th><th>leverage</th><th>Cook</th></tr>\n");
         for r in out.iter().take(20) {
-            let path = f.files.get(r.file as usize).map(|x| x.path.as_str()).unwrap_or("?");
+            let path = f
+                .files
+                .get(r.file as usize)
+                .map(|x| x.path.as_str())
+                .unwrap_or("?");
             let _ = writeln!(
                 s,
                 "<tr><td class=\"l\"><code>{}:{}</code></td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
@@ -328,9 +497,22 @@ const MAX_MARKERS: usize = 5000;
 fn positions(obs: &Observations, row: usize, axes: usize) -> Vec<f64> {
     (0..axes)
         .map(|a| match obs {
-            Observations::Points(p) => p.pose.axes.get(a).and_then(|c| c.get(row)).copied().unwrap_or(f64::NAN),
+            Observations::Points(p) => p
+                .pose
+                .axes
+                .get(a)
+                .and_then(|c| c.get(row))
+                .copied()
+                .unwrap_or(f64::NAN),
             Observations::Lengths(l) => {
-                let end = |e: usize| l.poses.get(e).and_then(|p| p.axes.get(a)).and_then(|c| c.get(row)).copied().unwrap_or(f64::NAN);
+                let end = |e: usize| {
+                    l.poses
+                        .get(e)
+                        .and_then(|p| p.axes.get(a))
+                        .and_then(|c| c.get(row))
+                        .copied()
+                        .unwrap_or(f64::NAN)
+                };
                 0.5 * (end(0) + end(1))
             }
         })
@@ -342,23 +524,49 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     let f = inp.fit;
     s.push_str("<section id=\"residuals\">\n<h2>Residuals along each axis</h2>\n");
     if f.residuals.is_empty() {
-        let _ = writeln!(s, "<p class=\"note\">FIT.json holds no per-row residuals ({} rows were left out for size); the summary above still holds.</p>\n</section>", f.residuals_omitted);
+        let _ = writeln!(
+            s,
+            "<p class=\"note\">FIT.json holds no per-row residuals ({} rows were left out for size); the summary above still holds.</p>\n</section>",
+            f.residuals_omitted
+        );
         return Ok(());
     }
     // Row of each source line, per file.
-    let lines: Vec<Option<HashMap<usize, usize>>> = inp.data.iter().map(|d| d.as_ref().map(|o| o.rows().line.iter().enumerate().map(|(r, &l)| (l, r)).collect())).collect();
+    let lines: Vec<Option<HashMap<usize, usize>>> = inp
+        .data
+        .iter()
+        .map(|d| {
+            d.as_ref().map(|o| {
+                o.rows()
+                    .line
+                    .iter()
+                    .enumerate()
+                    .map(|(r, &l)| (l, r))
+                    .collect()
+            })
+        })
+        .collect();
     let mut by_component: BTreeMap<usize, Vec<(Vec<f64>, f64, bool)>> = BTreeMap::new();
     let mut unplaced = 0usize;
     for r in &f.residuals {
-        let Some(c) = COMPONENTS.iter().position(|c| *c == r.component) else { continue };
+        let Some(c) = COMPONENTS.iter().position(|c| *c == r.component) else {
+            continue;
+        };
         let obs = inp.data.get(r.file as usize).and_then(|d| d.as_ref());
-        let row = lines.get(r.file as usize).and_then(|l| l.as_ref()).and_then(|l| l.get(&(r.line as usize)));
+        let row = lines
+            .get(r.file as usize)
+            .and_then(|l| l.as_ref())
+            .and_then(|l| l.get(&(r.line as usize)));
         let (Some(obs), Some(&row)) = (obs, row) else {
             unplaced += 1;
             continue;
         };
         let outlier = r.studentized.abs() > f.outlier_threshold || r.cook > f.cook_threshold;
-        by_component.entry(c).or_default().push((positions(obs, row, m.axes.len()), r.residual, outlier));
+        by_component.entry(c).or_default().push((
+            positions(obs, row, m.axes.len()),
+            r.residual,
+            outlier,
+        ));
     }
     let band = 3.0 * f.sigma;
     let _ = writeln!(
@@ -368,10 +576,17 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
         esc(&f.error_unit),
         if f.files.iter().any(|x| x.kind == "lengths") { " A length's residual is placed at the midpoint of its two ends." } else { "" }
     );
-    let mut items = vec![Key::dot(plot::BLUE, "residual"), Key::dot(plot::RED, "outlier"), Key::area(plot::GREEN, "±3σ̂")];
+    let mut items = vec![
+        Key::dot(plot::BLUE, "residual"),
+        Key::dot(plot::RED, "outlier"),
+        Key::area(plot::GREEN, "±3σ̂"),
+    ];
     if inp.diagnosis.is_some_and(|d| !d.bins.is_empty()) {
         items.push(Key::line(plot::ORANGE, "binned RMS (±)"));
-        items.push(Key::dashed(plot::PURPLE, "allowed RMS (±), noise and model uncertainty"));
+        items.push(Key::dashed(
+            plot::PURPLE,
+            "allowed RMS (±), noise and model uncertainty",
+        ));
     }
     let _ = writeln!(s, "<div class=\"legend\">{}</div>", keys(&items));
     if unplaced > 0 {
@@ -379,25 +594,62 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     }
     for (c, points) in &by_component {
         let name = COMPONENTS.get(*c).copied().unwrap_or("?");
-        let unit = if (3..6).contains(c) { &f.tilt_unit } else { &f.error_unit };
+        let unit = if (3..6).contains(c) {
+            &f.tilt_unit
+        } else {
+            &f.error_unit
+        };
         let shown = thin(points);
         let _ = writeln!(
             s,
             "<h3>{} <span class=\"note\">({} rows{})</span></h3>\n<div class=\"grid\">",
             esc(&component_title(name)),
             points.len(),
-            if shown.len() < points.len() { format!(", {} shown", shown.len()) } else { String::new() }
+            if shown.len() < points.len() {
+                format!(", {} shown", shown.len())
+            } else {
+                String::new()
+            }
         );
         for (a, axis) in m.axes.iter().enumerate() {
             let xu = curves::var_unit(m, Var::Axis(a));
-            let mut chart = Chart::new(format!("{name} along {}", axis.name), format!("{} [{}]", axis.name, xu.name), format!("{name} residual [{unit}]"), (420, 290));
+            let mut chart = Chart::new(
+                format!("{name} along {}", axis.name),
+                format!("{} [{}]", axis.name, xu.name),
+                format!("{name} residual [{unit}]"),
+                (420, 290),
+            );
             chart.y_symmetric = true;
-            chart.series.push(Series::HBand { lo: -band, hi: band, color: plot::GREEN, opacity: 0.13 });
-            let to_x = |p: &(Vec<f64>, f64, bool)| xu.from_si(p.0.get(a).copied().unwrap_or(f64::NAN));
-            let normal: Vec<(f64, f64)> = shown.iter().filter(|p| !p.2).map(|p| (to_x(p), p.1)).collect();
-            let outliers: Vec<(f64, f64)> = shown.iter().filter(|p| p.2).map(|p| (to_x(p), p.1)).collect();
-            chart.series.push(Series::Points { points: normal, color: plot::BLUE, radius: 2, opacity: 0.5 });
-            chart.series.push(Series::Points { points: outliers, color: plot::RED, radius: 3, opacity: 0.95 });
+            chart.series.push(Series::HBand {
+                lo: -band,
+                hi: band,
+                color: plot::GREEN,
+                opacity: 0.13,
+            });
+            let to_x =
+                |p: &(Vec<f64>, f64, bool)| xu.from_si(p.0.get(a).copied().unwrap_or(f64::NAN));
+            let normal: Vec<(f64, f64)> = shown
+                .iter()
+                .filter(|p| !p.2)
+                .map(|p| (to_x(p), p.1))
+                .collect();
+            let outliers: Vec<(f64, f64)> = shown
+                .iter()
+                .filter(|p| p.2)
+                .map(|p| (to_x(p), p.1))
+                .collect();
+            chart.series.push(Series::Points {
+                points: normal,
+                color: plot::BLUE,
+                radius: 2,
+                opacity: 0.5,
+            });
+            chart.series.push(Series::Points {
+                points: outliers,
+                color: plot::RED,
+                radius: 3,
+                opacity: 0.95,
+            });
             if let Some(d) = inp.diagnosis {
                 bins_overlay(&mut chart, d, name, &axis.name);
             }
@@ -412,13 +664,22 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
 /// Every k-th point so at most [`MAX_MARKERS`] remain, plus every outlier.
 fn thin(points: &[(Vec<f64>, f64, bool)]) -> Vec<&(Vec<f64>, f64, bool)> {
     let step = points.len().div_ceil(MAX_MARKERS).max(1);
-    points.iter().enumerate().filter(|(i, p)| p.2 || i % step == 0).map(|(_, p)| p).collect()
+    points
+        .iter()
+        .enumerate()
+        .filter(|(i, p)| p.2 || i % step == 0)
+        .map(|(_, p)| p)
+        .collect()
 }
 
 /// The diagnosis's binned residual RMS and what the noise and the model's uncertainty allow,
 /// as step lines (±) over the residuals of the same component and variable.
 fn bins_overlay(chart: &mut Chart, d: &Diagnosis, component: &str, variable: &str) {
-    let mut bins: Vec<_> = d.bins.iter().filter(|b| b.component == component && b.variable == variable && b.rows > 0).collect();
+    let mut bins: Vec<_> = d
+        .bins
+        .iter()
+        .filter(|b| b.component == component && b.variable == variable && b.rows > 0)
+        .collect();
     if bins.is_empty() {
         return;
     }
@@ -432,8 +693,18 @@ fn bins_overlay(chart: &mut Chart, d: &Diagnosis, component: &str, variable: &st
         pts
     };
     for sign in [1.0, -1.0] {
-        chart.series.push(Series::Line { points: steps(&|b| b.allowed, sign), color: plot::PURPLE, width: 1, dashed: true });
-        chart.series.push(Series::Line { points: steps(&|b| b.rms, sign), color: plot::ORANGE, width: 2, dashed: false });
+        chart.series.push(Series::Line {
+            points: steps(&|b| b.allowed, sign),
+            color: plot::PURPLE,
+            width: 1,
+            dashed: true,
+        });
+        chart.series.push(Series::Line {
+            points: steps(&|b| b.rms, sign),
+            color: plot::ORANGE,
+            width: 2,
+            dashed: false,
+        });
     }
 }
 
@@ -455,17 +726,43 @@ fn spectrum(s: &mut String, d: &Diagnosis) -> Result<(), ReportError> {
     }
     s.push_str("<p>Lomb–Scargle periodogram of the residuals along each axis (the sampling need not be uniform). A peak that stands out names the wavelength of a periodic error the model lacks — a leadscrew pitch, a scale period. The false-alarm probability says how likely so high a peak is from noise alone.</p>\n<div class=\"grid\">\n");
     for sp in &d.spectra {
-        let peak = sp.power.iter().enumerate().filter(|(_, p)| p.is_finite()).max_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i);
-        let mut chart = Chart::new(format!("{} along {}", sp.component, sp.variable), format!("wavelength [{}] (log scale)", sp.unit), "normalised power", (420, 290));
+        let peak = sp
+            .power
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.is_finite())
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(i, _)| i);
+        let mut chart = Chart::new(
+            format!("{} along {}", sp.component, sp.variable),
+            format!("wavelength [{}] (log scale)", sp.unit),
+            "normalised power",
+            (420, 290),
+        );
         chart.x_log = true;
         chart.y_zero = true;
-        let pts: Vec<(f64, f64)> = sp.wavelengths.iter().copied().zip(sp.power.iter().copied()).collect();
-        chart.series.push(Series::Line { points: pts, color: plot::BLUE, width: 1, dashed: false });
+        let pts: Vec<(f64, f64)> = sp
+            .wavelengths
+            .iter()
+            .copied()
+            .zip(sp.power.iter().copied())
+            .collect();
+        chart.series.push(Series::Line {
+            points: pts,
+            color: plot::BLUE,
+            width: 1,
+            dashed: false,
+        });
         // The peak is named under the plot, not on it: a label at the plot's edge would be cut.
         let mut caption = String::new();
         if let Some(i) = peak {
             if let (Some(&w), Some(&p)) = (sp.wavelengths.get(i), sp.power.get(i)) {
-                chart.series.push(Series::Points { points: vec![(w, p)], color: plot::RED, radius: 4, opacity: 1.0 });
+                chart.series.push(Series::Points {
+                    points: vec![(w, p)],
+                    color: plot::RED,
+                    radius: 4,
+                    opacity: 1.0,
+                });
                 caption = format!(
                     "<figcaption>{}highest peak at λ = {} {}, false-alarm probability {}</figcaption>",
                     keys(&[Key::dot(plot::RED, "")]),
@@ -496,13 +793,22 @@ fn family(f: Family) -> &'static str {
 }
 
 fn candidates(s: &mut String, d: &Diagnosis) {
-    s.push_str("<section id=\"candidates\">\n<h2>Where the model fails, and what is missing</h2>\n");
+    s.push_str(
+        "<section id=\"candidates\">\n<h2>Where the model fails, and what is missing</h2>\n",
+    );
     if d.regions.is_empty() {
         s.push_str("<div class=\"ok\">No region of the workspace has residuals larger than the noise allows.</div>\n");
     } else {
         s.push_str("<ul>\n");
         for r in &d.regions {
-            let _ = writeln!(s, "<li>{} <span class=\"note\">(RMS {}× σ̂ over {} rows, p = {})</span></li>", esc(&r.text), num(r.ratio, 3), r.rows, pval(r.p));
+            let _ = writeln!(
+                s,
+                "<li>{} <span class=\"note\">(RMS {}× σ̂ over {} rows, p = {})</span></li>",
+                esc(&r.text),
+                num(r.ratio, 3),
+                r.rows,
+                pval(r.p)
+            );
         }
         s.push_str("</ul>\n");
     }
@@ -520,8 +826,15 @@ fn candidates(s: &mut String, d: &Diagnosis) {
         return;
     }
     let u = esc(&d.error_unit);
-    let _ = writeln!(s, "<table>\n<tr><th>rank</th><th class=\"l\">family</th><th class=\"l\">target</th><th class=\"l\">add to the model</th><th>explained</th><th>F</th><th>p</th><th>adjusted p</th><th class=\"l\">significant</th><th>RMS after [{u}]</th></tr>");
+    let header = format!("<table>\n<tr><th>rank</th><th class=\"l\">family</th><th class=\"l\">target</th><th class=\"l\">add to the model</th><th>explained</th><th>F</th><th>p</th><th>adjusted p</th><th class=\"l\">significant</th><th>RMS after [{u}]</th></tr>\n");
+    // Every significant candidate and the strongest others up front; a long tail of
+    // insignificant ones would bury them, so it is folded away.
+    let shown = significant.max(SHOWN_CANDIDATES).min(d.findings.len());
+    s.push_str(&header);
     for (i, f) in d.findings.iter().enumerate() {
+        if i == shown {
+            let _ = write!(s, "</table>\n<details>\n<summary>{} more candidates, none significant</summary>\n{header}", d.findings.len() - shown);
+        }
         let c = &f.candidate;
         let _ = writeln!(
             s,
@@ -539,8 +852,15 @@ fn candidates(s: &mut String, d: &Diagnosis) {
             num(f.rms_after, 4)
         );
     }
-    s.push_str("</table>\n</section>\n");
+    s.push_str("</table>\n");
+    if d.findings.len() > shown {
+        s.push_str("</details>\n");
+    }
+    s.push_str("</section>\n");
 }
+
+/// Candidates listed before the rest is folded away (all significant ones are always listed).
+const SHOWN_CANDIDATES: usize = 8;
 
 /// The fits of the model's history, one per revision: consecutive fits of one revision show
 /// as the last of them.
@@ -562,16 +882,51 @@ fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
         let _ = writeln!(s, "<p class=\"note\">No history yet: <code>kin fit</code> records each fit in <code>{}</code>.</p>\n</section>", esc(&inp.history_path));
         return Ok(());
     }
-    let u = revs.last().map(|e| e.error_unit.clone()).unwrap_or_else(|| inp.fit.error_unit.clone());
-    let _ = writeln!(s, "<p>Residual RMS and σ̂ of the last fit of each revision of the model (from <code>{}</code>). Adding the effect the data show makes the error fall towards the noise.</p>", esc(&inp.history_path));
-    let mut chart = Chart::new("Residual RMS per model revision", "revision", format!("RMS, σ̂ [{u}]"), (760, 320));
+    let u = revs
+        .last()
+        .map(|e| e.error_unit.clone())
+        .unwrap_or_else(|| inp.fit.error_unit.clone());
+    let _ = writeln!(
+        s,
+        "<p>Residual RMS and σ̂ of the last fit of each revision of the model (from <code>{}</code>). Adding the effect the data show makes the error fall towards the noise.</p>",
+        esc(&inp.history_path)
+    );
+    let mut chart = Chart::new(
+        "Residual RMS per model revision",
+        "revision",
+        format!("RMS, σ̂ [{u}]"),
+        (760, 320),
+    );
     chart.x_integer = true;
     chart.y_zero = true;
-    let at = |f: &dyn Fn(&Entry) -> f64| -> Vec<(f64, f64)> { revs.iter().enumerate().map(|(i, e)| ((i + 1) as f64, f(e))).collect() };
-    let mut items = vec![Key::line(plot::BLUE, "RMS, all files"), Key::dashed(plot::ORANGE, "σ̂")];
-    chart.series.push(Series::Line { points: at(&|e| e.rms), color: plot::BLUE, width: 3, dashed: false });
-    chart.series.push(Series::Points { points: at(&|e| e.rms), color: plot::BLUE, radius: 4, opacity: 1.0 });
-    chart.series.push(Series::Line { points: at(&|e| e.sigma), color: plot::ORANGE, width: 2, dashed: true });
+    let at = |f: &dyn Fn(&Entry) -> f64| -> Vec<(f64, f64)> {
+        revs.iter()
+            .enumerate()
+            .map(|(i, e)| ((i + 1) as f64, f(e)))
+            .collect()
+    };
+    let mut items = vec![
+        Key::line(plot::BLUE, "RMS, all files"),
+        Key::dashed(plot::ORANGE, "σ̂"),
+    ];
+    chart.series.push(Series::Line {
+        points: at(&|e| e.rms),
+        color: plot::BLUE,
+        width: 3,
+        dashed: false,
+    });
+    chart.series.push(Series::Points {
+        points: at(&|e| e.rms),
+        color: plot::BLUE,
+        radius: 4,
+        opacity: 1.0,
+    });
+    chart.series.push(Series::Line {
+        points: at(&|e| e.sigma),
+        color: plot::ORANGE,
+        width: 2,
+        dashed: true,
+    });
     let mut paths: Vec<&str> = Vec::new();
     for e in &revs {
         for f in &e.files {
@@ -582,17 +937,42 @@ fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     }
     if paths.len() > 1 {
         for (k, p) in paths.iter().enumerate() {
-            let pts: Vec<(f64, f64)> = revs.iter().enumerate().map(|(i, e)| ((i + 1) as f64, e.files.iter().find(|f| f.path == *p).map(|f| f.rms).unwrap_or(f64::NAN))).collect();
+            let pts: Vec<(f64, f64)> = revs
+                .iter()
+                .enumerate()
+                .map(|(i, e)| {
+                    (
+                        (i + 1) as f64,
+                        e.files
+                            .iter()
+                            .find(|f| f.path == *p)
+                            .map(|f| f.rms)
+                            .unwrap_or(f64::NAN),
+                    )
+                })
+                .collect();
             let color = plot::PALETTE.get(2 + k % 4).copied().unwrap_or(plot::GREY);
-            chart.series.push(Series::Line { points: pts, color, width: 1, dashed: false });
+            chart.series.push(Series::Line {
+                points: pts,
+                color,
+                width: 1,
+                dashed: false,
+            });
             items.push(Key::line(color, &short(p, 40)));
         }
     }
-    let _ = writeln!(s, "<figure style=\"max-width:780px\">{}<figcaption>{}</figcaption></figure>", chart.svg()?, keys(&items));
+    let _ = writeln!(
+        s,
+        "<figure style=\"max-width:780px\">{}<figcaption>{}</figcaption></figure>",
+        chart.svg()?,
+        keys(&items)
+    );
     let _ = writeln!(s, "<table>\n<tr><th>revision</th><th class=\"l\">fitted (UTC)</th><th class=\"l\">model hash</th><th>parameters</th><th>rows</th><th>σ̂ [{u}]</th><th>RMS [{u}]</th><th>change</th></tr>", u = esc(&u));
     let mut before: Option<f64> = None;
     for (i, e) in revs.iter().enumerate() {
-        let change = before.map(|b| format!("{:+.1} %", 100.0 * (e.rms - b) / b.max(f64::MIN_POSITIVE))).unwrap_or_else(|| "—".into());
+        let change = before
+            .map(|b| format!("{:+.1} %", 100.0 * (e.rms - b) / b.max(f64::MIN_POSITIVE)))
+            .unwrap_or_else(|| "—".into());
         let _ = writeln!(
             s,
             "<tr{}><td>{}</td><td class=\"l\">{}</td><td class=\"l\"><code>{}</code></td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
@@ -643,7 +1023,11 @@ fn curves_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     let c: Curves = match curves::curves(m, inp.fit, &data_ranges(inp)) {
         Ok(c) => c,
         Err(e) => {
-            let _ = writeln!(s, "<div class=\"warn\">The parametric errors cannot be drawn: {}</div>\n</section>", esc(&e.to_string()));
+            let _ = writeln!(
+                s,
+                "<div class=\"warn\">The parametric errors cannot be drawn: {}</div>\n</section>",
+                esc(&e.to_string())
+            );
             return Ok(());
         }
     };
@@ -658,28 +1042,78 @@ fn curves_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
         keys(&[Key::line(plot::BLUE, "fitted error"), Key::area(plot::BLUE, "≈ 95 % confidence band")])
     );
     for cv in &c.curves {
-        let mut chart = Chart::new(cv.target.clone(), format!("{} [{}]", cv.variable, cv.x_unit), format!("{} [{}]", cv.target, cv.y_unit), (420, 290));
-        let color = |k: usize| plot::PALETTE.get(k % plot::PALETTE.len()).copied().unwrap_or(plot::BLUE);
+        let mut chart = Chart::new(
+            cv.target.clone(),
+            format!("{} [{}]", cv.variable, cv.x_unit),
+            format!("{} [{}]", cv.target, cv.y_unit),
+            (420, 290),
+        );
+        let color = |k: usize| {
+            plot::PALETTE
+                .get(k % plot::PALETTE.len())
+                .copied()
+                .unwrap_or(plot::BLUE)
+        };
         for (k, line) in cv.lines.iter().enumerate() {
-            let lower: Vec<f64> = line.value.iter().zip(&line.band).map(|(v, b)| v - b).collect();
-            let upper: Vec<f64> = line.value.iter().zip(&line.band).map(|(v, b)| v + b).collect();
+            let lower: Vec<f64> = line
+                .value
+                .iter()
+                .zip(&line.band)
+                .map(|(v, b)| v - b)
+                .collect();
+            let upper: Vec<f64> = line
+                .value
+                .iter()
+                .zip(&line.band)
+                .map(|(v, b)| v + b)
+                .collect();
             let opacity = if cv.lines.len() > 1 { 0.14 } else { 0.22 };
-            chart.series.push(Series::Band { x: cv.x.clone(), lower, upper, color: color(k), opacity });
+            chart.series.push(Series::Band {
+                x: cv.x.clone(),
+                lower,
+                upper,
+                color: color(k),
+                opacity,
+            });
         }
         let mut items = Vec::new();
         for (k, line) in cv.lines.iter().enumerate() {
-            chart.series.push(Series::Line { points: cv.x.iter().copied().zip(line.value.iter().copied()).collect(), color: color(k), width: 2, dashed: false });
-            items.push(Key::line(color(k), line.label.as_deref().unwrap_or("fitted")));
+            chart.series.push(Series::Line {
+                points: cv
+                    .x
+                    .iter()
+                    .copied()
+                    .zip(line.value.iter().copied())
+                    .collect(),
+                color: color(k),
+                width: 2,
+                dashed: false,
+            });
+            items.push(Key::line(
+                color(k),
+                line.label.as_deref().unwrap_or("fitted"),
+            ));
         }
         // A single line is explained by the section's legend.
-        let caption = if cv.lines.len() > 1 { format!("<figcaption>{}</figcaption>", keys(&items)) } else { String::new() };
+        let caption = if cv.lines.len() > 1 {
+            format!("<figcaption>{}</figcaption>", keys(&items))
+        } else {
+            String::new()
+        };
         let _ = writeln!(s, "<figure>{}{caption}</figure>", chart.svg()?);
     }
     s.push_str("</div>\n");
     if !c.constants.is_empty() {
         s.push_str("<h3>Constant parametric errors</h3>\n<p class=\"note\">Errors that depend on no variable: squareness and location constants.</p>\n<table>\n<tr><th class=\"l\">error</th><th>value</th><th>95 % band (±)</th><th class=\"l\">unit</th></tr>\n");
         for k in &c.constants {
-            let _ = writeln!(s, "<tr><td class=\"l\"><code>{}</code></td><td>{}</td><td>{}</td><td class=\"l\">{}</td></tr>", esc(&k.target), num(k.value, 4), num(k.band, 3), esc(&k.unit));
+            let _ = writeln!(
+                s,
+                "<tr><td class=\"l\"><code>{}</code></td><td>{}</td><td>{}</td><td class=\"l\">{}</td></tr>",
+                esc(&k.target),
+                num(k.value, 4),
+                num(k.band, 3),
+                esc(&k.unit)
+            );
         }
         s.push_str("</table>\n");
     }
@@ -714,16 +1148,32 @@ struct Key {
 
 impl Key {
     fn line(color: plotters::style::RGBColor, text: &str) -> Key {
-        Key { color, text: text.to_string(), class: "line" }
+        Key {
+            color,
+            text: text.to_string(),
+            class: "line",
+        }
     }
     fn dashed(color: plotters::style::RGBColor, text: &str) -> Key {
-        Key { color, text: text.to_string(), class: "dash" }
+        Key {
+            color,
+            text: text.to_string(),
+            class: "dash",
+        }
     }
     fn area(color: plotters::style::RGBColor, text: &str) -> Key {
-        Key { color, text: text.to_string(), class: "area" }
+        Key {
+            color,
+            text: text.to_string(),
+            class: "area",
+        }
     }
     fn dot(color: plotters::style::RGBColor, text: &str) -> Key {
-        Key { color, text: text.to_string(), class: "dot" }
+        Key {
+            color,
+            text: text.to_string(),
+            class: "dot",
+        }
     }
 }
 
@@ -731,7 +1181,12 @@ fn keys(items: &[Key]) -> String {
     let mut out = String::new();
     for k in items {
         let c = plot::css(k.color);
-        let _ = write!(out, "<span class=\"sw {}\" style=\"color:{c};background-color:{c}\"></span>{}", k.class, esc(&k.text));
+        let _ = write!(
+            out,
+            "<span class=\"sw {}\" style=\"color:{c};background-color:{c}\"></span>{}",
+            k.class,
+            esc(&k.text)
+        );
     }
     out
 }
@@ -804,7 +1259,11 @@ fn utc(secs: u64) -> String {
     let d = doy - (153 * mp + 2) / 5 + 1;
     let month = if mp < 10 { mp + 3 } else { mp - 9 };
     let year = yoe + era * 400 + i64::from(month <= 2);
-    format!("{year:04}-{month:02}-{d:02} {:02}:{:02}", rem / 3600, rem % 3600 / 60)
+    format!(
+        "{year:04}-{month:02}-{d:02} {:02}:{:02}",
+        rem / 3600,
+        rem % 3600 / 60
+    )
 }
 
 #[cfg(test)]
@@ -825,7 +1284,16 @@ mod tests {
 
     #[test]
     fn consecutive_fits_of_one_revision_collapse() {
-        let e = |hash: &str, rms: f64| Entry { time: 0, model_hash: hash.into(), parameters: 1, rows: 1, sigma: rms, rms, error_unit: "um".into(), files: Vec::new() };
+        let e = |hash: &str, rms: f64| Entry {
+            time: 0,
+            model_hash: hash.into(),
+            parameters: 1,
+            rows: 1,
+            sigma: rms,
+            rms,
+            error_unit: "um".into(),
+            files: Vec::new(),
+        };
         let h = vec![e("a", 3.0), e("a", 2.5), e("b", 1.0), e("a", 2.0)];
         let r: Vec<f64> = revisions(&h).iter().map(|e| e.rms).collect();
         assert_eq!(r, vec![2.5, 1.0, 2.0]);

@@ -86,18 +86,38 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
         Failed::INPUT
     })?;
     let comments = vec![
-        format!("simulated by kin from `{}` (exact transforms)", a.machine.display()),
-        format!("noise {} (positions), {} (rotations), seed {}", a.noise.as_deref().unwrap_or("0"), a.noise_tilt.as_deref().unwrap_or("0"), a.seed),
+        format!(
+            "simulated by kin from `{}` (exact transforms)",
+            a.machine.display()
+        ),
+        format!(
+            "noise {} (positions), {} (rotations), seed {}",
+            a.noise.as_deref().unwrap_or("0"),
+            a.noise_tilt.as_deref().unwrap_or("0"),
+            a.seed
+        ),
     ];
     write(&out, m, a.output.as_deref(), comments)
 }
 
-fn write(out: &Observations, m: &kin_compiler::ir::Machine, path: Option<&Path>, comments: Vec<String>) -> Result<(), Failed> {
-    let options = WriteOptions { comments, ..WriteOptions::default() };
+fn write(
+    out: &Observations,
+    m: &kin_compiler::ir::Machine,
+    path: Option<&Path>,
+    comments: Vec<String>,
+) -> Result<(), Failed> {
+    let options = WriteOptions {
+        comments,
+        ..WriteOptions::default()
+    };
     let result = match (path, out) {
         (Some(p), _) => data::write_file(p, m, out, &options),
-        (None, Observations::Points(p)) => data::write_points(std::io::stdout().lock(), m, p, &options),
-        (None, Observations::Lengths(l)) => data::write_lengths(std::io::stdout().lock(), m, l, &options),
+        (None, Observations::Points(p)) => {
+            data::write_points(std::io::stdout().lock(), m, p, &options)
+        }
+        (None, Observations::Lengths(l)) => {
+            data::write_lengths(std::io::stdout().lock(), m, l, &options)
+        }
     };
     result.map_err(|e| {
         eprintln!("error: {e}");
@@ -105,7 +125,14 @@ fn write(out: &Observations, m: &kin_compiler::ir::Machine, path: Option<&Path>,
     })
 }
 
-pub fn eval(machine: &Path, params: Option<&Path>, poses: &Path, output: Option<&Path>, components: Components, color: bool) -> ExitCode {
+pub fn eval(
+    machine: &Path,
+    params: Option<&Path>,
+    poses: &Path,
+    output: Option<&Path>,
+    components: Components,
+    color: bool,
+) -> ExitCode {
     finish((|| {
         let compiled = load::machine(machine, params, color)?;
         let m = &compiled.machine;
@@ -114,6 +141,14 @@ pub fn eval(machine: &Path, params: Option<&Path>, poses: &Path, output: Option<
             eprintln!("error: {e}");
             Failed::INPUT
         })?;
-        write(&out, m, output, vec![format!("predicted by kin from `{}` (first-order model, eq. 2.24)", machine.display())])
+        write(
+            &out,
+            m,
+            output,
+            vec![format!(
+                "predicted by kin from `{}` (first-order model, eq. 2.24)",
+                machine.display()
+            )],
+        )
     })())
 }

@@ -56,7 +56,14 @@ struct SymTerm {
 
 impl SymTerm {
     fn scalar(scale: Scalar, dim: Dim, span: Span) -> Self {
-        SymTerm { scale, dim, temp: Temp::Plain, factors: Vec::new(), fitted: false, span }
+        SymTerm {
+            scale,
+            dim,
+            temp: Temp::Plain,
+            factors: Vec::new(),
+            fitted: false,
+            span,
+        }
     }
     fn is_scalar(&self) -> bool {
         !self.fitted
@@ -79,6 +86,7 @@ pub(crate) fn check_errors(decls: &[&ast::ErrorsDecl], st: &Structure, sink: &mu
         defined: HashMap::new(),
         current: String::new(),
         nonlinear_count: HashMap::new(),
+        per_error: HashMap::new(),
     };
     for decl in decls {
         for def in &decl.defs {
@@ -96,19 +104,31 @@ struct Checker<'a> {
     /// Display name of the target being checked, e.g. `Z.tz`.
     current: String,
     nonlinear_count: HashMap<(String, &'static str), usize>,
+    /// Coefficients so far per error model, for their names.
+    per_error: HashMap<usize, usize>,
 }
 
 impl Checker<'_> {
     fn definition(&mut self, def: &ast::ErrorDef, sink: &mut Sink) {
-        let Some((frame, component, display)) = self.target(&def.target, sink) else { return };
+        let Some((frame, component, display)) = self.target(&def.target, sink) else {
+            return;
+        };
         self.current = display.clone();
         let index = match self.defined.get(&(frame, component)).copied() {
             Some((index, first)) => {
                 if !def.add {
-                    let mut d = Diagnostic::error("E0102", format!("`{display}` is defined twice"), def.target.span)
-                        .with_label("second definition")
-                        .with_help(format!("use `{display} += …` to add terms to an existing model"));
-                    if let Some(first) = first.or_else(|| self.models.error_spans.get(index).copied()) {
+                    let mut d = Diagnostic::error(
+                        "E0102",
+                        format!("`{display}` is defined twice"),
+                        def.target.span,
+                    )
+                    .with_label("second definition")
+                    .with_help(format!(
+                        "use `{display} += …` to add terms to an existing model"
+                    ));
+                    if let Some(first) =
+                        first.or_else(|| self.models.error_spans.get(index).copied())
+                    {
                         d = d.with_secondary(first, "first defined here");
                     }
                     sink.push(d);
@@ -118,16 +138,45 @@ impl Checker<'_> {
             }
             None => {
                 let index = self.models.errors.len();
-                self.models.errors.push(ir::ErrorModel { frame, component, terms: Vec::new() });
+                self.models.errors.push(ir::ErrorModel {
+                    frame,
+                    component,
+                    terms: Vec::new(),
+                });
                 self.models.error_spans.push(def.target.span);
-                self.defined.insert((frame, component), (index, (!def.add).then_some(def.target.span)));
+                self.defined.insert(
+                    (frame, component),
+                    (index, (!def.add).then_some(def.target.span)),
+                );
                 index
             }
         };
-        let Some(terms) = self.expand(&def.value, sink) else { return };
-        let component_unit = if component.is_rotation() { &self.st.units.tilt } else { &self.st.units.error };
-        let component_dim = if component.is_rotation() { Dim::ANGLE } else { Dim::LENGTH };
+        let Some(terms) = self.expand(&def.value, sink) else {
+            return;
+        };
+        let component_unit = if component.is_rotation() {
+            &self.st.units.tilt
+        } else {
+            &self.st.units.error
+        };
+        let component_dim = if component.is_rotation() {
+            Dim::ANGLE
+        } else {
+            Dim::LENGTH
+        };
         for term in terms {
+            if !finite(&term.scale) {
+                sink.push(
+                    Diagnostic::error(
+                        "E0003",
+                        "this term's constant factor is too large to represent",
+                        term.span,
+                    )
+                    .with_label("not a finite number")
+                    .with_help("numbers must stay within double precision (about 1e308)"),
+                );
+                continue;
+            }
             if matches!(term.temp, Temp::Absolute) {
                 sink.push(absolute_temperature(term.span));
                 continue;
@@ -135,11 +184,19 @@ impl Checker<'_> {
             if term.fitted {
                 self.fitted_term(index, term, component_unit, sink);
             } else if term.dim != component_dim {
-                let kind = if component.is_rotation() { "a rotation" } else { "a translation" };
+                let kind = if component.is_rotation() {
+                    "a rotation"
+                } else {
+                    "a translation"
+                };
                 sink.push(
                     Diagnostic::error(
                         "E0202",
-                        format!("{kind} error cannot take a term of {}", term.dim.describe()),
+                        if term.dim == Dim::DIMENSIONLESS {
+                            format!("{kind} error cannot take a dimensionless term")
+                        } else {
+                            format!("{kind} error cannot take a term of {}", term.dim.describe())
+                        },
                         term.span,
                     )
                     .with_label(format!("this fixed term is {}", term.dim.describe()))
@@ -171,24 +228,32 @@ impl Checker<'_> {
     }
 
     fn fitted_term(&mut self, index: usize, term: SymTerm, component_unit: &Unit, sink: &mut Sink) {
-        let count: usize = term.factors.iter().map(|(f, _, _)| f.basis.size()).product();
+        let count: usize = term
+            .factors
+            .iter()
+            .map(|(f, _, _)| f.basis.size())
+            .product();
         if count > 100_000 {
             sink.push(
-                Diagnostic::error("E0105", format!("this term has {count} coefficients"), term.span)
-                    .with_label("too many coefficients")
-                    .with_help("use fewer knots or harmonics"),
+                Diagnostic::error(
+                    "E0105",
+                    format!("this term has {count} coefficients"),
+                    term.span,
+                )
+                .with_label("too many coefficients")
+                .with_help("use fewer knots or harmonics"),
             );
             return;
         }
         let coef_unit = component_unit.div(&display_unit(term.dim, &self.st.units));
         let first = self.models.coefficients.len();
-        let sizes: Vec<usize> = term.factors.iter().map(|(f, _, _)| f.basis.size()).collect();
-        let prior = self
-            .models
-            .errors
-            .get(index)
-            .map(|m| m.terms.iter().map(|t| t.coefficients).sum::<usize>())
-            .unwrap_or(0);
+        let sizes: Vec<usize> = term
+            .factors
+            .iter()
+            .map(|(f, _, _)| f.basis.size())
+            .collect();
+        let prior = *self.per_error.get(&index).unwrap_or(&0);
+        self.per_error.insert(index, prior + count);
         for k in 0..count {
             // Row-major multi-index over the factors.
             let mut rest = k;
@@ -199,7 +264,11 @@ impl Checker<'_> {
                 rest /= size;
             }
             parts.reverse();
-            let label = if parts.is_empty() { "const".to_string() } else { parts.join(" * ") };
+            let label = if parts.is_empty() {
+                "const".to_string()
+            } else {
+                parts.join(" * ")
+            };
             self.models.coefficients.push(ir::Coefficient {
                 name: format!("{}[{}]", self.current, prior + k),
                 label,
@@ -228,8 +297,12 @@ impl Checker<'_> {
                     let mut d = Diagnostic::error("E0101", format!("`{}` is not an error component", t.frame.node), t.span)
                         .with_label("expected `FRAME.COMPONENT`")
                         .with_note("write e.g. `X.tx`, an ISO 230-1 name such as `EXX`/`EBX`, or a VDI 2617 name such as `xtx`/`xry`");
-                    if let Some(s) = suggest(&t.frame.node, self.st.axes.iter().map(|a| a.name.as_str())) {
-                        d = d.with_help(format!("did you mean `{s}.tx` (or another component of `{s}`)?"));
+                    if let Some(s) =
+                        suggest(&t.frame.node, self.st.axes.iter().map(|a| a.name.as_str()))
+                    {
+                        d = d.with_help(format!(
+                            "did you mean `{s}.tx` (or another component of `{s}`)?"
+                        ));
                     }
                     sink.push(d);
                     return None;
@@ -256,7 +329,12 @@ impl Checker<'_> {
             // An axis outside every chain was reported already (E0401) and the compilation will
             // fail; its models are still checked under a frame that no IR will ever hold, so
             // their own mistakes are reported in the same run.
-            self.st.axis_frame.get(i).copied().flatten().unwrap_or(FrameRef::Tool(usize::MAX - i))
+            self.st
+                .axis_frame
+                .get(i)
+                .copied()
+                .flatten()
+                .unwrap_or(FrameRef::Tool(usize::MAX - i))
         } else if let Some(i) = self.st.tool_index(&frame_name) {
             FrameRef::ToolEnd(Some(i))
         } else if frame_name == "tool" {
@@ -272,8 +350,12 @@ impl Checker<'_> {
                 .chain(self.st.tools.iter().map(|t| t.name.as_str()))
                 .chain(["tool", "workpiece"])
                 .collect();
-            let mut d = Diagnostic::error("E0101", format!("unknown frame `{frame_name}`"), t.frame.span)
-                .with_label("not an axis, a tool, `tool` or `workpiece`");
+            let mut d = Diagnostic::error(
+                "E0101",
+                format!("unknown frame `{frame_name}`"),
+                t.frame.span,
+            )
+            .with_label("not an axis, a tool, `tool` or `workpiece`");
             if self.st.input_index(&frame_name).is_some() {
                 d = d.with_note(format!("`{frame_name}` is an input; errors belong to frames (axes, tools, the workpiece)"));
             } else if let Some(s) = suggest(&frame_name, candidates.iter().copied()) {
@@ -282,7 +364,11 @@ impl Checker<'_> {
             sink.push(d);
             return None;
         };
-        Some((frame, component, format!("{frame_name}.{}", component.name())))
+        Some((
+            frame,
+            component,
+            format!("{frame_name}.{}", component.name()),
+        ))
     }
 
     /// Expands an expression into a sum of terms.
@@ -290,12 +376,18 @@ impl Checker<'_> {
         match &e.kind {
             ExprKind::Quantity { value, unit } => {
                 let Some(u) = unit else {
-                    return Some(vec![SymTerm::scalar(Scalar::Num(*value), Dim::DIMENSIONLESS, e.span)]);
+                    return Some(vec![SymTerm::scalar(
+                        Scalar::Num(*value),
+                        Dim::DIMENSIONLESS,
+                        e.span,
+                    )]);
                 };
                 let unit = parse_unit(u, sink)?;
                 let mut t = SymTerm::scalar(Scalar::Num(unit.to_si(*value)), unit.dim, e.span);
                 if unit.dim == Dim::TEMPERATURE {
-                    t.temp = Temp::Literal { difference: unit.as_difference().to_si(*value) };
+                    t.temp = Temp::Literal {
+                        difference: unit.as_difference().to_si(*value),
+                    };
                 }
                 Some(vec![t])
             }
@@ -316,7 +408,9 @@ impl Checker<'_> {
                         .map(|mut t| {
                             t.scale = Scalar::Neg(Box::new(t.scale));
                             if let Temp::Literal { difference } = t.temp {
-                                t.temp = Temp::Literal { difference: -difference };
+                                t.temp = Temp::Literal {
+                                    difference: -difference,
+                                };
                             }
                             t.span = e.span;
                             t
@@ -329,7 +423,9 @@ impl Checker<'_> {
                 let right = self.expand(b, sink);
                 let (left, right) = (left?, right?);
                 match op {
-                    BinOp::Add | BinOp::Sub => self.add(*op, e.span, left, a.span, right, b.span, sink),
+                    BinOp::Add | BinOp::Sub => {
+                        self.add(*op, e.span, left, a.span, right, b.span, sink)
+                    }
                     BinOp::Mul => self.multiply(left, right, e.span, sink),
                     BinOp::Div => self.divide(left, right, e.span, b.span, sink),
                 }
@@ -387,7 +483,8 @@ impl Checker<'_> {
             .chain(self.st.inputs.iter().map(|i| i.name.as_str()))
             .chain(["time"])
             .collect();
-        let mut d = Diagnostic::error("E0101", format!("unknown name `{n}`"), span).with_label("not an axis or an input");
+        let mut d = Diagnostic::error("E0101", format!("unknown name `{n}`"), span)
+            .with_label("not an axis or an input");
         if let Some(s) = suggest(n, candidates.iter().copied()) {
             d = d.with_help(format!("did you mean `{s}`?"));
         } else if FAMILIES.contains(&n) {
@@ -412,7 +509,9 @@ impl Checker<'_> {
             for t in &mut right {
                 t.scale = Scalar::Neg(Box::new(t.scale.clone()));
                 if let Temp::Literal { difference } = t.temp {
-                    t.temp = Temp::Literal { difference: -difference };
+                    t.temp = Temp::Literal {
+                        difference: -difference,
+                    };
                 }
             }
         }
@@ -421,12 +520,16 @@ impl Checker<'_> {
         let ls: Vec<&SymTerm> = left.iter().filter(|t| t.is_scalar()).collect();
         let rs: Vec<&SymTerm> = right.iter().filter(|t| t.is_scalar()).collect();
         if let (Some(l), Some(r)) = (ls.first(), rs.first()) {
-            let bare = |t: &SymTerm| t.dim == Dim::DIMENSIONLESS && matches!(t.scale, Scalar::Num(_));
+            let bare =
+                |t: &SymTerm| t.dim == Dim::DIMENSIONLESS && matches!(t.scale, Scalar::Num(_));
             if l.dim != r.dim {
                 let mut d = dimension_mismatch(span, lspan, l.dim, rspan, r.dim);
                 if bare(l) || bare(r) {
                     let other = if bare(l) { r.dim } else { l.dim };
-                    d = d.with_help(format!("give the number a unit of {}, e.g. `375 mm`", other.describe()));
+                    d = d.with_help(format!(
+                        "give the number a unit of {}, e.g. `375 mm`",
+                        other.describe()
+                    ));
                 }
                 sink.push(d);
                 return None;
@@ -437,19 +540,35 @@ impl Checker<'_> {
                 let mut l = left.into_iter().next()?;
                 let r = right.into_iter().next()?;
                 let (temp, lscale, rscale) = match (lt, rt) {
-                    (Temp::Absolute, Temp::Absolute) if op == BinOp::Sub => (Temp::Plain, l.scale, r.scale),
-                    (Temp::Absolute, Temp::Literal { .. }) if op == BinOp::Sub => (Temp::Plain, l.scale, r.scale),
-                    (Temp::Literal { .. }, Temp::Absolute) if op == BinOp::Sub => (Temp::Plain, l.scale, r.scale),
-                    (Temp::Absolute, Temp::Literal { difference }) => (Temp::Absolute, l.scale, Scalar::Num(difference)),
-                    (Temp::Absolute, Temp::Plain) | (Temp::Plain, Temp::Absolute) => (Temp::Absolute, l.scale, r.scale),
+                    (Temp::Absolute, Temp::Absolute) if op == BinOp::Sub => {
+                        (Temp::Plain, l.scale, r.scale)
+                    }
+                    (Temp::Absolute, Temp::Literal { .. }) if op == BinOp::Sub => {
+                        (Temp::Plain, l.scale, r.scale)
+                    }
+                    (Temp::Literal { .. }, Temp::Absolute) if op == BinOp::Sub => {
+                        (Temp::Plain, l.scale, r.scale)
+                    }
+                    (Temp::Absolute, Temp::Literal { difference }) => {
+                        (Temp::Absolute, l.scale, Scalar::Num(difference))
+                    }
+                    (Temp::Absolute, Temp::Plain) | (Temp::Plain, Temp::Absolute) => {
+                        (Temp::Absolute, l.scale, r.scale)
+                    }
                     (Temp::Literal { difference: a }, Temp::Literal { difference: b }) => {
                         (Temp::Literal { difference: a + b }, l.scale, r.scale)
                     }
-                    (Temp::Literal { difference }, _) => (Temp::Plain, Scalar::Num(difference), r.scale),
-                    (_, Temp::Literal { difference }) => (Temp::Plain, l.scale, Scalar::Num(difference)),
+                    (Temp::Literal { difference }, _) => {
+                        (Temp::Plain, Scalar::Num(difference), r.scale)
+                    }
+                    (_, Temp::Literal { difference }) => {
+                        (Temp::Plain, l.scale, Scalar::Num(difference))
+                    }
                     _ => (Temp::Plain, l.scale, r.scale),
                 };
-                if matches!(temp, Temp::Absolute) && matches!((lt, rt), (Temp::Absolute, Temp::Absolute)) {
+                if matches!(temp, Temp::Absolute)
+                    && matches!((lt, rt), (Temp::Absolute, Temp::Absolute))
+                {
                     sink.push(absolute_temperature(span));
                     return None;
                 }
@@ -464,7 +583,26 @@ impl Checker<'_> {
         Some(out)
     }
 
-    fn multiply(&mut self, left: Vec<SymTerm>, right: Vec<SymTerm>, span: Span, sink: &mut Sink) -> Option<Vec<SymTerm>> {
+    fn multiply(
+        &mut self,
+        left: Vec<SymTerm>,
+        right: Vec<SymTerm>,
+        span: Span,
+        sink: &mut Sink,
+    ) -> Option<Vec<SymTerm>> {
+        // Products of sums multiply out: refuse before the term count explodes.
+        if left.len().saturating_mul(right.len()) > MAX_TERMS {
+            sink.push(
+                Diagnostic::error(
+                    "E0105",
+                    format!("multiplying this out gives more than {MAX_TERMS} terms"),
+                    span,
+                )
+                .with_label("too many terms")
+                .with_help("write the model as a few products of families, not a product of sums"),
+            );
+            return None;
+        }
         let mut out = Vec::with_capacity(left.len() * right.len());
         for a in &left {
             for b in &right {
@@ -477,10 +615,14 @@ impl Checker<'_> {
                 for (fa, sa, _) in &a.factors {
                     if let Some((_, sb, _)) = b.factors.iter().find(|(fb, _, _)| fb.var == fa.var) {
                         sink.push(
-                            Diagnostic::error("E0307", "two basis factors of the same variable in one product", *sb)
-                                .with_label("second factor of this variable")
-                                .with_secondary(*sa, "first factor")
-                                .with_help("use one family with a higher degree or more knots instead"),
+                            Diagnostic::error(
+                                "E0307",
+                                "two basis factors of the same variable in one product",
+                                *sb,
+                            )
+                            .with_label("second factor of this variable")
+                            .with_secondary(*sa, "first factor")
+                            .with_help("use one family with a higher degree or more knots instead"),
                         );
                         return None;
                     }
@@ -504,7 +646,14 @@ impl Checker<'_> {
         Some(out)
     }
 
-    fn divide(&mut self, left: Vec<SymTerm>, right: Vec<SymTerm>, span: Span, rspan: Span, sink: &mut Sink) -> Option<Vec<SymTerm>> {
+    fn divide(
+        &mut self,
+        left: Vec<SymTerm>,
+        right: Vec<SymTerm>,
+        span: Span,
+        rspan: Span,
+        sink: &mut Sink,
+    ) -> Option<Vec<SymTerm>> {
         if let Some(t) = right.iter().find(|t| t.fitted) {
             sink.push(
                 Diagnostic::error("E0307", "a fitted factor cannot divide", t.span)
@@ -516,7 +665,10 @@ impl Checker<'_> {
         let divisor = self.collapse(right, rspan, sink)?;
         if let Scalar::Num(v) = divisor.scale {
             if v == 0.0 {
-                sink.push(Diagnostic::error("E0003", "division by zero", rspan));
+                sink.push(
+                    Diagnostic::error("E0003", "division by zero", rspan)
+                        .with_label("this is zero"),
+                );
                 return None;
             }
         }
@@ -557,7 +709,13 @@ impl Checker<'_> {
         Some(acc)
     }
 
-    fn call(&mut self, name: &ast::Name, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+    fn call(
+        &mut self,
+        name: &ast::Name,
+        args: &[Arg],
+        span: Span,
+        sink: &mut Sink,
+    ) -> Option<SymTerm> {
         let f = name.node.as_str();
         match f {
             "sin" | "cos" => return self.trig(f, args, span, sink),
@@ -565,11 +723,15 @@ impl Checker<'_> {
             _ => {}
         }
         if !FAMILIES.contains(&f) {
-            let mut d = Diagnostic::error("E0104", format!("unknown function `{f}`"), name.span).with_label("not a factor family");
+            let mut d = Diagnostic::error("E0104", format!("unknown function `{f}`"), name.span)
+                .with_label("not a factor family");
             if let Some(s) = suggest(f, FAMILIES.iter().copied().chain(["sin", "cos", "lag"])) {
                 d = d.with_help(format!("did you mean `{s}`?"));
             } else {
-                d = d.with_note(format!("factor families: {}, and the functions sin, cos, lag", FAMILIES.join(", ")));
+                d = d.with_note(format!(
+                    "factor families: {}, and the functions sin, cos, lag",
+                    FAMILIES.join(", ")
+                ));
             }
             sink.push(d);
             return None;
@@ -587,14 +749,28 @@ impl Checker<'_> {
             scale: Scalar::Num(1.0),
             dim: Dim::DIMENSIONLESS,
             temp: Temp::Plain,
-            factors: vec![(ir::BasisFactor { var: factor_var, basis }, span, format!("{f}({var_name})"))],
+            factors: vec![(
+                ir::BasisFactor {
+                    var: factor_var,
+                    basis,
+                },
+                span,
+                format!("{f}({var_name})"),
+            )],
             fitted: true,
             span,
         })
     }
 
     /// The declared range of a family's variable, in SI, and its dimension.
-    fn range_of(&self, var: Var, name: &str, span: Span, family: &str, sink: &mut Sink) -> Option<([f64; 2], Dim, Unit)> {
+    fn range_of(
+        &self,
+        var: Var,
+        name: &str,
+        span: Span,
+        family: &str,
+        sink: &mut Sink,
+    ) -> Option<([f64; 2], Dim, Unit)> {
         match var {
             Var::Axis(i) => {
                 let a = self.st.axes.get(i)?;
@@ -610,10 +786,16 @@ impl Checker<'_> {
                     Some(r) => Some((r, input.unit.dim, input.unit.clone())),
                     None => {
                         sink.push(
-                            Diagnostic::error("E0305", format!("`{family}` needs the range of input `{name}`"), span)
-                                .with_label("this input has no declared range")
-                                .with_note("families are normalised over the variable's range")
-                                .with_help(format!("declare it, e.g. `input {name} : … range LO .. HI`")),
+                            Diagnostic::error(
+                                "E0305",
+                                format!("`{family}` needs the range of input `{name}`"),
+                                span,
+                            )
+                            .with_label("this input has no declared range")
+                            .with_note("families are normalised over the variable's range")
+                            .with_help(format!(
+                                "declare it, e.g. `input {name} : … range LO .. HI`"
+                            )),
                         );
                         None
                     }
@@ -621,15 +803,27 @@ impl Checker<'_> {
             }
             _ => {
                 sink.push(
-                    Diagnostic::error("E0305", format!("`{family}` needs an axis or a ranged input"), span)
-                        .with_label("not a ranged variable"),
+                    Diagnostic::error(
+                        "E0305",
+                        format!("`{family}` needs an axis or a ranged input"),
+                        span,
+                    )
+                    .with_label("not a ranged variable"),
                 );
                 None
             }
         }
     }
 
-    fn family(&mut self, f: &str, var: Var, var_name: &str, var_span: Span, opts: &mut Options, sink: &mut Sink) -> Option<Basis> {
+    fn family(
+        &mut self,
+        f: &str,
+        var: Var,
+        var_name: &str,
+        var_span: Span,
+        opts: &mut Options,
+        sink: &mut Sink,
+    ) -> Option<Basis> {
         let revolute = matches!(var, Var::Axis(i) if self.st.axes.get(i).map(|a| a.kind) == Some(JointKind::Revolute));
         let wrong_kind = |what: &str, sink: &mut Sink| {
             sink.push(
@@ -653,7 +847,17 @@ impl Checker<'_> {
                 let (degree, smooth) = opts.degree_smooth(sink)?;
                 let no_once = opts.flag("no_once_per_rev");
                 if no_once && !revolute {
-                    wrong_kind("a revolute axis (`no_once_per_rev`)", sink);
+                    sink.push(
+                        Diagnostic::error(
+                            "E0305",
+                            "`no_once_per_rev` applies to a revolute axis only",
+                            var_span,
+                        )
+                        .with_label(format!("`{var_name}` is not a revolute axis"))
+                        .with_help(
+                            "for a straightness along a prismatic axis use `straightness(…)`",
+                        ),
+                    );
                     return None;
                 }
                 let detrend = if f == "straightness" {
@@ -678,9 +882,13 @@ impl Checker<'_> {
             }
             "periodic" => {
                 let (r, dim, unit) = self.range_of(var, var_name, var_span, f, sink)?;
-                let (tau, tau_span, fitted) = opts.required_quantity("wavelength", dim, &unit, sink)?;
+                let (tau, tau_span, fitted) =
+                    opts.required_quantity("wavelength", dim, &unit, sink)?;
                 if !(tau > 0.0) {
-                    sink.push(Diagnostic::error("E0105", "the wavelength must be positive", tau_span).with_label("not positive"));
+                    sink.push(
+                        Diagnostic::error("E0105", "the wavelength must be positive", tau_span)
+                            .with_label("not positive"),
+                    );
                     return None;
                 }
                 if tau > r[1] - r[0] + 1e-12 {
@@ -704,7 +912,10 @@ impl Checker<'_> {
                 } else {
                     Wavelength::Fixed(tau)
                 };
-                let phase = opts.quantity("phase", dim, &unit, sink)?.map(|(v, _, _)| v).unwrap_or(0.0);
+                let phase = opts
+                    .quantity("phase", dim, &unit, sink)?
+                    .map(|(v, _, _)| v)
+                    .unwrap_or(0.0);
                 let knots = match opts.integer("knots", 0, 50, sink)? {
                     Some(n) => basis::equally_spaced_knots(n as usize).ok()?,
                     None => basis::equally_spaced_knots(2).ok()?,
@@ -714,7 +925,11 @@ impl Checker<'_> {
             }
             "backlash" | "direction" => {
                 if !matches!(var, Var::Axis(_)) {
-                    wrong_kind("an axis (its direction of motion)", sink);
+                    sink.push(
+                        Diagnostic::error("E0305", format!("`{f}` applies to an axis only"), var_span)
+                            .with_label(format!("`{var_name}` is not an axis"))
+                            .with_note("a backlash follows an axis' direction of motion (`dir_AXIS` in the data)"),
+                    );
                     return None;
                 }
                 Ok(Basis::Sign)
@@ -736,37 +951,61 @@ impl Checker<'_> {
     fn nonlinear(&mut self, kind: &'static str, value: f64, unit: Unit, span: Span) -> usize {
         let key = (self.current.clone(), kind);
         let k = self.nonlinear_count.entry(key).or_insert(0);
-        let name = if *k == 0 { format!("{}.{kind}", self.current) } else { format!("{}.{kind}[{}]", self.current, *k) };
+        let name = if *k == 0 {
+            format!("{}.{kind}", self.current)
+        } else {
+            format!("{}.{kind}[{}]", self.current, *k)
+        };
         *k += 1;
         let index = self.models.nonlinear.len();
-        self.models.nonlinear.push(ir::NonLinearParam { name, value, fitted: true, unit });
+        self.models.nonlinear.push(ir::NonLinearParam {
+            name,
+            value,
+            fitted: true,
+            unit,
+        });
         self.models.nonlinear_spans.push(span);
         index
     }
 
     fn trig(&mut self, f: &str, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
         let [Arg::Positional(arg)] = args else {
-            sink.push(Diagnostic::error("E0105", format!("`{f}` takes one angle"), span).with_label("expected one argument"));
+            sink.push(
+                Diagnostic::error("E0105", format!("`{f}` takes one angle"), span)
+                    .with_label("expected one argument"),
+            );
             return None;
         };
         let terms = self.expand(arg, sink)?;
         if terms.iter().any(|t| t.fitted) {
             sink.push(
-                Diagnostic::error("E0307", format!("a fitted factor cannot be inside `{f}`"), arg.span)
-                    .with_label("basis factor inside a function")
-                    .with_note("the model must stay linear in the coefficients β"),
+                Diagnostic::error(
+                    "E0307",
+                    format!("a fitted factor cannot be inside `{f}`"),
+                    arg.span,
+                )
+                .with_label("basis factor inside a function")
+                .with_note("the model must stay linear in the coefficients β"),
             );
             return None;
         }
         let inner = self.collapse(terms, arg.span, sink)?;
         if inner.dim != Dim::ANGLE && inner.dim != Dim::DIMENSIONLESS {
             sink.push(
-                Diagnostic::error("E0205", format!("`{f}` takes an angle, but this is {}", inner.dim.describe()), arg.span)
-                    .with_label("expected an angle"),
+                Diagnostic::error(
+                    "E0205",
+                    format!("`{f}` takes an angle, but this is {}", inner.dim.describe()),
+                    arg.span,
+                )
+                .with_label("expected an angle"),
             );
             return None;
         }
-        let scale = if f == "sin" { Scalar::Sin(Box::new(inner.scale)) } else { Scalar::Cos(Box::new(inner.scale)) };
+        let scale = if f == "sin" {
+            Scalar::Sin(Box::new(inner.scale))
+        } else {
+            Scalar::Cos(Box::new(inner.scale))
+        };
         Some(SymTerm::scalar(scale, Dim::DIMENSIONLESS, span))
     }
 
@@ -787,7 +1026,10 @@ impl Checker<'_> {
         let (tau, tau_span, fitted) = opts.required_quantity("tau", Dim::TIME, &time_unit, sink)?;
         opts.finish(sink)?;
         if !(tau > 0.0) {
-            sink.push(Diagnostic::error("E0105", "the time constant must be positive", tau_span).with_label("not positive"));
+            sink.push(
+                Diagnostic::error("E0105", "the time constant must be positive", tau_span)
+                    .with_label("not positive"),
+            );
             return None;
         }
         let index = self.nonlinear("tau", tau, time_unit, tau_span);
@@ -795,7 +1037,10 @@ impl Checker<'_> {
             p.fitted = fitted;
         }
         let lag = self.models.lags.len();
-        self.models.lags.push(ir::Lag { input, tau: NonLinear { index } });
+        self.models.lags.push(ir::Lag {
+            input,
+            tau: NonLinear { index },
+        });
         let input_decl = self.st.inputs.get(input)?;
         let mut t = SymTerm::scalar(Scalar::Var(Var::Lag(lag)), input_decl.unit.dim, span);
         if input_decl.absolute {
@@ -805,8 +1050,20 @@ impl Checker<'_> {
     }
 }
 
+/// At most this many terms in one expanded error model.
+const MAX_TERMS: usize = 4096;
+
 /// Families that bring coefficients.
-const FAMILIES: [&str; 8] = ["linear", "poly", "spline", "straightness", "fourier", "periodic", "backlash", "direction"];
+const FAMILIES: [&str; 8] = [
+    "linear",
+    "poly",
+    "spline",
+    "straightness",
+    "fourier",
+    "periodic",
+    "backlash",
+    "direction",
+];
 
 /// Options each family accepts.
 fn allowed_options(f: &str) -> &'static [&'static str] {
@@ -843,10 +1100,16 @@ impl<'a> Options<'a> {
             match a {
                 // A bare name after the variable is a flag such as `no_once_per_rev`.
                 Arg::Positional(e) if !positional.is_empty() => match &e.kind {
-                    ExprKind::Name(n) if allowed.contains(&n.as_str()) => flags.push((n.clone(), e.span)),
+                    ExprKind::Name(n) if allowed.contains(&n.as_str()) => {
+                        flags.push((n.clone(), e.span))
+                    }
                     _ => {
-                        let mut d = Diagnostic::error("E0105", format!("unexpected argument to `{family}`"), e.span)
-                            .with_label("expected an option such as `knots 4`");
+                        let mut d = Diagnostic::error(
+                            "E0105",
+                            format!("unexpected argument to `{family}`"),
+                            e.span,
+                        )
+                        .with_label("expected an option such as `knots 4`");
                         if let ExprKind::Name(n) = &e.kind {
                             if let Some(s) = suggest(n, allowed.iter().copied()) {
                                 d = d.with_help(format!("did you mean `{s}`?"));
@@ -859,12 +1122,20 @@ impl<'a> Options<'a> {
                 Arg::Positional(e) => positional.push(e),
                 Arg::Option(o) => {
                     if !allowed.contains(&o.name.node.as_str()) {
-                        let mut d = Diagnostic::error("E0105", format!("`{family}` has no option `{}`", o.name.node), o.name.span)
-                            .with_label("unknown option");
+                        let mut d = Diagnostic::error(
+                            "E0105",
+                            format!("`{family}` has no option `{}`", o.name.node),
+                            o.name.span,
+                        )
+                        .with_label("unknown option");
                         d = match suggest(&o.name.node, allowed.iter().copied()) {
                             Some(s) => d.with_help(format!("did you mean `{s}`?")),
-                            None if allowed.is_empty() => d.with_note(format!("`{family}` takes no options")),
-                            None => d.with_note(format!("`{family}` takes: {}", allowed.join(", "))),
+                            None if allowed.is_empty() => {
+                                d.with_note(format!("`{family}` takes no options"))
+                            }
+                            None => {
+                                d.with_note(format!("`{family}` takes: {}", allowed.join(", ")))
+                            }
                         };
                         sink.push(d);
                         ok = false;
@@ -872,9 +1143,13 @@ impl<'a> Options<'a> {
                     }
                     if let Some(first) = options.iter().find(|p| p.name.node == o.name.node) {
                         sink.push(
-                            Diagnostic::error("E0105", format!("option `{}` is given twice", o.name.node), o.name.span)
-                                .with_label("second value")
-                                .with_secondary(first.name.span, "first given here"),
+                            Diagnostic::error(
+                                "E0105",
+                                format!("option `{}` is given twice", o.name.node),
+                                o.name.span,
+                            )
+                            .with_label("second value")
+                            .with_secondary(first.name.span, "first given here"),
                         );
                         ok = false;
                         continue;
@@ -882,8 +1157,12 @@ impl<'a> Options<'a> {
                     if let Some(fit) = o.fit {
                         if !matches!(o.name.node.as_str(), "wavelength" | "tau") {
                             sink.push(
-                                Diagnostic::error("E0105", format!("`{}` cannot be fitted", o.name.node), fit)
-                                    .with_label("only `wavelength` and `tau` can be fitted"),
+                                Diagnostic::error(
+                                    "E0105",
+                                    format!("`{}` cannot be fitted", o.name.node),
+                                    fit,
+                                )
+                                .with_label("only `wavelength` and `tau` can be fitted"),
                             );
                             ok = false;
                         }
@@ -895,9 +1174,20 @@ impl<'a> Options<'a> {
         if positional.len() != 1 {
             let at = positional.get(1).map(|e| e.span).unwrap_or(span);
             sink.push(
-                Diagnostic::error("E0105", format!("`{family}` takes exactly one variable"), at)
-                    .with_label(if positional.is_empty() { "missing the variable" } else { "extra argument" })
-                    .with_help(format!("e.g. `{family}(X{})`", if allowed.is_empty() { "" } else { ", …" })),
+                Diagnostic::error(
+                    "E0105",
+                    format!("`{family}` takes exactly one variable"),
+                    at,
+                )
+                .with_label(if positional.is_empty() {
+                    "missing the variable"
+                } else {
+                    "extra argument"
+                })
+                .with_help(format!(
+                    "e.g. `{family}(X{})`",
+                    if allowed.is_empty() { "" } else { ", …" }
+                )),
             );
             ok = false;
         }
@@ -920,9 +1210,13 @@ impl<'a> Options<'a> {
             ExprKind::Name(n) => Some((n.clone(), e.span)),
             _ => {
                 sink.push(
-                    Diagnostic::error("E0305", format!("the variable of `{}` must be a name", self.family), e.span)
-                        .with_label("expected an axis or an input")
-                        .with_help("scale the term instead: `spline(X, knots 3) * (…)`"),
+                    Diagnostic::error(
+                        "E0305",
+                        format!("the variable of `{}` must be a name", self.family),
+                        e.span,
+                    )
+                    .with_label("expected an axis or an input")
+                    .with_help("scale the term instead: `spline(X, knots 3) * (…)`"),
                 );
                 None
             }
@@ -950,19 +1244,32 @@ impl<'a> Options<'a> {
     }
 
     fn integer(&mut self, name: &str, lo: i64, hi: i64, sink: &mut Sink) -> Option<Option<i64>> {
-        let Some(o) = self.take(name) else { return Some(None) };
+        let Some(o) = self.take(name) else {
+            return Some(None);
+        };
         let value = match &o.value {
-            OptionValue::Expr(Expr { kind: ExprKind::Quantity { value, unit: None }, .. }) if value.fract() == 0.0 => *value as i64,
+            OptionValue::Expr(Expr {
+                kind: ExprKind::Quantity { value, unit: None },
+                ..
+            }) if value.fract() == 0.0 => *value as i64,
             other => {
                 sink.push(
-                    Diagnostic::error("E0105", format!("`{name}` takes a whole number"), other.span())
-                        .with_label("expected a whole number without unit"),
+                    Diagnostic::error(
+                        "E0105",
+                        format!("`{name}` takes a whole number"),
+                        other.span(),
+                    )
+                    .with_label("expected a whole number without unit"),
                 );
                 return None;
             }
         };
         if value < lo || value > hi {
-            let code = if matches!(name, "degree" | "smooth") { "E0302" } else { "E0105" };
+            let code = if matches!(name, "degree" | "smooth") {
+                "E0302"
+            } else {
+                "E0105"
+            };
             sink.push(
                 Diagnostic::error(code, format!("`{name} {value}` is out of bounds"), o.span)
                     .with_label(format!("must be between {lo} and {hi}")),
@@ -974,10 +1281,20 @@ impl<'a> Options<'a> {
 
     /// `degree d` (default 2) and `smooth c` (default 1, or d − 1 for d = 1).
     fn degree_smooth(&mut self, sink: &mut Sink) -> Option<(u32, i32)> {
-        let degree_opt = self.options.iter().find(|o| o.name.node == "degree").map(|o| o.span);
+        let degree_opt = self
+            .options
+            .iter()
+            .find(|o| o.name.node == "degree")
+            .map(|o| o.span);
         let degree = self.integer("degree", 1, 5, sink)?.unwrap_or(2);
-        let smooth_opt = self.options.iter().find(|o| o.name.node == "smooth").map(|o| o.span);
-        let smooth = self.integer("smooth", -1, 5, sink)?.unwrap_or((degree - 1).min(1));
+        let smooth_opt = self
+            .options
+            .iter()
+            .find(|o| o.name.node == "smooth")
+            .map(|o| o.span);
+        let smooth = self
+            .integer("smooth", -1, 5, sink)?
+            .unwrap_or((degree - 1).min(1));
         if smooth >= degree {
             let mut d = Diagnostic::error(
                 "E0302",
@@ -991,7 +1308,11 @@ impl<'a> Options<'a> {
                     d = d.with_secondary(dg, "degree given here");
                 }
             }
-            sink.push(d.with_help(format!("use `smooth {}` or `degree {}`", degree - 1, smooth + 1)));
+            sink.push(d.with_help(format!(
+                "use `smooth {}` or `degree {}`",
+                degree - 1,
+                smooth + 1
+            )));
             return None;
         }
         Some((degree as u32, smooth as i32))
@@ -999,9 +1320,15 @@ impl<'a> Options<'a> {
 
     /// `knots N` (equally spaced) or `knots at (…) unit` (positions in the variable's units).
     fn knots(&mut self, range: [f64; 2], unit: &Unit, sink: &mut Sink) -> Option<Option<Vec<f64>>> {
-        let Some(o) = self.take("knots") else { return Some(None) };
+        let Some(o) = self.take("knots") else {
+            return Some(None);
+        };
         match &o.value {
-            OptionValue::At { items, unit: u, span } => {
+            OptionValue::At {
+                items,
+                unit: u,
+                span,
+            } => {
                 let unit = match u {
                     Some(u) => parse_unit(u, sink)?,
                     None => unit.clone(),
@@ -1026,9 +1353,13 @@ impl<'a> Options<'a> {
                     if let Some((prev, pspan)) = last {
                         if v <= prev {
                             sink.push(
-                                Diagnostic::error("E0301", "knots must be strictly increasing", item.span)
-                                    .with_label("not after the previous knot")
-                                    .with_secondary(pspan, "previous knot"),
+                                Diagnostic::error(
+                                    "E0301",
+                                    "knots must be strictly increasing",
+                                    item.span,
+                                )
+                                .with_label("not after the previous knot")
+                                .with_secondary(pspan, "previous knot"),
                             );
                             return None;
                         }
@@ -1037,22 +1368,34 @@ impl<'a> Options<'a> {
                     out.push((v - range[0]) / (range[1] - range[0]));
                 }
                 if out.is_empty() {
-                    sink.push(Diagnostic::error("E0105", "empty knot list", *span).with_label("no knots"));
+                    sink.push(
+                        Diagnostic::error("E0105", "empty knot list", *span).with_label("no knots"),
+                    );
                     return None;
                 }
                 Some(Some(out))
             }
-            OptionValue::Expr(Expr { kind: ExprKind::Quantity { value, unit: None }, .. }) if value.fract() == 0.0 && *value >= 0.0 => {
+            OptionValue::Expr(Expr {
+                kind: ExprKind::Quantity { value, unit: None },
+                ..
+            }) if value.fract() == 0.0 && *value >= 0.0 => {
                 if *value > 50.0 {
-                    sink.push(Diagnostic::error("E0105", "at most 50 knots", o.span).with_label("too many knots"));
+                    sink.push(
+                        Diagnostic::error("E0105", "at most 50 knots", o.span)
+                            .with_label("too many knots"),
+                    );
                     return None;
                 }
                 basis::equally_spaced_knots(*value as usize).ok().map(Some)
             }
             other => {
                 sink.push(
-                    Diagnostic::error("E0105", "`knots` takes a count or `at (…)` positions", other.span())
-                        .with_label("expected e.g. `knots 4` or `knots at (100, 250) mm`"),
+                    Diagnostic::error(
+                        "E0105",
+                        "`knots` takes a count or `at (…)` positions",
+                        other.span(),
+                    )
+                    .with_label("expected e.g. `knots 4` or `knots at (100, 250) mm`"),
                 );
                 None
             }
@@ -1069,9 +1412,14 @@ impl<'a> Options<'a> {
             return None;
         };
         let list: Vec<i64> = match &o.value {
-            OptionValue::IntRange { lo, hi, .. } if lo <= hi && hi - lo <= 200 => (*lo..=*hi).collect(),
+            OptionValue::IntRange { lo, hi, .. } if lo <= hi && hi - lo <= 200 => {
+                (*lo..=*hi).collect()
+            }
             OptionValue::IntList { items, .. } => items.clone(),
-            OptionValue::Expr(Expr { kind: ExprKind::Quantity { value, unit: None }, .. }) if value.fract() == 0.0 => vec![*value as i64],
+            OptionValue::Expr(Expr {
+                kind: ExprKind::Quantity { value, unit: None },
+                ..
+            }) if value.fract() == 0.0 => vec![*value as i64],
             other => {
                 sink.push(
                     Diagnostic::error("E0306", "bad harmonics", other.span())
@@ -1084,16 +1432,24 @@ impl<'a> Options<'a> {
         for h in list {
             if h < 1 || h > 1000 {
                 sink.push(
-                    Diagnostic::error("E0306", format!("harmonic {h} is not allowed"), o.value.span())
-                        .with_label("harmonics are whole numbers from 1")
-                        .with_note("the constant (harmonic 0) is `const`"),
+                    Diagnostic::error(
+                        "E0306",
+                        format!("harmonic {h} is not allowed"),
+                        o.value.span(),
+                    )
+                    .with_label("harmonics are whole numbers from 1")
+                    .with_note("the constant (harmonic 0) is `const`"),
                 );
                 return None;
             }
             if out.contains(&(h as u32)) {
                 sink.push(
-                    Diagnostic::error("E0306", format!("harmonic {h} is listed twice"), o.value.span())
-                        .with_label("duplicate harmonic"),
+                    Diagnostic::error(
+                        "E0306",
+                        format!("harmonic {h} is listed twice"),
+                        o.value.span(),
+                    )
+                    .with_label("duplicate harmonic"),
                 );
                 return None;
             }
@@ -1103,12 +1459,24 @@ impl<'a> Options<'a> {
     }
 
     /// A quantity option of a dimension, in SI; `Some(None)` when absent.
-    fn quantity(&mut self, name: &str, dim: Dim, default: &Unit, sink: &mut Sink) -> Option<Option<(f64, Span, bool)>> {
-        let Some(o) = self.take(name) else { return Some(None) };
+    fn quantity(
+        &mut self,
+        name: &str,
+        dim: Dim,
+        default: &Unit,
+        sink: &mut Sink,
+    ) -> Option<Option<(f64, Span, bool)>> {
+        let Some(o) = self.take(name) else {
+            return Some(None);
+        };
         let OptionValue::Expr(e) = &o.value else {
             sink.push(
-                Diagnostic::error("E0105", format!("`{name}` takes a quantity"), o.value.span())
-                    .with_label(format!("expected {}", dim.describe())),
+                Diagnostic::error(
+                    "E0105",
+                    format!("`{name}` takes a quantity"),
+                    o.value.span(),
+                )
+                .with_label(format!("expected {}", dim.describe())),
             );
             return None;
         };
@@ -1118,8 +1486,16 @@ impl<'a> Options<'a> {
             default.as_difference().to_si(c.value)
         } else if c.dim != dim {
             sink.push(
-                Diagnostic::error("E0203", format!("{what} must be {}, but this is {}", dim.describe(), c.dim.describe()), e.span)
-                    .with_label(format!("expected {}", dim.describe())),
+                Diagnostic::error(
+                    "E0203",
+                    format!(
+                        "{what} must be {}, but this is {}",
+                        dim.describe(),
+                        c.dim.describe()
+                    ),
+                    e.span,
+                )
+                .with_label(format!("expected {}", dim.describe())),
             );
             return None;
         } else {
@@ -1128,14 +1504,27 @@ impl<'a> Options<'a> {
         Some(Some((value, e.span, o.fit.is_some())))
     }
 
-    fn required_quantity(&mut self, name: &str, dim: Dim, default: &Unit, sink: &mut Sink) -> Option<(f64, Span, bool)> {
+    fn required_quantity(
+        &mut self,
+        name: &str,
+        dim: Dim,
+        default: &Unit,
+        sink: &mut Sink,
+    ) -> Option<(f64, Span, bool)> {
         match self.quantity(name, dim, default, sink)? {
             Some(q) => Some(q),
             None => {
                 sink.push(
-                    Diagnostic::error("E0105", format!("`{}` needs `{name}`", self.family), self.span)
-                        .with_label(format!("missing `{name}`"))
-                        .with_help(format!("e.g. `{name} {}` (add `fit` to estimate it)", example_value(name))),
+                    Diagnostic::error(
+                        "E0105",
+                        format!("`{}` needs `{name}`", self.family),
+                        self.span,
+                    )
+                    .with_label(format!("missing `{name}`"))
+                    .with_help(format!(
+                        "e.g. `{name} {}` (add `fit` to estimate it)",
+                        example_value(name)
+                    )),
                 );
                 None
             }
@@ -1148,15 +1537,22 @@ impl<'a> Options<'a> {
         for (o, used) in self.options.iter().zip(&self.used) {
             if !used {
                 sink.push(
-                    Diagnostic::error("E0105", format!("option `{}` does not apply here", o.name.node), o.name.span)
-                        .with_label("unused option"),
+                    Diagnostic::error(
+                        "E0105",
+                        format!("option `{}` does not apply here", o.name.node),
+                        o.name.span,
+                    )
+                    .with_label("unused option"),
                 );
                 ok = false;
             }
         }
         for ((n, s), used) in self.flags.iter().zip(&self.used_flags) {
             if !used {
-                sink.push(Diagnostic::error("E0105", format!("`{n}` needs a value"), *s).with_label("missing value"));
+                sink.push(
+                    Diagnostic::error("E0105", format!("`{n}` needs a value"), *s)
+                        .with_label("missing value"),
+                );
                 ok = false;
             }
         }
@@ -1173,10 +1569,26 @@ fn example_value(name: &str) -> &'static str {
 }
 
 fn absolute_temperature(span: Span) -> Diagnostic {
-    Diagnostic::error("E0204", "an absolute temperature cannot be used as a factor", span)
-        .with_label("absolute temperature")
-        .with_note("errors follow temperature changes; an absolute temperature has an arbitrary zero")
-        .with_help("subtract a reference temperature, e.g. `(T - 20 degC)`")
+    Diagnostic::error(
+        "E0204",
+        "an absolute temperature cannot be used as a factor",
+        span,
+    )
+    .with_label("absolute temperature")
+    .with_note("errors follow temperature changes; an absolute temperature has an arbitrary zero")
+    .with_help("subtract a reference temperature, e.g. `(T - 20 degC)`")
+}
+
+/// Whether every number folded into a scalar is finite.
+fn finite(s: &Scalar) -> bool {
+    match s {
+        Scalar::Num(x) => x.is_finite(),
+        Scalar::Var(_) => true,
+        Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => finite(a),
+        Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+            finite(a) && finite(b)
+        }
+    }
 }
 
 fn simplify_mul(a: Scalar, b: Scalar) -> Scalar {
@@ -1238,7 +1650,10 @@ fn alias(name: &str, st: &Structure) -> Option<(String, Component)> {
     }
     let chars: Vec<char> = name.chars().collect();
     if let [a, k, d] = chars.as_slice() {
-        let axis = st.axes.iter().find(|ax| ax.name.to_lowercase() == a.to_string())?;
+        let axis = st
+            .axes
+            .iter()
+            .find(|ax| ax.name.to_lowercase() == a.to_string())?;
         return Some((axis.name.clone(), comp(*k, *d)?));
     }
     None

@@ -61,7 +61,10 @@ impl Diagnostic {
             severity,
             code,
             message: message.into(),
-            labels: vec![Label { span, message: String::new() }],
+            labels: vec![Label {
+                span,
+                message: String::new(),
+            }],
             notes: Vec::new(),
             help: None,
         }
@@ -77,7 +80,10 @@ impl Diagnostic {
 
     /// A secondary label pointing at related text ("first defined here").
     pub fn with_secondary(mut self, span: Span, message: impl Into<String>) -> Self {
-        self.labels.push(Label { span, message: message.into() });
+        self.labels.push(Label {
+            span,
+            message: message.into(),
+        });
         self
     }
 

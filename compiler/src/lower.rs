@@ -42,7 +42,10 @@ pub struct Output {
 pub fn compile(source: &str) -> Output {
     match syntax::parse_file(source) {
         Ok(file) => lower(&file),
-        Err(d) => Output { compiled: None, diagnostics: vec![d] },
+        Err(d) => Output {
+            compiled: None,
+            diagnostics: vec![d],
+        },
     }
 }
 
@@ -63,9 +66,13 @@ fn lower(file: &ast::File) -> Output {
         if !used {
             if let (Some(input), Some(span)) = (st.inputs.get(i), st.input_spans.get(i)) {
                 sink.push(
-                    Diagnostic::warning("W0101", format!("input `{}` is never used", input.name), *span)
-                        .with_label("declared here")
-                        .with_note("measurement files may still carry its column"),
+                    Diagnostic::warning(
+                        "W0101",
+                        format!("input `{}` is never used", input.name),
+                        *span,
+                    )
+                    .with_label("declared here")
+                    .with_note("measurement files may still carry its column"),
                 );
             }
         }
@@ -98,5 +105,8 @@ fn lower(file: &ast::File) -> Output {
         nonlinear: models.nonlinear_spans,
     };
     let compiled = (!sink.has_errors()).then_some(Compiled { machine, map });
-    Output { compiled, diagnostics: sink.diagnostics }
+    Output {
+        compiled,
+        diagnostics: sink.diagnostics,
+    }
 }

@@ -39,7 +39,13 @@ struct Bound {
 }
 
 impl Bound {
-    fn claim(map: &mut std::collections::HashMap<usize, Span>, k: usize, name: &str, span: Span, sink: &mut Sink) -> bool {
+    fn claim(
+        map: &mut std::collections::HashMap<usize, Span>,
+        k: usize,
+        name: &str,
+        span: Span,
+        sink: &mut Sink,
+    ) -> bool {
         if let Some(first) = map.get(&k) {
             sink.push(
                 Diagnostic::error("E0102", format!("`{name}` is given a value twice"), span)
@@ -69,11 +75,16 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
         if !Bound::claim(&mut bound.nonlinear, k, &nl_name, def.span, sink) {
             return;
         }
-        let Some(p) = machine.nonlinear.get(k) else { return };
+        let Some(p) = machine.nonlinear.get(k) else {
+            return;
+        };
         let unit = p.unit.clone();
         if let Some(v) = scalar_value(&def.value, &unit, sink) {
             if v <= 0.0 {
-                sink.push(Diagnostic::error("E0501", format!("`{nl_name}` must be positive"), def.span).with_label("not positive"));
+                sink.push(
+                    Diagnostic::error("E0501", format!("`{nl_name}` must be positive"), def.span)
+                        .with_label("not positive"),
+                );
             } else if let Some(p) = machine.nonlinear.get_mut(k) {
                 p.value = v;
             }
@@ -109,16 +120,36 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
         (Some(i), value) => {
             let Some(&k) = usize::try_from(i.node).ok().and_then(|i| members.get(i)) else {
                 sink.push(
-                    Diagnostic::error("E0501", format!("`{full}` has {} coefficient{}; index {} is out of range", members.len(), if members.len() == 1 { "" } else { "s" }, i.node), i.span)
-                        .with_label(format!("valid indices: 0..{}", members.len().saturating_sub(1))),
+                    Diagnostic::error(
+                        "E0501",
+                        format!(
+                            "`{full}` has {} coefficient{}; index {} is out of range",
+                            members.len(),
+                            if members.len() == 1 { "" } else { "s" },
+                            i.node
+                        ),
+                        i.span,
+                    )
+                    .with_label(format!(
+                        "valid indices: 0..{}",
+                        members.len().saturating_sub(1)
+                    )),
                 );
                 return;
             };
-            let name = machine.coefficients.get(k).map(|c| c.name.clone()).unwrap_or_default();
+            let name = machine
+                .coefficients
+                .get(k)
+                .map(|c| c.name.clone())
+                .unwrap_or_default();
             if !Bound::claim(&mut bound.coefficients, k, &name, def.span, sink) {
                 return;
             }
-            let unit = machine.coefficients.get(k).map(|c| c.unit.clone()).unwrap_or_else(Unit::dimensionless);
+            let unit = machine
+                .coefficients
+                .get(k)
+                .map(|c| c.unit.clone())
+                .unwrap_or_else(Unit::dimensionless);
             if let Some(v) = scalar_value(value, &unit, sink) {
                 if let Some(b) = machine.beta.get_mut(k) {
                     *b = v;
@@ -128,8 +159,18 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
         (None, ParamValue::List { values, unit, span }) => {
             if values.len() != members.len() {
                 sink.push(
-                    Diagnostic::error("E0501", format!("`{full}` has {} coefficients, but {} values are given", members.len(), values.len()), *span)
-                        .with_label("wrong number of values"),
+                    Diagnostic::error(
+                        "E0501",
+                        format!(
+                            "`{full}` has {} coefficient{}, but {} value{} given",
+                            members.len(),
+                            if members.len() == 1 { "" } else { "s" },
+                            values.len(),
+                            if values.len() == 1 { " is" } else { "s are" }
+                        ),
+                        *span,
+                    )
+                    .with_label("wrong number of values"),
                 );
                 return;
             }
@@ -141,13 +182,19 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                 None => None,
             };
             for k in &members {
-                let name = machine.coefficients.get(*k).map(|c| c.name.clone()).unwrap_or_default();
+                let name = machine
+                    .coefficients
+                    .get(*k)
+                    .map(|c| c.name.clone())
+                    .unwrap_or_default();
                 if !Bound::claim(&mut bound.coefficients, *k, &name, def.span, sink) {
                     return;
                 }
             }
             for (k, v) in members.iter().zip(values) {
-                let Some(coef) = machine.coefficients.get(*k) else { continue };
+                let Some(coef) = machine.coefficients.get(*k) else {
+                    continue;
+                };
                 let unit = match &given {
                     Some((u, uspan)) => {
                         if u.dim != coef.unit.dim {
@@ -165,14 +212,24 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
         }
         (None, ParamValue::Scalar(e)) => {
             let (label, help) = if members.len() == 1 {
-                ("a value without an index", format!("write `{full}[0] = …`, or a list `{full} = [ … ] unit`"))
+                (
+                    "a value without an index",
+                    format!("write `{full}[0] = …`, or a list `{full} = [ … ] unit`"),
+                )
             } else {
-                ("a single value for several coefficients", format!("give them all, `{full} = [ … ] unit`, or one, `{full}[0] = …`"))
+                (
+                    "a single value for several coefficients",
+                    format!("give them all, `{full} = [ … ] unit`, or one, `{full}[0] = …`"),
+                )
             };
             sink.push(
                 Diagnostic::error(
                     "E0501",
-                    format!("`{full}` has {} coefficient{}", members.len(), if members.len() == 1 { "" } else { "s" }),
+                    format!(
+                        "`{full}` has {} coefficient{}",
+                        members.len(),
+                        if members.len() == 1 { "" } else { "s" }
+                    ),
                     e.span,
                 )
                 .with_label(label)
@@ -185,7 +242,13 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
 fn unit_mismatch(name: &str, expected: &Unit, given: &Unit, span: Span) -> Diagnostic {
     Diagnostic::error(
         "E0501",
-        format!("`{name}` is in {} ({}), but `{}` is {}", expected.name, expected.dim.describe(), given.name, given.dim.describe()),
+        format!(
+            "`{name}` is in {} ({}), but `{}` is {}",
+            expected.name,
+            expected.dim.describe(),
+            given.name,
+            given.dim.describe()
+        ),
         span,
     )
     .with_label(format!("expected {}", expected.dim.describe()))
@@ -203,7 +266,12 @@ fn scalar_value(value: &ParamValue, unit: &Unit, sink: &mut Sink) -> Option<f64>
                 sink.push(
                     Diagnostic::error(
                         "E0501",
-                        format!("expected {} (e.g. `{}`), but this is {}", unit.dim.describe(), unit.name, c.dim.describe()),
+                        format!(
+                            "expected {} (e.g. `{}`), but this is {}",
+                            unit.dim.describe(),
+                            unit.name,
+                            c.dim.describe()
+                        ),
                         e.span,
                     )
                     .with_label(format!("expected {}", unit.dim.describe())),
@@ -213,7 +281,10 @@ fn scalar_value(value: &ParamValue, unit: &Unit, sink: &mut Sink) -> Option<f64>
             Some(c.value)
         }
         ParamValue::List { span, .. } => {
-            sink.push(Diagnostic::error("E0501", "expected one value, not a list", *span).with_label("a list"));
+            sink.push(
+                Diagnostic::error("E0501", "expected one value, not a list", *span)
+                    .with_label("a list"),
+            );
             None
         }
     }

@@ -88,9 +88,15 @@ pub(crate) fn parse_unit(name: &Name, sink: &mut Sink) -> Option<Unit> {
     match Unit::parse(&name.node) {
         Ok(u) => Some(u),
         Err(e) => {
+            let label = match e {
+                crate::units::UnitError::ExponentRange { .. } => "exponent out of range",
+                _ => "not a unit kin knows",
+            };
             let mut d = Diagnostic::error("E0103", format!("{e} in `{}`", name.node), name.span)
-                .with_label("not a unit kin knows");
-            if let Some(s) = suggest(&name.node, Unit::ATOM_NAMES) {
+                .with_label(label);
+            if matches!(e, crate::units::UnitError::ExponentRange { .. }) {
+                d = d.with_help("powers of units run from -127 to 127");
+            } else if let Some(s) = suggest(&name.node, Unit::ATOM_NAMES) {
                 d = d.with_help(format!("did you mean `{s}`?"));
             } else {
                 d = d.with_note(format!("known units: {}", Unit::ATOM_NAMES.join(" ")));
@@ -113,18 +119,46 @@ pub(crate) struct Constant {
 /// Folds a constant expression (numbers with units and arithmetic). `absolute` says whether a
 /// lone `degC` is an absolute temperature (with the 273.15 offset) or a difference.
 pub(crate) fn constant(expr: &Expr, absolute: bool, sink: &mut Sink) -> Option<Constant> {
+    let c = constant_inner(expr, absolute, sink)?;
+    if !c.value.is_finite() {
+        sink.push(
+            Diagnostic::error(
+                "E0003",
+                "this constant is too large to represent",
+                expr.span,
+            )
+            .with_label("not a finite number")
+            .with_help("numbers must stay within double precision (about 1e308)"),
+        );
+        return None;
+    }
+    Some(c)
+}
+
+fn constant_inner(expr: &Expr, absolute: bool, sink: &mut Sink) -> Option<Constant> {
     match &expr.kind {
         ExprKind::Quantity { value, unit } => match unit {
-            None => Some(Constant { value: *value, dim: Dim::DIMENSIONLESS, bare: true }),
+            None => Some(Constant {
+                value: *value,
+                dim: Dim::DIMENSIONLESS,
+                bare: true,
+            }),
             Some(u) => {
                 let unit = parse_unit(u, sink)?;
                 let unit = if absolute { unit } else { unit.as_difference() };
-                Some(Constant { value: unit.to_si(*value), dim: unit.dim, bare: false })
+                Some(Constant {
+                    value: unit.to_si(*value),
+                    dim: unit.dim,
+                    bare: false,
+                })
             }
         },
         ExprKind::Neg(inner) => {
             let c = constant(inner, absolute, sink)?;
-            Some(Constant { value: -c.value, ..c })
+            Some(Constant {
+                value: -c.value,
+                ..c
+            })
         }
         ExprKind::Binary(op, a, b) => {
             let x = constant(a, absolute, sink)?;
@@ -136,8 +170,16 @@ pub(crate) fn constant(expr: &Expr, absolute: bool, sink: &mut Sink) -> Option<C
                         return None;
                     }
                     let dim = if x.bare { y.dim } else { x.dim };
-                    let value = if *op == ast::BinOp::Add { x.value + y.value } else { x.value - y.value };
-                    Some(Constant { value, dim, bare: x.bare && y.bare })
+                    let value = if *op == ast::BinOp::Add {
+                        x.value + y.value
+                    } else {
+                        x.value - y.value
+                    };
+                    Some(Constant {
+                        value,
+                        dim,
+                        bare: x.bare && y.bare,
+                    })
                 }
                 ast::BinOp::Mul => Some(Constant {
                     value: x.value * y.value,
@@ -146,7 +188,10 @@ pub(crate) fn constant(expr: &Expr, absolute: bool, sink: &mut Sink) -> Option<C
                 }),
                 ast::BinOp::Div => {
                     if y.value == 0.0 {
-                        sink.push(Diagnostic::error("E0003", "division by zero", b.span));
+                        sink.push(
+                            Diagnostic::error("E0003", "division by zero", b.span)
+                                .with_label("this is zero"),
+                        );
                         return None;
                     }
                     Some(Constant {
@@ -159,9 +204,15 @@ pub(crate) fn constant(expr: &Expr, absolute: bool, sink: &mut Sink) -> Option<C
         }
         _ => {
             sink.push(
-                Diagnostic::error("E0203", "expected a constant quantity such as `600 mm`", expr.span)
-                    .with_label("not a constant")
-                    .with_note("ranges, offsets and options take numbers with units, not machine state"),
+                Diagnostic::error(
+                    "E0203",
+                    "expected a constant quantity such as `600 mm`",
+                    expr.span,
+                )
+                .with_label("not a constant")
+                .with_note(
+                    "ranges, offsets and options take numbers with units, not machine state",
+                ),
             );
             None
         }
@@ -171,7 +222,11 @@ pub(crate) fn constant(expr: &Expr, absolute: bool, sink: &mut Sink) -> Option<C
 pub(crate) fn dimension_mismatch(op: Span, a: Span, da: Dim, b: Span, db: Dim) -> Diagnostic {
     Diagnostic::error(
         "E0201",
-        format!("cannot add or subtract {} and {}", da.describe(), db.describe()),
+        format!(
+            "cannot add or subtract {} and {}",
+            da.describe(),
+            db.describe()
+        ),
         op,
     )
     .with_label("mismatched dimensions")
@@ -190,18 +245,30 @@ pub(crate) fn quantity_of(
 ) -> Option<f64> {
     let c = constant(expr, absolute, sink)?;
     if c.bare {
-        let unit = if absolute { default.clone() } else { default.as_difference() };
+        let unit = if absolute {
+            default.clone()
+        } else {
+            default.as_difference()
+        };
         return Some(unit.to_si(c.value));
     }
     if c.dim != dim {
         sink.push(
             Diagnostic::error(
                 "E0203",
-                format!("{what} must be {}, but this is {}", dim.describe(), c.dim.describe()),
+                format!(
+                    "{what} must be {}, but this is {}",
+                    dim.describe(),
+                    c.dim.describe()
+                ),
                 expr.span,
             )
             .with_label(format!("expected {}", dim.describe()))
-            .with_help(format!("write it in {} units, e.g. `{}`", dim.describe(), default.name)),
+            .with_help(format!(
+                "write it in {} units, e.g. `{}`",
+                dim.describe(),
+                default.name
+            )),
         );
         return None;
     }
@@ -292,7 +359,9 @@ pub(crate) fn resolve(machine: &ast::Machine, sink: &mut Sink) -> Structure {
 fn resolve_units(machine: &ast::Machine, sink: &mut Sink) -> ir::DisplayUnits {
     let mut chosen: HashMap<&str, (Unit, Span)> = HashMap::new();
     for item in &machine.items {
-        let ast::Item::Units(decl) = item else { continue };
+        let ast::Item::Units(decl) = item else {
+            continue;
+        };
         for b in &decl.bindings {
             let kind = b.quantity.node.as_str();
             let Some(dim) = expected_dim(kind) else {
@@ -310,12 +379,19 @@ fn resolve_units(machine: &ast::Machine, sink: &mut Sink) -> ir::DisplayUnits {
                 sink.push(d);
                 continue;
             };
-            let Some(unit) = parse_unit(&b.unit, sink) else { continue };
+            let Some(unit) = parse_unit(&b.unit, sink) else {
+                continue;
+            };
             if unit.dim != dim {
                 sink.push(
                     Diagnostic::error(
                         "E0203",
-                        format!("`{}` is {}, but {kind} is {}", unit.name, unit.dim.describe(), dim.describe()),
+                        format!(
+                            "`{}` is {}, but {kind} is {}",
+                            unit.name,
+                            unit.dim.describe(),
+                            dim.describe()
+                        ),
                         b.unit.span,
                     )
                     .with_label(format!("expected a unit of {}", dim.describe())),
@@ -324,9 +400,13 @@ fn resolve_units(machine: &ast::Machine, sink: &mut Sink) -> ir::DisplayUnits {
             }
             if let Some((_, first)) = chosen.get(kind) {
                 sink.push(
-                    Diagnostic::error("E0102", format!("the unit of `{kind}` is given twice"), b.quantity.span)
-                        .with_label("second definition")
-                        .with_secondary(*first, "first defined here"),
+                    Diagnostic::error(
+                        "E0102",
+                        format!("the unit of `{kind}` is given twice"),
+                        b.quantity.span,
+                    )
+                    .with_label("second definition")
+                    .with_secondary(*first, "first defined here"),
                 );
                 continue;
             }
@@ -335,7 +415,11 @@ fn resolve_units(machine: &ast::Machine, sink: &mut Sink) -> ir::DisplayUnits {
     }
     let pick = |kind: &str| -> Unit {
         chosen.get(kind).map(|(u, _)| u.clone()).unwrap_or_else(|| {
-            let text = DEFAULT_UNITS.iter().find(|(k, _)| *k == kind).map(|(_, u)| *u).unwrap_or("1");
+            let text = DEFAULT_UNITS
+                .iter()
+                .find(|(k, _)| *k == kind)
+                .map(|(_, u)| *u)
+                .unwrap_or("1");
             Unit::parse(text).unwrap_or_else(|_| Unit::dimensionless())
         })
     };
@@ -411,9 +495,15 @@ fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) ->
             let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
             if !(norm > 1e-12) || !norm.is_finite() {
                 sink.push(
-                    Diagnostic::error("E0405", format!("axis `{}` has a zero direction", a.name.node), v.span)
-                        .with_label("this vector has no length")
-                        .with_help("give the direction of motion, e.g. `along (0, 0.6, 0.8)` or `along -x`"),
+                    Diagnostic::error(
+                        "E0405",
+                        format!("axis `{}` has a zero direction", a.name.node),
+                        v.span,
+                    )
+                    .with_label("this vector has no length")
+                    .with_help(
+                        "give the direction of motion, e.g. `along (0, 0.6, 0.8)` or `along -x`",
+                    ),
                 );
                 return None;
             }
@@ -428,9 +518,15 @@ fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) ->
         None => {
             if kind == ir::JointKind::Revolute {
                 sink.push(
-                    Diagnostic::error("E0304", format!("revolute axis `{}` has no range", a.name.node), a.name.span)
-                        .with_label("needs `range LO .. HI` or `continuous`")
-                        .with_help("add `continuous` for a full-turn axis, or e.g. `range -90 deg .. 90 deg`"),
+                    Diagnostic::error(
+                        "E0304",
+                        format!("revolute axis `{}` has no range", a.name.node),
+                        a.name.span,
+                    )
+                    .with_label("needs `range LO .. HI` or `continuous`")
+                    .with_help(
+                        "add `continuous` for a full-turn axis, or e.g. `range -90 deg .. 90 deg`",
+                    ),
                 );
             } else {
                 sink.push(
@@ -455,14 +551,26 @@ fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) ->
                 ([0.0, std::f64::consts::TAU], true)
             }
             ast::AxisRange::Interval(lo, hi) => {
-                let what = format!("the range of {} axis `{}`", if kind == ir::JointKind::Prismatic { "prismatic" } else { "revolute" }, a.name.node);
+                let what = format!(
+                    "the range of {} axis `{}`",
+                    if kind == ir::JointKind::Prismatic {
+                        "prismatic"
+                    } else {
+                        "revolute"
+                    },
+                    a.name.node
+                );
                 let l = quantity_of(lo, dim, default, false, &what, sink);
                 let h = quantity_of(hi, dim, default, false, &what, sink);
                 let (l, h) = (l?, h?);
                 if !(l < h) {
                     sink.push(
-                        Diagnostic::error("E0304", format!("the range of `{}` is empty or inverted", a.name.node), r.span)
-                            .with_label("the lower end must be below the upper end"),
+                        Diagnostic::error(
+                            "E0304",
+                            format!("the range of `{}` is empty or inverted", a.name.node),
+                            r.span,
+                        )
+                        .with_label("the lower end must be below the upper end"),
                     );
                     return None;
                 }
@@ -470,7 +578,13 @@ fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) ->
             }
         },
     };
-    Some(ir::Axis { name: a.name.node.clone(), kind, direction, range, continuous })
+    Some(ir::Axis {
+        name: a.name.node.clone(),
+        kind,
+        direction,
+        range,
+        continuous,
+    })
 }
 
 fn resolve_input(
@@ -487,10 +601,21 @@ fn resolve_input(
         "time" => (Dim::TIME, units.time.clone()),
         "dimensionless" => (Dim::DIMENSIONLESS, Unit::dimensionless()),
         _ => {
-            let kinds = ["temperature", "force", "length", "angle", "time", "dimensionless"];
-            let mut d = Diagnostic::error("E0101", format!("unknown input kind `{kind}`"), i.dimension.span)
-                .with_label("not a kind of input")
-                .with_note(format!("input kinds: {}", kinds.join(", ")));
+            let kinds = [
+                "temperature",
+                "force",
+                "length",
+                "angle",
+                "time",
+                "dimensionless",
+            ];
+            let mut d = Diagnostic::error(
+                "E0101",
+                format!("unknown input kind `{kind}`"),
+                i.dimension.span,
+            )
+            .with_label("not a kind of input")
+            .with_note(format!("input kinds: {}", kinds.join(", ")));
             if let Some(s) = suggest(kind, kinds) {
                 d = d.with_help(format!("did you mean `{s}`?"));
             }
@@ -510,7 +635,13 @@ fn resolve_input(
                     sink.push(
                         Diagnostic::error(
                             "E0203",
-                            format!("input `{}` is {}, but `{}` is {}", i.name.node, dim.describe(), parsed.name, parsed.dim.describe()),
+                            format!(
+                                "input `{}` is {}, but `{}` is {}",
+                                i.name.node,
+                                dim.describe(),
+                                parsed.name,
+                                parsed.dim.describe()
+                            ),
                             u.span,
                         )
                         .with_label(format!("expected a unit of {}", dim.describe())),
@@ -535,14 +666,22 @@ fn resolve_input(
         }
         (false, Some((_, span))) => {
             sink.push(
-                Diagnostic::error("E0105", "`rise` and `absolute` apply to temperature inputs only", span)
-                    .with_label("not a temperature"),
+                Diagnostic::error(
+                    "E0105",
+                    "`rise` and `absolute` apply to temperature inputs only",
+                    span,
+                )
+                .with_label("not a temperature"),
             );
             return None;
         }
         (false, None) => false,
     };
-    let unit = if absolute { unit.as_absolute() } else { unit.as_difference() };
+    let unit = if absolute {
+        unit.as_absolute()
+    } else {
+        unit.as_difference()
+    };
     let range = match range_expr {
         None => None,
         Some((lo, hi, span)) => {
@@ -551,15 +690,27 @@ fn resolve_input(
             let h = quantity_of(hi, dim, &unit, absolute, &what, sink)?;
             if !(l < h) {
                 sink.push(
-                    Diagnostic::error("E0304", format!("the range of `{}` is empty or inverted", i.name.node), span)
-                        .with_label("the lower end must be below the upper end"),
+                    Diagnostic::error(
+                        "E0304",
+                        format!("the range of `{}` is empty or inverted", i.name.node),
+                        span,
+                    )
+                    .with_label("the lower end must be below the upper end"),
                 );
                 return None;
             }
             Some([l, h])
         }
     };
-    Some((ir::Input { name: i.name.node.clone(), unit, absolute, range }, range))
+    Some((
+        ir::Input {
+            name: i.name.node.clone(),
+            unit,
+            absolute,
+            range,
+        },
+        range,
+    ))
 }
 
 fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
@@ -567,7 +718,9 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
     let mut axis_use: Vec<Option<Span>> = vec![None; st.axes.len()];
     let mut workpiece_seen: Option<Span> = None;
     for item in &machine.items {
-        let ast::Item::Chain(chain) = item else { continue };
+        let ast::Item::Chain(chain) = item else {
+            continue;
+        };
         let slot = match chain.kind.node {
             ast::ChainKind::Tool => 0,
             ast::ChainKind::Workpiece => 1,
@@ -579,14 +732,20 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
                     .with_secondary(*first, "first declared here")
                     .with_help("list all elements of a chain in one block, from the base outward"),
             );
-            continue;
         }
+        // A second block of the same chain is reported, but its items are still read: the
+        // user means them, and skipping them would report every axis in it as unplaced.
         if let Some(s) = seen_chain.get_mut(slot) {
-            *s = Some(chain.kind.span);
+            s.get_or_insert(chain.kind.span);
         }
         for ci in &chain.items {
             match ci {
-                ast::ChainItem::Element { axis, frame, placement, span } => {
+                ast::ChainItem::Element {
+                    axis,
+                    frame,
+                    placement,
+                    span,
+                } => {
                     let Some(index) = st.axis_index(&axis.node) else {
                         if !st.broken.contains(&axis.node) {
                             sink.push(not_an_axis(axis, st));
@@ -595,10 +754,16 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
                     };
                     if let Some(first) = axis_use.get(index).copied().flatten() {
                         sink.push(
-                            Diagnostic::error("E0402", format!("axis `{}` is used twice", axis.node), axis.span)
-                                .with_label("second use")
-                                .with_secondary(first, "first used here")
-                                .with_note("each axis is one joint: it sits in exactly one chain, once"),
+                            Diagnostic::error(
+                                "E0402",
+                                format!("axis `{}` is used twice", axis.node),
+                                axis.span,
+                            )
+                            .with_label("second use")
+                            .with_secondary(first, "first used here")
+                            .with_note(
+                                "each axis is one joint: it sits in exactly one chain, once",
+                            ),
                         );
                         continue;
                     }
@@ -614,7 +779,11 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
                         },
                         shape,
                     };
-                    let list = if slot == 0 { &mut st.tool_chain } else { &mut st.workpiece_chain };
+                    let list = if slot == 0 {
+                        &mut st.tool_chain
+                    } else {
+                        &mut st.workpiece_chain
+                    };
                     let frame_ref = if slot == 0 {
                         ir::FrameRef::Tool(list.len())
                     } else {
@@ -625,7 +794,11 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
                         *f = Some(frame_ref);
                     }
                 }
-                ast::ChainItem::Tool { name, placement, span } => {
+                ast::ChainItem::Tool {
+                    name,
+                    placement,
+                    span,
+                } => {
                     if slot == 1 {
                         sink.push(
                             Diagnostic::error("E0404", "a tool belongs in the tool chain", *span)
@@ -635,15 +808,22 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
                         continue;
                     }
                     let offset = resolve_placement(placement, &st.units, sink);
-                    st.tools.push(ir::Tool { name: name.node.clone(), offset });
+                    st.tools.push(ir::Tool {
+                        name: name.node.clone(),
+                        offset,
+                    });
                     st.tool_spans.push(name.span);
                 }
                 ast::ChainItem::Workpiece { placement, span } => {
                     if slot == 0 {
                         sink.push(
-                            Diagnostic::error("E0404", "the workpiece belongs in the workpiece chain", *span)
-                                .with_label("workpiece in the tool chain")
-                                .with_help("move it into `workpiece chain { … }`"),
+                            Diagnostic::error(
+                                "E0404",
+                                "the workpiece belongs in the workpiece chain",
+                                *span,
+                            )
+                            .with_label("workpiece in the tool chain")
+                            .with_help("move it into `workpiece chain { … }`"),
                         );
                         continue;
                     }
@@ -666,9 +846,16 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
         if used.is_none() {
             if let (Some(axis), Some(span)) = (st.axes.get(index), st.axis_spans.get(index)) {
                 sink.push(
-                    Diagnostic::error("E0401", format!("axis `{}` is used in no chain", axis.name), *span)
-                        .with_label("declared here, but never placed")
-                        .with_help(format!("add `{} moving` to the tool chain or the workpiece chain", axis.name)),
+                    Diagnostic::error(
+                        "E0401",
+                        format!("axis `{}` is used in no chain", axis.name),
+                        *span,
+                    )
+                    .with_label("declared here, but never placed")
+                    .with_help(format!(
+                        "add `{} moving` to the tool chain or the workpiece chain",
+                        axis.name
+                    )),
                 );
             }
         }
@@ -685,15 +872,24 @@ fn resolve_chains(machine: &ast::Machine, st: &mut Structure, sink: &mut Sink) {
 }
 
 fn not_an_axis(name: &Name, st: &Structure) -> Diagnostic {
-    let mut d = Diagnostic::error("E0403", format!("chain element `{}` is not an axis", name.node), name.span);
+    let mut d = Diagnostic::error(
+        "E0403",
+        format!("chain element `{}` is not an axis", name.node),
+        name.span,
+    );
     if st.input_index(&name.node).is_some() {
-        d = d.with_label("this is an input").with_note("a chain element is a joint: a declared axis");
+        d = d
+            .with_label("this is an input")
+            .with_note("a chain element is a joint: a declared axis");
     } else {
         d = d.with_label("unknown axis");
         if let Some(s) = suggest(&name.node, st.axes.iter().map(|a| a.name.as_str())) {
             d = d.with_help(format!("did you mean `{s}`?"));
         } else {
-            d = d.with_help(format!("declare it first: `axis {} prismatic along x range 0 mm .. 500 mm`", name.node));
+            d = d.with_help(format!(
+                "declare it first: `axis {} prismatic along x range 0 mm .. 500 mm`",
+                name.node
+            ));
         }
     }
     d
@@ -718,8 +914,17 @@ fn vector_of(v: &ast::Vector, dim: Dim, default: &Unit, what: &str, sink: &mut S
             Some(unit) if unit.dim == dim => unit,
             Some(unit) => {
                 sink.push(
-                    Diagnostic::error("E0203", format!("{what} must be {}, but `{}` is {}", dim.describe(), unit.name, unit.dim.describe()), u.span)
-                        .with_label(format!("expected a unit of {}", dim.describe())),
+                    Diagnostic::error(
+                        "E0203",
+                        format!(
+                            "{what} must be {}, but `{}` is {}",
+                            dim.describe(),
+                            unit.name,
+                            unit.dim.describe()
+                        ),
+                        u.span,
+                    )
+                    .with_label(format!("expected a unit of {}", dim.describe())),
                 );
                 return [0.0; 3];
             }

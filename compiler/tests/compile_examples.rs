@@ -13,7 +13,12 @@ fn every_example_checks_clean() {
         seen += 1;
         let src = std::fs::read_to_string(&path).expect("readable");
         let out = compile(&src);
-        assert!(out.diagnostics.is_empty(), "{}: {:#?}", path.display(), out.diagnostics);
+        assert!(
+            out.diagnostics.is_empty(),
+            "{}: {:#?}",
+            path.display(),
+            out.diagnostics
+        );
         let c = out.compiled.expect("compiled");
         let m = &c.machine;
         assert_eq!(m.coefficients.len(), c.map.coefficients.len());

@@ -23,7 +23,11 @@ pub enum CurveError {
     #[error("FIT.json has {fit} coefficients but the model has {model}: it was fitted with another model")]
     Count { fit: usize, model: usize },
     #[error("coefficient {index} is `{fit}` in FIT.json but `{model}` in the model: it was fitted with another model")]
-    Name { index: usize, fit: String, model: String },
+    Name {
+        index: usize,
+        fit: String,
+        model: String,
+    },
     #[error("evaluating the model: {0}")]
     Eval(#[from] EvalError),
 }
@@ -67,7 +71,12 @@ pub type Ranges = HashMap<Var, (f64, f64)>;
 
 /// How a frame is called in a `.kin` file: its axis, tool or `workpiece`.
 pub fn frame_name(m: &Machine, f: FrameRef) -> String {
-    let axis = |chain: &[kin_compiler::ir::Element], k: usize| chain.get(k).and_then(|e| m.axes.get(e.axis)).map(|a| a.name.clone());
+    let axis = |chain: &[kin_compiler::ir::Element], k: usize| {
+        chain
+            .get(k)
+            .and_then(|e| m.axes.get(e.axis))
+            .map(|a| a.name.clone())
+    };
     let name = match f {
         FrameRef::Tool(k) => axis(&m.tool_chain, k),
         FrameRef::Workpiece(k) => axis(&m.workpiece_chain, k),
@@ -85,8 +94,17 @@ pub fn var_unit(m: &Machine, v: Var) -> Unit {
             Some(kin_compiler::ir::JointKind::Revolute) => m.units.angle.clone(),
             _ => m.units.length.clone(),
         },
-        Var::Input(i) => m.inputs.get(i).map(|i| i.unit.clone()).unwrap_or_else(Unit::dimensionless),
-        Var::Lag(l) => m.lags.get(l).and_then(|l| m.inputs.get(l.input)).map(|i| i.unit.clone()).unwrap_or_else(Unit::dimensionless),
+        Var::Input(i) => m
+            .inputs
+            .get(i)
+            .map(|i| i.unit.clone())
+            .unwrap_or_else(Unit::dimensionless),
+        Var::Lag(l) => m
+            .lags
+            .get(l)
+            .and_then(|l| m.inputs.get(l.input))
+            .map(|i| i.unit.clone())
+            .unwrap_or_else(Unit::dimensionless),
         Var::Time => m.units.time.clone(),
         Var::Direction(_) => Unit::dimensionless(),
     }
@@ -143,11 +161,19 @@ struct Reference {
 
 impl Reference {
     fn new(m: &Machine, data: &Ranges) -> Reference {
-        let mid = |v: Var| range_of(m, v, data).map(|(lo, hi)| 0.5 * (lo + hi)).unwrap_or(0.0);
+        let mid = |v: Var| {
+            range_of(m, v, data)
+                .map(|(lo, hi)| 0.5 * (lo + hi))
+                .unwrap_or(0.0)
+        };
         let inputs: Vec<f64> = (0..m.inputs.len()).map(|i| mid(Var::Input(i))).collect();
         Reference {
             q: (0..m.axes.len()).map(|a| mid(Var::Axis(a))).collect(),
-            lags: m.lags.iter().map(|l| inputs.get(l.input).copied().unwrap_or(0.0)).collect(),
+            lags: m
+                .lags
+                .iter()
+                .map(|l| inputs.get(l.input).copied().unwrap_or(0.0))
+                .collect(),
             inputs,
             time: mid(Var::Time),
             dirs: vec![1.0; m.axes.len()],
@@ -168,14 +194,27 @@ impl Reference {
     }
 
     fn state(&self, tool: usize) -> State<'_> {
-        State { q: &self.q, inputs: &self.inputs, lags: &self.lags, time: self.time, dirs: &self.dirs, tool, tool_offset: None }
+        State {
+            q: &self.q,
+            inputs: &self.inputs,
+            lags: &self.lags,
+            time: self.time,
+            dirs: &self.dirs,
+            tool,
+            tool_offset: None,
+        }
     }
 
     fn describe(&self, m: &Machine, data: &Ranges) -> Vec<String> {
         let mut out = Vec::new();
         let show = |v: Var, si: f64| {
             let u = var_unit(m, v);
-            format!("{} = {} {}", var_name(v, m), super::num(u.from_si(si), 4), u.name)
+            format!(
+                "{} = {} {}",
+                var_name(v, m),
+                super::num(u.from_si(si), 4),
+                u.name
+            )
         };
         for (a, q) in self.q.iter().enumerate() {
             out.push(show(Var::Axis(a), *q));
@@ -197,7 +236,14 @@ impl Target {
     /// The first variable sharing a term with `v` (directions aside: they get lines of their
     /// own).
     fn coupled(&self, v: Var) -> Option<Var> {
-        let mut with: Vec<Var> = self.terms.iter().filter(|t| t.contains(&v)).flatten().copied().filter(|w| *w != v && !matches!(w, Var::Direction(_))).collect();
+        let mut with: Vec<Var> = self
+            .terms
+            .iter()
+            .filter(|t| t.contains(&v))
+            .flatten()
+            .copied()
+            .filter(|w| *w != v && !matches!(w, Var::Direction(_)))
+            .collect();
         with.sort_by_key(|w| order(*w));
         with.first().copied()
     }
@@ -220,10 +266,20 @@ struct Target {
 fn targets(m: &Machine) -> Vec<Target> {
     let mut out: Vec<Target> = Vec::new();
     for model in &m.errors {
-        let k = match out.iter().position(|t| t.frame == model.frame && t.component == model.component) {
+        let k = match out
+            .iter()
+            .position(|t| t.frame == model.frame && t.component == model.component)
+        {
             Some(k) => k,
             None => {
-                out.push(Target { frame: model.frame, component: model.component, columns: Vec::new(), vars: Vec::new(), terms: Vec::new(), dense: Vec::new() });
+                out.push(Target {
+                    frame: model.frame,
+                    component: model.component,
+                    columns: Vec::new(),
+                    vars: Vec::new(),
+                    terms: Vec::new(),
+                    dense: Vec::new(),
+                });
                 out.len() - 1
             }
         };
@@ -266,17 +322,28 @@ fn order(v: Var) -> (u8, usize) {
 fn estimates(m: &Machine, fit: &FitReport) -> Result<(Vec<f64>, Vec<f64>), CurveError> {
     let n = m.coefficients.len();
     if fit.coefficients.len() != n {
-        return Err(CurveError::Count { fit: fit.coefficients.len(), model: n });
+        return Err(CurveError::Count {
+            fit: fit.coefficients.len(),
+            model: n,
+        });
     }
     let mut beta = Vec::with_capacity(n);
     for (j, (e, c)) in fit.coefficients.iter().zip(&m.coefficients).enumerate() {
         if e.name != c.name {
-            return Err(CurveError::Name { index: j, fit: e.name.clone(), model: c.name.clone() });
+            return Err(CurveError::Name {
+                index: j,
+                fit: e.name.clone(),
+                model: c.name.clone(),
+            });
         }
         beta.push(e.value * c.unit.scale);
     }
     // Without a usable covariance the curves are still drawn, without bands.
-    let cov = if fit.covariance.len() == n * n { fit.covariance.clone() } else { vec![f64::NAN; n * n] };
+    let cov = if fit.covariance.len() == n * n {
+        fit.covariance.clone()
+    } else {
+        vec![f64::NAN; n * n]
+    };
     Ok((beta, cov))
 }
 
@@ -289,22 +356,55 @@ pub fn curves(m: &Machine, fit: &FitReport, data: &Ranges) -> Result<Curves, Cur
     let nonlinear: Vec<f64> = m
         .nonlinear
         .iter()
-        .map(|p| fit.nonlinear.iter().find(|e| e.name == p.name).map(|e| p.unit.to_si(e.value)).unwrap_or(p.value))
+        .map(|p| {
+            fit.nonlinear
+                .iter()
+                .find(|e| e.name == p.name)
+                .map(|e| p.unit.to_si(e.value))
+                .unwrap_or(p.value)
+        })
         .collect();
     engine.set_nonlinear(&nonlinear)?;
     let mut reference = Reference::new(m, data);
     let described = reference.describe(m, data);
-    let mut probe = Probe { engine, errors: FrameErrors::zeros(m), unit: vec![0.0; n] };
-    let mut out = Curves { curves: Vec::new(), constants: Vec::new(), reference: described };
+    let mut probe = Probe {
+        engine,
+        errors: FrameErrors::zeros(m),
+        unit: vec![0.0; n],
+    };
+    let mut out = Curves {
+        curves: Vec::new(),
+        constants: Vec::new(),
+        reference: described,
+    };
     for t in targets(m) {
         let tool = match t.frame {
             FrameRef::ToolEnd(Some(i)) => i,
             _ => 0,
         };
         let name = format!("{}.{}", frame_name(m, t.frame), t.component.name());
-        let y_unit = if t.component.is_rotation() { &m.units.tilt } else { &m.units.error };
-        let directions: Vec<usize> = t.vars.iter().filter_map(|v| if let Var::Direction(a) = v { Some(*a) } else { None }).collect();
-        let mut plotted: Vec<Var> = t.vars.iter().copied().filter(|v| !matches!(v, Var::Direction(_))).collect();
+        let y_unit = if t.component.is_rotation() {
+            &m.units.tilt
+        } else {
+            &m.units.error
+        };
+        let directions: Vec<usize> = t
+            .vars
+            .iter()
+            .filter_map(|v| {
+                if let Var::Direction(a) = v {
+                    Some(*a)
+                } else {
+                    None
+                }
+            })
+            .collect();
+        let mut plotted: Vec<Var> = t
+            .vars
+            .iter()
+            .copied()
+            .filter(|v| !matches!(v, Var::Direction(_)))
+            .collect();
         if plotted.is_empty() {
             if let Some(&a) = directions.first() {
                 // Only a direction (pure backlash): show it along its axis, one line per direction.
@@ -314,20 +414,37 @@ pub fn curves(m: &Machine, fit: &FitReport, data: &Ranges) -> Result<Curves, Cur
         if plotted.is_empty() {
             let state = reference.state(tool);
             let (v, s) = probe.at(&state, &t, &beta, &cov)?;
-            out.constants.push(Constant { target: name, unit: y_unit.name.clone(), value: y_unit.from_si(v), band: 2.0 * s / y_unit.scale });
+            out.constants.push(Constant {
+                target: name,
+                unit: y_unit.name.clone(),
+                value: y_unit.from_si(v),
+                band: 2.0 * s / y_unit.scale,
+            });
             continue;
         }
-        let signs: Vec<Option<f64>> = if directions.is_empty() { vec![None] } else { vec![Some(1.0), Some(-1.0)] };
+        let signs: Vec<Option<f64>> = if directions.is_empty() {
+            vec![None]
+        } else {
+            vec![Some(1.0), Some(-1.0)]
+        };
         for v in plotted {
-            let Some((lo, hi)) = range_of(m, v, data) else { continue };
+            let Some((lo, hi)) = range_of(m, v, data) else {
+                continue;
+            };
             let samples = if t.dense.contains(&v) { 1201 } else { 241 };
             let xu = var_unit(m, v);
-            let xs: Vec<f64> = (0..samples).map(|i| lo + (hi - lo) * i as f64 / (samples - 1) as f64).collect();
+            let xs: Vec<f64> = (0..samples)
+                .map(|i| lo + (hi - lo) * i as f64 / (samples - 1) as f64)
+                .collect();
             // Lines: one per direction of motion and per level of a coupled variable.
-            let levels: Vec<Option<(Var, f64)>> = match t.coupled(v).and_then(|w| Some((w, range_of(m, w, data)?))) {
-                Some((w, (wlo, whi))) => [wlo, 0.5 * (wlo + whi), whi].into_iter().map(|x| Some((w, x))).collect(),
-                None => vec![None],
-            };
+            let levels: Vec<Option<(Var, f64)>> =
+                match t.coupled(v).and_then(|w| Some((w, range_of(m, w, data)?))) {
+                    Some((w, (wlo, whi))) => [wlo, 0.5 * (wlo + whi), whi]
+                        .into_iter()
+                        .map(|x| Some((w, x)))
+                        .collect(),
+                    None => vec![None],
+                };
             let mut lines = Vec::new();
             for sign in &signs {
                 for &a in &directions {
@@ -340,13 +457,26 @@ pub fn curves(m: &Machine, fit: &FitReport, data: &Ranges) -> Result<Curves, Cur
                     }
                     let mut parts = Vec::new();
                     if let Some(s) = sign {
-                        parts.push(if *s > 0.0 { "moving +".to_string() } else { "moving −".to_string() });
+                        parts.push(if *s > 0.0 {
+                            "moving +".to_string()
+                        } else {
+                            "moving −".to_string()
+                        });
                     }
                     if let Some((w, x)) = level {
                         let wu = var_unit(m, *w);
-                        parts.push(format!("{} = {} {}", var_name(*w, m), super::num(wu.from_si(*x), 3), wu.name));
+                        parts.push(format!(
+                            "{} = {} {}",
+                            var_name(*w, m),
+                            super::num(wu.from_si(*x), 3),
+                            wu.name
+                        ));
                     }
-                    let mut line = Line { label: (!parts.is_empty()).then(|| parts.join(", ")), value: Vec::with_capacity(samples), band: Vec::with_capacity(samples) };
+                    let mut line = Line {
+                        label: (!parts.is_empty()).then(|| parts.join(", ")),
+                        value: Vec::with_capacity(samples),
+                        band: Vec::with_capacity(samples),
+                    };
                     let saved = reference_value(&reference, v);
                     for &x in &xs {
                         set_with_lags(&mut reference, m, v, x);
@@ -410,12 +540,24 @@ struct Probe<'m> {
 
 impl Probe<'_> {
     fn component(&mut self, state: &State, t: &Target) -> Result<f64, CurveError> {
-        self.engine.frame_errors(state, &self.unit, &mut self.errors)?;
-        Ok(self.errors.get(t.frame).and_then(|e| e.get(t.component.index())).copied().unwrap_or(0.0))
+        self.engine
+            .frame_errors(state, &self.unit, &mut self.errors)?;
+        Ok(self
+            .errors
+            .get(t.frame)
+            .and_then(|e| e.get(t.component.index()))
+            .copied()
+            .unwrap_or(0.0))
     }
 
     /// The fitted value `gᵀβ̂` (SI) and its standard error `√(gᵀ Cov g)` at `state`.
-    fn at(&mut self, state: &State, t: &Target, beta: &[f64], cov: &[f64]) -> Result<(f64, f64), CurveError> {
+    fn at(
+        &mut self,
+        state: &State,
+        t: &Target,
+        beta: &[f64],
+        cov: &[f64],
+    ) -> Result<(f64, f64), CurveError> {
         let n = beta.len();
         let fixed = self.component(state, t)?;
         let mut g = Vec::with_capacity(t.columns.len());
@@ -429,7 +571,12 @@ impl Probe<'_> {
             }
             g.push(e? - fixed);
         }
-        let value: f64 = t.columns.iter().zip(&g).map(|(&j, gj)| gj * beta.get(j).copied().unwrap_or(0.0)).sum();
+        let value: f64 = t
+            .columns
+            .iter()
+            .zip(&g)
+            .map(|(&j, gj)| gj * beta.get(j).copied().unwrap_or(0.0))
+            .sum();
         let mut var = 0.0;
         for (&a, ga) in t.columns.iter().zip(&g) {
             for (&b, gb) in t.columns.iter().zip(&g) {
@@ -446,7 +593,9 @@ mod tests {
 
     fn machine(src: &str) -> Machine {
         let out = kin_compiler::compile(src);
-        out.compiled.map(|c| c.machine).unwrap_or_else(|| panic!("{:?}", out.diagnostics))
+        out.compiled
+            .map(|c| c.machine)
+            .unwrap_or_else(|| panic!("{:?}", out.diagnostics))
     }
 
     const SRC: &str = "machine m {
@@ -487,17 +636,33 @@ mod tests {
         let fit = report(&m, &[2.0, 1.0, 3.0], cov);
         let c = curves(&m, &fit, &Ranges::new()).expect("curves");
         let tx = c.curves.iter().find(|c| c.target == "X.tx").expect("X.tx");
-        assert_eq!((tx.variable.as_str(), tx.x_unit.as_str(), tx.y_unit.as_str()), ("X", "mm", "um"));
+        assert_eq!(
+            (tx.variable.as_str(), tx.x_unit.as_str(), tx.y_unit.as_str()),
+            ("X", "mm", "um")
+        );
         let line = &tx.lines[0];
         let last = tx.x.len() - 1;
         assert!((tx.x[last] - 500.0).abs() < 1e-9);
-        assert!((line.value[last] - 2.0).abs() < 1e-9 && (line.value[0] + 2.0).abs() < 1e-9, "{:?}", &line.value[..3]);
-        assert!((line.band[last] - 1.0).abs() < 1e-9, "band {}", line.band[last]);
-        assert!(line.band[tx.x.len() / 2].abs() < 1e-9, "no uncertainty where the line passes zero");
+        assert!(
+            (line.value[last] - 2.0).abs() < 1e-9 && (line.value[0] + 2.0).abs() < 1e-9,
+            "{:?}",
+            &line.value[..3]
+        );
+        assert!(
+            (line.band[last] - 1.0).abs() < 1e-9,
+            "band {}",
+            line.band[last]
+        );
+        assert!(
+            line.band[tx.x.len() / 2].abs() < 1e-9,
+            "no uncertainty where the line passes zero"
+        );
         // Backlash: two lines, ±1 um.
         let ty = c.curves.iter().find(|c| c.target == "X.ty").expect("X.ty");
         assert_eq!(ty.lines.len(), 2);
-        assert!((ty.lines[0].value[0] - 1.0).abs() < 1e-9 && (ty.lines[1].value[0] + 1.0).abs() < 1e-9);
+        assert!(
+            (ty.lines[0].value[0] - 1.0).abs() < 1e-9 && (ty.lines[1].value[0] + 1.0).abs() < 1e-9
+        );
         // A constant is a table row, not a plot.
         assert_eq!(c.constants.len(), 1);
         assert_eq!(c.constants[0].target, "X.rz");
@@ -508,6 +673,9 @@ mod tests {
     fn a_report_of_another_model_is_refused() {
         let m = machine(SRC);
         let fit = report(&m, &[1.0, 2.0], vec![0.0; 4]);
-        assert!(matches!(curves(&m, &fit, &Ranges::new()), Err(CurveError::Count { fit: 2, model: 3 })));
+        assert!(matches!(
+            curves(&m, &fit, &Ranges::new()),
+            Err(CurveError::Count { fit: 2, model: 3 })
+        ));
     }
 }

@@ -37,14 +37,33 @@ pub fn css(c: RGBColor) -> String {
 
 pub enum Series {
     /// Markers.
-    Points { points: Vec<(f64, f64)>, color: RGBColor, radius: u32, opacity: f64 },
-    Line { points: Vec<(f64, f64)>, color: RGBColor, width: u32, dashed: bool },
+    Points {
+        points: Vec<(f64, f64)>,
+        color: RGBColor,
+        radius: u32,
+        opacity: f64,
+    },
+    Line {
+        points: Vec<(f64, f64)>,
+        color: RGBColor,
+        width: u32,
+        dashed: bool,
+    },
     /// A filled band between `lower` and `upper`, both given at the same abscissae `x`.
-    Band { x: Vec<f64>, lower: Vec<f64>, upper: Vec<f64>, color: RGBColor, opacity: f64 },
+    Band {
+        x: Vec<f64>,
+        lower: Vec<f64>,
+        upper: Vec<f64>,
+        color: RGBColor,
+        opacity: f64,
+    },
     /// A horizontal band over the whole x range, e.g. ±3σ̂.
-    HBand { lo: f64, hi: f64, color: RGBColor, opacity: f64 },
-    /// A short text at a data point.
-    Note { at: (f64, f64), text: String },
+    HBand {
+        lo: f64,
+        hi: f64,
+        color: RGBColor,
+        opacity: f64,
+    },
 }
 
 pub struct Chart {
@@ -63,7 +82,12 @@ pub struct Chart {
 }
 
 impl Chart {
-    pub fn new(title: impl Into<String>, x_label: impl Into<String>, y_label: impl Into<String>, size: (u32, u32)) -> Chart {
+    pub fn new(
+        title: impl Into<String>,
+        x_label: impl Into<String>,
+        y_label: impl Into<String>,
+        size: (u32, u32),
+    ) -> Chart {
         Chart {
             title: title.into(),
             x_label: x_label.into(),
@@ -81,13 +105,21 @@ impl Chart {
     pub fn svg(&self) -> Result<String, PlotError> {
         let mut out = String::new();
         let (xr, yr) = self.ranges();
-        let fail = |e: String| PlotError { title: self.title.clone(), message: e };
+        let fail = |e: String| PlotError {
+            title: self.title.clone(),
+            message: e,
+        };
         {
             let root = SVGBackend::with_string(&mut out, self.size).into_drawing_area();
             root.fill(&WHITE).map_err(|e| fail(e.to_string()))?;
             let mut builder = ChartBuilder::on(&root);
             builder
-                .caption(&self.title, ("sans-serif", FONT * 1.3).into_font().color(&RGBColor(29, 35, 48)))
+                .caption(
+                    &self.title,
+                    ("sans-serif", FONT * 1.3)
+                        .into_font()
+                        .color(&RGBColor(29, 35, 48)),
+                )
                 .margin_top(6)
                 .margin_right(16)
                 .margin_left(6)
@@ -95,10 +127,14 @@ impl Chart {
                 .x_label_area_size(42)
                 .y_label_area_size(64);
             if self.x_log {
-                let mut chart = builder.build_cartesian_2d((xr.0..xr.1).log_scale(), yr.0..yr.1).map_err(|e| fail(e.to_string()))?;
+                let mut chart = builder
+                    .build_cartesian_2d((xr.0..xr.1).log_scale(), yr.0..yr.1)
+                    .map_err(|e| fail(e.to_string()))?;
                 self.draw(&mut chart, xr).map_err(fail)?;
             } else {
-                let mut chart = builder.build_cartesian_2d(xr.0..xr.1, yr.0..yr.1).map_err(|e| fail(e.to_string()))?;
+                let mut chart = builder
+                    .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
+                    .map_err(|e| fail(e.to_string()))?;
                 self.draw(&mut chart, xr).map_err(fail)?;
             }
             root.present().map_err(|e| fail(e.to_string()))?;
@@ -122,7 +158,9 @@ impl Chart {
                         }
                     }
                 }
-                Series::Band { x, lower, upper, .. } => {
+                Series::Band {
+                    x, lower, upper, ..
+                } => {
                     for ((&x, &lo), &hi) in x.iter().zip(lower).zip(upper) {
                         if ok_x(x) && lo.is_finite() && hi.is_finite() {
                             xs.add(x);
@@ -135,7 +173,6 @@ impl Chart {
                     ys.add(*lo);
                     ys.add(*hi);
                 }
-                Series::Note { .. } => {}
             }
         }
         if self.y_zero || self.y_symmetric {
@@ -146,7 +183,11 @@ impl Chart {
             ys.add(-m);
             ys.add(m);
         }
-        let x = if self.x_log {
+        let x = if self.x_integer {
+            // Whole numbers (revisions) sit half a step inside the frame, even just one.
+            let (lo, hi) = xs.get(1.0, 1.0);
+            (lo - 0.5, hi + 0.5)
+        } else if self.x_log {
             let (lo, hi) = xs.get(1.0, 10.0);
             if hi > lo * 1.000_001 {
                 (lo / 1.15, hi * 1.15)
@@ -159,7 +200,11 @@ impl Chart {
         (x, pad(ys.get(-1.0, 1.0), 0.06))
     }
 
-    fn draw<'a, X>(&self, chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, RangedCoordf64>>, xr: (f64, f64)) -> Result<(), String>
+    fn draw<'a, X>(
+        &self,
+        chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, RangedCoordf64>>,
+        xr: (f64, f64),
+    ) -> Result<(), String>
     where
         X: Ranged<ValueType = f64> + ValueFormatter<f64>,
     {
@@ -169,18 +214,40 @@ impl Chart {
         let x_eps = 1e-9 * (xr.1 - xr.0).abs();
         let yr = chart.y_range();
         let y_eps = 1e-9 * (yr.end - yr.start).abs();
-        let x_fmt = move |v: &f64| if x_integer { format!("{}", v.round()) } else { tick(if v.abs() < x_eps { 0.0 } else { *v }) };
+        let x_fmt = move |v: &f64| {
+            if x_integer {
+                if (v - v.round()).abs() < 1e-6 {
+                    format!("{}", v.round())
+                } else {
+                    String::new()
+                }
+            } else {
+                tick(if v.abs() < x_eps { 0.0 } else { *v })
+            }
+        };
         let y_fmt = move |v: &f64| tick(if v.abs() < y_eps { 0.0 } else { *v });
         chart
             .configure_mesh()
             .x_desc(self.x_label.as_str())
             .y_desc(self.y_label.as_str())
-            .x_labels(if self.x_integer { ((xr.1 - xr.0).round() as usize + 1).clamp(2, 12) } else { 7 })
+            .x_labels(if self.x_integer {
+                ((xr.1 - xr.0).ceil() as usize).clamp(2, 12)
+            } else {
+                7
+            })
             .y_labels(7)
             .x_label_formatter(&x_fmt)
             .y_label_formatter(&y_fmt)
-            .label_style(("sans-serif", FONT).into_font().color(&RGBColor(70, 76, 88)))
-            .axis_desc_style(("sans-serif", FONT * 1.1).into_font().color(&RGBColor(29, 35, 48)))
+            .label_style(
+                ("sans-serif", FONT)
+                    .into_font()
+                    .color(&RGBColor(70, 76, 88)),
+            )
+            .axis_desc_style(
+                ("sans-serif", FONT * 1.1)
+                    .into_font()
+                    .color(&RGBColor(29, 35, 48)),
+            )
             .bold_line_style(RGBColor(222, 225, 230))
             .light_line_style(RGBColor(243, 244, 246))
             .axis_style(RGBColor(150, 155, 165))
@@ -188,39 +255,80 @@ impl Chart {
             .map_err(e)?;
         for s in &self.series {
             match s {
-                Series::HBand { lo, hi, color, opacity } => {
+                Series::HBand {
+                    lo,
+                    hi,
+                    color,
+                    opacity,
+                } => {
                     if lo.is_finite() && hi.is_finite() {
-                        chart.draw_series(std::iter::once(Rectangle::new([(xr.0, *lo), (xr.1, *hi)], color.mix(*opacity).filled()))).map_err(e)?;
+                        chart
+                            .draw_series(std::iter::once(Rectangle::new(
+                                [(xr.0, *lo), (xr.1, *hi)],
+                                color.mix(*opacity).filled(),
+                            )))
+                            .map_err(e)?;
                     }
                 }
-                Series::Band { x, lower, upper, color, opacity } => {
-                    for run in runs(x.len(), |i| finite(x, i) && finite(lower, i) && finite(upper, i) && (!self.x_log || x[i] > 0.0)) {
-                        let mut poly: Vec<(f64, f64)> = run.clone().map(|i| (x[i], upper[i])).collect();
+                Series::Band {
+                    x,
+                    lower,
+                    upper,
+                    color,
+                    opacity,
+                } => {
+                    for run in runs(x.len(), |i| {
+                        finite(x, i)
+                            && finite(lower, i)
+                            && finite(upper, i)
+                            && (!self.x_log || x[i] > 0.0)
+                    }) {
+                        let mut poly: Vec<(f64, f64)> =
+                            run.clone().map(|i| (x[i], upper[i])).collect();
                         poly.extend(run.rev().map(|i| (x[i], lower[i])));
-                        chart.draw_series(std::iter::once(Polygon::new(poly, color.mix(*opacity).filled()))).map_err(e)?;
+                        chart
+                            .draw_series(std::iter::once(Polygon::new(
+                                poly,
+                                color.mix(*opacity).filled(),
+                            )))
+                            .map_err(e)?;
                     }
                 }
-                Series::Line { points, color, width, dashed } => {
+                Series::Line {
+                    points,
+                    color,
+                    width,
+                    dashed,
+                } => {
                     let style = ShapeStyle::from(color).stroke_width(*width);
-                    for run in runs(points.len(), |i| points[i].0.is_finite() && points[i].1.is_finite() && (!self.x_log || points[i].0 > 0.0)) {
+                    for run in runs(points.len(), |i| {
+                        points[i].0.is_finite()
+                            && points[i].1.is_finite()
+                            && (!self.x_log || points[i].0 > 0.0)
+                    }) {
                         let pts: Vec<(f64, f64)> = run.map(|i| points[i]).collect();
                         if *dashed {
-                            chart.draw_series(DashedLineSeries::new(pts, 6, 4, style)).map_err(e)?;
+                            chart
+                                .draw_series(DashedLineSeries::new(pts, 6, 4, style))
+                                .map_err(e)?;
                         } else {
                             chart.draw_series(LineSeries::new(pts, style)).map_err(e)?;
                         }
                     }
                 }
-                Series::Points { points, color, radius, opacity } => {
+                Series::Points {
+                    points,
+                    color,
+                    radius,
+                    opacity,
+                } => {
                     let style = color.mix(*opacity).filled();
-                    let pts = points.iter().filter(|p| p.0.is_finite() && p.1.is_finite() && (!self.x_log || p.0 > 0.0));
-                    chart.draw_series(pts.map(|&p| Circle::new(p, *radius, style))).map_err(e)?;
-                }
-                Series::Note { at, text } => {
-                    if at.0.is_finite() && at.1.is_finite() {
-                        let font = ("sans-serif", FONT).into_font().color(&RGBColor(29, 35, 48));
-                        chart.draw_series(std::iter::once(Text::new(text.clone(), *at, font))).map_err(e)?;
-                    }
+                    let pts = points.iter().filter(|p| {
+                        p.0.is_finite() && p.1.is_finite() && (!self.x_log || p.0 > 0.0)
+                    });
+                    chart
+                        .draw_series(pts.map(|&p| Circle::new(p, *radius, style)))
+                        .map_err(e)?;
                 }
             }
         }
@@ -257,7 +365,10 @@ struct Bounds {
 
 impl Default for Bounds {
     fn default() -> Self {
-        Bounds { lo: f64::INFINITY, hi: f64::NEG_INFINITY }
+        Bounds {
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+        }
     }
 }
 
@@ -301,7 +412,11 @@ pub fn tick(v: f64) -> String {
     // Enough decimals for three significant digits, trailing zeros trimmed.
     let decimals = (2 - a.log10().floor() as i32).clamp(0, 6) as usize;
     let s = format!("{v:.decimals$}");
-    let s = if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.').to_string() } else { s };
+    let s = if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    };
     if s == "-0" {
         "0".into()
     } else {
@@ -325,11 +440,30 @@ mod tests {
     #[test]
     fn missing_values_split_lines_and_never_reach_the_svg() {
         let mut c = Chart::new("t", "x [mm]", "y [um]", (300, 200));
-        c.series.push(Series::Line { points: vec![(0.0, 1.0), (1.0, f64::NAN), (2.0, 2.0), (3.0, 1.5)], color: BLUE, width: 2, dashed: false });
-        c.series.push(Series::Band { x: vec![0.0, 1.0, 2.0], lower: vec![0.0, f64::NAN, 1.0], upper: vec![1.0, 2.0, f64::INFINITY], color: BLUE, opacity: 0.2 });
-        c.series.push(Series::Points { points: vec![(f64::NAN, 1.0), (1.0, 1.0)], color: RED, radius: 2, opacity: 1.0 });
+        c.series.push(Series::Line {
+            points: vec![(0.0, 1.0), (1.0, f64::NAN), (2.0, 2.0), (3.0, 1.5)],
+            color: BLUE,
+            width: 2,
+            dashed: false,
+        });
+        c.series.push(Series::Band {
+            x: vec![0.0, 1.0, 2.0],
+            lower: vec![0.0, f64::NAN, 1.0],
+            upper: vec![1.0, 2.0, f64::INFINITY],
+            color: BLUE,
+            opacity: 0.2,
+        });
+        c.series.push(Series::Points {
+            points: vec![(f64::NAN, 1.0), (1.0, 1.0)],
+            color: RED,
+            radius: 2,
+            opacity: 1.0,
+        });
         let svg = c.svg().expect("draws");
-        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"), "{svg}");
+        assert!(
+            svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"),
+            "{svg}"
+        );
         assert!(!svg.contains("NaN") && !svg.contains("inf"), "{svg}");
     }
 
@@ -339,7 +473,12 @@ mod tests {
         assert!(c.svg().is_ok());
         let mut c = Chart::new("flat", "x", "y", (300, 200));
         c.x_log = true;
-        c.series.push(Series::Line { points: vec![(5.0, 1.0), (5.0, 1.0)], color: BLUE, width: 1, dashed: true });
+        c.series.push(Series::Line {
+            points: vec![(5.0, 1.0), (5.0, 1.0)],
+            color: BLUE,
+            width: 1,
+            dashed: true,
+        });
         let svg = c.svg().expect("draws");
         assert!(!svg.contains("NaN"));
     }

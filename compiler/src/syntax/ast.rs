@@ -71,7 +71,10 @@ pub struct AxisDecl {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Direction {
     /// `along -x`: sign and coordinate index (0 = x).
-    Coordinate { negative: bool, index: usize },
+    Coordinate {
+        negative: bool,
+        index: usize,
+    },
     Vector(Vector),
 }
 
@@ -201,12 +204,18 @@ impl BinOp {
 #[derive(Debug, Clone, PartialEq)]
 pub enum ExprKind {
     /// A number with an optional unit: `600 mm`, `2`.
-    Quantity { value: f64, unit: Option<Name> },
+    Quantity {
+        value: f64,
+        unit: Option<Name>,
+    },
     Const,
     Name(String),
     Neg(Box<Expr>),
     Binary(BinOp, Box<Expr>, Box<Expr>),
-    Call { name: Name, args: Vec<Arg> },
+    Call {
+        name: Name,
+        args: Vec<Arg>,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -227,9 +236,20 @@ pub struct OptionArg {
 #[derive(Debug, Clone, PartialEq)]
 pub enum OptionValue {
     Expr(Expr),
-    At { items: Vec<Expr>, unit: Option<Name>, span: Span },
-    IntRange { lo: i64, hi: i64, span: Span },
-    IntList { items: Vec<i64>, span: Span },
+    At {
+        items: Vec<Expr>,
+        unit: Option<Name>,
+        span: Span,
+    },
+    IntRange {
+        lo: i64,
+        hi: i64,
+        span: Span,
+    },
+    IntList {
+        items: Vec<i64>,
+        span: Span,
+    },
 }
 
 impl OptionValue {
@@ -263,5 +283,9 @@ pub struct ParamDef {
 #[derive(Debug, Clone, PartialEq)]
 pub enum ParamValue {
     Scalar(Expr),
-    List { values: Vec<f64>, unit: Option<Name>, span: Span },
+    List {
+        values: Vec<f64>,
+        unit: Option<Name>,
+        span: Span,
+    },
 }

@@ -20,6 +20,10 @@ mod tests {
     fn syntax_error_is_located() {
         let err = parse_file("machine m { axis X prismatic alongg x }").unwrap_err();
         assert_eq!(err.code, "E0001");
-        assert_eq!(&"machine m { axis X prismatic alongg x }"[err.primary_span().start..err.primary_span().end], "alongg");
+        assert_eq!(
+            &"machine m { axis X prismatic alongg x }"
+                [err.primary_span().start..err.primary_span().end],
+            "alongg"
+        );
     }
 }

@@ -20,6 +20,7 @@ type Result<T> = std::result::Result<T, Diagnostic>;
 
 /// Parse a machine description (optionally followed by a `params` block).
 pub fn parse_file(source: &str) -> Result<File> {
+    check_nesting(source)?;
     let mut pairs = KinParser::parse(Rule::file, source).map_err(|e| syntax_error(source, e))?;
     let file = next(&mut pairs.next().into_iter(), "file")?;
     let mut machine = None;
@@ -37,6 +38,7 @@ pub fn parse_file(source: &str) -> Result<File> {
 
 /// Parse a parameter file: one `params { … }` block.
 pub fn parse_params(source: &str) -> Result<ParamsBlock> {
+    check_nesting(source)?;
     let mut pairs =
         KinParser::parse(Rule::params_file, source).map_err(|e| syntax_error(source, e))?;
     let file = next(&mut pairs.next().into_iter(), "params file")?;
@@ -48,10 +50,61 @@ pub fn parse_params(source: &str) -> Result<ParamsBlock> {
     Err(internal(Span::default(), "params"))
 }
 
+/// A pair's span without the whitespace pest's implicit skipping leaves at the end of a rule
+/// whose last part is optional: labels end where the text does.
 fn span(pair: &P) -> Span {
     let s = pair.as_span();
-    Span::new(s.start(), s.end())
+    let trimmed = pair.as_str().trim_end().len();
+    Span::new(s.start(), s.start() + trimmed)
 }
+
+/// Deeper nesting than this is refused before parsing: the parser and the checker recurse once
+/// per level, and no machine needs more.
+const MAX_NESTING: usize = 64;
+
+/// Refuses sources whose bracket nesting would exhaust the stack, with a located diagnostic.
+fn check_nesting(source: &str) -> Result<()> {
+    let mut depth = 0usize;
+    let mut chars = source.char_indices().peekable();
+    while let Some((i, c)) = chars.next() {
+        match c {
+            '/' if chars.peek().map(|(_, n)| *n) == Some('/') => {
+                while chars.peek().is_some_and(|(_, n)| *n != '\n') {
+                    chars.next();
+                }
+            }
+            '/' if chars.peek().map(|(_, n)| *n) == Some('*') => {
+                chars.next();
+                let mut prev = ' ';
+                for (_, n) in chars.by_ref() {
+                    if prev == '*' && n == '/' {
+                        break;
+                    }
+                    prev = n;
+                }
+            }
+            '(' | '[' | '{' => {
+                depth += 1;
+                if depth > MAX_NESTING {
+                    return Err(Diagnostic::error(
+                        "E0001",
+                        format!("syntax error: brackets nested more than {MAX_NESTING} deep"),
+                        Span::new(i, i + 1),
+                    )
+                    .with_label("too deep")
+                    .with_help("simplify the expression"));
+                }
+            }
+            ')' | ']' | '}' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// A sum or product longer than this is refused: the syntax tree is built left-deep, so its
+/// depth grows with the number of operands.
+const MAX_OPERANDS: usize = 512;
 
 /// The grammar guarantees the shapes walked below; reaching this means the walker and the
 /// grammar disagree, which must still not panic on a user's file.
@@ -69,7 +122,10 @@ fn next<'i>(it: &mut impl Iterator<Item = P<'i>>, what: &str) -> Result<P<'i>> {
 }
 
 fn name(pair: P) -> Name {
-    Spanned { node: pair.as_str().to_string(), span: span(&pair) }
+    Spanned {
+        node: pair.as_str().to_string(),
+        span: span(&pair),
+    }
 }
 
 fn build_machine(pair: P) -> Result<Machine> {
@@ -90,7 +146,11 @@ fn build_machine(pair: P) -> Result<Machine> {
         };
         items.push(item);
     }
-    Ok(Machine { name: machine_name, items, span: sp })
+    Ok(Machine {
+        name: machine_name,
+        items,
+        span: sp,
+    })
 }
 
 fn build_task(pair: P) -> Result<Spanned<TaskKind>> {
@@ -99,14 +159,24 @@ fn build_task(pair: P) -> Result<Spanned<TaskKind>> {
         .into_inner()
         .find(|p| p.as_rule() == Rule::task_kind)
         .ok_or_else(|| internal(sp, "task"))?;
-    let node = if kind.as_str() == "measure" { TaskKind::Measure } else { TaskKind::Position };
-    Ok(Spanned { node, span: span(&kind) })
+    let node = if kind.as_str() == "measure" {
+        TaskKind::Measure
+    } else {
+        TaskKind::Position
+    };
+    Ok(Spanned {
+        node,
+        span: span(&kind),
+    })
 }
 
 fn build_units(pair: P) -> Result<UnitsDecl> {
     let sp = span(&pair);
     let mut bindings = Vec::new();
-    for b in pair.into_inner().filter(|p| p.as_rule() == Rule::unit_binding) {
+    for b in pair
+        .into_inner()
+        .filter(|p| p.as_rule() == Rule::unit_binding)
+    {
         let mut it = b.into_inner();
         let quantity = name(next(&mut it, "unit binding")?);
         let unit = name(next(&mut it, "unit")?);
@@ -134,7 +204,13 @@ fn build_axis(pair: P) -> Result<AxisDecl> {
         Some(r) => Some(build_axis_range(r)?),
         None => None,
     };
-    Ok(AxisDecl { name: axis_name, kind, direction, range, span: sp })
+    Ok(AxisDecl {
+        name: axis_name,
+        kind,
+        direction,
+        range,
+        span: sp,
+    })
 }
 
 fn build_direction(pair: P) -> Result<Spanned<Direction>> {
@@ -206,7 +282,12 @@ fn build_input(pair: P) -> Result<InputDecl> {
             _ => return Err(internal(osp, "input option")),
         });
     }
-    Ok(InputDecl { name: input_name, dimension, options, span: sp })
+    Ok(InputDecl {
+        name: input_name,
+        dimension,
+        options,
+        span: sp,
+    })
 }
 
 fn build_chain(pair: P) -> Result<ChainDecl> {
@@ -214,7 +295,11 @@ fn build_chain(pair: P) -> Result<ChainDecl> {
     let mut it = pair.into_inner();
     let kind_pair = next(&mut it, "chain kind")?;
     let kind = Spanned {
-        node: if kind_pair.as_str() == "tool" { ChainKind::Tool } else { ChainKind::Workpiece },
+        node: if kind_pair.as_str() == "tool" {
+            ChainKind::Tool
+        } else {
+            ChainKind::Workpiece
+        },
         span: span(&kind_pair),
     };
     let mut items = Vec::new();
@@ -226,29 +311,49 @@ fn build_chain(pair: P) -> Result<ChainDecl> {
                 let axis = name(next(&mut e, "chain element")?);
                 let fk = next(&mut e, "frame kind")?;
                 let frame = Spanned {
-                    node: if fk.as_str() == "moving" { FrameKind::Moving } else { FrameKind::Fixed },
+                    node: if fk.as_str() == "moving" {
+                        FrameKind::Moving
+                    } else {
+                        FrameKind::Fixed
+                    },
                     span: span(&fk),
                 };
                 let placement = build_placement(next(&mut e, "placement")?)?;
-                items.push(ChainItem::Element { axis, frame, placement, span: isp });
+                items.push(ChainItem::Element {
+                    axis,
+                    frame,
+                    placement,
+                    span: isp,
+                });
             }
             Rule::tool_item => {
                 let mut e = p.into_inner();
                 let _kw = next(&mut e, "tool")?;
                 let tool_name = name(next(&mut e, "tool name")?);
                 let placement = build_placement(next(&mut e, "placement")?)?;
-                items.push(ChainItem::Tool { name: tool_name, placement, span: isp });
+                items.push(ChainItem::Tool {
+                    name: tool_name,
+                    placement,
+                    span: isp,
+                });
             }
             Rule::workpiece_item => {
                 let mut e = p.into_inner();
                 let _kw = next(&mut e, "workpiece")?;
                 let placement = build_placement(next(&mut e, "placement")?)?;
-                items.push(ChainItem::Workpiece { placement, span: isp });
+                items.push(ChainItem::Workpiece {
+                    placement,
+                    span: isp,
+                });
             }
             _ => {}
         }
     }
-    Ok(ChainDecl { kind, items, span: sp })
+    Ok(ChainDecl {
+        kind,
+        items,
+        span: sp,
+    })
 }
 
 fn build_placement(pair: P) -> Result<Placement> {
@@ -283,7 +388,11 @@ fn build_vector(pair: P, unit: Option<Name>) -> Result<Vector> {
     let a = build_expr(next(&mut exprs, "vector")?)?;
     let b = build_expr(next(&mut exprs, "vector")?)?;
     let c = build_expr(next(&mut exprs, "vector")?)?;
-    Ok(Vector { elems: [a, b, c], unit, span: sp })
+    Ok(Vector {
+        elems: [a, b, c],
+        unit,
+        span: sp,
+    })
 }
 
 fn build_errors(pair: P) -> Result<ErrorsDecl> {
@@ -294,13 +403,19 @@ fn build_errors(pair: P) -> Result<ErrorsDecl> {
         let mut it = d.into_inner();
         let target_pair = next(&mut it, "error target")?;
         let tsp = span(&target_pair);
-        let mut names = target_pair.into_inner().filter(|p| p.as_rule() == Rule::any_name);
+        let mut names = target_pair
+            .into_inner()
+            .filter(|p| p.as_rule() == Rule::any_name);
         let frame = name(next(&mut names, "error target")?);
         let component = names.next().map(name);
         let assign = next(&mut it, "assignment")?;
         let value = build_expr(next(&mut it, "error model")?)?;
         defs.push(ErrorDef {
-            target: Target { frame, component, span: tsp },
+            target: Target {
+                frame,
+                component,
+                span: tsp,
+            },
             add: assign.as_str() == "+=",
             value,
             span: dsp,
@@ -313,13 +428,21 @@ fn build_expr(pair: P) -> Result<Expr> {
     let sp = span(&pair);
     match pair.as_rule() {
         Rule::expr => {
+            too_long(&pair, sp)?;
             let mut it = pair.into_inner();
             let mut acc = build_expr(next(&mut it, "expression")?)?;
             while let Some(op) = it.next() {
                 let rhs = build_expr(next(&mut it, "expression")?)?;
-                let op = if op.as_str() == "+" { BinOp::Add } else { BinOp::Sub };
+                let op = if op.as_str() == "+" {
+                    BinOp::Add
+                } else {
+                    BinOp::Sub
+                };
                 let s = acc.span.to(rhs.span);
-                acc = Expr { kind: ExprKind::Binary(op, Box::new(acc), Box::new(rhs)), span: s };
+                acc = Expr {
+                    kind: ExprKind::Binary(op, Box::new(acc), Box::new(rhs)),
+                    span: s,
+                };
             }
             Ok(acc)
         }
@@ -328,25 +451,42 @@ fn build_expr(pair: P) -> Result<Expr> {
             let first = next(&mut it, "expression")?;
             if first.as_rule() == Rule::neg {
                 let inner = build_expr(next(&mut it, "expression")?)?;
-                Ok(Expr { kind: ExprKind::Neg(Box::new(inner)), span: sp })
+                Ok(Expr {
+                    kind: ExprKind::Neg(Box::new(inner)),
+                    span: sp,
+                })
             } else {
                 build_expr(first)
             }
         }
         Rule::product => {
+            too_long(&pair, sp)?;
             let mut it = pair.into_inner();
             let mut acc = build_expr(next(&mut it, "expression")?)?;
             while let Some(op) = it.next() {
                 let rhs = build_expr(next(&mut it, "expression")?)?;
-                let op = if op.as_str() == "*" { BinOp::Mul } else { BinOp::Div };
+                let op = if op.as_str() == "*" {
+                    BinOp::Mul
+                } else {
+                    BinOp::Div
+                };
                 let s = acc.span.to(rhs.span);
-                acc = Expr { kind: ExprKind::Binary(op, Box::new(acc), Box::new(rhs)), span: s };
+                acc = Expr {
+                    kind: ExprKind::Binary(op, Box::new(acc), Box::new(rhs)),
+                    span: s,
+                };
             }
             Ok(acc)
         }
         Rule::quantity | Rule::uquantity => build_quantity(pair),
-        Rule::kw_const => Ok(Expr { kind: ExprKind::Const, span: sp }),
-        Rule::ident => Ok(Expr { kind: ExprKind::Name(pair.as_str().to_string()), span: sp }),
+        Rule::kw_const => Ok(Expr {
+            kind: ExprKind::Const,
+            span: sp,
+        }),
+        Rule::ident => Ok(Expr {
+            kind: ExprKind::Name(pair.as_str().to_string()),
+            span: sp,
+        }),
         Rule::paren => {
             let inner = pair
                 .into_inner()
@@ -361,19 +501,40 @@ fn build_expr(pair: P) -> Result<Expr> {
     }
 }
 
+fn too_long(pair: &P, sp: Span) -> Result<()> {
+    if pair.clone().into_inner().count() > 2 * MAX_OPERANDS {
+        return Err(Diagnostic::error(
+            "E0001",
+            format!("syntax error: more than {MAX_OPERANDS} operands in one expression"),
+            sp,
+        )
+        .with_label("too long")
+        .with_help("split the model into several `+=` lines"));
+    }
+    Ok(())
+}
+
 fn build_quantity(pair: P) -> Result<Expr> {
     let sp = span(&pair);
     let mut it = pair.into_inner();
     let num = next(&mut it, "number")?;
     let value = parse_number(&num)?;
     let unit = it.next().map(name);
-    Ok(Expr { kind: ExprKind::Quantity { value, unit }, span: sp })
+    Ok(Expr {
+        kind: ExprKind::Quantity { value, unit },
+        span: sp,
+    })
 }
 
 fn parse_number(pair: &P) -> Result<f64> {
     let text = pair.as_str();
     let value: f64 = text.parse().map_err(|_| {
-        Diagnostic::error("E0003", format!("`{text}` is not a valid number"), span(pair))
+        Diagnostic::error(
+            "E0003",
+            format!("`{text}` is not a valid number"),
+            span(pair),
+        )
+        .with_label("not a number")
     })?;
     if !value.is_finite() {
         return Err(Diagnostic::error(
@@ -381,6 +542,7 @@ fn parse_number(pair: &P) -> Result<f64> {
             format!("`{text}` is too large to represent"),
             span(pair),
         )
+        .with_label("out of range")
         .with_help("numbers must be finite double-precision values"));
     }
     Ok(value)
@@ -398,7 +560,10 @@ fn build_call(pair: P) -> Result<Expr> {
             _ => {}
         }
     }
-    Ok(Expr { kind: ExprKind::Call { name: callee, args }, span: sp })
+    Ok(Expr {
+        kind: ExprKind::Call { name: callee, args },
+        span: sp,
+    })
 }
 
 fn build_option(pair: P) -> Result<OptionArg> {
@@ -426,10 +591,16 @@ fn build_option(pair: P) -> Result<OptionArg> {
                     _ => {}
                 }
             }
-            OptionValue::At { items, unit, span: vsp }
+            OptionValue::At {
+                items,
+                unit,
+                span: vsp,
+            }
         }
         Rule::int_range => {
-            let mut ints = value_pair.into_inner().filter(|p| p.as_rule() == Rule::integer);
+            let mut ints = value_pair
+                .into_inner()
+                .filter(|p| p.as_rule() == Rule::integer);
             let lo = parse_int(&next(&mut ints, "range")?)?;
             let hi = parse_int(&next(&mut ints, "range")?)?;
             OptionValue::IntRange { lo, hi, span: vsp }
@@ -444,12 +615,22 @@ fn build_option(pair: P) -> Result<OptionArg> {
         }
         _ => OptionValue::Expr(build_expr(value_pair)?),
     };
-    Ok(OptionArg { name: opt_name, fit, value, span: sp })
+    Ok(OptionArg {
+        name: opt_name,
+        fit,
+        value,
+        span: sp,
+    })
 }
 
 fn parse_int(pair: &P) -> Result<i64> {
     pair.as_str().parse().map_err(|_| {
-        Diagnostic::error("E0003", format!("`{}` is not a valid integer", pair.as_str()), span(pair))
+        Diagnostic::error(
+            "E0003",
+            format!("`{}` is not a valid integer", pair.as_str()),
+            span(pair),
+        )
+        .with_label("not an integer")
     })
 }
 
@@ -465,7 +646,12 @@ fn build_params(pair: P) -> Result<ParamsBlock> {
         for p in reference.into_inner() {
             match p.as_rule() {
                 Rule::any_name => path.push(name(p)),
-                Rule::integer => index = Some(Spanned { node: parse_int(&p)?, span: span(&p) }),
+                Rule::integer => {
+                    index = Some(Spanned {
+                        node: parse_int(&p)?,
+                        span: span(&p),
+                    })
+                }
                 _ => {}
             }
         }
@@ -487,11 +673,21 @@ fn build_params(pair: P) -> Result<ParamsBlock> {
                     _ => {}
                 }
             }
-            ParamValue::List { values, unit, span: vsp }
+            ParamValue::List {
+                values,
+                unit,
+                span: vsp,
+            }
         } else {
             ParamValue::Scalar(build_quantity(inner)?)
         };
-        defs.push(ParamDef { path, index, add, value, span: dsp });
+        defs.push(ParamDef {
+            path,
+            index,
+            add,
+            value,
+            span: dsp,
+        });
     }
     Ok(ParamsBlock { defs, span: sp })
 }
@@ -549,7 +745,9 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::error_def | Rule::target => "an error definition such as `X.tx = spline(X, knots 4)`",
         Rule::element => "a chain element such as `X moving`",
         Rule::param_def | Rule::param_ref => "a parameter such as `X.tx[0] = 1.5 um`",
-        Rule::param_value | Rule::list_q | Rule::list_items => "a value such as `1.5 um` or `[1, 2] um`",
+        Rule::param_value | Rule::list_q | Rule::list_items => {
+            "a value such as `1.5 um` or `[1, 2] um`"
+        }
         Rule::machine => "`machine`",
         Rule::params => "`params`",
         Rule::interval => "a range such as `0 mm .. 600 mm`",
@@ -577,11 +775,21 @@ fn syntax_error(source: &str, err: pest::error::Error<Rule>) -> Diagnostic {
             .unwrap_or_else(|| rest.chars().next().map(char::len_utf8).unwrap_or(0));
         start + len
     };
-    let found = source
+    let found = match source.get(start..end).filter(|s| !s.is_empty()) {
+        Some(s) if s.starts_with(['\n', '\r']) => "the end of the line".to_string(),
+        Some(s) => format!("`{}`", s.escape_debug()),
+        None => "end of file".to_string(),
+    };
+    // A word where a unit was expected is a misspelt unit far more often than anything else.
+    let unit_expected = matches!(&err.variant, ErrorVariant::ParsingError { positives, .. } if positives.iter().any(|r| matches!(r, Rule::unit | Rule::unit_name | Rule::unit_power)));
+    let word = source
         .get(start..end)
-        .filter(|s| !s.is_empty())
-        .map(|s| format!("`{s}`"))
-        .unwrap_or_else(|| "end of file".to_string());
+        .filter(|w| w.chars().all(|c| c.is_alphanumeric() || c == '_') && !w.is_empty());
+    let unit_help = match (unit_expected, word) {
+        (true, Some(w)) => crate::diagnostic::suggest(w, crate::units::Unit::ATOM_NAMES)
+            .map(|s| format!("did you mean `{s}`?")),
+        _ => None,
+    };
     let message = match &err.variant {
         ErrorVariant::ParsingError { positives, .. } => {
             let mut expected: Vec<&str> = positives.iter().filter_map(|r| describe(*r)).collect();
@@ -598,6 +806,28 @@ fn syntax_error(source: &str, err: pest::error::Error<Rule>) -> Diagnostic {
         }
         ErrorVariant::CustomError { message } => message.clone(),
     };
-    Diagnostic::error("E0001", format!("syntax error: {message}"), Span::new(start, end))
-        .with_label("unexpected here")
+    let end = if source
+        .get(start..end)
+        .is_some_and(|s| s.starts_with(['\n', '\r']))
+    {
+        start
+    } else {
+        end
+    };
+    match (unit_help, word) {
+        // Where a unit belongs, a word close to one is a misspelt unit, not a syntax error.
+        (Some(help), Some(w)) => Diagnostic::error(
+            "E0103",
+            format!("unknown unit `{w}`"),
+            Span::new(start, end),
+        )
+        .with_label("not a unit kin knows")
+        .with_help(help),
+        _ => Diagnostic::error(
+            "E0001",
+            format!("syntax error: {message}"),
+            Span::new(start, end),
+        )
+        .with_label("unexpected here"),
+    }
 }

@@ -40,22 +40,47 @@ machine cmm3 {
 
 fn machine(src: &str) -> Compiled {
     let out = compile(src);
-    out.compiled.unwrap_or_else(|| panic!("{:#?}", out.diagnostics))
+    out.compiled
+        .unwrap_or_else(|| panic!("{:#?}", out.diagnostics))
 }
 
 fn truth(c: &Compiled, seed: u64) -> Vec<f64> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    c.machine.coefficients.iter().map(|co| co.unit.scale * rng.random_range(-5.0..5.0)).collect()
+    c.machine
+        .coefficients
+        .iter()
+        .map(|co| co.unit.scale * rng.random_range(-5.0..5.0))
+        .collect()
 }
 
-fn simulated(c: &Compiled, beta: &[f64], n: usize, noise: f64, seed: u64, artifacts: usize) -> DataSet {
+fn simulated(
+    c: &Compiled,
+    beta: &[f64],
+    n: usize,
+    noise: f64,
+    seed: u64,
+    artifacts: usize,
+) -> DataSet {
     let mut poses = sample_points(&c.machine, n, seed);
     if artifacts > 0 {
-        poses.rows.artifact = Some(Groups { of_row: (0..n).map(|r| Some((r % artifacts) as u32)).collect(), labels: (0..artifacts).map(|a| format!("plate{a}")).collect() });
+        poses.rows.artifact = Some(Groups {
+            of_row: (0..n).map(|r| Some((r % artifacts) as u32)).collect(),
+            labels: (0..artifacts).map(|a| format!("plate{a}")).collect(),
+        });
     }
-    let options = simulate::Options { noise, seed: seed + 1, artifact_shift: 50e-6, artifact_rotation: 20e-6, ..simulate::Options::default() };
-    let obs = simulate::simulate(&c.machine, beta, &Observations::Points(poses), &options).expect("simulate");
-    DataSet { path: format!("sim{seed}.csv").into(), observations: obs }
+    let options = simulate::Options {
+        noise,
+        seed: seed + 1,
+        artifact_shift: 50e-6,
+        artifact_rotation: 20e-6,
+        ..simulate::Options::default()
+    };
+    let obs = simulate::simulate(&c.machine, beta, &Observations::Points(poses), &options)
+        .expect("simulate");
+    DataSet {
+        path: format!("sim{seed}.csv").into(),
+        observations: obs,
+    }
 }
 
 fn run(c: &Compiled, files: &[DataSet], options: &Options) -> Result<fit::FitResult, FitError> {
@@ -65,7 +90,15 @@ fn run(c: &Compiled, files: &[DataSet], options: &Options) -> Result<fit::FitRes
 
 fn standard_errors(r: &fit::FitResult) -> Vec<f64> {
     let g = &r.solution.g;
-    (0..g.ncols()).map(|j| r.sigma * (0..g.nrows()).map(|k| g[(k, j)].powi(2)).sum::<f64>().sqrt()).collect()
+    (0..g.ncols())
+        .map(|j| {
+            r.sigma
+                * (0..g.nrows())
+                    .map(|k| g[(k, j)].powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+        })
+        .collect()
 }
 
 #[test]
@@ -105,7 +138,10 @@ fn every_number_matches_a_dense_reference_solve() {
     let data = simulated(&c, &beta, 200, 0.5e-6, 8, 2);
     let files = [data];
     // Small blocks, so the streaming QR really streams.
-    let options = Options { block: 37, ..Options::default() };
+    let options = Options {
+        block: 37,
+        ..Options::default()
+    };
     let r = run(&c, &files, &options).expect("fit");
 
     let mut it = Interpreter::new(&c.machine).unwrap();
@@ -118,17 +154,32 @@ fn every_number_matches_a_dense_reference_solve() {
     })
     .unwrap();
     let (m, p) = (xs.len(), layout.columns());
-    assert_eq!(p, 14 + 12, "two artifacts bring six placement parameters each");
+    assert_eq!(
+        p,
+        14 + 12,
+        "two artifacts bring six placement parameters each"
+    );
     let x = Mat::from_fn(m, p, |i, j| xs[i][j]);
     let y = Mat::from_fn(m, 1, |i, _| ys[i]);
     let dense = x.qr().solve_lstsq(&y);
     for j in 0..p {
         let scale = dense[(j, 0)].abs().max(1e-9);
-        assert!((r.solution.beta[j] - dense[(j, 0)]).abs() < 1e-7 * scale + 1e-15, "β[{j}]: {} vs {}", r.solution.beta[j], dense[(j, 0)]);
+        assert!(
+            (r.solution.beta[j] - dense[(j, 0)]).abs() < 1e-7 * scale + 1e-15,
+            "β[{j}]: {} vs {}",
+            r.solution.beta[j],
+            dense[(j, 0)]
+        );
     }
-    let resid: Vec<f64> = (0..m).map(|i| ys[i] - (0..p).map(|j| xs[i][j] * dense[(j, 0)]).sum::<f64>()).collect();
+    let resid: Vec<f64> = (0..m)
+        .map(|i| ys[i] - (0..p).map(|j| xs[i][j] * dense[(j, 0)]).sum::<f64>())
+        .collect();
     let rss: f64 = resid.iter().map(|v| v * v).sum();
-    assert!((r.solution.rss - rss).abs() < 1e-8 * rss, "rss {} vs {rss}", r.solution.rss);
+    assert!(
+        (r.solution.rss - rss).abs() < 1e-8 * rss,
+        "rss {} vs {rss}",
+        r.solution.rss
+    );
     // Covariance σ̂²(XᵀX)⁻¹ (eq. 4.11) and leverages diag X(XᵀX)⁻¹Xᵀ.
     let xtx = x.transpose() * &x;
     let inv = xtx.partial_piv_lu().inverse();
@@ -136,15 +187,35 @@ fn every_number_matches_a_dense_reference_solve() {
     let se = standard_errors(&r);
     for j in 0..p {
         let want = (sigma2 * inv[(j, j)]).sqrt();
-        assert!((se[j] - want).abs() < 1e-6 * want, "se[{j}] {} vs {want}", se[j]);
+        assert!(
+            (se[j] - want).abs() < 1e-6 * want,
+            "se[{j}] {} vs {want}",
+            se[j]
+        );
     }
     for (i, row) in r.residuals.iter().enumerate() {
-        let h: f64 = (0..p).map(|a| (0..p).map(|b| xs[i][a] * inv[(a, b)] * xs[i][b]).sum::<f64>()).sum();
-        assert!((row.leverage - h).abs() < 1e-7, "leverage {i}: {} vs {h}", row.leverage);
-        assert!((row.residual - resid[i]).abs() < 1e-9 * rss.sqrt(), "residual {i}");
+        let h: f64 = (0..p)
+            .map(|a| {
+                (0..p)
+                    .map(|b| xs[i][a] * inv[(a, b)] * xs[i][b])
+                    .sum::<f64>()
+            })
+            .sum();
+        assert!(
+            (row.leverage - h).abs() < 1e-7,
+            "leverage {i}: {} vs {h}",
+            row.leverage
+        );
+        assert!(
+            (row.residual - resid[i]).abs() < 1e-9 * rss.sqrt(),
+            "residual {i}"
+        );
     }
     let sum_h: f64 = r.residuals.iter().map(|r| r.leverage).sum();
-    assert!((sum_h - p as f64).abs() < 1e-6, "the leverages sum to the number of parameters: {sum_h}");
+    assert!(
+        (sum_h - p as f64).abs() < 1e-6,
+        "the leverages sum to the number of parameters: {sum_h}"
+    );
     // σ̂, R², studentized residuals and Cook's distance by their textbook formulas.
     let sigma = sigma2.sqrt();
     assert!((r.sigma - sigma).abs() < 1e-9 * sigma);
@@ -152,11 +223,25 @@ fn every_number_matches_a_dense_reference_solve() {
     let sst: f64 = ys.iter().map(|y| (y - mean).powi(2)).sum();
     assert!((r.r2 - (1.0 - rss / sst)).abs() < 1e-9);
     for (i, row) in r.residuals.iter().enumerate() {
-        let h: f64 = (0..p).map(|a| (0..p).map(|b| xs[i][a] * inv[(a, b)] * xs[i][b]).sum::<f64>()).sum();
+        let h: f64 = (0..p)
+            .map(|a| {
+                (0..p)
+                    .map(|b| xs[i][a] * inv[(a, b)] * xs[i][b])
+                    .sum::<f64>()
+            })
+            .sum();
         let t = resid[i] / (sigma * (1.0 - h).sqrt());
         let d = resid[i].powi(2) / (p as f64 * sigma2) * h / (1.0 - h).powi(2);
-        assert!((row.studentized - t).abs() < 1e-6 * t.abs().max(1.0), "t {i}: {} vs {t}", row.studentized);
-        assert!((row.cook - d).abs() < 1e-6 * d.max(1e-6), "Cook {i}: {} vs {d}", row.cook);
+        assert!(
+            (row.studentized - t).abs() < 1e-6 * t.abs().max(1.0),
+            "t {i}: {} vs {t}",
+            row.studentized
+        );
+        assert!(
+            (row.cook - d).abs() < 1e-6 * d.max(1e-6),
+            "Cook {i}: {} vs {d}",
+            row.cook
+        );
     }
 }
 
@@ -173,32 +258,69 @@ fn artifact_placements_are_fitted_and_do_not_bias_the_model() {
     // Offsets of the model that a placement absorbs are not in this model (it has no constant
     // translation): every coefficient is estimable and unbiased.
     for (j, b) in beta.iter().enumerate() {
-        assert!(((r.solution.beta[j] - b) / se[j]).abs() < 4.5, "{}: {} vs {b}", c.machine.coefficients[j].name, r.solution.beta[j]);
+        assert!(
+            ((r.solution.beta[j] - b) / se[j]).abs() < 4.5,
+            "{}: {} vs {b}",
+            c.machine.coefficients[j].name,
+            r.solution.beta[j]
+        );
     }
 }
 
 #[test]
 fn a_rank_deficient_design_is_named_not_solved() {
     // X.tx's constant is a shift, which the plates' placements absorb.
-    let src = CMM.replace("X.tx = spline(X, knots 2)", "X.tx = spline(X, knots 2) + const");
+    let src = CMM.replace(
+        "X.tx = spline(X, knots 2)",
+        "X.tx = spline(X, knots 2) + const",
+    );
     let c = machine(&src);
     let beta = vec![1e-6; c.machine.coefficients.len()];
     let data = simulated(&c, &beta, 300, 0.2e-6, 3, 2);
     match run(&c, std::slice::from_ref(&data), &Options::default()) {
-        Err(FitError::RankDeficient { rank, columns, diagnostics }) => {
+        Err(FitError::RankDeficient {
+            rank,
+            columns,
+            diagnostics,
+        }) => {
             assert_eq!(columns - rank, 1, "one invisible direction");
-            let all: String = diagnostics.iter().map(|d| d.message.clone()).collect::<Vec<_>>().join("\n");
-            assert!(all.contains("X.tx[") && all.contains("artifact `plate"), "{all}");
-            let labelled = diagnostics.iter().flat_map(|d| &d.labels).any(|l| &src[l.span.start..l.span.end] == "const");
+            let all: String = diagnostics
+                .iter()
+                .map(|d| d.message.clone())
+                .collect::<Vec<_>>()
+                .join("\n");
+            assert!(
+                all.contains("X.tx[") && all.contains("artifact `plate"),
+                "{all}"
+            );
+            let labelled = diagnostics
+                .iter()
+                .flat_map(|d| &d.labels)
+                .any(|l| &src[l.span.start..l.span.end] == "const");
             assert!(labelled, "points at the declaration");
         }
-        other => panic!("expected a rank-deficiency error, got {:?}", other.map(|r| r.solution.rank)),
+        other => panic!(
+            "expected a rank-deficiency error, got {:?}",
+            other.map(|r| r.solution.rank)
+        ),
     }
     // With --min-norm the visible part is fitted and what was constrained is said.
-    let r = run(&c, &[data], &Options { min_norm: true, ..Options::default() }).expect("min-norm fit");
+    let r = run(
+        &c,
+        &[data],
+        &Options {
+            min_norm: true,
+            ..Options::default()
+        },
+    )
+    .expect("min-norm fit");
     assert_eq!(r.solution.rank, r.layout.columns() - 1);
     assert!(!r.constrained.is_empty());
-    assert!((r.sigma / 0.2e-6 - 1.0).abs() < 0.15, "the visible part still fits: σ̂ {}", r.sigma);
+    assert!(
+        (r.sigma / 0.2e-6 - 1.0).abs() < 0.15,
+        "the visible part still fits: σ̂ {}",
+        r.sigma
+    );
 }
 
 #[test]
@@ -207,7 +329,15 @@ fn svd_and_pivoted_qr_agree() {
     let beta = truth(&c, 31);
     let data = [simulated(&c, &beta, 300, 0.3e-6, 32, 0)];
     let a = run(&c, &data, &Options::default()).unwrap();
-    let b = run(&c, &data, &Options { solver: Solver::Svd, ..Options::default() }).unwrap();
+    let b = run(
+        &c,
+        &data,
+        &Options {
+            solver: Solver::Svd,
+            ..Options::default()
+        },
+    )
+    .unwrap();
     assert_eq!(a.solution.rank, b.solution.rank);
     for (x, y) in a.solution.beta.iter().zip(&b.solution.beta) {
         assert!((x - y).abs() < 1e-9 * x.abs().max(1e-6));
@@ -263,16 +393,37 @@ machine cmm2d {
         // are not. Without one known length a uniform scale would be invisible (§4.2).
         of_row.push(if bar == 0 { None } else { Some(bar as u32 - 1) });
     }
-    l.rows.artifact = Some(Groups { of_row, labels: vec!["bar500".into(), "bar700".into()] });
+    l.rows.artifact = Some(Groups {
+        of_row,
+        labels: vec!["bar500".into(), "bar700".into()],
+    });
     l.dl = vec![0.0; n];
-    let options = simulate::Options { noise: 0.1e-6, artifact_length: 2e-6, seed: 4, ..simulate::Options::default() };
+    let options = simulate::Options {
+        noise: 0.1e-6,
+        artifact_length: 2e-6,
+        seed: 4,
+        ..simulate::Options::default()
+    };
     let obs = simulate::simulate(&c.machine, &beta, &Observations::Lengths(l), &options).unwrap();
     let mut uncalibrated = obs.clone();
-    let r = run(&c, &[DataSet { path: "bars.csv".into(), observations: obs }], &Options::default()).expect("fit");
+    let r = run(
+        &c,
+        &[DataSet {
+            path: "bars.csv".into(),
+            observations: obs,
+        }],
+        &Options::default(),
+    )
+    .expect("fit");
     assert_eq!(r.layout.columns(), 3 + 2);
     let se = standard_errors(&r);
     for j in 0..3 {
-        assert!(((r.solution.beta[j] - beta[j]) / se[j]).abs() < 4.0, "β[{j}] {} vs {}", r.solution.beta[j], beta[j]);
+        assert!(
+            ((r.solution.beta[j] - beta[j]) / se[j]).abs() < 4.0,
+            "β[{j}] {} vs {}",
+            r.solution.beta[j],
+            beta[j]
+        );
     }
 
     // Every bar of unknown length: the uniform scale is invisible, and the fit says so.
@@ -282,11 +433,29 @@ machine cmm2d {
             g.labels = vec!["bar300".into(), "bar500".into(), "bar700".into()];
         }
     }
-    match run(&c, &[DataSet { path: "bars.csv".into(), observations: uncalibrated }], &Options::default()) {
-        Err(FitError::RankDeficient { rank: 5, columns: 6, diagnostics }) => {
-            assert!(diagnostics[0].message.contains("length error"), "{}", diagnostics[0].message);
+    match run(
+        &c,
+        &[DataSet {
+            path: "bars.csv".into(),
+            observations: uncalibrated,
+        }],
+        &Options::default(),
+    ) {
+        Err(FitError::RankDeficient {
+            rank: 5,
+            columns: 6,
+            diagnostics,
+        }) => {
+            assert!(
+                diagnostics[0].message.contains("length error"),
+                "{}",
+                diagnostics[0].message
+            );
         }
-        other => panic!("expected the uniform scale to be invisible, got {:?}", other.map(|r| r.solution.rank)),
+        other => panic!(
+            "expected the uniform scale to be invisible, got {:?}",
+            other.map(|r| r.solution.rank)
+        ),
     }
 }
 
@@ -304,12 +473,22 @@ fn stepwise_keeps_the_real_effects_and_drops_the_absent_ones() {
     let mut false_keeps = 0;
     for seed in 0..10 {
         let data = simulated(&c, &beta, 400, 0.3e-6, 500 + seed, 0);
-        let options = Options { stepwise: Some(fit::Stepwise { remove: 1e-4, enter: Some(1e-5) }), ..Options::default() };
+        let options = Options {
+            stepwise: Some(fit::Stepwise {
+                remove: 1e-4,
+                enter: Some(1e-5),
+            }),
+            ..Options::default()
+        };
         let r = run(&c, &[data], &options).expect("fit");
         let sel = r.selection.as_ref().expect("selection");
         for (j, co) in c.machine.coefficients.iter().enumerate() {
             if real.contains(&co.name.as_str()) {
-                assert!(sel.kept[j], "seed {seed}: {} is real and must stay", co.name);
+                assert!(
+                    sel.kept[j],
+                    "seed {seed}: {} is real and must stay",
+                    co.name
+                );
             } else if sel.kept[j] {
                 false_keeps += 1;
             } else {
@@ -351,26 +530,55 @@ machine thermal {
     let n = 180;
     let mut poses = sample_points(&c.machine, n, 9);
     poses.rows.time = Some((0..n).map(|r| 120.0 * r as f64).collect());
-    poses.rows.inputs = vec![Some((0..n).map(|r| if r < 30 { 0.0 } else { 4.0 }).collect())];
+    poses.rows.inputs = vec![Some(
+        (0..n).map(|r| if r < 30 { 0.0 } else { 4.0 }).collect(),
+    )];
     let truth_machine = {
         let mut m = c.machine.clone();
         m.nonlinear[0].value = truth_nl[1];
         m.nonlinear[1].value = truth_nl[0];
         m
     };
-    let options = simulate::Options { noise: 0.1e-6, seed: 10, ..simulate::Options::default() };
-    let obs = simulate::simulate(&truth_machine, &beta, &Observations::Points(poses), &options).unwrap();
+    let options = simulate::Options {
+        noise: 0.1e-6,
+        seed: 10,
+        ..simulate::Options::default()
+    };
+    let obs = simulate::simulate(
+        &truth_machine,
+        &beta,
+        &Observations::Points(poses),
+        &options,
+    )
+    .unwrap();
     c.machine.nonlinear[0].value = start[0];
     c.machine.nonlinear[1].value = start[1];
-    let files = [DataSet { path: "warmup.csv".into(), observations: obs }];
+    let files = [DataSet {
+        path: "warmup.csv".into(),
+        observations: obs,
+    }];
     let r = run(&c, &files, &Options::default()).expect("fit");
     let nl = r.nonlinear.as_ref().expect("non-linear fit");
     let (lambda, tau) = (nl.values[0], nl.values[1]);
     let (se_lambda, se_tau) = (nl.se[0].unwrap(), nl.se[1].unwrap());
     assert!(se_tau.is_finite() && se_lambda.is_finite());
-    assert!(((tau - truth_nl[0]) / se_tau).abs() < 4.0, "τ = {} ± {} min", tau / 60.0, se_tau / 60.0);
-    assert!(((lambda - truth_nl[1]) / se_lambda).abs() < 4.0, "λ = {} ± {} mm", lambda * 1e3, se_lambda * 1e3);
-    assert!((tau / 60.0 - 40.0).abs() < 4.0, "τ near 40 min: {}", tau / 60.0);
+    assert!(
+        ((tau - truth_nl[0]) / se_tau).abs() < 4.0,
+        "τ = {} ± {} min",
+        tau / 60.0,
+        se_tau / 60.0
+    );
+    assert!(
+        ((lambda - truth_nl[1]) / se_lambda).abs() < 4.0,
+        "λ = {} ± {} mm",
+        lambda * 1e3,
+        se_lambda * 1e3
+    );
+    assert!(
+        (tau / 60.0 - 40.0).abs() < 4.0,
+        "τ near 40 min: {}",
+        tau / 60.0
+    );
     assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
 
     // Reference: plain Gauss–Newton over all parameters at the optimum. J = [X | ∂(Xβ̂)/∂θ]
@@ -392,7 +600,11 @@ machine thermal {
     };
     let (x0, _) = design(&at.machine);
     let bhat = &r.solution.beta;
-    let pred = |xs: &Vec<Vec<f64>>| -> Vec<f64> { xs.iter().map(|x| x.iter().zip(bhat).map(|(a, b)| a * b).sum()).collect() };
+    let pred = |xs: &Vec<Vec<f64>>| -> Vec<f64> {
+        xs.iter()
+            .map(|x| x.iter().zip(bhat).map(|(a, b)| a * b).sum())
+            .collect()
+    };
     let mut dcols = Vec::new();
     for k in 0..2 {
         let mut up = at.machine.clone();
@@ -401,16 +613,31 @@ machine thermal {
         up.nonlinear[k].value += h;
         dn.nonlinear[k].value -= h;
         let (pu, pd) = (pred(&design(&up).0), pred(&design(&dn).0));
-        dcols.push(pu.iter().zip(&pd).map(|(a, b)| (a - b) / (2.0 * h)).collect::<Vec<f64>>());
+        dcols.push(
+            pu.iter()
+                .zip(&pd)
+                .map(|(a, b)| (a - b) / (2.0 * h))
+                .collect::<Vec<f64>>(),
+        );
     }
     let rows = x0.len();
     let pl = bhat.len();
-    let jf = Mat::from_fn(rows, pl + 2, |i, j| if j < pl { x0[i][j] } else { dcols[j - pl][i] });
+    let jf = Mat::from_fn(rows, pl + 2, |i, j| {
+        if j < pl {
+            x0[i][j]
+        } else {
+            dcols[j - pl][i]
+        }
+    });
     let cov = (jf.transpose() * &jf).partial_piv_lu().inverse();
     let s2 = r.sigma.powi(2) * (rows - pl) as f64 / (rows - pl - 2) as f64;
     for (k, se) in [(0, se_lambda), (1, se_tau)] {
         let want = (s2 * cov[(pl + k, pl + k)]).sqrt();
-        assert!((se / want - 1.0).abs() < 0.02, "se of {}: projected {se} vs full {want}", names[k]);
+        assert!(
+            (se / want - 1.0).abs() < 0.02,
+            "se of {}: projected {se} vs full {want}",
+            names[k]
+        );
     }
 }
 
@@ -422,9 +649,19 @@ fn prediction_variance_at_a_training_pose_is_sigma_squared_times_its_leverage() 
     let data = simulated(&c, &beta, 200, 0.3e-6, 42, 0);
     let files = [data];
     let r = run(&c, &files, &Options::default()).unwrap();
-    let rep = kin_runtime::fit::report::build(&c.machine, CMM, "interp", &files, &[], &r, &Options::default());
+    let rep = kin_runtime::fit::report::build(
+        &c.machine,
+        CMM,
+        "interp",
+        &files,
+        &[],
+        &r,
+        &Options::default(),
+    );
     let states = fit::states(&c.machine, &files).unwrap();
-    let fit::FileStates::Points(s) = &states[0] else { panic!() };
+    let fit::FileStates::Points(s) = &states[0] else {
+        panic!()
+    };
     let mut it = Interpreter::new(&c.machine).unwrap();
     for row in r.residuals.iter().take(30) {
         let k = (row.meta.line - 1) as usize;
@@ -433,4 +670,19 @@ fn prediction_variance_at_a_training_pose_is_sigma_squared_times_its_leverage() 
         let got = var[row.meta.component as usize];
         assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
     }
+}
+
+#[test]
+fn a_fit_report_with_undetermined_values_reads_back() {
+    let c = machine(CMM);
+    let beta = truth(&c, 51);
+    let files = [simulated(&c, &beta, 100, 0.3e-6, 52, 0)];
+    let r = run(&c, &files, &Options::default()).unwrap();
+    let mut rep = kin_runtime::fit::report::build(&c.machine, CMM, "interp", &files, &[], &r, &Options::default());
+    rep.coefficients[0].se = f64::INFINITY;
+    rep.r2 = f64::NAN;
+    let json = serde_json::to_string(&rep).unwrap();
+    let back: kin_runtime::fit::report::FitReport = serde_json::from_str(&json).expect("reads back");
+    assert!(back.coefficients[0].se.is_nan() && back.r2.is_nan());
+    assert_eq!(back.coefficients[1].value, rep.coefficients[1].value);
 }

@@ -46,7 +46,9 @@ impl Nuisance {
         let axis = |a: usize| ["x", "y", "z"].get(a).copied().unwrap_or("?");
         match self.kind {
             NuisanceKind::Shift(a) => format!("artifact `{}` shift {}", self.artifact, axis(a)),
-            NuisanceKind::Rotation(a) => format!("artifact `{}` rotation about {}", self.artifact, axis(a)),
+            NuisanceKind::Rotation(a) => {
+                format!("artifact `{}` rotation about {}", self.artifact, axis(a))
+            }
             NuisanceKind::Length => format!("artifact `{}` length error", self.artifact),
         }
     }
@@ -68,19 +70,34 @@ impl Layout {
         let mut first = Vec::with_capacity(files.len());
         for (f, file) in files.iter().enumerate() {
             let rows = file.observations.rows();
-            let labels = rows.artifact.as_ref().map(|g| g.labels.clone()).unwrap_or_default();
+            let labels = rows
+                .artifact
+                .as_ref()
+                .map(|g| g.labels.clone())
+                .unwrap_or_default();
             let mut starts = Vec::with_capacity(labels.len());
             for label in labels {
                 starts.push(coefficients + nuisance.len());
                 let kinds: Vec<NuisanceKind> = match file.observations {
-                    Observations::Points(_) => (0..3).map(NuisanceKind::Shift).chain((0..3).map(NuisanceKind::Rotation)).collect(),
+                    Observations::Points(_) => (0..3)
+                        .map(NuisanceKind::Shift)
+                        .chain((0..3).map(NuisanceKind::Rotation))
+                        .collect(),
                     Observations::Lengths(_) => vec![NuisanceKind::Length],
                 };
-                nuisance.extend(kinds.into_iter().map(|kind| Nuisance { file: f, artifact: label.clone(), kind }));
+                nuisance.extend(kinds.into_iter().map(|kind| Nuisance {
+                    file: f,
+                    artifact: label.clone(),
+                    kind,
+                }));
             }
             first.push(starts);
         }
-        Layout { coefficients, nuisance, first }
+        Layout {
+            coefficients,
+            nuisance,
+            first,
+        }
     }
 
     pub fn columns(&self) -> usize {
@@ -134,12 +151,19 @@ pub fn states(m: &Machine, files: &[DataSet]) -> Result<Vec<FileStates>, DesignE
 }
 
 /// As [`states`], with lags integrated for the given non-linear parameter values.
-pub fn states_with(m: &Machine, files: &[DataSet], values: &[f64]) -> Result<Vec<FileStates>, DesignError> {
+pub fn states_with(
+    m: &Machine,
+    files: &[DataSet],
+    values: &[f64],
+) -> Result<Vec<FileStates>, DesignError> {
     files
         .iter()
         .map(|f| {
             let path = f.path.display().to_string();
-            let err = |source| DesignError::State { path: path.clone(), source };
+            let err = |source| DesignError::State {
+                path: path.clone(),
+                source,
+            };
             Ok(match &f.observations {
                 Observations::Points(p) => {
                     let mut s = States::new(m, &p.rows, &p.pose, "").map_err(err)?;
@@ -193,19 +217,36 @@ pub fn for_each_row(
                     let state = s.get(r);
                     engine
                         .error_and_jacobian(&state, &zero, &mut err, &mut jac)
-                        .map_err(|source| DesignError::Eval { path: path(), line, source })?;
+                        .map_err(|source| DesignError::Eval {
+                            path: path(),
+                            line,
+                            source,
+                        })?;
                     let artifact = layout.first_of(f, rows.artifact_of(r));
                     let position = match artifact {
-                        Some(_) => Some(engine.nominal_position(&state).map_err(|source| DesignError::Eval { path: path(), line, source })?),
+                        Some(_) => Some(engine.nominal_position(&state).map_err(|source| {
+                            DesignError::Eval {
+                                path: path(),
+                                line,
+                                source,
+                            }
+                        })?),
                         None => None,
                     };
                     for (c, column) in p.observed.iter().enumerate() {
-                        let Some(obs) = column.as_ref().and_then(|v| v.get(r)).copied().filter(|v| !v.is_nan()) else {
+                        let Some(obs) = column
+                            .as_ref()
+                            .and_then(|v| v.get(r))
+                            .copied()
+                            .filter(|v| !v.is_nan())
+                        else {
                             continue;
                         };
                         let w = if c < 3 { 1.0 } else { w_rot };
                         x.fill(0.0);
-                        for (slot, v) in x.iter_mut().zip(jac.get(c * n..(c + 1) * n).unwrap_or(&[])) {
+                        for (slot, v) in
+                            x.iter_mut().zip(jac.get(c * n..(c + 1) * n).unwrap_or(&[]))
+                        {
                             *slot = v * w;
                         }
                         if let (Some(first), Some(p)) = (artifact, position) {
@@ -223,7 +264,15 @@ pub fn for_each_row(
                             }
                         }
                         let y = (obs - err[c]) * w;
-                        row(RowMeta { file: f as u32, line: line as u32, component: c as u8 }, &x, y);
+                        row(
+                            RowMeta {
+                                file: f as u32,
+                                line: line as u32,
+                                component: c as u8,
+                            },
+                            &x,
+                            y,
+                        );
                     }
                 }
             }
@@ -232,14 +281,28 @@ pub fn for_each_row(
                     let line = s1.line.get(r).copied().unwrap_or(0);
                     let fixed = engine
                         .length_and_row(&s1.get(r), &s2.get(r), &zero, &mut lrow)
-                        .map_err(|source| DesignError::Eval { path: path(), line, source })?;
-                    let Some(obs) = l.dl.get(r).copied().filter(|v| !v.is_nan()) else { continue };
+                        .map_err(|source| DesignError::Eval {
+                            path: path(),
+                            line,
+                            source,
+                        })?;
+                    let Some(obs) = l.dl.get(r).copied().filter(|v| !v.is_nan()) else {
+                        continue;
+                    };
                     x.fill(0.0);
                     x.get_mut(..n).unwrap_or(&mut []).copy_from_slice(&lrow);
                     if let Some(first) = layout.first_of(f, rows.artifact_of(r)) {
                         set(&mut x, first, 1.0);
                     }
-                    row(RowMeta { file: f as u32, line: line as u32, component: LENGTH }, &x, obs - fixed);
+                    row(
+                        RowMeta {
+                            file: f as u32,
+                            line: line as u32,
+                            component: LENGTH,
+                        },
+                        &x,
+                        obs - fixed,
+                    );
                 }
             }
             _ => {}
@@ -263,7 +326,11 @@ fn unit(k: usize) -> [f64; 3] {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 /// Splits each file into a fitted part and a held-out part: a fraction `holdout` of the
@@ -277,21 +344,33 @@ pub fn holdout(files: &[DataSet], holdout: f64, seed: u64) -> (Vec<DataSet>, Vec
         let rows = f.observations.rows();
         let runs = rows.run.as_ref().map(|g| g.labels.len()).unwrap_or(1);
         let by_run = rows.time.is_some() && runs > 1;
-        let draws: Vec<bool> = (0..runs).map(|_| rng.random_bool(holdout.clamp(0.0, 1.0))).collect();
+        let draws: Vec<bool> = (0..runs)
+            .map(|_| rng.random_bool(holdout.clamp(0.0, 1.0)))
+            .collect();
         let (mut keep, mut out) = (Vec::new(), Vec::new());
         for r in 0..rows.len() {
-            let hold = if by_run { draws.get(rows.run_of(r) as usize).copied().unwrap_or(false) } else { rng.random_bool(holdout.clamp(0.0, 1.0)) };
+            let hold = if by_run {
+                draws.get(rows.run_of(r) as usize).copied().unwrap_or(false)
+            } else {
+                rng.random_bool(holdout.clamp(0.0, 1.0))
+            };
             if hold {
                 out.push(r);
             } else {
                 keep.push(r);
             }
         }
-        fitted.push(DataSet { path: f.path.clone(), observations: f.observations.select(&keep) });
+        fitted.push(DataSet {
+            path: f.path.clone(),
+            observations: f.observations.select(&keep),
+        });
         if !out.is_empty() {
             let mut path = f.path.clone().into_os_string();
             path.push(" (held out)");
-            held.push(DataSet { path: path.into(), observations: f.observations.select(&out) });
+            held.push(DataSet {
+                path: path.into(),
+                observations: f.observations.select(&out),
+            });
         }
     }
     (fitted, held)
@@ -302,7 +381,12 @@ pub fn count_rows(files: &[DataSet]) -> usize {
     files
         .iter()
         .map(|f| match &f.observations {
-            Observations::Points(p) => p.observed.iter().flatten().map(|v| v.iter().filter(|x| !x.is_nan()).count()).sum(),
+            Observations::Points(p) => p
+                .observed
+                .iter()
+                .flatten()
+                .map(|v| v.iter().filter(|x| !x.is_nan()).count())
+                .sum(),
             Observations::Lengths(l) => l.dl.iter().filter(|x| !x.is_nan()).count(),
         })
         .sum()

@@ -17,7 +17,10 @@ use kin_compiler::{Compiled, Diagnostic};
 use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
 use thiserror::Error;
 
-pub use design::{count_rows, for_each_row, holdout, rotation_weight, states, states_with, DataSet, DesignError, FileStates, Layout, Nuisance, NuisanceKind, RowMeta, LENGTH};
+pub use design::{
+    count_rows, for_each_row, holdout, rotation_weight, states, states_with, DataSet, DesignError,
+    FileStates, Layout, Nuisance, NuisanceKind, RowMeta, LENGTH,
+};
 pub use qr::{Reduced, StreamingQr};
 pub use solve::{Solution, Solver};
 
@@ -30,10 +33,16 @@ pub enum FitError {
     Design(#[from] DesignError),
     #[error("the files hold no observed value")]
     NoRows,
-    #[error("{rows} observed values cannot determine {rank} parameters with a noise estimate left over")]
+    #[error(
+        "{rows} observed values cannot determine {rank} parameters with a noise estimate left over"
+    )]
     TooFewRows { rows: usize, rank: usize },
     #[error("the design is rank-deficient: rank {rank} of {columns} columns")]
-    RankDeficient { rank: usize, columns: usize, diagnostics: Vec<Diagnostic> },
+    RankDeficient {
+        rank: usize,
+        columns: usize,
+        diagnostics: Vec<Diagnostic>,
+    },
 }
 
 #[derive(Debug, Clone)]
@@ -61,7 +70,14 @@ pub struct Stepwise {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { solver: Solver::Qr, tolerance: 1e-10, min_norm: false, block: 4096, outlier_alpha: 0.05, stepwise: None }
+        Options {
+            solver: Solver::Qr,
+            tolerance: 1e-10,
+            min_norm: false,
+            block: 4096,
+            outlier_alpha: 0.05,
+            stepwise: None,
+        }
     }
 }
 
@@ -139,29 +155,54 @@ pub fn fit(
         return Err(FitError::NoRows);
     }
 
-    let selection = options.stepwise.map(|sw| stepwise::select(&red, layout.coefficients, sw.remove, sw.enter));
+    let selection = options
+        .stepwise
+        .map(|sw| stepwise::select(&red, layout.coefficients, sw.remove, sw.enter));
     let solved = match &selection {
-        Some(sel) => solve::solve(&stepwise::restrict(&red, &sel.kept), options.solver, options.tolerance, options.min_norm)
-            .map(|s| solve::expand(s, &sel.kept))
-            .map_err(|s| solve::expand(s, &sel.kept)),
+        Some(sel) => solve::solve(
+            &stepwise::restrict(&red, &sel.kept),
+            options.solver,
+            options.tolerance,
+            options.min_norm,
+        )
+        .map(|s| solve::expand(s, &sel.kept))
+        .map_err(|s| solve::expand(s, &sel.kept)),
         None => solve::solve(&red, options.solver, options.tolerance, options.min_norm),
     };
     let solution = match solved {
         Ok(s) => s,
         Err(s) => {
-            return Err(FitError::RankDeficient { rank: s.rank, columns: p, diagnostics: name_invisible(compiled, &layout, &red) });
+            return Err(FitError::RankDeficient {
+                rank: s.rank,
+                columns: p,
+                diagnostics: name_invisible(compiled, &layout, &red),
+            });
         }
     };
-    let active = selection.as_ref().map(|s| s.kept.iter().filter(|&&k| k).count()).unwrap_or(p);
-    let constrained = if solution.rank < active { name_invisible(compiled, &layout, &red) } else { Vec::new() };
+    let active = selection
+        .as_ref()
+        .map(|s| s.kept.iter().filter(|&&k| k).count())
+        .unwrap_or(p);
+    let constrained = if solution.rank < active {
+        name_invisible(compiled, &layout, &red)
+    } else {
+        Vec::new()
+    };
     let dof = red.rows.saturating_sub(solution.rank);
     if dof == 0 {
-        return Err(FitError::TooFewRows { rows: red.rows, rank: solution.rank });
+        return Err(FitError::TooFewRows {
+            rows: red.rows,
+            rank: solution.rank,
+        });
     }
     let sigma2 = solution.rss / dof as f64;
     let sigma = sigma2.sqrt();
     let sst = red.y_sumsq - red.y_sum * red.y_sum / red.rows as f64;
-    let r2 = if sst > 0.0 { 1.0 - solution.rss / sst } else { f64::NAN };
+    let r2 = if sst > 0.0 {
+        1.0 - solution.rss / sst
+    } else {
+        f64::NAN
+    };
 
     // Pass 2: residuals and influence, leverages in blocks (one matrix product per block).
     let mut residuals = Vec::with_capacity(red.rows);
@@ -187,12 +228,33 @@ pub fn fit(
     }
 
     let n = red.rows as f64;
-    let outlier_threshold = Normal::new(0.0, 1.0).map(|d| d.inverse_cdf(1.0 - options.outlier_alpha / (2.0 * n))).unwrap_or(4.0);
-    let cook_threshold = FisherSnedecor::new(rank, dof as f64).map(|d| d.inverse_cdf(0.5)).unwrap_or(1.0);
+    let outlier_threshold = Normal::new(0.0, 1.0)
+        .map(|d| d.inverse_cdf(1.0 - options.outlier_alpha / (2.0 * n)))
+        .unwrap_or(4.0);
+    let cook_threshold = FisherSnedecor::new(rank, dof as f64)
+        .map(|d| d.inverse_cdf(0.5))
+        .unwrap_or(1.0);
 
-    let validation = if validate.is_empty() { Vec::new() } else { validation_residuals(compiled, engine, validate, &solution, &values, options)? };
+    let validation = if validate.is_empty() {
+        Vec::new()
+    } else {
+        validation_residuals(compiled, engine, validate, &solution, &values, options)?
+    };
 
-    Ok(FitResult { layout, solution, rows: red.rows, sigma, r2, residuals, outlier_threshold, cook_threshold, constrained, validation, selection, nonlinear })
+    Ok(FitResult {
+        layout,
+        solution,
+        rows: red.rows,
+        sigma,
+        r2,
+        residuals,
+        outlier_threshold,
+        cook_threshold,
+        constrained,
+        validation,
+        selection,
+        nonlinear,
+    })
 }
 
 /// Rows buffered for the residual pass.
@@ -204,7 +266,11 @@ struct Block {
 
 impl Block {
     fn new(rows: usize, p: usize) -> Self {
-        Block { x: Mat::zeros(rows.max(1), p), y: Vec::with_capacity(rows), meta: Vec::with_capacity(rows) }
+        Block {
+            x: Mat::zeros(rows.max(1), p),
+            y: Vec::with_capacity(rows),
+            meta: Vec::with_capacity(rows),
+        }
     }
     fn full(&self) -> bool {
         self.y.len() == self.x.nrows()
@@ -273,8 +339,19 @@ fn validation_residuals(
     };
     let mut out = Vec::new();
     design::for_each_row(engine, files, &states, &layout, |meta, x, y| {
-        let pred: f64 = x.iter().zip(beta.iter().chain(&nuisance)).map(|(a, b)| a * b).sum();
-        out.push(ResidualRow { meta, observed: y, residual: y - pred, leverage: f64::NAN, studentized: f64::NAN, cook: f64::NAN });
+        let pred: f64 = x
+            .iter()
+            .zip(beta.iter().chain(&nuisance))
+            .map(|(a, b)| a * b)
+            .sum();
+        out.push(ResidualRow {
+            meta,
+            observed: y,
+            residual: y - pred,
+            leverage: f64::NAN,
+            studentized: f64::NAN,
+            cook: f64::NAN,
+        });
     })?;
     Ok(out)
 }
@@ -288,12 +365,27 @@ fn name_invisible(compiled: &Compiled, layout: &Layout, red: &Reduced) -> Vec<Di
         .chain(layout.nuisance.iter().map(|n| Column::Nuisance(n.name())))
         .collect();
     // Nuisance first, so a model term they absorb is reported as absorbed.
-    let order: Vec<usize> = (layout.coefficients..layout.columns()).chain(0..layout.coefficients).collect();
+    let order: Vec<usize> = (layout.coefficients..layout.columns())
+        .chain(0..layout.coefficients)
+        .collect();
     let p = layout.columns();
-    let reordered: Vec<f64> = (0..p).flat_map(|i| order.iter().map(move |&j| (i, j))).map(|(i, j)| rs[i * p + j]).collect();
+    let reordered: Vec<f64> = (0..p)
+        .flat_map(|i| order.iter().map(move |&j| (i, j)))
+        .map(|(i, j)| rs[i * p + j])
+        .collect();
     let cols: Vec<Column> = order.iter().map(|&j| columns[j].clone()).collect();
     match identify::analyse(&reordered, &cols) {
-        Ok(report) => identify::diagnostics(&compiled.machine, &compiled.map, &report, Observe::Data, false),
-        Err(e) => vec![Diagnostic::error("E0601", format!("the invisible combinations could not be named: {e}"), Default::default())],
+        Ok(report) => identify::diagnostics(
+            &compiled.machine,
+            &compiled.map,
+            &report,
+            Observe::Data,
+            false,
+        ),
+        Err(e) => vec![Diagnostic::error(
+            "E0601",
+            format!("the invisible combinations could not be named: {e}"),
+            Default::default(),
+        )],
     }
 }

@@ -27,15 +27,33 @@ pub struct NonlinearFit {
 }
 
 /// The weighted residual vector of the linear fit at `values`, and its rank.
-fn residuals(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], values: &[f64], options: &Options) -> Result<(Vec<f64>, usize), FitError> {
+fn residuals(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    options: &Options,
+) -> Result<(Vec<f64>, usize), FitError> {
     let (r, rank, _) = linear_fit(compiled, engine, files, values, options)?;
     Ok((r, rank))
 }
 
 /// The linear fit at `values`: residuals, rank and β̂.
-fn linear_fit(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], values: &[f64], options: &Options) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
+fn linear_fit(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    options: &Options,
+) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
     let m = &compiled.machine;
-    engine.set_nonlinear(values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
+    engine
+        .set_nonlinear(values)
+        .map_err(|source| design::DesignError::Eval {
+            path: String::new(),
+            line: 0,
+            source,
+        })?;
     let states = design::states_with(m, files, values)?;
     let layout = Layout::new(m, files);
     let mut acc = StreamingQr::new(layout.columns(), options.block);
@@ -53,13 +71,27 @@ fn linear_fit(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet]
 }
 
 /// The predictions `X(values)·β` of every row, β held fixed.
-fn predictions(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], values: &[f64], beta: &[f64]) -> Result<Vec<f64>, FitError> {
+fn predictions(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    beta: &[f64],
+) -> Result<Vec<f64>, FitError> {
     let m = &compiled.machine;
-    engine.set_nonlinear(values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
+    engine
+        .set_nonlinear(values)
+        .map_err(|source| design::DesignError::Eval {
+            path: String::new(),
+            line: 0,
+            source,
+        })?;
     let states = design::states_with(m, files, values)?;
     let layout = Layout::new(m, files);
     let mut out = Vec::new();
-    design::for_each_row(engine, files, &states, &layout, |_, x, _| out.push(x.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>()))?;
+    design::for_each_row(engine, files, &states, &layout, |_, x, _| {
+        out.push(x.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>())
+    })?;
     Ok(out)
 }
 
@@ -89,9 +121,20 @@ fn covariance(
         dn[i] -= h;
         let pu = predictions(compiled, engine, files, &up, &beta)?;
         let pd = predictions(compiled, engine, files, &dn, &beta)?;
-        d.push(pu.iter().zip(&pd).map(|(a, b)| (a - b) / (2.0 * h)).collect());
+        d.push(
+            pu.iter()
+                .zip(&pd)
+                .map(|(a, b)| (a - b) / (2.0 * h))
+                .collect(),
+        );
     }
-    engine.set_nonlinear(values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
+    engine
+        .set_nonlinear(values)
+        .map_err(|source| design::DesignError::Eval {
+            path: String::new(),
+            line: 0,
+            source,
+        })?;
     let states = design::states_with(m, files, values)?;
     let layout = Layout::new(m, files);
     let p = layout.columns();
@@ -107,16 +150,26 @@ fn covariance(
         i += 1;
     })?;
     let red = acc.finish();
+    // Cov(θ) = σ̂² (R₂₂ᵀR₂₂)⁻¹ = σ̂² R₂₂⁻¹R₂₂⁻ᵀ: from the triangle itself, never its normal
+    // matrix, whose entries span the squares of the parameters' very different scales.
     let r22 = Mat::from_fn(k, k, |a, b| red.r[(p + a, p + b)]);
-    let schur = r22.transpose() * &r22;
+    let mut inv = Mat::<f64>::zeros(k, k);
+    for c in 0..k {
+        for i in (0..=c).rev() {
+            let mut v = if i == c { 1.0 } else { 0.0 };
+            for j in i + 1..=c {
+                v -= r22[(i, j)] * inv[(j, c)];
+            }
+            inv[(i, c)] = v / r22[(i, i)];
+        }
+    }
     let dof = red.rows.saturating_sub(rank + k).max(1) as f64;
     let sigma2 = rss / dof;
     let mut se = vec![None; m.nonlinear.len()];
     for (c, &i) in fitted.iter().enumerate() {
-        let mut e = vec![0.0; k];
-        e[c] = 1.0;
-        let (col, singular) = solve_small(&schur, &e);
-        se[i] = Some(if singular { f64::INFINITY } else { (sigma2 * col[c]).max(0.0).sqrt() });
+        let var: f64 = sigma2 * (c..k).map(|j| inv[(c, j)].powi(2)).sum::<f64>();
+        // A parameter with no effect on the residuals leaves a zero pivot: unbounded.
+        se[i] = Some(if var.is_finite() { var.sqrt() } else { f64::INFINITY });
     }
     Ok(se)
 }
@@ -126,9 +179,20 @@ fn sumsq(r: &[f64]) -> f64 {
 }
 
 /// Optimises the fitted non-linear parameters. Returns `None` when the model has none.
-pub fn optimise(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSet], options: &Options) -> Result<Option<NonlinearFit>, FitError> {
+pub fn optimise(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    options: &Options,
+) -> Result<Option<NonlinearFit>, FitError> {
     let m = &compiled.machine;
-    let fitted: Vec<usize> = m.nonlinear.iter().enumerate().filter(|(_, p)| p.fitted).map(|(i, _)| i).collect();
+    let fitted: Vec<usize> = m
+        .nonlinear
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.fitted)
+        .map(|(i, _)| i)
+        .collect();
     if fitted.is_empty() {
         return Ok(None);
     }
@@ -160,12 +224,25 @@ pub fn optimise(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSe
             }
         }
         let a = jac.transpose() * &jac;
-        let g: Vec<f64> = (0..k).map(|c| (0..r.len()).map(|i| jac[(i, c)] * r[i]).sum()).collect();
+        let g: Vec<f64> = (0..k)
+            .map(|c| (0..r.len()).map(|i| jac[(i, c)] * r[i]).sum())
+            .collect();
         let mut improved = false;
         for _ in 0..12 {
-            let damped = Mat::from_fn(k, k, |i, j| a[(i, j)] + if i == j { lambda * a[(i, i)].max(1e-300) } else { 0.0 });
+            let damped = Mat::from_fn(k, k, |i, j| {
+                a[(i, j)]
+                    + if i == j {
+                        lambda * a[(i, i)].max(1e-300)
+                    } else {
+                        0.0
+                    }
+            });
             let (step, _) = solve_small(&damped, &g.iter().map(|v| -v).collect::<Vec<_>>());
-            let trial: Vec<f64> = phi.iter().zip(&step).map(|(p, d)| p + d.clamp(-2.0, 2.0)).collect();
+            let trial: Vec<f64> = phi
+                .iter()
+                .zip(&step)
+                .map(|(p, d)| p + d.clamp(-2.0, 2.0))
+                .collect();
             let (rt, rank_t) = residuals(compiled, engine, files, &with(&values, &trial), options)?;
             let rss_t = sumsq(&rt);
             if rss_t < rss {
@@ -185,16 +262,31 @@ pub fn optimise(compiled: &Compiled, engine: &mut dyn Evaluator, files: &[DataSe
         }
     }
     values = with(&values, &phi);
-    let se = covariance(compiled, engine, files, &values, &fitted, rss, rank, options)?;
-    engine.set_nonlinear(&values).map_err(|source| design::DesignError::Eval { path: String::new(), line: 0, source })?;
-    Ok(Some(NonlinearFit { values, se, iterations, rss }))
+    let se = covariance(
+        compiled, engine, files, &values, &fitted, rss, rank, options,
+    )?;
+    engine
+        .set_nonlinear(&values)
+        .map_err(|source| design::DesignError::Eval {
+            path: String::new(),
+            line: 0,
+            source,
+        })?;
+    Ok(Some(NonlinearFit {
+        values,
+        se,
+        iterations,
+        rss,
+    }))
 }
 
 /// Solves a small symmetric system with the pseudo-inverse; the flag says whether a direction
 /// was singular (a parameter without effect on the residuals: zero step, unbounded variance).
 fn solve_small(a: &Mat<f64>, b: &[f64]) -> (Vec<f64>, bool) {
     let k = b.len();
-    let Ok(svd) = a.thin_svd() else { return (vec![0.0; k], true) };
+    let Ok(svd) = a.thin_svd() else {
+        return (vec![0.0; k], true);
+    };
     let (u, s, v) = (svd.U(), svd.S().column_vector(), svd.V());
     let top = s.iter().copied().fold(0.0, f64::max);
     let mut x = vec![0.0; k];

@@ -34,7 +34,15 @@ impl StreamingQr {
     pub fn new(columns: usize, block: usize) -> Self {
         let k = columns + 1;
         let block = block.max(k);
-        StreamingQr { k, r: Mat::zeros(k, k), block: Mat::zeros(block, k), filled: 0, rows: 0, norms2: vec![0.0; columns], y_sum: 0.0 }
+        StreamingQr {
+            k,
+            r: Mat::zeros(k, k),
+            block: Mat::zeros(block, k),
+            filled: 0,
+            rows: 0,
+            norms2: vec![0.0; columns],
+            y_sum: 0.0,
+        }
     }
 
     pub fn push(&mut self, x: &[f64], y: f64) {
@@ -59,7 +67,13 @@ impl StreamingQr {
             return;
         }
         let (k, b) = (self.k, self.filled);
-        let stacked = Mat::from_fn(k + b, k, |i, j| if i < k { self.r[(i, j)] } else { self.block[(i - k, j)] });
+        let stacked = Mat::from_fn(k + b, k, |i, j| {
+            if i < k {
+                self.r[(i, j)]
+            } else {
+                self.block[(i - k, j)]
+            }
+        });
         let qr = stacked.qr();
         let r = qr.thin_R();
         self.r = Mat::from_fn(k, k, |i, j| if j >= i { r[(i, j)] } else { 0.0 });
@@ -71,7 +85,13 @@ impl StreamingQr {
         let k = self.k;
         // ‖y‖² is the squared norm of R's last column (RᵀR = [X y]ᵀ[X y]).
         let y_sumsq = (0..k).map(|i| self.r[(i, k - 1)].powi(2)).sum();
-        Reduced { r: self.r, rows: self.rows, norms: self.norms2.iter().map(|v| v.sqrt()).collect(), y_sum: self.y_sum, y_sumsq }
+        Reduced {
+            r: self.r,
+            rows: self.rows,
+            norms: self.norms2.iter().map(|v| v.sqrt()).collect(),
+            y_sum: self.y_sum,
+            y_sumsq,
+        }
     }
 }
 
@@ -84,7 +104,14 @@ mod tests {
     fn streaming_r_matches_the_gram_matrix_of_all_rows() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(4);
         let (m, p) = (1000, 7);
-        let rows: Vec<(Vec<f64>, f64)> = (0..m).map(|_| ((0..p).map(|_| rng.random_range(-1.0..1.0)).collect(), rng.random_range(-1.0..1.0))).collect();
+        let rows: Vec<(Vec<f64>, f64)> = (0..m)
+            .map(|_| {
+                (
+                    (0..p).map(|_| rng.random_range(-1.0..1.0)).collect(),
+                    rng.random_range(-1.0..1.0),
+                )
+            })
+            .collect();
         let mut acc = StreamingQr::new(p, 64);
         for (x, y) in &rows {
             acc.push(x, *y);
@@ -97,7 +124,10 @@ mod tests {
                 let col = |r: &(Vec<f64>, f64), j: usize| if j < p { r.0[j] } else { r.1 };
                 let gram: f64 = rows.iter().map(|r| col(r, a) * col(r, b)).sum();
                 let rtr: f64 = (0..=p).map(|i| red.r[(i, a)] * red.r[(i, b)]).sum();
-                assert!((gram - rtr).abs() < 1e-9 * (1.0 + gram.abs()), "({a},{b}): {gram} vs {rtr}");
+                assert!(
+                    (gram - rtr).abs() < 1e-9 * (1.0 + gram.abs()),
+                    "({a},{b}): {gram} vs {rtr}"
+                );
             }
         }
         let y2: f64 = rows.iter().map(|r| r.1 * r.1).sum();

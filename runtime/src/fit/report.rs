@@ -10,6 +10,12 @@ use super::{solve, FitResult, Options, ResidualRow};
 use crate::data::OBSERVED;
 use crate::fit::DataSet;
 
+/// JSON has no NaN or infinity: serde_json writes them as `null`. Read `null` back as NaN so a
+/// report with an undetermined quantity (an unbounded standard error) still loads.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// Format version of `FIT.json`.
 pub const VERSION: u32 = 1;
 
@@ -21,17 +27,23 @@ pub struct FitReport {
     pub model_hash: String,
     pub engine: String,
     pub solver: String,
+    #[serde(deserialize_with = "nan_if_null")]
     pub tolerance: f64,
     pub columns: usize,
     pub rank: usize,
+    #[serde(deserialize_with = "nan_if_null")]
     pub condition: f64,
     pub rows: usize,
     pub dof: usize,
     /// Noise estimate σ̂, residual RMS and largest |residual|, in `error_unit` (rotation rows
     /// count a tilt unit as an error unit).
+    #[serde(deserialize_with = "nan_if_null")]
     pub sigma: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub rms: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub max: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub r2: f64,
     pub error_unit: String,
     pub tilt_unit: String,
@@ -41,7 +53,9 @@ pub struct FitReport {
     pub nuisance: Vec<Estimate>,
     /// Covariance of the coefficients (eq. 4.11), SI, row-major `n × n`.
     pub covariance: Vec<f64>,
+    #[serde(deserialize_with = "nan_if_null")]
     pub outlier_threshold: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub cook_threshold: f64,
     pub outliers: Vec<Residual>,
     /// Every row's residual, unless there were more than [`MAX_RESIDUALS`].
@@ -71,7 +85,9 @@ pub struct StepReport {
     pub name: String,
     pub label: String,
     pub action: String,
+    #[serde(deserialize_with = "nan_if_null")]
     pub f: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub p: f64,
 }
 
@@ -87,7 +103,9 @@ pub struct Estimate {
     pub name: String,
     pub label: String,
     pub unit: String,
+    #[serde(deserialize_with = "nan_if_null")]
     pub value: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub se: f64,
     /// False for a coefficient stepwise selection removed (its value is 0 by decision).
     #[serde(default = "yes")]
@@ -105,7 +123,9 @@ pub struct FileSummary {
     pub rows: usize,
     /// Per observed quantity (`ex`, …, `dL`): rows, RMS and max |residual|, display units.
     pub components: Vec<ComponentSummary>,
+    #[serde(deserialize_with = "nan_if_null")]
     pub rms: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub max: f64,
     pub outliers: usize,
 }
@@ -115,7 +135,9 @@ pub struct ComponentSummary {
     pub name: String,
     pub unit: String,
     pub rows: usize,
+    #[serde(deserialize_with = "nan_if_null")]
     pub rms: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub max: f64,
 }
 
@@ -124,10 +146,15 @@ pub struct Residual {
     pub file: u32,
     pub line: u32,
     pub component: String,
+    #[serde(deserialize_with = "nan_if_null")]
     pub observed: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub residual: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub studentized: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub leverage: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub cook: f64,
 }
 
@@ -169,20 +196,34 @@ fn residual(m: &Machine, r: &ResidualRow) -> Residual {
     }
 }
 
-fn summaries(m: &Machine, files: &[DataSet], rows: &[ResidualRow], threshold: f64) -> Vec<FileSummary> {
+fn summaries(
+    m: &Machine,
+    files: &[DataSet],
+    rows: &[ResidualRow],
+    threshold: f64,
+) -> Vec<FileSummary> {
     let s = m.units.error.scale;
     files
         .iter()
         .enumerate()
         .map(|(f, file)| {
-            let mine: Vec<&ResidualRow> = rows.iter().filter(|r| r.meta.file as usize == f).collect();
+            let mine: Vec<&ResidualRow> =
+                rows.iter().filter(|r| r.meta.file as usize == f).collect();
             let mut components = Vec::new();
             for c in 0..=LENGTH {
-                let vals: Vec<f64> = mine.iter().filter(|r| r.meta.component == c).map(|r| r.residual / s).collect();
+                let vals: Vec<f64> = mine
+                    .iter()
+                    .filter(|r| r.meta.component == c)
+                    .map(|r| r.residual / s)
+                    .collect();
                 if vals.is_empty() {
                     continue;
                 }
-                let unit = if (3..6).contains(&c) { &m.units.tilt } else { &m.units.error };
+                let unit = if (3..6).contains(&c) {
+                    &m.units.tilt
+                } else {
+                    &m.units.error
+                };
                 components.push(ComponentSummary {
                     name: component_name(c).to_string(),
                     unit: unit.name.clone(),
@@ -202,7 +243,10 @@ fn summaries(m: &Machine, files: &[DataSet], rows: &[ResidualRow], threshold: f6
                 components,
                 rms: rms(&all),
                 max: all.iter().fold(0.0f64, |a, v| a.max(v.abs())),
-                outliers: mine.iter().filter(|r| r.studentized.abs() > threshold).count(),
+                outliers: mine
+                    .iter()
+                    .filter(|r| r.studentized.abs() > threshold)
+                    .count(),
             }
         })
         .collect()
@@ -232,10 +276,24 @@ pub fn build(
         .enumerate()
         .map(|(i, p)| {
             let (value, se) = match &result.nonlinear {
-                Some(n) => (n.values.get(i).copied().unwrap_or(p.value), n.se.get(i).copied().flatten().unwrap_or(0.0)),
+                Some(n) => (
+                    n.values.get(i).copied().unwrap_or(p.value),
+                    n.se.get(i).copied().flatten().unwrap_or(0.0),
+                ),
                 None => (p.value, 0.0),
             };
-            Estimate { name: p.name.clone(), label: if p.fitted { "fitted".into() } else { "fixed".into() }, unit: p.unit.name.clone(), value: p.unit.from_si(value), se: se / p.unit.scale, kept: true }
+            Estimate {
+                name: p.name.clone(),
+                label: if p.fitted {
+                    "fitted".into()
+                } else {
+                    "fixed".into()
+                },
+                unit: p.unit.name.clone(),
+                value: p.unit.from_si(value),
+                se: se / p.unit.scale,
+                kept: true,
+            }
         })
         .collect();
     let sol = &result.solution;
@@ -252,7 +310,10 @@ pub fn build(
             unit: c.unit.name.clone(),
             value: sol.beta.get(j).copied().unwrap_or(0.0) / c.unit.scale,
             se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / c.unit.scale,
-            kept: result.selection.as_ref().is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
+            kept: result
+                .selection
+                .as_ref()
+                .is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
         })
         .collect();
     let nuisance: Vec<Estimate> = result
@@ -261,11 +322,18 @@ pub fn build(
         .iter()
         .enumerate()
         .map(|(k, nu)| {
-            let unit = if matches!(nu.kind, NuisanceKind::Rotation(_)) { &m.units.tilt } else { &m.units.error };
+            let unit = if matches!(nu.kind, NuisanceKind::Rotation(_)) {
+                &m.units.tilt
+            } else {
+                &m.units.error
+            };
             let j = n + k;
             Estimate {
                 name: nu.name(),
-                label: files.get(nu.file).map(|f| f.path.display().to_string()).unwrap_or_default(),
+                label: files
+                    .get(nu.file)
+                    .map(|f| f.path.display().to_string())
+                    .unwrap_or_default(),
                 unit: unit.name.clone(),
                 value: sol.beta.get(j).copied().unwrap_or(0.0) / unit.scale,
                 se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / unit.scale,
@@ -274,13 +342,18 @@ pub fn build(
         })
         .collect();
     let cov_full = solve::covariance(&sol.g, sigma2);
-    let covariance: Vec<f64> = (0..n).flat_map(|a| (0..n).map(move |b| (a, b))).map(|(a, b)| cov_full[(a, b)]).collect();
+    let covariance: Vec<f64> = (0..n)
+        .flat_map(|a| (0..n).map(move |b| (a, b)))
+        .map(|(a, b)| cov_full[(a, b)])
+        .collect();
     let s = m.units.error.scale;
     let all: Vec<f64> = result.residuals.iter().map(|r| r.residual / s).collect();
     let outliers: Vec<Residual> = result
         .residuals
         .iter()
-        .filter(|r| r.studentized.abs() > result.outlier_threshold || r.cook > result.cook_threshold)
+        .filter(|r| {
+            r.studentized.abs() > result.outlier_threshold || r.cook > result.cook_threshold
+        })
         .map(|r| residual(m, r))
         .collect();
     let keep = result.residuals.len() <= MAX_RESIDUALS;
@@ -304,7 +377,10 @@ pub fn build(
         tilt_unit: m.units.tilt.name.clone(),
         files: summaries(m, files, &result.residuals, result.outlier_threshold),
         params: params_text(m, &sol.beta, &nonlinear),
-        stepwise: result.selection.as_ref().map(|sel| stepwise_report(m, sel, options)),
+        stepwise: result
+            .selection
+            .as_ref()
+            .map(|sel| stepwise_report(m, sel, options)),
         coefficients,
         nonlinear,
         nuisance,
@@ -312,16 +388,31 @@ pub fn build(
         outlier_threshold: result.outlier_threshold,
         cook_threshold: result.cook_threshold,
         outliers,
-        residuals: if keep { result.residuals.iter().map(|r| residual(m, r)).collect() } else { Vec::new() },
+        residuals: if keep {
+            result.residuals.iter().map(|r| residual(m, r)).collect()
+        } else {
+            Vec::new()
+        },
         residuals_omitted: if keep { 0 } else { result.residuals.len() },
         validation: summaries(m, validate, &result.validation, f64::INFINITY),
         validation_residuals: result.validation.iter().map(|r| residual(m, r)).collect(),
-        constrained: result.constrained.iter().map(|d| d.message.clone()).collect(),
+        constrained: result
+            .constrained
+            .iter()
+            .map(|d| d.message.clone())
+            .collect(),
     }
 }
 
-fn stepwise_report(m: &Machine, sel: &super::stepwise::Selection, options: &Options) -> StepwiseReport {
-    let (alpha_remove, alpha_enter) = options.stepwise.map(|s| (s.remove, s.enter)).unwrap_or((f64::NAN, None));
+fn stepwise_report(
+    m: &Machine,
+    sel: &super::stepwise::Selection,
+    options: &Options,
+) -> StepwiseReport {
+    let (alpha_remove, alpha_enter) = options
+        .stepwise
+        .map(|s| (s.remove, s.enter))
+        .unwrap_or((f64::NAN, None));
     let steps = sel
         .steps
         .iter()
@@ -338,9 +429,21 @@ fn stepwise_report(m: &Machine, sel: &super::stepwise::Selection, options: &Opti
         .collect();
     let mut components: Vec<Survivors> = Vec::new();
     for (j, c) in m.coefficients.iter().enumerate() {
-        let base = c.name.rsplit_once('[').map(|(b, _)| b.to_string()).unwrap_or_default();
-        if components.last().map(|s| s.component != base).unwrap_or(true) {
-            components.push(Survivors { component: base, kept: Vec::new(), removed: Vec::new() });
+        let base = c
+            .name
+            .rsplit_once('[')
+            .map(|(b, _)| b.to_string())
+            .unwrap_or_default();
+        if components
+            .last()
+            .map(|s| s.component != base)
+            .unwrap_or(true)
+        {
+            components.push(Survivors {
+                component: base,
+                kept: Vec::new(),
+                removed: Vec::new(),
+            });
         }
         if let Some(s) = components.last_mut() {
             if sel.kept.get(j).copied().unwrap_or(true) {
@@ -350,7 +453,12 @@ fn stepwise_report(m: &Machine, sel: &super::stepwise::Selection, options: &Opti
             }
         }
     }
-    StepwiseReport { alpha_remove, alpha_enter, steps, components }
+    StepwiseReport {
+        alpha_remove,
+        alpha_enter,
+        steps,
+        components,
+    }
 }
 
 /// The fitted values as a `params { … }` block, each coefficient in its own unit, with enough
@@ -372,7 +480,11 @@ impl FitReport {
     /// The variance of the model's predicted error at `state` (eq. 4.12):
     /// `Var(ê_c) = g_cᵀ Cov(β̂) g_c` for each component c, with `g_c` row c of the β-Jacobian.
     /// SI² (m², rad²). The nuisance parameters do not enter: a prediction is of the machine.
-    pub fn prediction_variance(&self, engine: &mut dyn crate::engine::Evaluator, state: &crate::interp::State) -> Result<[f64; 6], crate::interp::EvalError> {
+    pub fn prediction_variance(
+        &self,
+        engine: &mut dyn crate::engine::Evaluator,
+        state: &crate::interp::State,
+    ) -> Result<[f64; 6], crate::interp::EvalError> {
         let n = self.coefficients.len();
         let mut jac = vec![0.0; 6 * n];
         let mut err = [0.0; 6];

@@ -41,7 +41,17 @@ pub struct Solution {
 pub fn scaled_triangle(red: &Reduced) -> (Vec<f64>, Vec<f64>) {
     let p = red.norms.len();
     let biggest = red.norms.iter().copied().fold(0.0, f64::max);
-    let scale: Vec<f64> = red.norms.iter().map(|&n| if n > 1e-14 * biggest && n > 0.0 { 1.0 / n } else { 0.0 }).collect();
+    let scale: Vec<f64> = red
+        .norms
+        .iter()
+        .map(|&n| {
+            if n > 1e-14 * biggest && n > 0.0 {
+                1.0 / n
+            } else {
+                0.0
+            }
+        })
+        .collect();
     let mut rs = vec![0.0; p * p];
     for i in 0..p {
         for j in 0..p {
@@ -54,7 +64,12 @@ pub fn scaled_triangle(red: &Reduced) -> (Vec<f64>, Vec<f64>) {
 /// Solves with the rank decided at relative tolerance `tol`. `min_norm` gives the minimum-norm
 /// solution of a rank-deficient problem (on the unit-scaled columns); without it a deficient
 /// problem returns `Err(solution-with-null-space)` so the caller can name what is invisible.
-pub fn solve(red: &Reduced, solver: Solver, tol: f64, min_norm: bool) -> Result<Solution, Solution> {
+pub fn solve(
+    red: &Reduced,
+    solver: Solver,
+    tol: f64,
+    min_norm: bool,
+) -> Result<Solution, Solution> {
     let p = red.norms.len();
     let (rs_flat, scale) = scaled_triangle(red);
     let rs = Mat::from_fn(p, p, |i, j| rs_flat[i * p + j]);
@@ -66,7 +81,11 @@ pub fn solve(red: &Reduced, solver: Solver, tol: f64, min_norm: bool) -> Result<
         let r2 = piv.R();
         let d0 = r2[(0, 0)].abs();
         let rank = (0..p).take_while(|&i| r2[(i, i)].abs() > tol * d0).count();
-        let cond = if rank > 0 { d0 / r2[(rank - 1, rank - 1)].abs() } else { f64::INFINITY };
+        let cond = if rank > 0 {
+            d0 / r2[(rank - 1, rank - 1)].abs()
+        } else {
+            f64::INFINITY
+        };
         (rank, cond)
     };
 
@@ -74,7 +93,11 @@ pub fn solve(red: &Reduced, solver: Solver, tol: f64, min_norm: bool) -> Result<
     // pivoted QR decides the rank by default, as the thesis' procedure does.
     let svd = rs.thin_svd();
     let (u, s, v) = match &svd {
-        Ok(d) => (d.U().to_owned(), d.S().column_vector().iter().copied().collect::<Vec<f64>>(), d.V().to_owned()),
+        Ok(d) => (
+            d.U().to_owned(),
+            d.S().column_vector().iter().copied().collect::<Vec<f64>>(),
+            d.V().to_owned(),
+        ),
         Err(_) => (Mat::zeros(p, 0), Vec::new(), Mat::zeros(p, 0)),
     };
     let s_max = s.first().copied().unwrap_or(0.0);
@@ -82,7 +105,14 @@ pub fn solve(red: &Reduced, solver: Solver, tol: f64, min_norm: bool) -> Result<
         Solver::Qr if p > 0 => qr_rank(tol),
         _ => {
             let r = s.iter().take_while(|&&x| x > tol * s_max).count();
-            (r, if r > 0 { s_max / s[r - 1] } else { f64::INFINITY })
+            (
+                r,
+                if r > 0 {
+                    s_max / s[r - 1]
+                } else {
+                    f64::INFINITY
+                },
+            )
         }
     };
     // The retained singular directions: as many as the rank.
@@ -96,7 +126,9 @@ pub fn solve(red: &Reduced, solver: Solver, tol: f64, min_norm: bool) -> Result<
         }
     }
     // What the dropped directions would have explained stays in the residual.
-    let dropped: f64 = (keep..s.len()).map(|k| (0..p).map(|i| u[(i, k)] * z[i]).sum::<f64>().powi(2)).sum();
+    let dropped: f64 = (keep..s.len())
+        .map(|k| (0..p).map(|i| u[(i, k)] * z[i]).sum::<f64>().powi(2))
+        .sum();
     let g = Mat::from_fn(keep, p, |k, j| g_scaled[(k, j)] * scale[j]);
     let null = Mat::from_fn(p, p - keep, |j, k| v[(j, keep + k)]);
     let solution = Solution {
@@ -125,24 +157,40 @@ pub fn expand(s: Solution, kept: &[bool]) -> Solution {
         beta[j] = s.beta.get(k).copied().unwrap_or(0.0);
         scale[j] = s.scale.get(k).copied().unwrap_or(0.0);
     }
-    let g = Mat::from_fn(s.g.nrows(), p, |r, j| match index.iter().position(|&i| i == j) {
-        Some(k) => s.g[(r, k)],
-        None => 0.0,
+    let g = Mat::from_fn(s.g.nrows(), p, |r, j| {
+        match index.iter().position(|&i| i == j) {
+            Some(k) => s.g[(r, k)],
+            None => 0.0,
+        }
     });
-    let null = Mat::from_fn(p, s.null.ncols(), |j, c| match index.iter().position(|&i| i == j) {
-        Some(k) => s.null[(k, c)],
-        None => 0.0,
+    let null = Mat::from_fn(p, s.null.ncols(), |j, c| {
+        match index.iter().position(|&i| i == j) {
+            Some(k) => s.null[(k, c)],
+            None => 0.0,
+        }
     });
-    Solution { beta, rank: s.rank, rss: s.rss, g, null, condition: s.condition, scale }
+    Solution {
+        beta,
+        rank: s.rank,
+        rss: s.rss,
+        g,
+        null,
+        condition: s.condition,
+        scale,
+    }
 }
 
 /// `σ̂² GᵀG` restricted to the diagonal: variances of every column.
 pub fn variances(g: &Mat<f64>, sigma2: f64) -> Vec<f64> {
-    (0..g.ncols()).map(|j| sigma2 * (0..g.nrows()).map(|k| g[(k, j)].powi(2)).sum::<f64>()).collect()
+    (0..g.ncols())
+        .map(|j| sigma2 * (0..g.nrows()).map(|k| g[(k, j)].powi(2)).sum::<f64>())
+        .collect()
 }
 
 /// The full covariance `σ̂² GᵀG` (eq. 4.11).
 pub fn covariance(g: &Mat<f64>, sigma2: f64) -> Mat<f64> {
     let p = g.ncols();
-    Mat::from_fn(p, p, |a, b| sigma2 * (0..g.nrows()).map(|k| g[(k, a)] * g[(k, b)]).sum::<f64>())
+    Mat::from_fn(p, p, |a, b| {
+        sigma2 * (0..g.nrows()).map(|k| g[(k, a)] * g[(k, b)]).sum::<f64>()
+    })
 }

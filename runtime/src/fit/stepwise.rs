@@ -39,7 +39,10 @@ pub struct Selection {
 /// The sub-problem of the columns in `kept` (y stays last): re-triangularised from R.
 pub fn restrict(red: &Reduced, kept: &[bool]) -> Reduced {
     let p = red.norms.len();
-    let cols: Vec<usize> = (0..p).filter(|&j| kept.get(j).copied().unwrap_or(true)).chain([p]).collect();
+    let cols: Vec<usize> = (0..p)
+        .filter(|&j| kept.get(j).copied().unwrap_or(true))
+        .chain([p])
+        .collect();
     let k = red.r.nrows();
     let sub = Mat::from_fn(k, cols.len(), |i, j| red.r[(i, cols[j])]);
     let q = cols.len();
@@ -71,7 +74,13 @@ fn rss(red: &Reduced, kept: &[bool]) -> f64 {
 
 /// The kept candidate with the smallest partial F, `F_j = β_j² / Var(β_j)` with
 /// `Var(β_j) = s²‖row j of R⁻¹‖²` on the sub-model's triangle.
-fn weakest(red: &Reduced, kept: &[bool], candidates: usize, rss: f64, dof: f64) -> Option<(usize, f64)> {
+fn weakest(
+    red: &Reduced,
+    kept: &[bool],
+    candidates: usize,
+    rss: f64,
+    dof: f64,
+) -> Option<(usize, f64)> {
     let sub = restrict(red, kept);
     let q = sub.r.nrows().saturating_sub(1);
     let cols: Vec<usize> = (0..kept.len()).filter(|&j| kept[j]).collect();
@@ -93,7 +102,11 @@ fn weakest(red: &Reduced, kept: &[bool], candidates: usize, rss: f64, dof: f64) 
         .map(|i| {
             let beta: f64 = (i..q).map(|k| inv[(i, k)] * sub.r[(k, q)]).sum();
             let var: f64 = s2 * (i..q).map(|k| inv[(i, k)].powi(2)).sum::<f64>();
-            let f = if var.is_finite() && var > 0.0 { beta * beta / var } else { 0.0 };
+            let f = if var.is_finite() && var > 0.0 {
+                beta * beta / var
+            } else {
+                0.0
+            };
             (cols[i], if f.is_finite() { f } else { 0.0 })
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
@@ -103,7 +116,12 @@ fn weakest(red: &Reduced, kept: &[bool], candidates: usize, rss: f64, dof: f64) 
 /// them are always kept) at significance `alpha_remove`, re-admitting removed ones whose
 /// F-to-enter is significant at `alpha_enter` when given (`alpha_enter < alpha_remove`
 /// prevents cycling).
-pub fn select(red: &Reduced, candidates: usize, alpha_remove: f64, alpha_enter: Option<f64>) -> Selection {
+pub fn select(
+    red: &Reduced,
+    candidates: usize,
+    alpha_remove: f64,
+    alpha_enter: Option<f64>,
+) -> Selection {
     let p = red.norms.len();
     let m = red.rows as f64;
     let mut kept = vec![true; p];
@@ -128,11 +146,18 @@ pub fn select(red: &Reduced, candidates: usize, alpha_remove: f64, alpha_enter: 
             let pv = p_value(f, dof);
             if pv > alpha_remove {
                 kept[j] = false;
-                steps.push(Step { column: j, action: Action::Removed, f, p: pv });
+                steps.push(Step {
+                    column: j,
+                    action: Action::Removed,
+                    f,
+                    p: pv,
+                });
                 continue;
             }
         }
-        let Some(alpha_enter) = alpha_enter else { break };
+        let Some(alpha_enter) = alpha_enter else {
+            break;
+        };
         // Strongest removed coefficient: largest decrease of RSS when re-admitted.
         let outside: Vec<usize> = (0..candidates).filter(|&j| !kept[j]).collect();
         let strongest = outside
@@ -148,7 +173,12 @@ pub fn select(red: &Reduced, candidates: usize, alpha_remove: f64, alpha_enter: 
         match strongest {
             Some((j, f, d)) if p_value(f, d) < alpha_enter => {
                 kept[j] = true;
-                steps.push(Step { column: j, action: Action::Added, f, p: p_value(f, d) });
+                steps.push(Step {
+                    column: j,
+                    action: Action::Added,
+                    f,
+                    p: p_value(f, d),
+                });
             }
             _ => break,
         }
@@ -181,7 +211,10 @@ mod tests {
         let s = select(&red, beta.len(), 1e-4, None);
         assert_eq!(s.kept, vec![true, false, true, false, false, true]);
         assert_eq!(s.steps.len(), 3);
-        assert!(s.steps.iter().all(|st| st.action == Action::Removed && st.p > 1e-4));
+        assert!(s
+            .steps
+            .iter()
+            .all(|st| st.action == Action::Removed && st.p > 1e-4));
     }
 
     #[test]
@@ -202,6 +235,9 @@ mod tests {
         }
         let sub = acc.finish();
         let direct = sub.r[(2, 2)].powi(2);
-        assert!((direct - without).abs() < 1e-9 * direct, "{direct} vs {without}");
+        assert!(
+            (direct - without).abs() < 1e-9 * direct,
+            "{direct} vs {without}"
+        );
     }
 }

@@ -43,7 +43,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         machine: model.clone(),
         data: vec![data],
         validate: Vec::new(),
-        output: Some(dir.join("fit.json")),
+        output: None,
         solver: SolverArg::Qr,
         tolerance: 1e-10,
         min_norm: false,
@@ -84,9 +84,27 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         println!("{}", report.lines().skip(1).collect::<Vec<_>>().join("\n"));
         let Some(top) = d.findings.iter().find(|f| f.significant) else {
             println!("\n━━ done: the model explains the data down to the noise: σ̂ = {:.4} µm for {NOISE_UM} µm simulated ━━", r.sigma);
-            if let Some(out) = &args.output {
-                fitcmd::write_report_files(out, r)?;
-            }
+            let fit_json = dir.join("fit.json");
+            fitcmd::write_report_files(&fit_json, r)?;
+            let diagnosis = dir.join("diagnose.json");
+            let json = serde_json::to_string_pretty(&d).map_err(|e| {
+                eprintln!("error: {e}");
+                Failed::USAGE
+            })?;
+            std::fs::write(&diagnosis, json).map_err(|e| {
+                eprintln!("error: cannot write `{}`: {e}", diagnosis.display());
+                Failed::USAGE
+            })?;
+            let html = dir.join("report.html");
+            crate::report::report_command(&crate::report::ReportArgs {
+                machine: model.clone(),
+                fit: fit_json,
+                diagnose: Some(diagnosis),
+                data: args.data.clone(),
+                output: html.clone(),
+                color,
+            })?;
+            println!("open {} in a browser: residuals, spectra, candidates, the error history and the fitted error curves", html.display());
             return Ok(());
         };
         if round > rounds {

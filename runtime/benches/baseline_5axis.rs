@@ -1,124 +1,227 @@
 //! A hand-written, hand-optimised evaluator of `examples/milling_5axis.kin`: the yardstick the
-//! JIT is measured against (issue 4). It computes the same error and full 6 × n β-Jacobian as
-//! the interpreter (the tests check agreement to 1e-12), written as one would write it in C for
-//! this one machine:
+//! JIT is measured against (issue 4). It computes the error and the full 6 × 173 β-Jacobian the
+//! interpreter computes (the tests check agreement to 1e-12), written as one would write it in C
+//! for this one machine:
 //!
 //! * the kinematics in closed form: the workpiece chain Y, X, A, C has only fixed frames and
-//!   axis-aligned joints, the tool chain one moving Z, so `R(wr→base) = R_z(−c)·R_x(−a)` and
-//!   every frame's origin is a few additions; the F-matrices of Y, X, A, Z and the tool share
-//!   that one rotation;
-//! * the basis values evaluated once per distinct factor (the three `spline(Y, knots 3)` of
-//!   Y.rx/ry/rz are one), from tables of knots, trends and α's taken from the compiled model;
-//! * the Jacobian written column block by column block through pre-split row slices, with the
-//!   structural zeros of translation components written as zeros (the buffer is reused, every
-//!   entry is written, as the JIT does).
+//!   axis-aligned joints and the tool chain one moving Z, so `M = R(wr→base) = R_z(−c)·R_x(−a)`
+//!   and every origin is a few additions; the F-matrices (eq. 2.27/2.28 in wr axes) of Y, X, A,
+//!   Z and the tool share `M`, C's is `R_z(−c)`;
+//! * each basis evaluated once (Y.rx, Y.ry and Y.rz share one spline), by a routine specialised
+//!   to its degree and knot count, branch-free (`max(s − t, 0)²` for a truncated power), with the
+//!   knots, trends and α's read from the compiled model;
+//! * the coefficient layout fixed at compile time (checked against the model when built), the
+//!   Jacobian a fixed-size array, so every store has a constant offset and no bounds check;
+//!   every entry is written on every call, structural zeros included, as the JIT does.
 //!
-//! It uses `libm::sincos` for every angle the interpreter takes a sine of, so that the numbers
-//! are the interpreter's; harmonic recurrences would save calls but not compute the same numbers.
+//! [`Trig::Exact`] takes `libm::sincos` of every angle the interpreter takes a sine of (the same
+//! numbers, 9 calls per pose); [`Trig::Recurrence`] is what one would write without that
+//! constraint: harmonics by angle addition from one `sincos`, 4 calls per pose, agreeing to
+//! ~1e-14 instead of bit for bit.
 
 use kin_compiler::basis::{Basis, Detrend, Power, Wavelength};
 use kin_compiler::ir::{Component, FrameKind, FrameRef, JointKind, Machine, Scalar, Var};
 use kin_runtime::interp::State;
 
-/// Which F-matrix a component uses.
+/// Number of coefficients of the example.
+pub const N: usize = 173;
+
+/// How the sines and cosines of the C harmonics are obtained.
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum Frame {
-    Y,
-    X,
-    A,
-    C,
-    Z,
-    /// `tool.*`: every tool's frame.
-    Tool,
-    /// `probe.*` (or another single tool): only when that tool is selected.
-    OneTool(usize),
+pub enum Trig {
+    Exact,
+    Recurrence,
 }
 
-#[derive(Clone, Debug)]
-enum Family {
-    Const,
-    Sign,
-    Linear { lo: f64, span: f64 },
-    Legendre { lo: f64, span: f64, degree: u32 },
-    Spline { lo: f64, span: f64, mid: f64, detrend: Detrend, functions: Vec<(Power, [f64; 2])> },
-    Fourier { harmonics: Vec<f64> },
-    Periodic { tau: Option<f64>, tau_index: usize, phase: f64, functions: Vec<(Power, Vec<f64>)> },
+/// A quadratic spline with `c = 1` (eq. 3.2–3.3): `s, s², (s − t_k)₊²`, optionally without `s`
+/// and detrended by a line (straightness, eq. 3.4–3.8) or by `cos, sin` (eq. 3.9).
+#[derive(Clone, Copy, Debug)]
+struct Quad<const M: usize> {
+    lo: f64,
+    span: f64,
+    knots: [f64; M],
+    /// Trend of every function (zero when not detrended).
+    trend: [[f64; 2]; 10],
 }
 
-#[derive(Clone, Debug)]
-struct Factor {
-    var: Var,
-    continuous: bool,
-    family: Family,
-    /// Where its values go in the per-pose value table.
-    offset: usize,
-}
-
-#[derive(Clone, Debug)]
-struct Term {
-    /// `None`: the scale is 1.
-    scale: Option<Scalar>,
-    factor: Option<usize>,
-    first: usize,
-    count: usize,
-}
-
-#[derive(Clone, Debug)]
-struct Comp {
-    frame: Frame,
-    component: Component,
-    terms: Vec<Term>,
+#[derive(Clone, Copy, Debug)]
+struct Periodic2 {
+    tau: f64,
+    knots: [f64; 2],
+    alpha: [[f64; 2]; 2],
 }
 
 pub struct Baseline {
-    n: usize,
-    axes: [usize; 5],
-    /// Base-frame origins of the fixed frames at zero joint positions, and the constant parts
-    /// of the chains (shape translations), read from the model.
+    trig: Trig,
     s_y: [f64; 3],
     s_x: [f64; 3],
     s_a: [f64; 3],
     s_c: [f64; 3],
     s_z: [f64; 3],
     tools: Vec<[f64; 3]>,
-    factors: Vec<Factor>,
-    comps: Vec<Comp>,
-    values: Vec<f64>,
+    y_ty: Quad<4>,
+    y_per: Periodic2,
+    y_str: Quad<3>,
+    y_rot: Quad<3>,
+    x_load: Quad<2>,
+    x_tx: Quad<5>,
+    x_per: Periodic2,
+    x_str: Quad<4>,
+    x_rot: Quad<3>,
+    z_tz: (f64, f64, [f64; 4]),
+    z_str: Quad<3>,
+    z_rot: Quad<2>,
+    a_lo: f64,
+    a_span: f64,
+    a_sp2: Quad<2>,
+    a_sp3: Quad<3>,
+    c_rev: Quad<6>,
+    c_mid: f64,
+    y_scale: Scalar,
+    y_load: Scalar,
 }
 
-fn ipow(u: f64, n: u32) -> f64 {
-    match n {
-        0 => 1.0,
-        1 => u,
-        2 => u * u,
-        3 => u * u * u,
-        _ => {
-            let mut r = u;
-            for _ in 1..n {
-                r *= u;
-            }
-            r
-        }
+fn knots_of<const M: usize>(functions: &[Power]) -> [f64; M] {
+    let knots: Vec<f64> = functions.iter().filter_map(|p| p.knot).collect();
+    knots.try_into().expect("knot count")
+}
+
+/// Reads a `spline(…)`/`straightness(…)` factor of degree 2, smooth 1 with `M` knots.
+fn quad<const M: usize>(basis: &Basis, detrend: Detrend) -> Quad<M> {
+    let Basis::Spline {
+        lo,
+        hi,
+        degree: 2,
+        smooth: 1,
+        detrend: d,
+        functions,
+        ..
+    } = basis
+    else {
+        panic!("expected a quadratic spline, got {basis:?}")
+    };
+    assert_eq!(*d, detrend);
+    let first = if detrend == Detrend::Line { 2 } else { 1 };
+    let expect: Vec<(Option<()>, u32)> = (first..=2)
+        .map(|p| (None, p))
+        .chain((0..M).map(|_| (Some(()), 2)))
+        .collect();
+    let got: Vec<(Option<()>, u32)> = functions
+        .iter()
+        .map(|f| (f.g.knot.map(|_| ()), f.g.power))
+        .collect();
+    assert_eq!(got, expect, "function layout");
+    let mut trend = [[0.0; 2]; 10];
+    for (t, f) in trend.iter_mut().zip(functions) {
+        *t = f.trend;
+    }
+    Quad {
+        lo: *lo,
+        span: hi - lo,
+        knots: knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>()),
+        trend,
     }
 }
 
-fn power(p: Power, u: f64) -> f64 {
-    match p.knot {
-        None => ipow(u, p.power),
-        Some(t) => {
-            if u > t {
-                ipow(u - t, p.power)
-            } else {
-                0.0
-            }
+fn periodic2(basis: &Basis) -> Periodic2 {
+    let Basis::Periodic {
+        wavelength: Wavelength::Fixed(tau),
+        phase,
+        degree: 2,
+        smooth: 1,
+        functions,
+        ..
+    } = basis
+    else {
+        panic!("expected a periodic term, got {basis:?}")
+    };
+    assert_eq!(*phase, 0.0);
+    assert_eq!(functions.len(), 2);
+    assert!(functions
+        .iter()
+        .all(|f| f.g.power == 2 && f.g.knot.is_some() && f.alpha.len() == 2));
+    Periodic2 {
+        tau: *tau,
+        knots: knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>()),
+        alpha: [
+            [functions[0].alpha[0], functions[0].alpha[1]],
+            [functions[1].alpha[0], functions[1].alpha[1]],
+        ],
+    }
+}
+
+/// `max(u − t, 0)²`: `(u − t)₊²` without a branch on the data (random poses would mispredict
+/// an `if u > t` half the time); the same number, since `u > t` exactly when `u − t > 0`.
+#[inline(always)]
+fn tp2(u: f64, t: f64) -> f64 {
+    let d = (u - t).max(0.0);
+    d * d
+}
+
+impl<const M: usize> Quad<M> {
+    #[inline(always)]
+    fn s(&self, x: f64) -> f64 {
+        (x - self.lo) / self.span
+    }
+
+    /// `s, s², (s − t_k)₊²`: `M + 2` values.
+    #[inline(always)]
+    fn plain<const K: usize>(&self, x: f64) -> [f64; K] {
+        let s = self.s(x);
+        let mut out = [0.0; K];
+        out[0] = s;
+        out[1] = s * s;
+        for k in 0..M {
+            out[2 + k] = tp2(s, self.knots[k]);
         }
+        out
+    }
+
+    /// Straightness: `g − (t0 + t1·s)` for `g = s², (s − t_k)₊²`: `M + 1` values.
+    #[inline(always)]
+    fn straight<const K: usize>(&self, x: f64) -> [f64; K] {
+        let s = self.s(x);
+        let mut out = [0.0; K];
+        let t = &self.trend;
+        out[0] = s * s - (t[0][0] + t[0][1] * s);
+        for k in 0..M {
+            out[1 + k] = tp2(s, self.knots[k]) - (t[1 + k][0] + t[1 + k][1] * s);
+        }
+        out
+    }
+
+    /// Once-per-revolution removed (eq. 3.9): `g − t0·cos(x − m) − t1·sin(x − m)`.
+    #[inline(always)]
+    fn no_rev<const K: usize>(&self, x: f64, cos: f64, sin: f64) -> [f64; K] {
+        let g: [f64; K] = self.plain(x);
+        let mut out = [0.0; K];
+        for k in 0..K {
+            out[k] = g[k] - self.trend[k][0] * cos - self.trend[k][1] * sin;
+        }
+        out
+    }
+}
+
+impl Periodic2 {
+    /// `v(w) = (w − t)₊² − w·(α1 + w·α2)` (eq. 3.12–3.13).
+    #[inline(always)]
+    fn values(&self, x: f64) -> [f64; 2] {
+        let y = x / self.tau;
+        let mut w = y - y.floor();
+        if w >= 1.0 {
+            w = 0.0;
+        }
+        let v = |k: usize| tp2(w, self.knots[k]) - (self.alpha[k][1] * w + self.alpha[k][0]) * w;
+        [v(0), v(1)]
     }
 }
 
 fn scalar(s: &Scalar, st: &State) -> f64 {
     match s {
         Scalar::Num(x) => *x,
-        Scalar::Var(v) => var(*v, st),
+        Scalar::Var(Var::Axis(i)) => st.q[*i],
+        Scalar::Var(Var::Input(i)) => st.inputs[*i],
+        Scalar::Var(v) => panic!("unexpected {v:?}"),
         Scalar::Neg(a) => -scalar(a, st),
         Scalar::Add(a, b) => scalar(a, st) + scalar(b, st),
         Scalar::Sub(a, b) => scalar(a, st) - scalar(b, st),
@@ -129,304 +232,559 @@ fn scalar(s: &Scalar, st: &State) -> f64 {
     }
 }
 
-fn var(v: Var, st: &State) -> f64 {
-    match v {
-        Var::Axis(i) => st.q[i],
-        Var::Input(i) => st.inputs[i],
-        Var::Lag(i) => st.lags[i],
-        Var::Time => st.time,
-        Var::Direction(i) => st.dirs[i],
+/// Writes a translation component's block (rows 0–2: `col·v`, rows 3–5: zero) from coefficient
+/// `j0` on and returns `Σ v·β`.
+#[inline(always)]
+fn put_t<const K: usize>(
+    jac: &mut [f64; 6 * N],
+    beta: &[f64; N],
+    j0: usize,
+    col: &[f64; 3],
+    v: &[f64; K],
+) -> f64 {
+    let mut value = 0.0;
+    for (k, &vk) in v.iter().enumerate() {
+        let j = j0 + k;
+        jac[j] = col[0] * vk;
+        jac[N + j] = col[1] * vk;
+        jac[2 * N + j] = col[2] * vk;
+        jac[3 * N + j] = 0.0;
+        jac[4 * N + j] = 0.0;
+        jac[5 * N + j] = 0.0;
+        value += vk * beta[j];
     }
+    value
+}
+
+/// As [`put_t`] for a rotation component (six rows).
+#[inline(always)]
+fn put_r<const K: usize>(
+    jac: &mut [f64; 6 * N],
+    beta: &[f64; N],
+    j0: usize,
+    col: &[f64; 6],
+    v: &[f64; K],
+) -> f64 {
+    let mut value = 0.0;
+    for (k, &vk) in v.iter().enumerate() {
+        let j = j0 + k;
+        for (r, c) in col.iter().enumerate() {
+            jac[r * N + j] = c * vk;
+        }
+        value += vk * beta[j];
+    }
+    value
+}
+
+#[inline(always)]
+fn cat<const A: usize, const B: usize, const C: usize>(a: [f64; A], b: [f64; B]) -> [f64; C] {
+    let mut out = [0.0; C];
+    out[..A].copy_from_slice(&a);
+    out[A..].copy_from_slice(&b);
+    out
+}
+
+/// `e^{i(a+b)}` from `e^{ia}`, `e^{ib}` as (sin, cos).
+#[inline(always)]
+fn add_angles(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
+    (a.0 * b.1 + a.1 * b.0, a.1 * b.1 - a.0 * b.0)
 }
 
 impl Baseline {
-    /// Reads the tables of `m`, which must be the 5-axis example (panics otherwise: this is a
-    /// baseline for one machine, not an engine).
-    pub fn new(m: &Machine) -> Baseline {
-        let axis = |name: &str| m.axes.iter().position(|a| a.name == name).expect("axis");
-        let axes = [axis("Y"), axis("X"), axis("Z"), axis("A"), axis("C")];
+    /// Reads the tables of `m`, which must be the 5-axis example: the layout is checked and
+    /// anything else panics (this is a baseline for one machine, not an engine).
+    pub fn new(m: &Machine, trig: Trig) -> Baseline {
+        assert_eq!(m.coefficients.len(), N);
+        let names: Vec<&str> = m.axes.iter().map(|a| a.name.as_str()).collect();
+        assert_eq!(names, ["Y", "X", "Z", "A", "C"]);
+        let dirs: Vec<([f64; 3], JointKind, bool)> = m
+            .axes
+            .iter()
+            .map(|a| (a.direction, a.kind, a.continuous))
+            .collect();
+        assert_eq!(
+            dirs,
+            [
+                ([0.0, -1.0, 0.0], JointKind::Prismatic, false),
+                ([-1.0, 0.0, 0.0], JointKind::Prismatic, false),
+                ([0.0, 0.0, 1.0], JointKind::Prismatic, false),
+                ([1.0, 0.0, 0.0], JointKind::Revolute, false),
+                ([0.0, 0.0, 1.0], JointKind::Revolute, true),
+            ]
+        );
         let wp: Vec<usize> = m.workpiece_chain.iter().map(|e| e.axis).collect();
-        assert_eq!(wp, vec![axes[0], axes[1], axes[3], axes[4]], "workpiece chain Y X A C");
-        assert!(m.workpiece_chain.iter().all(|e| e.frame == FrameKind::Fixed && e.shape.rotation == [0.0; 3]));
+        assert_eq!(wp, [0, 1, 3, 4]);
+        assert!(m
+            .workpiece_chain
+            .iter()
+            .all(|e| e.frame == FrameKind::Fixed && e.shape.rotation == [0.0; 3]));
         assert_eq!(m.tool_chain.len(), 1);
-        assert_eq!(m.tool_chain[0].frame, FrameKind::Moving);
+        assert_eq!(
+            (m.tool_chain[0].axis, m.tool_chain[0].frame),
+            (2, FrameKind::Moving)
+        );
         assert!(m.tools.iter().all(|t| t.offset.rotation == [0.0; 3]));
-        assert_eq!(m.workpiece.translation, [0.0; 3]);
-        assert_eq!(m.workpiece.rotation, [0.0; 3]);
-        let dirs: Vec<([f64; 3], JointKind)> = axes.iter().map(|&a| (m.axes[a].direction, m.axes[a].kind)).collect();
-        assert_eq!(dirs[0], ([0.0, -1.0, 0.0], JointKind::Prismatic));
-        assert_eq!(dirs[1], ([-1.0, 0.0, 0.0], JointKind::Prismatic));
-        assert_eq!(dirs[2], ([0.0, 0.0, 1.0], JointKind::Prismatic));
-        assert_eq!(dirs[3], ([1.0, 0.0, 0.0], JointKind::Revolute));
-        assert_eq!(dirs[4], ([0.0, 0.0, 1.0], JointKind::Revolute));
+        assert_eq!(m.tools[1].name, "probe");
+        assert_eq!(
+            (m.workpiece.translation, m.workpiece.rotation),
+            ([0.0; 3], [0.0; 3])
+        );
 
-        let mut factors: Vec<Factor> = Vec::new();
-        let mut keys: Vec<(Var, String)> = Vec::new();
-        let mut size = 0;
-        let mut comps = Vec::new();
-        for e in &m.errors {
-            let frame = match e.frame {
-                FrameRef::Workpiece(0) => Frame::Y,
-                FrameRef::Workpiece(1) => Frame::X,
-                FrameRef::Workpiece(2) => Frame::A,
-                FrameRef::Workpiece(3) => Frame::C,
-                FrameRef::Tool(0) => Frame::Z,
-                FrameRef::ToolEnd(None) => Frame::Tool,
-                FrameRef::ToolEnd(Some(i)) => Frame::OneTool(i),
-                f => panic!("unexpected frame {f:?}"),
-            };
-            let mut terms = Vec::new();
-            for t in &e.terms {
-                assert!(t.factors.len() <= 1, "single-factor terms only");
-                let factor = t.factors.first().map(|f| {
-                    let key = (f.var, format!("{:?}", f.basis));
-                    if let Some(k) = keys.iter().position(|k| *k == key) {
-                        return k;
-                    }
-                    let family = match &f.basis {
-                        Basis::Const => Family::Const,
-                        Basis::Sign => Family::Sign,
-                        Basis::Linear { lo, hi } => Family::Linear { lo: *lo, span: hi - lo },
-                        Basis::Legendre { lo, hi, degree } => Family::Legendre { lo: *lo, span: hi - lo, degree: *degree },
-                        Basis::Spline { lo, hi, detrend, functions, .. } => Family::Spline {
-                            lo: *lo,
-                            span: hi - lo,
-                            mid: lo + 0.5 * (hi - lo),
-                            detrend: *detrend,
-                            functions: functions.iter().map(|f| (f.g, f.trend)).collect(),
-                        },
-                        Basis::Fourier { harmonics } => Family::Fourier { harmonics: harmonics.iter().map(|h| f64::from(*h)).collect() },
-                        Basis::Periodic { wavelength, phase, functions, .. } => {
-                            let (tau, tau_index) = match wavelength {
-                                Wavelength::Fixed(t) => (Some(*t), 0),
-                                Wavelength::Fitted(p) => (None, p.index),
-                            };
-                            Family::Periodic { tau, tau_index, phase: *phase, functions: functions.iter().map(|f| (f.g, f.alpha.clone())).collect() }
-                        }
-                    };
-                    let continuous = matches!(f.var, Var::Axis(a) if m.axes[a].continuous);
-                    factors.push(Factor { var: f.var, continuous, family, offset: size });
-                    size += f.basis.size();
-                    keys.push(key);
-                    factors.len() - 1
-                });
-                let scale = match t.scale {
-                    Scalar::Num(v) if v == 1.0 => None,
-                    ref s => Some(s.clone()),
-                };
-                terms.push(Term { scale, factor, first: t.first, count: t.coefficients });
-            }
-            comps.push(Comp { frame, component: e.component, terms });
+        // The layout: (frame, component, first coefficient, count, variable) of every term.
+        let layout: Vec<(FrameRef, Component, usize, usize, Option<Var>)> = m
+            .errors
+            .iter()
+            .flat_map(|e| {
+                e.terms.iter().map(move |t| {
+                    (
+                        e.frame,
+                        e.component,
+                        t.first,
+                        t.coefficients,
+                        t.factors.first().map(|f| f.var),
+                    )
+                })
+            })
+            .collect();
+        use Component::*;
+        use FrameRef::*;
+        let (ax, dir) = (Var::Axis, Var::Direction);
+        let expected = vec![
+            (Workpiece(0), Ty, 0, 6, Some(ax(0))),
+            (Workpiece(0), Ty, 6, 2, Some(ax(0))),
+            (Workpiece(0), Ty, 8, 1, Some(dir(0))),
+            (Workpiece(0), Ty, 9, 0, None),
+            (Workpiece(0), Tx, 9, 4, Some(ax(0))),
+            (Workpiece(0), Tz, 13, 4, Some(ax(0))),
+            (Workpiece(0), Rx, 17, 5, Some(ax(0))),
+            (Workpiece(0), Rx, 22, 4, Some(ax(1))),
+            (Workpiece(0), Ry, 26, 5, Some(ax(0))),
+            (Workpiece(0), Rz, 31, 5, Some(ax(0))),
+            (Workpiece(1), Tx, 36, 7, Some(ax(1))),
+            (Workpiece(1), Tx, 43, 2, Some(ax(1))),
+            (Workpiece(1), Tx, 45, 1, Some(dir(1))),
+            (Workpiece(1), Ty, 46, 5, Some(ax(1))),
+            (Workpiece(1), Tz, 51, 5, Some(ax(1))),
+            (Workpiece(1), Rx, 56, 5, Some(ax(1))),
+            (Workpiece(1), Ry, 61, 5, Some(ax(1))),
+            (Workpiece(1), Rz, 66, 5, Some(ax(1))),
+            (Workpiece(1), Rz, 71, 1, None),
+            (Tool(0), Tz, 72, 7, Some(ax(2))),
+            (Tool(0), Tx, 79, 4, Some(ax(2))),
+            (Tool(0), Ty, 83, 4, Some(ax(2))),
+            (Tool(0), Rx, 87, 4, Some(ax(2))),
+            (Tool(0), Rx, 91, 1, None),
+            (Tool(0), Ry, 92, 4, Some(ax(2))),
+            (Tool(0), Ry, 96, 1, None),
+            (Tool(0), Rz, 97, 4, Some(ax(2))),
+            (Workpiece(2), Tx, 101, 3, Some(ax(3))),
+            (Workpiece(2), Ty, 104, 1, None),
+            (Workpiece(2), Ty, 105, 4, Some(ax(3))),
+            (Workpiece(2), Tz, 109, 1, None),
+            (Workpiece(2), Tz, 110, 4, Some(ax(3))),
+            (Workpiece(2), Ry, 114, 1, None),
+            (Workpiece(2), Ry, 115, 1, Some(ax(3))),
+            (Workpiece(2), Rz, 116, 1, None),
+            (Workpiece(2), Rz, 117, 1, Some(ax(3))),
+            (Workpiece(2), Rx, 118, 5, Some(ax(3))),
+            (Workpiece(2), Rx, 123, 1, Some(dir(3))),
+            (Workpiece(3), Tx, 124, 1, None),
+            (Workpiece(3), Tx, 125, 6, Some(ax(4))),
+            (Workpiece(3), Ty, 131, 1, None),
+            (Workpiece(3), Ty, 132, 8, Some(ax(4))),
+            (Workpiece(3), Tz, 140, 6, Some(ax(4))),
+            (Workpiece(3), Rx, 146, 1, None),
+            (Workpiece(3), Rx, 147, 4, Some(ax(4))),
+            (Workpiece(3), Ry, 151, 1, None),
+            (Workpiece(3), Ry, 152, 4, Some(ax(4))),
+            (Workpiece(3), Rz, 156, 8, Some(ax(4))),
+            (Workpiece(3), Rz, 164, 4, Some(ax(4))),
+            (ToolEnd(None), Tz, 168, 1, None),
+            (ToolEnd(None), Ry, 169, 1, None),
+            (ToolEnd(Some(1)), Tx, 170, 1, None),
+            (ToolEnd(Some(1)), Ty, 171, 1, None),
+            (ToolEnd(Some(1)), Tz, 172, 1, None),
+        ];
+        assert_eq!(layout, expected, "the example changed: update the baseline");
+        let term = |frame: FrameRef, c: Component, i: usize| {
+            &m.errors
+                .iter()
+                .find(|e| e.frame == frame && e.component == c)
+                .expect("model")
+                .terms[i]
+        };
+        let basis = |frame: FrameRef, c: Component, i: usize| &term(frame, c, i).factors[0].basis;
+        let harmonics = |c: Component, i: usize, h: &[u32]| {
+            assert_eq!(
+                basis(Workpiece(3), c, i),
+                &Basis::Fourier {
+                    harmonics: h.to_vec()
+                }
+            )
+        };
+        harmonics(Tx, 1, &[2, 3, 4]);
+        harmonics(Tz, 0, &[1, 2, 3]);
+        harmonics(Rx, 1, &[2, 3]);
+        harmonics(Ry, 1, &[2, 3]);
+        harmonics(Rz, 0, &[1, 2, 3, 4]);
+        harmonics(Rz, 1, &[90, 180]);
+        for (c, i) in [(Ty, 2), (Tx, 2)] {
+            let f = if c == Ty { 0 } else { 1 };
+            assert!(matches!(basis(Workpiece(f), c, i), Basis::Sign));
         }
+        let Basis::Spline {
+            lo,
+            hi,
+            degree: 3,
+            smooth: 2,
+            detrend: Detrend::None,
+            functions,
+            ..
+        } = basis(Tool(0), Tz, 0)
+        else {
+            panic!("Z.tz")
+        };
+        let powers: Vec<(bool, u32)> = functions
+            .iter()
+            .map(|f| (f.g.knot.is_some(), f.g.power))
+            .collect();
+        assert_eq!(
+            powers,
+            [
+                (false, 1),
+                (false, 2),
+                (false, 3),
+                (true, 3),
+                (true, 3),
+                (true, 3),
+                (true, 3)
+            ]
+        );
+        let z_tz = (
+            *lo,
+            hi - lo,
+            knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>()),
+        );
+        let Basis::Legendre {
+            lo: a_lo,
+            hi: a_hi,
+            degree: 3,
+        } = *basis(Workpiece(2), Tx, 0)
+        else {
+            panic!("A.tx")
+        };
+        assert_eq!(
+            basis(Workpiece(2), Ry, 1),
+            &Basis::Linear { lo: a_lo, hi: a_hi }
+        );
+        let Basis::Spline {
+            lo: c_lo, hi: c_hi, ..
+        } = basis(Workpiece(3), Ty, 1)
+        else {
+            panic!("C.ty")
+        };
+        let c_mid = c_lo + 0.5 * (c_hi - c_lo);
+        // Lags read in the tool terms.
+        assert_eq!(term(ToolEnd(None), Tz, 0).scale, Scalar::Var(Var::Lag(0)));
+        assert_eq!(term(ToolEnd(None), Ry, 0).scale, Scalar::Var(Var::Lag(1)));
         Baseline {
-            n: m.coefficients.len(),
-            axes,
+            trig,
             s_y: m.workpiece_chain[0].shape.translation,
             s_x: m.workpiece_chain[1].shape.translation,
             s_a: m.workpiece_chain[2].shape.translation,
             s_c: m.workpiece_chain[3].shape.translation,
             s_z: m.tool_chain[0].shape.translation,
             tools: m.tools.iter().map(|t| t.offset.translation).collect(),
-            factors,
-            comps,
-            values: vec![0.0; size],
-        }
-    }
-
-    /// Basis values of every distinct factor at this state.
-    fn factors(&mut self, st: &State, nonlinear: &[f64]) {
-        let values = &mut self.values;
-        for f in &self.factors {
-            let mut x = var(f.var, st);
-            if f.continuous {
-                x = x.rem_euclid(std::f64::consts::TAU);
-            }
-            let out = &mut values[f.offset..];
-            match &f.family {
-                Family::Const => out[0] = 1.0,
-                Family::Sign => out[0] = x,
-                Family::Linear { lo, span } => out[0] = 2.0 * ((x - lo) / span) - 1.0,
-                Family::Legendre { lo, span, degree } => {
-                    let u = 2.0 * ((x - lo) / span) - 1.0;
-                    let (mut prev, mut cur) = (1.0, u);
-                    for k in 0..*degree as usize {
-                        out[k] = cur;
-                        let n = (k + 1) as f64;
-                        let next = ((2.0 * n + 1.0) * u * cur - n * prev) / (n + 1.0);
-                        prev = cur;
-                        cur = next;
-                    }
-                }
-                Family::Spline { lo, span, mid, detrend, functions } => {
-                    let s = (x - lo) / span;
-                    match detrend {
-                        Detrend::None => {
-                            for (o, (g, _)) in out.iter_mut().zip(functions) {
-                                *o = power(*g, s);
-                            }
-                        }
-                        Detrend::Line => {
-                            for (o, (g, t)) in out.iter_mut().zip(functions) {
-                                *o = power(*g, s) - (t[0] + t[1] * s);
-                            }
-                        }
-                        Detrend::OncePerRev => {
-                            let (sn, c) = libm::sincos(x - mid);
-                            for (o, (g, t)) in out.iter_mut().zip(functions) {
-                                *o = power(*g, s) - t[0] * c - t[1] * sn;
-                            }
-                        }
-                    }
-                }
-                Family::Fourier { harmonics } => {
-                    for (pair, h) in out.chunks_exact_mut(2).zip(harmonics) {
-                        let (s, c) = libm::sincos(h * x);
-                        pair[0] = c;
-                        pair[1] = s;
-                    }
-                }
-                Family::Periodic { tau, tau_index, phase, functions } => {
-                    let tau = tau.unwrap_or_else(|| nonlinear[*tau_index]);
-                    let y = (x - phase) / tau;
-                    let mut w = y - y.floor();
-                    if w >= 1.0 {
-                        w = 0.0;
-                    }
-                    for (o, (g, alpha)) in out.iter_mut().zip(functions) {
-                        let mut acc = 0.0;
-                        for a in alpha.iter().rev() {
-                            acc = acc * w + a;
-                        }
-                        *o = power(*g, w) - acc * w;
-                    }
-                }
-            }
+            y_ty: quad(basis(Workpiece(0), Ty, 0), Detrend::None),
+            y_per: periodic2(basis(Workpiece(0), Ty, 1)),
+            y_str: quad(basis(Workpiece(0), Tx, 0), Detrend::Line),
+            y_rot: quad(basis(Workpiece(0), Rx, 0), Detrend::None),
+            x_load: quad(basis(Workpiece(0), Rx, 1), Detrend::None),
+            x_tx: quad(basis(Workpiece(1), Tx, 0), Detrend::None),
+            x_per: periodic2(basis(Workpiece(1), Tx, 1)),
+            x_str: quad(basis(Workpiece(1), Ty, 0), Detrend::Line),
+            x_rot: quad(basis(Workpiece(1), Rx, 0), Detrend::None),
+            z_tz,
+            z_str: quad(basis(Tool(0), Tx, 0), Detrend::Line),
+            z_rot: quad(basis(Tool(0), Rx, 0), Detrend::None),
+            a_lo,
+            a_span: a_hi - a_lo,
+            a_sp2: quad(basis(Workpiece(2), Ty, 1), Detrend::None),
+            a_sp3: quad(basis(Workpiece(2), Rx, 0), Detrend::None),
+            c_rev: quad(basis(Workpiece(3), Ty, 1), Detrend::OncePerRev),
+            c_mid,
+            y_scale: term(Workpiece(0), Ty, 3).scale.clone(),
+            y_load: term(Workpiece(0), Rx, 1).scale.clone(),
         }
     }
 
     /// The error (position task: actual − nominal) and its β-Jacobian, 6 × n row-major.
-    pub fn error_and_jacobian(&mut self, st: &State, beta: &[f64], nonlinear: &[f64], err: &mut [f64; 6], jac: &mut [f64]) {
-        let n = self.n;
-        assert_eq!(jac.len(), 6 * n);
-        assert_eq!(beta.len(), n);
-        let [iy, ix, iz, ia, ic] = self.axes;
-        let (y, x, z, a, c) = (st.q[iy], st.q[ix], st.q[iz], st.q[ia], st.q[ic]);
-        self.factors(st, nonlinear);
+    pub fn error_and_jacobian(
+        &mut self,
+        st: &State,
+        beta: &[f64],
+        _nonlinear: &[f64],
+        err: &mut [f64; 6],
+        jac: &mut [f64],
+    ) {
+        let jac: &mut [f64; 6 * N] = jac.try_into().expect("6 × 173 Jacobian");
+        let beta: &[f64; N] = beta.try_into().expect("173 coefficients");
+        let [y, x, z, a, c] = [st.q[0], st.q[1], st.q[2], st.q[3], st.q[4]];
 
-        // Kinematics. Workpiece chain, all frames fixed (before their joints):
-        //   Y at s_y; X at s_y + J_Y + s_x; A at … + J_X + s_a; C at p_A + R_x(a)·s_c.
+        // ---- Kinematics (fixed frames sit before their joints, eq. 2.35–2.38).
         let (sa, ca) = libm::sincos(a);
         let (sc, cc) = libm::sincos(c);
         let p_y = self.s_y;
-        let p_x = [p_y[0] + self.s_x[0], p_y[1] - y + self.s_x[1], p_y[2] + self.s_x[2]];
-        let p_a = [p_x[0] - x + self.s_a[0], p_x[1] + self.s_a[1], p_x[2] + self.s_a[2]];
+        let p_x = [
+            p_y[0] + self.s_x[0],
+            p_y[1] - y + self.s_x[1],
+            p_y[2] + self.s_x[2],
+        ];
+        let p_a = [
+            p_x[0] - x + self.s_a[0],
+            p_x[1] + self.s_a[1],
+            p_x[2] + self.s_a[2],
+        ];
         let s_c = self.s_c;
-        let p_c = [p_a[0] + s_c[0], p_a[1] + ca * s_c[1] - sa * s_c[2], p_a[2] + sa * s_c[1] + ca * s_c[2]];
-        // wr = C's frame turned by c (S_wr = I): origin p_c, R_wr = R_x(a)·R_z(c).
-        // M = R_wrᵀ, rows: the wr axes in base coordinates.
-        let m = [[cc, ca * sc, sa * sc], [-sc, ca * cc, sa * cc], [0.0, -sa, ca]];
-        // Tool chain: Z moving, then the tool offset.
+        // C sits at p_A + R_x(a)·s_C; wr is C's frame turned by c (S_wr = I).
+        let p_c = [
+            p_a[0] + s_c[0],
+            p_a[1] + (ca * s_c[1] - sa * s_c[2]),
+            p_a[2] + (sa * s_c[1] + ca * s_c[2]),
+        ];
+        // M = R(wr→base)ᵀ = (R_x(a)·R_z(c))ᵀ, by rows.
+        let m = [
+            [cc, ca * sc, sa * sc],
+            [-sc, ca * cc, sa * cc],
+            [0.0, -sa, ca],
+        ];
         let t = st.tool_offset.unwrap_or(self.tools[st.tool]);
         let p_z = [self.s_z[0], self.s_z[1], self.s_z[2] + z];
         let p_t = [p_z[0] + t[0], p_z[1] + t[1], p_z[2] + t[2]];
-        let mv = |v: [f64; 3]| {
+        let arm = |p: [f64; 3]| {
+            let d = [p_t[0] - p[0], p_t[1] - p[1], p_t[2] - p[2]];
+            [0, 1, 2].map(|i| m[i][0] * d[0] + m[i][1] * d[1] + m[i][2] * d[2])
+        };
+        // Columns of F = sign·[[R, −[a]×R], [0, R]] with R the frame's rotation in wr axes.
+        let tcol = |r: [f64; 3]| r;
+        let rcol = |r: [f64; 3], a: [f64; 3]| {
             [
-                m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
-                m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
-                m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2],
+                r[1] * a[2] - r[2] * a[1],
+                r[2] * a[0] - r[0] * a[2],
+                r[0] * a[1] - r[1] * a[0],
+                r[0],
+                r[1],
+                r[2],
             ]
         };
-        let arm = |p: [f64; 3]| mv([p_t[0] - p[0], p_t[1] - p[1], p_t[2] - p[2]]);
-        let (a_y, a_x, a_a, a_c, a_z) = (arm(p_y), arm(p_x), arm(p_a), arm(p_c), arm(p_z));
-        // Rotation blocks (sign included): workpiece frames −M (Y, X, A) and −R_z(c)ᵀ (C),
-        // Z and the tool +M. Stored column-wise: r[j] is column j.
-        let mcol = [[m[0][0], m[1][0], m[2][0]], [m[0][1], m[1][1], m[2][1]], [m[0][2], m[1][2], m[2][2]]];
+        let mc = [
+            [m[0][0], m[1][0], m[2][0]],
+            [m[0][1], m[1][1], m[2][1]],
+            [m[0][2], m[1][2], m[2][2]],
+        ];
         let neg = |v: [f64; 3]| [-v[0], -v[1], -v[2]];
-        let neg_m = [neg(mcol[0]), neg(mcol[1]), neg(mcol[2])];
-        let neg_rc = [[-cc, sc, -0.0], [-sc, -cc, -0.0], [-0.0, -0.0, -1.0]];
-        let zero3 = [0.0; 3];
+        let nm = [neg(mc[0]), neg(mc[1]), neg(mc[2])];
+        // C: −R_z(c)ᵀ.
+        let nrc = [[-cc, sc, 0.0], [-sc, -cc, 0.0], [0.0, 0.0, -1.0]];
 
-        let mut total = [0.0; 6];
-        let (r0, rest) = jac.split_at_mut(n);
-        let (r1, rest) = rest.split_at_mut(n);
-        let (r2, rest) = rest.split_at_mut(n);
-        let (r3, rest) = rest.split_at_mut(n);
-        let (r4, r5) = rest.split_at_mut(n);
-        for comp in &self.comps {
-            let (rot, arm_v) = match comp.frame {
-                Frame::Y => (&neg_m, a_y),
-                Frame::X => (&neg_m, a_x),
-                Frame::A => (&neg_m, a_a),
-                Frame::C => (&neg_rc, a_c),
-                Frame::Z => (&mcol, a_z),
-                Frame::Tool | Frame::OneTool(_) => (&mcol, zero3),
-            };
-            let active = match comp.frame {
-                Frame::OneTool(i) => i == st.tool,
-                _ => true,
-            };
-            let j3 = comp.component.index() % 3;
-            let rj = rot[j3];
-            // Column of F = [[R, −[a]×R], [0, R]]: translation (R_j, 0), rotation (R_j × a, R_j).
-            let col = if !active {
-                [0.0; 6]
-            } else if comp.component.is_rotation() {
-                let ar = arm_v;
-                [rj[1] * ar[2] - rj[2] * ar[1], rj[2] * ar[0] - rj[0] * ar[2], rj[0] * ar[1] - rj[1] * ar[0], rj[0], rj[1], rj[2]]
-            } else {
-                [rj[0], rj[1], rj[2], 0.0, 0.0, 0.0]
-            };
-            let mut value = 0.0;
-            for term in &comp.terms {
-                let scale = term.scale.as_ref().map_or(1.0, |s| scalar(s, st));
-                if term.count == 0 {
-                    // A known, fixed error.
-                    if active {
-                        value += scale;
-                    }
-                    continue;
-                }
-                // `const` is a term without factors and with one coefficient.
-                let vals = match term.factor {
-                    Some(fi) => {
-                        let off = self.factors[fi].offset;
-                        &self.values[off..off + term.count]
-                    }
-                    None => &[1.0][..],
-                };
-                let range = term.first..term.first + term.count;
-                let b = &beta[range.clone()];
-                let rows = (&mut r0[range.clone()], &mut r1[range.clone()], &mut r2[range.clone()]);
-                let (o0, o1, o2) = rows;
-                if comp.component.is_rotation() {
-                    let (o3, o4, o5) = (&mut r3[range.clone()], &mut r4[range.clone()], &mut r5[range.clone()]);
-                    for k in 0..term.count {
-                        let v = scale * vals[k];
-                        o0[k] = col[0] * v;
-                        o1[k] = col[1] * v;
-                        o2[k] = col[2] * v;
-                        o3[k] = col[3] * v;
-                        o4[k] = col[4] * v;
-                        o5[k] = col[5] * v;
-                        value += v * b[k];
-                    }
-                } else {
-                    for k in 0..term.count {
-                        let v = scale * vals[k];
-                        o0[k] = col[0] * v;
-                        o1[k] = col[1] * v;
-                        o2[k] = col[2] * v;
-                        value += v * b[k];
-                    }
-                    r3[range.clone()].fill(0.0);
-                    r4[range.clone()].fill(0.0);
-                    r5[range].fill(0.0);
-                }
+        // ---- Trigonometry of C's basis factors (continuous axis: one turn).
+        let xc = c.rem_euclid(std::f64::consts::TAU);
+        let (h1, h2, h3, h4, h90, h180, rev) = match self.trig {
+            Trig::Exact => {
+                let f = |h: f64| libm::sincos(h * xc);
+                (
+                    f(1.0),
+                    f(2.0),
+                    f(3.0),
+                    f(4.0),
+                    f(90.0),
+                    f(180.0),
+                    libm::sincos(xc - self.c_mid),
+                )
             }
+            Trig::Recurrence => {
+                let h1 = if xc == c { (sc, cc) } else { libm::sincos(xc) };
+                let h2 = add_angles(h1, h1);
+                let h3 = add_angles(h2, h1);
+                let h4 = add_angles(h2, h2);
+                let h90 = libm::sincos(90.0 * xc);
+                // The midpoint of a full turn is π: sin(x − π) = −sin x.
+                (h1, h2, h3, h4, h90, add_angles(h90, h90), (-h1.0, -h1.1))
+            }
+        };
+        let cs = |h: (f64, f64)| [h.1, h.0];
+
+        let mut e = [0.0; 6];
+        let acc_t = |e: &mut [f64; 6], col: &[f64; 3], v: f64| {
+            for r in 0..3 {
+                e[r] += col[r] * v;
+            }
+        };
+        let acc_r = |e: &mut [f64; 6], col: &[f64; 6], v: f64| {
             for r in 0..6 {
-                total[r] += col[r] * value;
+                e[r] += col[r] * v;
+            }
+        };
+
+        // ---- Y (workpiece chain: −M).
+        {
+            let (ay, cty, ctx, ctz) = (arm(p_y), tcol(nm[1]), tcol(nm[0]), tcol(nm[2]));
+            let v: [f64; 9] = cat::<8, 1, 9>(
+                cat::<6, 2, 8>(self.y_ty.plain(y), self.y_per.values(y)),
+                [st.dirs[0]],
+            );
+            let fixed = scalar(&self.y_scale, st);
+            let value = put_t(jac, beta, 0, &cty, &v) + fixed;
+            acc_t(&mut e, &cty, value);
+            let s: [f64; 4] = self.y_str.straight(y);
+            let value = put_t(jac, beta, 9, &ctx, &s);
+            acc_t(&mut e, &ctx, value);
+            let value = put_t(jac, beta, 13, &ctz, &s);
+            acc_t(&mut e, &ctz, value);
+            let r: [f64; 5] = self.y_rot.plain(y);
+            let load = scalar(&self.y_load, st);
+            let xl: [f64; 4] = self.x_load.plain(x);
+            let v: [f64; 9] = cat::<5, 4, 9>(r, xl.map(|v| load * v));
+            let col = rcol(nm[0], ay);
+            acc_r(&mut e, &col, put_r(jac, beta, 17, &col, &v));
+            let col = rcol(nm[1], ay);
+            acc_r(&mut e, &col, put_r(jac, beta, 26, &col, &r));
+            let col = rcol(nm[2], ay);
+            acc_r(&mut e, &col, put_r(jac, beta, 31, &col, &r));
+        }
+        // ---- X (−M).
+        {
+            let ax = arm(p_x);
+            let v: [f64; 10] = cat::<9, 1, 10>(
+                cat::<7, 2, 9>(self.x_tx.plain(x), self.x_per.values(x)),
+                [st.dirs[1]],
+            );
+            acc_t(&mut e, &nm[0], put_t(jac, beta, 36, &nm[0], &v));
+            let s: [f64; 5] = self.x_str.straight(x);
+            acc_t(&mut e, &nm[1], put_t(jac, beta, 46, &nm[1], &s));
+            acc_t(&mut e, &nm[2], put_t(jac, beta, 51, &nm[2], &s));
+            let r: [f64; 5] = self.x_rot.plain(x);
+            let col = rcol(nm[0], ax);
+            acc_r(&mut e, &col, put_r(jac, beta, 56, &col, &r));
+            let col = rcol(nm[1], ax);
+            acc_r(&mut e, &col, put_r(jac, beta, 61, &col, &r));
+            let col = rcol(nm[2], ax);
+            acc_r(
+                &mut e,
+                &col,
+                put_r(jac, beta, 66, &col, &cat::<5, 1, 6>(r, [1.0])),
+            );
+        }
+        // ---- Z (tool chain: +M).
+        {
+            let az = arm(p_z);
+            let (lo, span, knots) = self.z_tz;
+            let s = (z - lo) / span;
+            let s2 = s * s;
+            let cube = |d: f64| d * d * d;
+            let mut v = [s, s2, s2 * s, 0.0, 0.0, 0.0, 0.0];
+            for k in 0..4 {
+                v[3 + k] = cube((s - knots[k]).max(0.0));
+            }
+            acc_t(&mut e, &mc[2], put_t(jac, beta, 72, &mc[2], &v));
+            let st4: [f64; 4] = self.z_str.straight(z);
+            acc_t(&mut e, &mc[0], put_t(jac, beta, 79, &mc[0], &st4));
+            acc_t(&mut e, &mc[1], put_t(jac, beta, 83, &mc[1], &st4));
+            let r: [f64; 4] = self.z_rot.plain(z);
+            let r1: [f64; 5] = cat::<4, 1, 5>(r, [1.0]);
+            let col = rcol(mc[0], az);
+            acc_r(&mut e, &col, put_r(jac, beta, 87, &col, &r1));
+            let col = rcol(mc[1], az);
+            acc_r(&mut e, &col, put_r(jac, beta, 92, &col, &r1));
+            let col = rcol(mc[2], az);
+            acc_r(&mut e, &col, put_r(jac, beta, 97, &col, &r));
+        }
+        // ---- A (−M).
+        {
+            let aa = arm(p_a);
+            let u = 2.0 * ((a - self.a_lo) / self.a_span) - 1.0;
+            let p2 = (3.0 * u * u - 1.0) / 2.0;
+            let p3 = (5.0 * u * p2 - 2.0 * u) / 3.0;
+            acc_t(&mut e, &nm[0], put_t(jac, beta, 101, &nm[0], &[u, p2, p3]));
+            let sp: [f64; 4] = self.a_sp2.plain(a);
+            let v: [f64; 5] = cat::<1, 4, 5>([1.0], sp);
+            acc_t(&mut e, &nm[1], put_t(jac, beta, 104, &nm[1], &v));
+            acc_t(&mut e, &nm[2], put_t(jac, beta, 109, &nm[2], &v));
+            let col = rcol(nm[1], aa);
+            acc_r(&mut e, &col, put_r(jac, beta, 114, &col, &[1.0, u]));
+            let col = rcol(nm[2], aa);
+            acc_r(&mut e, &col, put_r(jac, beta, 116, &col, &[1.0, u]));
+            let r: [f64; 5] = self.a_sp3.plain(a);
+            let col = rcol(nm[0], aa);
+            acc_r(
+                &mut e,
+                &col,
+                put_r(jac, beta, 118, &col, &cat::<5, 1, 6>(r, [st.dirs[3]])),
+            );
+        }
+        // ---- C (−R_z(c)ᵀ).
+        {
+            let ac = arm(p_c);
+            let [c1, s1] = cs(h1);
+            let [c2, s2] = cs(h2);
+            let [c3, s3] = cs(h3);
+            let [c4, s4] = cs(h4);
+            let [c90, s90] = cs(h90);
+            let [c180, s180] = cs(h180);
+            acc_t(
+                &mut e,
+                &nrc[0],
+                put_t(jac, beta, 124, &nrc[0], &[1.0, c2, s2, c3, s3, c4, s4]),
+            );
+            let g: [f64; 8] = self.c_rev.no_rev(xc, rev.1, rev.0);
+            acc_t(
+                &mut e,
+                &nrc[1],
+                put_t(jac, beta, 131, &nrc[1], &cat::<1, 8, 9>([1.0], g)),
+            );
+            acc_t(
+                &mut e,
+                &nrc[2],
+                put_t(jac, beta, 140, &nrc[2], &[c1, s1, c2, s2, c3, s3]),
+            );
+            let col = rcol(nrc[0], ac);
+            acc_r(
+                &mut e,
+                &col,
+                put_r(jac, beta, 146, &col, &[1.0, c2, s2, c3, s3]),
+            );
+            let col = rcol(nrc[1], ac);
+            acc_r(
+                &mut e,
+                &col,
+                put_r(jac, beta, 151, &col, &[1.0, c2, s2, c3, s3]),
+            );
+            let col = rcol(nrc[2], ac);
+            acc_r(
+                &mut e,
+                &col,
+                put_r(
+                    jac,
+                    beta,
+                    156,
+                    &col,
+                    &[c1, s1, c2, s2, c3, s3, c4, s4, c90, s90, c180, s180],
+                ),
+            );
+        }
+        // ---- Tools (+M, no arm): thermal growth of every tool, offsets of the probe.
+        {
+            let col = mc[2];
+            acc_t(&mut e, &col, put_t(jac, beta, 168, &col, &[st.lags[0]]));
+            let col = rcol(mc[1], [0.0; 3]);
+            acc_r(&mut e, &col, put_r(jac, beta, 169, &col, &[st.lags[1]]));
+            let probe = st.tool == 1;
+            let z3 = [0.0; 3];
+            for (k, colp) in mc.iter().enumerate() {
+                let col = if probe { colp } else { &z3 };
+                acc_t(&mut e, col, put_t(jac, beta, 170 + k, col, &[1.0]));
             }
         }
-        *err = total;
+        *err = e;
     }
 }

@@ -10,7 +10,10 @@ const POSES: usize = 1000;
 fn machine(name: &str) -> kin_compiler::ir::Machine {
     let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
     let src = std::fs::read_to_string(path).expect("example");
-    kin_compiler::compile(&src).compiled.expect("compiles").machine
+    kin_compiler::compile(&src)
+        .compiled
+        .expect("compiles")
+        .machine
 }
 
 fn bench(c: &mut Criterion) {
@@ -24,21 +27,30 @@ fn bench(c: &mut Criterion) {
         let mut it = Interpreter::new(&m).expect("interpreter");
         let mut jac = vec![0.0; 6 * n];
         let mut err = [0.0; 6];
-        group.bench_with_input(BenchmarkId::new("error+jacobian", format!("{name} ({n} coefficients)")), &(), |b, _| {
-            b.iter(|| {
-                for r in 0..POSES {
-                    it.error_and_jacobian(&states.get(r), &beta, &mut err, &mut jac).expect("eval");
-                }
-                std::hint::black_box(&jac);
-            })
-        });
-        group.bench_with_input(BenchmarkId::new("error", format!("{name} ({n} coefficients)")), &(), |b, _| {
-            b.iter(|| {
-                for r in 0..POSES {
-                    std::hint::black_box(it.error(&states.get(r), &beta).expect("eval"));
-                }
-            })
-        });
+        group.bench_with_input(
+            BenchmarkId::new("error+jacobian", format!("{name} ({n} coefficients)")),
+            &(),
+            |b, _| {
+                b.iter(|| {
+                    for r in 0..POSES {
+                        it.error_and_jacobian(&states.get(r), &beta, &mut err, &mut jac)
+                            .expect("eval");
+                    }
+                    std::hint::black_box(&jac);
+                })
+            },
+        );
+        group.bench_with_input(
+            BenchmarkId::new("error", format!("{name} ({n} coefficients)")),
+            &(),
+            |b, _| {
+                b.iter(|| {
+                    for r in 0..POSES {
+                        std::hint::black_box(it.error(&states.get(r), &beta).expect("eval"));
+                    }
+                })
+            },
+        );
     }
     group.finish();
 }

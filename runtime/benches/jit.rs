@@ -23,7 +23,10 @@ const EXAMPLES: [&str; 3] = ["milling_5axis", "bridge_cmm", "robot_6axis"];
 fn machine(name: &str) -> Machine {
     let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
     let src = std::fs::read_to_string(path).expect("example");
-    kin_compiler::compile(&src).compiled.expect("compiles").machine
+    kin_compiler::compile(&src)
+        .compiled
+        .expect("compiles")
+        .machine
 }
 
 struct Setup {
@@ -39,7 +42,12 @@ fn setup(name: &str) -> Setup {
     let states = States::sample(&m, POSES, 1);
     let beta = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
     let nonlinear = m.nonlinear.iter().map(|p| p.value).collect();
-    Setup { m, states, beta, nonlinear }
+    Setup {
+        m,
+        states,
+        beta,
+        nonlinear,
+    }
 }
 
 /// Poses per second of `f` run over all poses, best of a few rounds of about `budget`.
@@ -61,7 +69,12 @@ fn rate(budget: Duration, mut f: impl FnMut()) -> f64 {
 /// The summary: every figure measured here, in this run, so the ratios compare like with like.
 fn summary() {
     let budget = Duration::from_millis(1500);
-    eprintln!("\n{:<16} {:>6} {:>14} {:>14} {:>8} {:>14} {:>8} {:>12}", "machine", "β", "interp p/s", "jit p/s", "×interp", "baseline p/s", "base/jit", "compile ms");
+    eprintln!("\nerror + full β-Jacobian per pose, written into a reused buffer (poses/s, best of 5 rounds):");
+    eprintln!(
+        "{:<16} {:>4} {:>12} {:>12} {:>8} {:>12} {:>12} {:>12}",
+        "machine", "β", "interp", "jit", "×interp", "jit error", "compile ms", "from source"
+    );
+    let mut milling = None;
     for name in EXAMPLES {
         let s = setup(name);
         let n = s.m.coefficients.len();
@@ -70,36 +83,77 @@ fn summary() {
         let mut it = Interpreter::new(&s.m).expect("interpreter");
         let interp = rate(budget, || {
             for r in 0..POSES {
-                it.error_and_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac).expect("eval");
+                it.error_and_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac)
+                    .expect("eval");
             }
             black_box(&jac);
         });
         let compile_ms = (0..5)
-            .map(|_| jit::compile(&s.m).expect("compiles").compile_time().as_secs_f64() * 1e3)
+            .map(|_| {
+                jit::compile(&s.m)
+                    .expect("compiles")
+                    .compile_time()
+                    .as_secs_f64()
+                    * 1e3
+            })
+            .fold(f64::INFINITY, f64::min);
+        let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
+        let src = std::fs::read_to_string(path).expect("example");
+        let source_ms = (0..5)
+            .map(|_| {
+                let start = Instant::now();
+                let m = kin_compiler::compile(&src)
+                    .compiled
+                    .expect("compiles")
+                    .machine;
+                black_box(jit::compile(&m).expect("compiles"));
+                start.elapsed().as_secs_f64() * 1e3
+            })
             .fold(f64::INFINITY, f64::min);
         let model = jit::compile(&s.m).expect("compiles");
         let fast = rate(budget, || {
             for r in 0..POSES {
-                model.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac).expect("eval");
+                model
+                    .error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac)
+                    .expect("eval");
             }
             black_box(&jac);
         });
-        let base = (name == "milling_5axis").then(|| {
-            let mut b = baseline_5axis::Baseline::new(&s.m);
-            rate(budget, || {
-                for r in 0..POSES {
-                    b.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac);
-                }
-                black_box(&jac);
-            })
+        let error_only = rate(budget, || {
+            for r in 0..POSES {
+                black_box(
+                    model
+                        .error(&s.states.get(r), &s.beta, &s.nonlinear)
+                        .expect("eval"),
+                );
+            }
         });
-        let (base_text, ratio_text) = match base {
-            Some(b) => (format!("{b:.0}"), format!("{:.2}", b / fast)),
-            None => ("-".into(), "-".into()),
-        };
-        eprintln!("{name:<16} {n:>6} {interp:>14.0} {fast:>14.0} {:>8.1} {base_text:>14} {ratio_text:>8} {compile_ms:>12.2}", fast / interp);
+        eprintln!("{name:<16} {n:>4} {interp:>12.0} {fast:>12.0} {:>8.1} {error_only:>12.0} {compile_ms:>12.2} {source_ms:>12.2}", fast / interp);
+        if name == "milling_5axis" {
+            let mut base = |trig| {
+                let mut b = baseline_5axis::Baseline::new(&s.m, trig);
+                rate(budget, || {
+                    for r in 0..POSES {
+                        b.error_and_jacobian(
+                            &s.states.get(r),
+                            &s.beta,
+                            &s.nonlinear,
+                            &mut err,
+                            &mut jac,
+                        );
+                    }
+                    black_box(&jac);
+                })
+            };
+            let exact = base(baseline_5axis::Trig::Exact);
+            let recurrence = base(baseline_5axis::Trig::Recurrence);
+            milling = Some((fast, exact, recurrence));
+        }
     }
-    eprintln!("(error + full β-Jacobian per pose into a reused buffer; compile: IR to callable, best of 5)\n");
+    if let Some((fast, exact, recurrence)) = milling {
+        eprintln!("hand-written baseline, milling_5axis: {exact:.0} poses/s with libm harmonics (baseline/jit {:.2}), {recurrence:.0} with harmonic recurrences ({:.2})", exact / fast, recurrence / fast);
+    }
+    eprintln!();
 }
 
 fn bench(c: &mut Criterion) {
@@ -116,7 +170,8 @@ fn bench(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("interpreter", &label), &(), |b, _| {
             b.iter(|| {
                 for r in 0..POSES {
-                    it.error_and_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac).expect("eval");
+                    it.error_and_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac)
+                        .expect("eval");
                 }
                 black_box(&jac);
             })
@@ -125,17 +180,31 @@ fn bench(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("jit", &label), &(), |b, _| {
             b.iter(|| {
                 for r in 0..POSES {
-                    model.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac).expect("eval");
+                    model
+                        .error_and_jacobian(
+                            &s.states.get(r),
+                            &s.beta,
+                            &s.nonlinear,
+                            &mut err,
+                            &mut jac,
+                        )
+                        .expect("eval");
                 }
                 black_box(&jac);
             })
         });
         if name == "milling_5axis" {
-            let mut base = baseline_5axis::Baseline::new(&s.m);
+            let mut base = baseline_5axis::Baseline::new(&s.m, baseline_5axis::Trig::Exact);
             group.bench_with_input(BenchmarkId::new("baseline", &label), &(), |b, _| {
                 b.iter(|| {
                     for r in 0..POSES {
-                        base.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, &mut jac);
+                        base.error_and_jacobian(
+                            &s.states.get(r),
+                            &s.beta,
+                            &s.nonlinear,
+                            &mut err,
+                            &mut jac,
+                        );
                     }
                     black_box(&jac);
                 })
@@ -161,7 +230,11 @@ fn bench(c: &mut Criterion) {
         group.bench_with_input(BenchmarkId::new("jit", &label), &(), |b, _| {
             b.iter(|| {
                 for r in 0..POSES {
-                    black_box(model.error(&s.states.get(r), &s.beta, &s.nonlinear).expect("eval"));
+                    black_box(
+                        model
+                            .error(&s.states.get(r), &s.beta, &s.nonlinear)
+                            .expect("eval"),
+                    );
                 }
             })
         });
@@ -171,7 +244,9 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("compile");
     for name in EXAMPLES {
         let m = machine(name);
-        group.bench_with_input(BenchmarkId::new("ir to callable", name), &(), |b, _| b.iter(|| black_box(jit::compile(&m).expect("compiles"))));
+        group.bench_with_input(BenchmarkId::new("ir to callable", name), &(), |b, _| {
+            b.iter(|| black_box(jit::compile(&m).expect("compiles")))
+        });
     }
     group.finish();
 }

@@ -1,14 +1,14 @@
 //! The `.kin` runtime.
-pub mod kinematics;
-pub mod exact;
 pub mod data;
-pub mod interp;
-pub mod lag;
-pub mod states;
-pub mod identify;
-pub mod simulate;
-pub mod engine;
-pub mod jit;
-pub mod fit;
 pub mod diagnose;
+pub mod engine;
+pub mod exact;
+pub mod fit;
 pub mod history;
+pub mod identify;
+pub mod interp;
+pub mod jit;
+pub mod kinematics;
+pub mod lag;
+pub mod simulate;
+pub mod states;

@@ -18,6 +18,35 @@ use rand::{Rng, SeedableRng};
 
 const TOLERANCE: f64 = 1e-12;
 
+/// Counts this thread's allocations, so a test can check that evaluation allocates nothing
+/// (other tests run on other threads meanwhile).
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+// SAFETY: forwards every call unchanged to the system allocator; the counter is a
+// const-initialised thread-local `Cell`, which neither allocates nor blocks.
+unsafe impl std::alloc::GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        ALLOCATIONS.with(|c| c.set(c.get() + 1));
+        // SAFETY: the caller's contract is the system allocator's.
+        unsafe { std::alloc::System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: as above.
+        unsafe { std::alloc::System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations() -> usize {
+    ALLOCATIONS.with(|c| c.get())
+}
+
 fn example(name: &str) -> Machine {
     let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
     let src = std::fs::read_to_string(&path).expect("example readable");
@@ -45,7 +74,15 @@ struct OwnedState {
 
 impl OwnedState {
     fn get(&self) -> State<'_> {
-        State { q: &self.q, inputs: &self.inputs, lags: &self.lags, time: self.time, dirs: &self.dirs, tool: self.tool, tool_offset: self.tool_offset }
+        State {
+            q: &self.q,
+            inputs: &self.inputs,
+            lags: &self.lags,
+            time: self.time,
+            dirs: &self.dirs,
+            tool: self.tool,
+            tool_offset: self.tool_offset,
+        }
     }
 }
 
@@ -67,13 +104,37 @@ fn random_state(rng: &mut StdRng, m: &Machine) -> OwnedState {
     let inputs: Vec<f64> = m
         .inputs
         .iter()
-        .map(|i| if i.absolute { rng.random_range(288.0..298.0) } else { rng.random_range(0.0..1000.0) })
+        .map(|i| {
+            if i.absolute {
+                rng.random_range(288.0..298.0)
+            } else {
+                rng.random_range(0.0..1000.0)
+            }
+        })
         .collect();
-    let lags = m.lags.iter().map(|l| inputs.get(l.input).copied().unwrap_or(0.0) * rng.random_range(0.5..1.0)).collect();
-    let dirs = m.axes.iter().map(|_| if rng.random_bool(0.5) { 1.0 } else { -1.0 }).collect();
+    let lags = m
+        .lags
+        .iter()
+        .map(|l| inputs.get(l.input).copied().unwrap_or(0.0) * rng.random_range(0.5..1.0))
+        .collect();
+    let dirs = m
+        .axes
+        .iter()
+        .map(|_| if rng.random_bool(0.5) { 1.0 } else { -1.0 })
+        .collect();
     let tool = rng.random_range(0..m.tools.len());
-    let tool_offset = rng.random_bool(0.3).then(|| [0, 1, 2].map(|_| rng.random_range(-0.3..0.3)));
-    OwnedState { q, inputs, lags, dirs, time: rng.random_range(0.0..5000.0), tool, tool_offset }
+    let tool_offset = rng
+        .random_bool(0.3)
+        .then(|| [0, 1, 2].map(|_| rng.random_range(-0.3..0.3)));
+    OwnedState {
+        q,
+        inputs,
+        lags,
+        dirs,
+        time: rng.random_range(0.0..5000.0),
+        tool,
+        tool_offset,
+    }
 }
 
 /// The largest relative difference so far, for the report.
@@ -93,7 +154,13 @@ fn row_relative(a: &[f64], b: &[f64], rows: usize, scale: impl Fn(usize) -> f64)
         let s = scale(r);
         for j in 0..cols {
             let d = (a[r * cols + j] - b[r * cols + j]).abs();
-            let rel = if s > 0.0 { d / s } else if d == 0.0 { 0.0 } else { f64::INFINITY };
+            let rel = if s > 0.0 {
+                d / s
+            } else if d == 0.0 {
+                0.0
+            } else {
+                f64::INFINITY
+            };
             worst = worst.max(rel);
         }
     }
@@ -101,13 +168,23 @@ fn row_relative(a: &[f64], b: &[f64], rows: usize, scale: impl Fn(usize) -> f64)
 }
 
 /// Compares the JIT with the interpreter on `states`, returning the worst relative differences.
-fn compare(m: &Machine, model: &JitModel, states: &[OwnedState], rng: &mut StdRng, label: &str) -> Worst {
+fn compare(
+    m: &Machine,
+    model: &JitModel,
+    states: &[OwnedState],
+    rng: &mut StdRng,
+    label: &str,
+) -> Worst {
     let n = m.coefficients.len();
     let axes = m.axes.len();
     let mut it = Interpreter::new(m).expect("interpreter");
     let mut ev = model.evaluator();
     // Random non-linear parameters (fitted wavelengths move), the same in both engines.
-    let nonlinear: Vec<f64> = m.nonlinear.iter().map(|p| p.value * rng.random_range(0.8..1.25)).collect();
+    let nonlinear: Vec<f64> = m
+        .nonlinear
+        .iter()
+        .map(|p| p.value * rng.random_range(0.8..1.25))
+        .collect();
     it.set_nonlinear(&nonlinear).expect("set");
     ev.set_nonlinear(&nonlinear).expect("set");
     let beta: Vec<f64> = (0..n).map(|_| rng.random_range(-1e-5..1e-5)).collect();
@@ -118,17 +195,25 @@ fn compare(m: &Machine, model: &JitModel, states: &[OwnedState], rng: &mut StdRn
     for (k, s) in states.iter().enumerate() {
         let st = s.get();
         let ctx = || format!("{label}, state {k}");
-        it.error_and_jacobian(&st, &zero, &mut e0, &mut ji).unwrap_or_else(|e| panic!("{}: {e}", ctx()));
-        it.error_and_jacobian(&st, &beta, &mut ei, &mut ji).unwrap_or_else(|e| panic!("{}: {e}", ctx()));
+        it.error_and_jacobian(&st, &zero, &mut e0, &mut ji)
+            .unwrap_or_else(|e| panic!("{}: {e}", ctx()));
+        it.error_and_jacobian(&st, &beta, &mut ei, &mut ji)
+            .unwrap_or_else(|e| panic!("{}: {e}", ctx()));
         // Poison the JIT's buffer: every entry must be written.
         jj.fill(f64::NAN);
-        ev.error_and_jacobian(&st, &beta, &mut ej, &mut jj).unwrap_or_else(|e| panic!("{}: {e}", ctx()));
+        ev.error_and_jacobian(&st, &beta, &mut ej, &mut jj)
+            .unwrap_or_else(|e| panic!("{}: {e}", ctx()));
         let jac_scale = |r: usize| (0..n).map(|j| ji[r * n + j].abs()).fold(0.0, f64::max);
         let dj = row_relative(&ji, &jj, 6, jac_scale);
         assert!(dj <= TOLERANCE, "{}: Jacobian differs by {dj:e}", ctx());
-        let err_scale = |r: usize| e0[r].abs() + (0..n).map(|j| (ji[r * n + j] * beta[j]).abs()).sum::<f64>();
+        let err_scale =
+            |r: usize| e0[r].abs() + (0..n).map(|j| (ji[r * n + j] * beta[j]).abs()).sum::<f64>();
         let de = row_relative(&ei, &ej, 6, err_scale);
-        assert!(de <= TOLERANCE, "{}: error differs by {de:e}: {ei:?} vs {ej:?}", ctx());
+        assert!(
+            de <= TOLERANCE,
+            "{}: error differs by {de:e}: {ei:?} vs {ej:?}",
+            ctx()
+        );
         // The error-only function and the plain interpreter path.
         let plain_i = it.error(&st, &beta).expect("interp error");
         let plain_j = ev.error(&st, &beta).expect("jit error");
@@ -146,10 +231,16 @@ fn compare(m: &Machine, model: &JitModel, states: &[OwnedState], rng: &mut StdRn
         // Per row of (dp/dq, ω): scale by the largest entry of that row over all axes, or the
         // machine size for a position.
         let size = li.position.norm().max(1.0);
-        let dn = row_relative(&flat, &vj, axes, |_| flat.iter().fold(size, |a, v| a.max(v.abs())));
+        let dn = row_relative(&flat, &vj, axes, |_| {
+            flat.iter().fold(size, |a, v| a.max(v.abs()))
+        });
         let dpos = (li.position - lj.position).amax() / size;
         let drot = (li.rotation - lj.rotation).amax();
-        assert!(dn.max(dpos).max(drot) <= TOLERANCE, "{}: nominal differs: {dn:e} {dpos:e} {drot:e}", ctx());
+        assert!(
+            dn.max(dpos).max(drot) <= TOLERANCE,
+            "{}: nominal differs: {dn:e} {dpos:e} {drot:e}",
+            ctx()
+        );
         worst.nominal = worst.nominal.max(dn).max(dpos).max(drot);
     }
     // Length rows between consecutive states of the same tool (eq. 4.5).
@@ -170,12 +261,25 @@ fn compare(m: &Machine, model: &JitModel, states: &[OwnedState], rng: &mut StdRn
             (a, b) => panic!("{label}: length {a:?} vs {b:?}"),
         };
         let mut r0 = vec![0.0; n];
-        let l0 = it.length_and_row(&s1, &second, &zero, &mut r0).expect("length");
+        let l0 = it
+            .length_and_row(&s1, &second, &zero, &mut r0)
+            .expect("length");
         let row_scale = ri.iter().fold(0.0, |a: f64, v| a.max(v.abs()));
         let dr = row_relative(&ri, &rj, 1, |_| row_scale);
-        let l_scale = l0.abs() + ri.iter().zip(&beta).map(|(r, b)| (r * b).abs()).sum::<f64>();
-        let dl = if l_scale > 0.0 { (li - lj).abs() / l_scale } else { (li - lj).abs() };
-        assert!(dr.max(dl) <= TOLERANCE, "{label}: length row {dr:e}, length {dl:e}");
+        let l_scale = l0.abs()
+            + ri.iter()
+                .zip(&beta)
+                .map(|(r, b)| (r * b).abs())
+                .sum::<f64>();
+        let dl = if l_scale > 0.0 {
+            (li - lj).abs() / l_scale
+        } else {
+            (li - lj).abs()
+        };
+        assert!(
+            dr.max(dl) <= TOLERANCE,
+            "{label}: length row {dr:e}, length {dl:e}"
+        );
         worst.length = worst.length.max(dr).max(dl);
     }
     worst
@@ -189,7 +293,11 @@ fn examples_agree_with_the_interpreter() {
         let model = jit::compile(&m).expect("compiles");
         let states: Vec<OwnedState> = (0..40).map(|_| random_state(&mut rng, &m)).collect();
         let w = compare(&m, &model, &states, &mut rng, name);
-        eprintln!("{name}: {w:?}, {} nodes, compiled in {:?}", model.nodes(), model.compile_time());
+        eprintln!(
+            "{name}: {w:?}, {} nodes, compiled in {:?}",
+            model.nodes(),
+            model.compile_time()
+        );
     }
 }
 
@@ -223,7 +331,9 @@ impl Gen {
     }
 
     fn vector(&mut self, scale: f64) -> String {
-        let v: Vec<String> = (0..3).map(|_| format!("{:.3}", self.f(-scale, scale))).collect();
+        let v: Vec<String> = (0..3)
+            .map(|_| format!("{:.3}", self.f(-scale, scale)))
+            .collect();
         format!("({})", v.join(", "))
     }
 
@@ -258,7 +368,14 @@ impl Gen {
         let wp_len = self.rng.random_range(0..=4);
         let mut axes = Vec::new();
         let mut src = format!("machine random_{index} {{\n");
-        src += &format!("    task {}\n", if self.chance(0.5) { "position" } else { "measure" });
+        src += &format!(
+            "    task {}\n",
+            if self.chance(0.5) {
+                "position"
+            } else {
+                "measure"
+            }
+        );
         for k in 0..tool_len + wp_len {
             let revolute = self.chance(0.45);
             let name = format!("A{k}");
@@ -266,25 +383,46 @@ impl Gen {
             let decl = if revolute {
                 if self.chance(0.35) {
                     src += &format!("    axis {name} revolute about {dir} continuous\n");
-                    AxisDecl { name, revolute, lo: 0.0, hi: 360.0 }
+                    AxisDecl {
+                        name,
+                        revolute,
+                        lo: 0.0,
+                        hi: 360.0,
+                    }
                 } else {
                     let lo = self.f(-180.0, 30.0);
                     let hi = lo + self.f(60.0, 300.0);
-                    src += &format!("    axis {name} revolute about {dir} range {lo:.2} deg .. {hi:.2} deg\n");
-                    AxisDecl { name, revolute, lo: (lo * 100.0).round() / 100.0, hi: (hi * 100.0).round() / 100.0 }
+                    src += &format!(
+                        "    axis {name} revolute about {dir} range {lo:.2} deg .. {hi:.2} deg\n"
+                    );
+                    AxisDecl {
+                        name,
+                        revolute,
+                        lo: (lo * 100.0).round() / 100.0,
+                        hi: (hi * 100.0).round() / 100.0,
+                    }
                 }
             } else {
                 let lo = self.f(-500.0, 200.0);
                 let hi = lo + self.f(100.0, 900.0);
-                src += &format!("    axis {name} prismatic along {dir} range {lo:.2} mm .. {hi:.2} mm\n");
-                AxisDecl { name, revolute, lo: (lo * 100.0).round() / 100.0, hi: (hi * 100.0).round() / 100.0 }
+                src += &format!(
+                    "    axis {name} prismatic along {dir} range {lo:.2} mm .. {hi:.2} mm\n"
+                );
+                AxisDecl {
+                    name,
+                    revolute,
+                    lo: (lo * 100.0).round() / 100.0,
+                    hi: (hi * 100.0).round() / 100.0,
+                }
             };
             axes.push(decl);
         }
         src += "    input T0 : temperature rise range 0 degC .. 5 degC\n";
         src += "    input Tabs : temperature absolute range 15 degC .. 25 degC\n";
         src += "    input F0 : force range 0 N .. 1000 N\n";
-        let tools: Vec<String> = (0..self.rng.random_range(1..=3)).map(|i| format!("t{i}")).collect();
+        let tools: Vec<String> = (0..self.rng.random_range(1..=3))
+            .map(|i| format!("t{i}"))
+            .collect();
         src += "    tool chain {\n";
         for a in axes.iter().take(tool_len) {
             let kind = if self.chance(0.5) { "moving" } else { "fixed" };
@@ -334,7 +472,11 @@ impl Gen {
 
     /// One basis-factor call. `avoid` holds the variables already used in the product.
     fn family(&mut self, axes: &[AxisDecl], avoid: &mut Vec<String>) -> Option<String> {
-        let revolute: Vec<AxisDecl> = axes.iter().filter(|a| a.revolute && !avoid.contains(&a.name)).cloned().collect();
+        let revolute: Vec<AxisDecl> = axes
+            .iter()
+            .filter(|a| a.revolute && !avoid.contains(&a.name))
+            .cloned()
+            .collect();
         for _ in 0..20 {
             let kind = self.rng.random_range(0..10);
             let call = match kind {
@@ -366,10 +508,16 @@ impl Gen {
                     // the knots as differences against an absolute range), so positions are only given
                     // for the other variables.
                     let knot_text = if knots > 0 && v != "Tabs" && self.chance(0.4) {
-                        let lo = axes.iter().find(|a| a.name == v).map_or(if v == "Tabs" { 15.0 } else { 0.0 }, |a| a.lo);
-                        let mut ts: Vec<f64> = (0..knots).map(|k| (k as f64 + 0.3 + 0.4 * self.f(0.0, 1.0)) / knots as f64).collect();
+                        let lo = axes
+                            .iter()
+                            .find(|a| a.name == v)
+                            .map_or(if v == "Tabs" { 15.0 } else { 0.0 }, |a| a.lo);
+                        let mut ts: Vec<f64> = (0..knots)
+                            .map(|k| (k as f64 + 0.3 + 0.4 * self.f(0.0, 1.0)) / knots as f64)
+                            .collect();
                         ts.sort_by(f64::total_cmp);
-                        let list: Vec<String> = ts.iter().map(|t| format!("{:.3}", lo + t * span)).collect();
+                        let list: Vec<String> =
+                            ts.iter().map(|t| format!("{:.3}", lo + t * span)).collect();
                         format!("knots at ({}) {unit}", list.join(", "))
                     } else {
                         format!("knots {knots}")
@@ -384,7 +532,11 @@ impl Gen {
                         continue;
                     }
                     avoid.push(a.name.clone());
-                    format!("spline({}, knots {}, no_once_per_rev)", a.name, self.rng.random_range(1..=3))
+                    format!(
+                        "spline({}, knots {}, no_once_per_rev)",
+                        a.name,
+                        self.rng.random_range(1..=3)
+                    )
                 }
                 6 if !revolute.is_empty() => {
                     let a = self.pick(&revolute).clone();
@@ -397,7 +549,11 @@ impl Gen {
                             let lo = self.rng.random_range(1..4);
                             format!("{lo}..{}", lo + self.rng.random_range(0..3))
                         }
-                        1 => format!("({}, {})", self.rng.random_range(1..5), self.rng.random_range(5..200)),
+                        1 => format!(
+                            "({}, {})",
+                            self.rng.random_range(1..5),
+                            self.rng.random_range(5..200)
+                        ),
                         _ => format!("{}", self.rng.random_range(1..50)),
                     };
                     format!("fourier({}, harmonics {h})", a.name)
@@ -416,7 +572,11 @@ impl Gen {
                     avoid.push(v.clone());
                     let lambda = span / f64::from(self.rng.random_range(2..9u32));
                     let fit = if self.chance(0.5) { "fit " } else { "" };
-                    let phase = if self.chance(0.4) { format!(", phase {:.3} {unit}", self.f(0.0, lambda)) } else { String::new() };
+                    let phase = if self.chance(0.4) {
+                        format!(", phase {:.3} {unit}", self.f(0.0, lambda))
+                    } else {
+                        String::new()
+                    };
                     format!("periodic({v}, wavelength {fit}{lambda:.4} {unit}, knots {knots}, degree {degree}, smooth {smooth}{phase})")
                 }
                 8 if !axes.is_empty() => {
@@ -426,7 +586,15 @@ impl Gen {
                         continue;
                     }
                     avoid.push(dir);
-                    format!("{}({})", if self.chance(0.5) { "backlash" } else { "direction" }, a.name)
+                    format!(
+                        "{}({})",
+                        if self.chance(0.5) {
+                            "backlash"
+                        } else {
+                            "direction"
+                        },
+                        a.name
+                    )
                 }
                 _ => continue,
             };
@@ -443,7 +611,11 @@ impl Gen {
             1 if revolute.len() >= 2 => format!("cos({} + {})", revolute[0].name, revolute[1].name),
             2 if !revolute.is_empty() => format!("cos(2 * {} - 10 deg)", self.pick(&revolute).name),
             3 => "F0 / 500 N".into(),
-            4 => format!("lag(T0, tau {}{:.1} s)", if self.chance(0.5) { "fit " } else { "" }, self.f(10.0, 500.0)),
+            4 => format!(
+                "lag(T0, tau {}{:.1} s)",
+                if self.chance(0.5) { "fit " } else { "" },
+                self.f(10.0, 500.0)
+            ),
             5 => "time / 1000 s".into(),
             _ => format!("{:.3}", self.f(-3.0, 3.0)),
         }
@@ -456,8 +628,16 @@ impl Gen {
         let prismatic: Vec<&AxisDecl> = axes.iter().filter(|a| !a.revolute).collect();
         match self.rng.random_range(0..6) {
             0 => format!("{:.3} {unit}/K * (Tabs - 20 degC)", self.f(-10.0, 10.0)),
-            1 if !revolute.is_empty() => format!("{:.3} {unit} * sin({})", self.f(-5.0, 5.0), self.pick(&revolute).name),
-            2 if !prismatic.is_empty() => format!("{:.3} {unit}/mm * {}", self.f(-0.01, 0.01), self.pick(&prismatic).name),
+            1 if !revolute.is_empty() => format!(
+                "{:.3} {unit} * sin({})",
+                self.f(-5.0, 5.0),
+                self.pick(&revolute).name
+            ),
+            2 if !prismatic.is_empty() => format!(
+                "{:.3} {unit}/mm * {}",
+                self.f(-0.01, 0.01),
+                self.pick(&prismatic).name
+            ),
             3 => format!("{:.3} {unit}/K * T0", self.f(-2.0, 2.0)),
             4 => format!("{:.3} {unit}/N * F0 * cos(30 deg)", self.f(-0.01, 0.01)),
             _ => format!("{:.3} {unit}", self.f(-5.0, 5.0)),
@@ -468,7 +648,11 @@ impl Gen {
         let mut avoid = Vec::new();
         match self.rng.random_range(0..8) {
             0 => self.fixed(axes, rotation),
-            1 => format!("{} * {}", self.known_scale(axes), self.family(axes, &mut avoid).unwrap_or("const".into())),
+            1 => format!(
+                "{} * {}",
+                self.known_scale(axes),
+                self.family(axes, &mut avoid).unwrap_or("const".into())
+            ),
             2 | 3 => {
                 let a = self.family(axes, &mut avoid).unwrap_or("const".into());
                 let b = self.family(axes, &mut avoid).unwrap_or("const".into());
@@ -480,7 +664,11 @@ impl Gen {
                 let c = self.family(axes, &mut avoid).unwrap_or("const".into());
                 format!("({a} + {:.2} * {b}) * {c}", self.f(0.5, 2.0))
             }
-            5 => format!("{} / {:.2}", self.family(axes, &mut avoid).unwrap_or("const".into()), self.f(1.0, 4.0)),
+            5 => format!(
+                "{} / {:.2}",
+                self.family(axes, &mut avoid).unwrap_or("const".into()),
+                self.f(1.0, 4.0)
+            ),
             _ => self.family(axes, &mut avoid).unwrap_or("const".into()),
         }
     }
@@ -500,7 +688,9 @@ impl Gen {
 
 #[test]
 fn random_machines_agree_with_the_interpreter() {
-    let mut gen = Gen { rng: StdRng::seed_from_u64(20240601) };
+    let mut gen = Gen {
+        rng: StdRng::seed_from_u64(20240601),
+    };
     let mut rng = StdRng::seed_from_u64(99);
     let mut worst = Worst::default();
     let mut coefficients = 0;
@@ -510,10 +700,16 @@ fn random_machines_agree_with_the_interpreter() {
         let src = gen.machine(index);
         let m = compile_source(&src);
         coefficients += m.coefficients.len();
-        revolute += m.axes.iter().filter(|a| a.kind == JointKind::Revolute).count();
+        revolute += m
+            .axes
+            .iter()
+            .filter(|a| a.kind == JointKind::Revolute)
+            .count();
         let model = jit::compile(&m).unwrap_or_else(|e| panic!("{src}\n{e}"));
         let states: Vec<OwnedState> = (0..6).map(|_| random_state(&mut rng, &m)).collect();
-        let w = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| compare(&m, &model, &states, &mut rng, &format!("machine {index}"))));
+        let w = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            compare(&m, &model, &states, &mut rng, &format!("machine {index}"))
+        }));
         let w = match w {
             Ok(w) => w,
             Err(e) => {
@@ -527,21 +723,96 @@ fn random_machines_agree_with_the_interpreter() {
         worst.length = worst.length.max(w.length);
     }
     eprintln!("{MACHINES} random machines, {coefficients} coefficients, {revolute} revolute axes; worst relative differences {worst:?}");
-    assert!(coefficients > 10 * MACHINES, "the generator makes too small models");
+    assert!(
+        coefficients > 10 * MACHINES,
+        "the generator makes too small models"
+    );
 }
 
 #[test]
 fn every_family_is_generated() {
     // The generator's reach, checked on its text so a change cannot quietly drop a family.
-    let mut gen = Gen { rng: StdRng::seed_from_u64(20240601) };
+    let mut gen = Gen {
+        rng: StdRng::seed_from_u64(20240601),
+    };
     let text: String = (0..200).map(|i| gen.machine(i)).collect();
-    for needle in ["const", "linear(", "poly(", "spline(", "straightness(", "no_once_per_rev", "fourier(", "periodic(", "wavelength fit", "phase", "backlash(", "direction(", "lag(", "tau fit", "sin(", "cos(", "knots at", "moving", "fixed", "revolute", "prismatic", "continuous", "rot (", "task measure", "task position", "tool.", "workpiece.", "t1.", "time /", "+=", "Tabs - 20 degC"] {
-        assert!(text.contains(needle), "no `{needle}` in the generated sources");
+    for needle in [
+        "const",
+        "linear(",
+        "poly(",
+        "spline(",
+        "straightness(",
+        "no_once_per_rev",
+        "fourier(",
+        "periodic(",
+        "wavelength fit",
+        "phase",
+        "backlash(",
+        "direction(",
+        "lag(",
+        "tau fit",
+        "sin(",
+        "cos(",
+        "knots at",
+        "moving",
+        "fixed",
+        "revolute",
+        "prismatic",
+        "continuous",
+        "rot (",
+        "task measure",
+        "task position",
+        "tool.",
+        "workpiece.",
+        "t1.",
+        "time /",
+        "+=",
+        "Tabs - 20 degC",
+    ] {
+        assert!(
+            text.contains(needle),
+            "no `{needle}` in the generated sources"
+        );
     }
 }
 
 #[test]
+fn evaluation_does_not_allocate() {
+    let m = example("milling_5axis");
+    let model = jit::compile(&m).expect("compiles");
+    let n = m.coefficients.len();
+    let mut rng = StdRng::seed_from_u64(4);
+    let states: Vec<OwnedState> = (0..20).map(|_| random_state(&mut rng, &m)).collect();
+    let beta = vec![1e-6; n];
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let mut ev = model.evaluator();
+    let (mut jac, mut joint, mut row) =
+        (vec![0.0; 6 * n], vec![0.0; 6 * m.axes.len()], vec![0.0; n]);
+    let mut err = [0.0; 6];
+    let before = allocations();
+    for pair in states.windows(2) {
+        let (s1, mut s2) = (pair[0].get(), pair[1].get());
+        s2.tool = s1.tool;
+        s2.tool_offset = s1.tool_offset;
+        model
+            .error_and_jacobian(&s1, &beta, &nl, &mut err, &mut jac)
+            .expect("eval");
+        std::hint::black_box(model.error(&s1, &beta, &nl).expect("eval"));
+        model.nominal_jacobian(&s1, &mut joint).expect("eval");
+        ev.error_and_jacobian(&s1, &beta, &mut err, &mut jac)
+            .expect("eval");
+        std::hint::black_box(ev.length_and_row(&s1, &s2, &beta, &mut row).expect("eval"));
+        std::hint::black_box(ev.nominal_position(&s1).expect("eval"));
+    }
+    assert_eq!(allocations(), before, "an evaluation allocated");
+}
+
+#[test]
 fn the_model_is_shared_between_threads() {
+    fn send_sync<T: Send + Sync>() {}
+    send_sync::<JitModel>();
+    fn send<T: Send>() {}
+    send::<jit::JitEvaluator>();
     let m = example("milling_5axis");
     let model = jit::compile(&m).expect("compiles");
     let n = m.coefficients.len();
@@ -549,7 +820,10 @@ fn the_model_is_shared_between_threads() {
     let states: Vec<OwnedState> = (0..64).map(|_| random_state(&mut rng, &m)).collect();
     let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64).sin()).collect();
     let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
-    let reference: Vec<[f64; 6]> = states.iter().map(|s| model.error(&s.get(), &beta, &nl).expect("eval")).collect();
+    let reference: Vec<[f64; 6]> = states
+        .iter()
+        .map(|s| model.error(&s.get(), &beta, &nl).expect("eval"))
+        .collect();
     std::thread::scope(|scope| {
         for t in 0..4 {
             let (model, states, beta, nl, reference) = (&model, &states, &beta, &nl, &reference);
@@ -558,7 +832,9 @@ fn the_model_is_shared_between_threads() {
                 let mut err = [0.0; 6];
                 for round in 0..50 {
                     let k = (t * 17 + round * 5) % states.len();
-                    model.error_and_jacobian(&states[k].get(), beta, nl, &mut err, &mut jac).expect("eval");
+                    model
+                        .error_and_jacobian(&states[k].get(), beta, nl, &mut err, &mut jac)
+                        .expect("eval");
                     assert_eq!(err, reference[k]);
                 }
             });
@@ -573,7 +849,8 @@ fn batch_rows_match_single_calls() {
     let n = m.coefficients.len();
     let mut rng = StdRng::seed_from_u64(8);
     let states: Vec<OwnedState> = (0..25).map(|_| random_state(&mut rng, &m)).collect();
-    let flat = |f: &dyn Fn(&OwnedState) -> Vec<f64>| -> Vec<f64> { states.iter().flat_map(f).collect() };
+    let flat =
+        |f: &dyn Fn(&OwnedState) -> Vec<f64>| -> Vec<f64> { states.iter().flat_map(f).collect() };
     let q = flat(&|s| s.q.clone());
     let inputs = flat(&|s| s.inputs.clone());
     let lags = flat(&|s| s.lags.clone());
@@ -581,30 +858,59 @@ fn batch_rows_match_single_calls() {
     let time: Vec<f64> = states.iter().map(|s| s.time).collect();
     let tool: Vec<usize> = states.iter().map(|s| s.tool).collect();
     let tool_offset: Vec<Option<[f64; 3]>> = states.iter().map(|s| s.tool_offset).collect();
-    let rows = StateRows { q: &q, inputs: &inputs, lags: &lags, time: &time, dirs: &dirs, tool: &tool, tool_offset: &tool_offset };
+    let rows = StateRows {
+        q: &q,
+        inputs: &inputs,
+        lags: &lags,
+        time: &time,
+        dirs: &dirs,
+        tool: &tool,
+        tool_offset: &tool_offset,
+    };
     let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64).cos()).collect();
     let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
     let mut err = vec![0.0; 6 * rows.len()];
     let mut jac = vec![0.0; 6 * n * rows.len()];
-    model.error_and_jacobian_rows(&rows, &beta, &nl, &mut err, &mut jac).expect("batch");
+    model
+        .error_and_jacobian_rows(&rows, &beta, &nl, &mut err, &mut jac)
+        .expect("batch");
     let mut plain = vec![0.0; 6 * rows.len()];
-    model.error_rows(&rows, &beta, &nl, &mut plain).expect("batch");
+    model
+        .error_rows(&rows, &beta, &nl, &mut plain)
+        .expect("batch");
     let mut one = vec![0.0; 6 * n];
     let mut e = [0.0; 6];
     for (r, s) in states.iter().enumerate() {
-        model.error_and_jacobian(&s.get(), &beta, &nl, &mut e, &mut one).expect("single");
+        model
+            .error_and_jacobian(&s.get(), &beta, &nl, &mut e, &mut one)
+            .expect("single");
         assert_eq!(&err[6 * r..6 * r + 6], &e[..]);
         assert_eq!(&jac[6 * n * r..6 * n * (r + 1)], &one[..]);
-        assert_eq!(model.error(&s.get(), &beta, &nl).expect("single"), <[f64; 6]>::try_from(&plain[6 * r..6 * r + 6]).expect("6"));
+        assert_eq!(
+            model.error(&s.get(), &beta, &nl).expect("single"),
+            <[f64; 6]>::try_from(&plain[6 * r..6 * r + 6]).expect("6")
+        );
     }
     // Wrong sizes are errors, not panics or overruns.
-    assert!(matches!(model.error_and_jacobian_rows(&rows, &beta, &nl, &mut err, &mut jac[1..]), Err(BatchError::Size { .. })));
+    assert!(matches!(
+        model.error_and_jacobian_rows(&rows, &beta, &nl, &mut err, &mut jac[1..]),
+        Err(BatchError::Size { .. })
+    ));
     let short = StateRows { q: &q[1..], ..rows };
-    assert!(matches!(model.error_rows(&short, &beta, &nl, &mut plain), Err(BatchError::Size { what: "q", .. })));
+    assert!(matches!(
+        model.error_rows(&short, &beta, &nl, &mut plain),
+        Err(BatchError::Size { what: "q", .. })
+    ));
     let mut bad_tool = tool.clone();
     bad_tool[3] = 99;
-    let bad = StateRows { tool: &bad_tool, ..rows };
-    assert!(matches!(model.error_rows(&bad, &beta, &nl, &mut plain), Err(BatchError::Row { row: 3, .. })));
+    let bad = StateRows {
+        tool: &bad_tool,
+        ..rows
+    };
+    assert!(matches!(
+        model.error_rows(&bad, &beta, &nl, &mut plain),
+        Err(BatchError::Row { row: 3, .. })
+    ));
 }
 
 #[test]
@@ -625,10 +931,19 @@ fn bad_calls_are_errors_like_the_interpreter() {
     // Short state, β, Jacobian, non-linear parameters.
     let q = &s.q[1..];
     let short = State { q, ..s.get() };
-    check(ev.error_and_jacobian(&short, &beta, &mut err, &mut jac), it.error_and_jacobian(&short, &beta, &mut err, &mut jac));
-    check(ev.error_and_jacobian(&s.get(), &beta[1..], &mut err, &mut jac), it.error_and_jacobian(&s.get(), &beta[1..], &mut err, &mut jac));
+    check(
+        ev.error_and_jacobian(&short, &beta, &mut err, &mut jac),
+        it.error_and_jacobian(&short, &beta, &mut err, &mut jac),
+    );
+    check(
+        ev.error_and_jacobian(&s.get(), &beta[1..], &mut err, &mut jac),
+        it.error_and_jacobian(&s.get(), &beta[1..], &mut err, &mut jac),
+    );
     let mut short_jac = vec![0.0; 6 * n - 1];
-    check(ev.error_and_jacobian(&s.get(), &beta, &mut err, &mut short_jac), it.error_and_jacobian(&s.get(), &beta, &mut err, &mut short_jac));
+    check(
+        ev.error_and_jacobian(&s.get(), &beta, &mut err, &mut short_jac),
+        it.error_and_jacobian(&s.get(), &beta, &mut err, &mut short_jac),
+    );
     assert!(model.error(&s.get(), &beta, &nl[1..]).is_err());
     assert_eq!(ev.set_nonlinear(&[]), it.set_nonlinear(&[]));
     let mut joint = vec![0.0; 6 * m.axes.len() + 1];
@@ -636,18 +951,33 @@ fn bad_calls_are_errors_like_the_interpreter() {
 
     // A tool that does not exist.
     let bad_tool = State { tool: 7, ..s.get() };
-    check(ev.error_and_jacobian(&bad_tool, &beta, &mut err, &mut jac), it.error_and_jacobian(&bad_tool, &beta, &mut err, &mut jac));
+    check(
+        ev.error_and_jacobian(&bad_tool, &beta, &mut err, &mut jac),
+        it.error_and_jacobian(&bad_tool, &beta, &mut err, &mut jac),
+    );
 
     // A variable the model needs and the state does not give: named, as by the interpreter.
     for input in 0..m.inputs.len() {
         let mut inputs = s.inputs.clone();
         inputs[input] = f64::NAN;
-        let missing = State { inputs: &inputs, ..s.get() };
-        check(ev.error_and_jacobian(&missing, &beta, &mut err, &mut jac), it.error_and_jacobian(&missing, &beta, &mut err, &mut jac));
-        assert_eq!(ev.error(&missing, &beta).map(|_| ()), it.error(&missing, &beta).map(|_| ()));
+        let missing = State {
+            inputs: &inputs,
+            ..s.get()
+        };
+        check(
+            ev.error_and_jacobian(&missing, &beta, &mut err, &mut jac),
+            it.error_and_jacobian(&missing, &beta, &mut err, &mut jac),
+        );
+        assert_eq!(
+            ev.error(&missing, &beta).map(|_| ()),
+            it.error(&missing, &beta).map(|_| ())
+        );
     }
     let dirs = vec![f64::NAN; m.axes.len()];
-    let no_dirs = State { dirs: &dirs, ..s.get() };
+    let no_dirs = State {
+        dirs: &dirs,
+        ..s.get()
+    };
     let e = ev.error(&no_dirs, &beta).unwrap_err();
     assert_eq!(e, it.error(&no_dirs, &beta).unwrap_err());
 }
@@ -670,13 +1000,27 @@ fn only_the_selected_tool_reads_its_variables() {
     let inputs = [f64::NAN];
     let q = [0.2];
     let dirs = [1.0];
-    let s = State { q: &q, inputs: &inputs, lags: &[], time: 0.0, dirs: &dirs, tool: 0, tool_offset: None };
+    let s = State {
+        q: &q,
+        inputs: &inputs,
+        lags: &[],
+        time: 0.0,
+        dirs: &dirs,
+        tool: 0,
+        tool_offset: None,
+    };
     let (mut ei, mut ej) = ([0.0; 6], [0.0; 6]);
     let (mut ji, mut jj) = (vec![0.0; 6 * n], vec![f64::NAN; 6 * n]);
-    it.error_and_jacobian(&s, &beta, &mut ei, &mut ji).expect("interp");
-    model.error_and_jacobian(&s, &beta, &[], &mut ej, &mut jj).expect("jit");
+    it.error_and_jacobian(&s, &beta, &mut ei, &mut ji)
+        .expect("interp");
+    model
+        .error_and_jacobian(&s, &beta, &[], &mut ej, &mut jj)
+        .expect("jit");
     assert_eq!(ji, jj);
-    assert!(ei.iter().zip(&ej).all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
+    assert!(ei
+        .iter()
+        .zip(&ej)
+        .all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
     let t1 = State { tool: 1, ..s };
     assert!(model.error(&t1, &beta, &[]).is_err());
 }
@@ -686,26 +1030,37 @@ fn the_hand_written_baseline_agrees_with_the_interpreter() {
     let m = example("milling_5axis");
     let n = m.coefficients.len();
     let mut it = Interpreter::new(&m).expect("interpreter");
-    let mut base = baseline::Baseline::new(&m);
-    let mut rng = StdRng::seed_from_u64(12);
-    let beta: Vec<f64> = (0..n).map(|_| rng.random_range(-1e-5..1e-5)).collect();
-    let zero = vec![0.0; n];
-    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
-    let (mut ji, mut jb) = (vec![0.0; 6 * n], vec![f64::NAN; 6 * n]);
-    let (mut ei, mut eb, mut e0) = ([0.0; 6], [0.0; 6], [0.0; 6]);
-    let mut worst: f64 = 0.0;
-    for _ in 0..200 {
-        let s = random_state(&mut rng, &m);
-        let st = s.get();
-        it.error_and_jacobian(&st, &zero, &mut e0, &mut ji).expect("interp");
-        it.error_and_jacobian(&st, &beta, &mut ei, &mut ji).expect("interp");
-        base.error_and_jacobian(&st, &beta, &nl, &mut eb, &mut jb);
-        let dj = row_relative(&ji, &jb, 6, |r| (0..n).map(|j| ji[r * n + j].abs()).fold(0.0, f64::max));
-        let de = row_relative(&ei, &eb, 6, |r| e0[r].abs() + (0..n).map(|j| (ji[r * n + j] * beta[j]).abs()).sum::<f64>());
-        assert!(dj <= TOLERANCE && de <= TOLERANCE, "baseline: Jacobian {dj:e}, error {de:e}: {ei:?} vs {eb:?}, fixed {e0:?}");
-        worst = worst.max(dj).max(de);
+    for trig in [baseline::Trig::Exact, baseline::Trig::Recurrence] {
+        let mut base = baseline::Baseline::new(&m, trig);
+        let mut rng = StdRng::seed_from_u64(12);
+        let beta: Vec<f64> = (0..n).map(|_| rng.random_range(-1e-5..1e-5)).collect();
+        let zero = vec![0.0; n];
+        let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+        let (mut ji, mut jb) = (vec![0.0; 6 * n], vec![f64::NAN; 6 * n]);
+        let (mut ei, mut eb, mut e0) = ([0.0; 6], [0.0; 6], [0.0; 6]);
+        let mut worst: f64 = 0.0;
+        for _ in 0..300 {
+            let s = random_state(&mut rng, &m);
+            let st = s.get();
+            it.error_and_jacobian(&st, &zero, &mut e0, &mut ji)
+                .expect("interp");
+            it.error_and_jacobian(&st, &beta, &mut ei, &mut ji)
+                .expect("interp");
+            base.error_and_jacobian(&st, &beta, &nl, &mut eb, &mut jb);
+            let dj = row_relative(&ji, &jb, 6, |r| {
+                (0..n).map(|j| ji[r * n + j].abs()).fold(0.0, f64::max)
+            });
+            let de = row_relative(&ei, &eb, 6, |r| {
+                e0[r].abs() + (0..n).map(|j| (ji[r * n + j] * beta[j]).abs()).sum::<f64>()
+            });
+            assert!(
+                dj <= TOLERANCE && de <= TOLERANCE,
+                "baseline {trig:?}: Jacobian {dj:e}, error {de:e}: {ei:?} vs {eb:?}"
+            );
+            worst = worst.max(dj).max(de);
+        }
+        eprintln!("baseline ({trig:?}) vs interpreter: worst relative difference {worst:e}");
     }
-    eprintln!("baseline vs interpreter: worst relative difference {worst:e}");
 }
 
 #[test]

@@ -15,7 +15,7 @@ use std::mem::offset_of;
 use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
 use cranelift_codegen::ir::immediates::Ieee64;
 use cranelift_codegen::ir::{
-    types, AbiParam, InstBuilder, MemFlagsData, StackSlotData, StackSlotKind,
+    types, AbiParam, ConstantData, InstBuilder, MemFlagsData, StackSlotData, StackSlotKind,
     UserFuncName, Value,
 };
 use cranelift_codegen::settings::{self, Configurable};
@@ -56,7 +56,7 @@ pub(super) type RawFn = unsafe extern "C" fn(*const Args);
 extern "C" fn kin_jit_sincos(x: f64, out: *mut f64) {
     let (s, c) = libm::sincos(x);
     // SAFETY: only generated code calls this, always with the address of its own 16-byte,
-    // 8-aligned stack slot (`emit_function`), so both writes are in bounds and aligned.
+    // 8-aligned stack slot (`Emitter::emit`), so both writes are in bounds and aligned.
     unsafe {
         out.write(s);
         out.add(1).write(c);
@@ -73,7 +73,9 @@ const SINCOS: &str = "kin_jit_sincos";
 const FMOD: &str = "kin_jit_fmod";
 
 fn codegen(e: impl std::fmt::Display) -> JitError {
-    JitError::Codegen { message: e.to_string() }
+    JitError::Codegen {
+        message: e.to_string(),
+    }
 }
 
 /// A JIT module holding the compiled functions, in the order of the graphs given.
@@ -83,26 +85,55 @@ pub(super) struct Emitted {
 }
 
 /// Compiles `graphs` (name, graph) into one module. With `dump`, the Cranelift IR of each
-/// function is appended to it before compilation (the `--dump clif` view).
-pub(super) fn compile(graphs: &[(&str, &Graph)], mut dump: Option<&mut String>) -> Result<Emitted, JitError> {
+/// function and the machine code it became are appended to it (the `--dump clif` view).
+pub(super) fn compile(
+    graphs: &[(&str, &Graph)],
+    mut dump: Option<&mut String>,
+) -> Result<Emitted, JitError> {
     let mut flags = settings::builder();
     // The JIT links by absolute address (crate notes: is_pic=false, no colocated libcalls).
-    flags.set("use_colocated_libcalls", "false").map_err(codegen)?;
+    flags
+        .set("use_colocated_libcalls", "false")
+        .map_err(codegen)?;
     flags.set("is_pic", "false").map_err(codegen)?;
+    // The graph is already value-numbered and constant-folded, and its effect order is a
+    // schedule: each component's column and the running sums die right after use. Cranelift's
+    // e-graph pass (`speed`) re-places every pure instruction at its first use, which stretches
+    // those live ranges across the function: on the 5-axis example it made twice the spills
+    // and took 1.6× the compile time, for slower code.
     flags.set("opt_level", "none").map_err(codegen)?;
-    // The graphs are straight-line code built by one routine; the verifier would double the
-    // compile time to re-check that on every model. Debug builds keep it.
-    flags.set("enable_verifier", if cfg!(debug_assertions) { "true" } else { "false" }).map_err(codegen)?;
+    // The graphs are straight-line code built by one routine; re-verifying them on every model
+    // costs compile time. Debug builds (and so the tests) keep the verifier.
+    flags
+        .set(
+            "enable_verifier",
+            if cfg!(debug_assertions) {
+                "true"
+            } else {
+                "false"
+            },
+        )
+        .map_err(codegen)?;
     let isa = cranelift_native::builder()
-        .map_err(|m| JitError::Host { message: m.to_string() })?
+        .map_err(|m| JitError::Host {
+            message: m.to_string(),
+        })?
         .finish(settings::Flags::new(flags))
         .map_err(codegen)?;
     if isa.pointer_bytes() != 8 {
-        return Err(JitError::Host { message: "the JIT needs a 64-bit target".into() });
+        return Err(JitError::Host {
+            message: "the JIT needs a 64-bit target".into(),
+        });
     }
     let mut jb = JITBuilder::with_isa(isa, default_libcall_names());
-    jb.symbol(SINCOS, kin_jit_sincos as extern "C" fn(f64, *mut f64) as *const u8);
-    jb.symbol(FMOD, kin_jit_fmod as extern "C" fn(f64, f64) -> f64 as *const u8);
+    jb.symbol(
+        SINCOS,
+        kin_jit_sincos as extern "C" fn(f64, *mut f64) as *const u8,
+    );
+    jb.symbol(
+        FMOD,
+        kin_jit_fmod as extern "C" fn(f64, f64) -> f64 as *const u8,
+    );
     let mut module = JITModule::new(jb);
 
     let result = define_all(&mut module, graphs, &mut dump);
@@ -119,21 +150,32 @@ pub(super) fn compile(graphs: &[(&str, &Graph)], mut dump: Option<&mut String>) 
         unsafe { module.free_memory() };
         return Err(codegen(e));
     }
-    let functions = ids.iter().map(|id| module.get_finalized_function(*id)).collect();
+    let functions = ids
+        .iter()
+        .map(|id| module.get_finalized_function(*id))
+        .collect();
     Ok(Emitted { module, functions })
 }
 
-fn define_all(module: &mut JITModule, graphs: &[(&str, &Graph)], dump: &mut Option<&mut String>) -> Result<Vec<FuncId>, JitError> {
+fn define_all(
+    module: &mut JITModule,
+    graphs: &[(&str, &Graph)],
+    dump: &mut Option<&mut String>,
+) -> Result<Vec<FuncId>, JitError> {
     let ptr = module.target_config().pointer_type();
     let mut sincos_sig = module.make_signature();
     sincos_sig.params.push(AbiParam::new(types::F64));
     sincos_sig.params.push(AbiParam::new(ptr));
-    let sincos = module.declare_function(SINCOS, Linkage::Import, &sincos_sig).map_err(codegen)?;
+    let sincos = module
+        .declare_function(SINCOS, Linkage::Import, &sincos_sig)
+        .map_err(codegen)?;
     let mut fmod_sig = module.make_signature();
     fmod_sig.params.push(AbiParam::new(types::F64));
     fmod_sig.params.push(AbiParam::new(types::F64));
     fmod_sig.returns.push(AbiParam::new(types::F64));
-    let fmod = module.declare_function(FMOD, Linkage::Import, &fmod_sig).map_err(codegen)?;
+    let fmod = module
+        .declare_function(FMOD, Linkage::Import, &fmod_sig)
+        .map_err(codegen)?;
 
     let mut sig = module.make_signature();
     sig.params.push(AbiParam::new(ptr));
@@ -141,24 +183,38 @@ fn define_all(module: &mut JITModule, graphs: &[(&str, &Graph)], dump: &mut Opti
     let mut fctx = FunctionBuilderContext::new();
     let mut ids = Vec::with_capacity(graphs.len());
     for (name, graph) in graphs {
-        let id = module.declare_function(name, Linkage::Local, &sig).map_err(codegen)?;
+        let id = module
+            .declare_function(name, Linkage::Local, &sig)
+            .map_err(codegen)?;
         ctx.func.signature = sig.clone();
         ctx.func.name = UserFuncName::user(0, id.as_u32());
         let imports = Imports {
             sincos: module.declare_func_in_func(sincos, &mut ctx.func),
             fmod: module.declare_func_in_func(fmod, &mut ctx.func),
         };
-        emit_function(&mut ctx, &mut fctx, graph, &imports, ptr, module.target_config());
+        emit_function(
+            &mut ctx,
+            &mut fctx,
+            graph,
+            &imports,
+            ptr,
+            module.target_config(),
+        );
         if let Some(d) = dump.as_deref_mut() {
             d.push_str(&format!("; {name}\n{}\n", ctx.func.display()));
         }
-        let disasm = std::env::var_os("KIN_JIT_DISASM").is_some();
+        let disasm = dump.is_some();
         ctx.set_disasm(disasm);
-        module.define_function(id, &mut ctx).map_err(|e| JitError::Codegen { message: format!("{name}: {e:?}") })?;
-        if disasm {
-            if let Some(text) = ctx.compiled_code().and_then(|c| c.vcode.clone()) {
-                let _ = std::fs::write(format!("/tmp/kin_jit_{name}.s"), text);
-            }
+        module
+            .define_function(id, &mut ctx)
+            .map_err(|e| JitError::Codegen {
+                message: format!("{name}: {e:?}"),
+            })?;
+        if let (Some(d), Some(text)) = (
+            dump.as_deref_mut(),
+            ctx.compiled_code().and_then(|c| c.vcode.as_deref()),
+        ) {
+            d.push_str(&format!("; {name}: machine code\n{text}\n"));
         }
         module.clear_context(&mut ctx);
         ids.push(id);
@@ -199,21 +255,29 @@ fn elem(index: u32) -> i32 {
     i32::try_from(u64::from(index) * 8).unwrap_or(i32::MAX)
 }
 
-fn emit_function(ctx: &mut Context, fctx: &mut FunctionBuilderContext, graph: &Graph, imports: &Imports, ptr: types::Type, config: cranelift_codegen::isa::TargetFrontendConfig) {
+fn emit_function(
+    ctx: &mut Context,
+    fctx: &mut FunctionBuilderContext,
+    graph: &Graph,
+    imports: &Imports,
+    ptr: types::Type,
+    config: cranelift_codegen::isa::TargetFrontendConfig,
+) {
     let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
     let block = b.create_block();
     b.append_block_params_for_function_params(block);
     b.switch_to_block(block);
     let args = b.block_params(block).first().copied();
-    let slot = b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, 16, 3));
     let mut e = Emitter {
         graph,
         values: vec![None; graph.nodes().len()],
         bases: Default::default(),
         tool: None,
         args,
+        splats: Default::default(),
+        slots: Default::default(),
+        lanes: Default::default(),
         ptr,
-        slot,
         imports,
     };
     let flags = MemFlagsData::trusted();
@@ -221,7 +285,9 @@ fn emit_function(ctx: &mut Context, fctx: &mut FunctionBuilderContext, graph: &G
     // value live at a call is spilled. At the top only the calls' own inputs and results are.
     let live = graph.live();
     for (i, node) in graph.nodes().iter().enumerate() {
-        if live.get(i).copied().unwrap_or(false) && matches!(node, Node::Sin(_) | Node::Cos(_) | Node::Fmod(..)) {
+        if live.get(i).copied().unwrap_or(false)
+            && matches!(node, Node::Sin(_) | Node::Cos(_) | Node::Fmod(..))
+        {
             e.value(&mut b, Id::new(i));
         }
     }
@@ -235,6 +301,15 @@ fn emit_function(ctx: &mut Context, fctx: &mut FunctionBuilderContext, graph: &G
                 let base = e.base_ptr(&mut b, dst_field(dst));
                 if let (Some(v), Some(base)) = (v, base) {
                     b.ins().store(flags, v, base, elem(index));
+                }
+            }
+            Effect::Pair(dst, index, col, x, y) => {
+                let v = e.pair(&mut b, col, x, y);
+                let base = e.base_ptr(&mut b, dst_field(dst));
+                if let (Some(v), Some(base)) = (v, base) {
+                    // The buffer is only 8-byte aligned: a 16-byte store without `aligned`.
+                    b.ins()
+                        .store(MemFlagsData::new().with_notrap(), v, base, elem(index));
                 }
             }
         }
@@ -251,8 +326,11 @@ struct Emitter<'g> {
     bases: std::collections::HashMap<i32, Value>,
     tool: Option<Value>,
     args: Option<Value>,
+    splats: std::collections::HashMap<Id, Value>,
+    /// Results of `sincos` calls: the slot and offset each is read from.
+    slots: std::collections::HashMap<Id, (cranelift_codegen::ir::StackSlot, i32)>,
+    lanes: std::collections::HashMap<(Id, Id), Value>,
     ptr: types::Type,
-    slot: cranelift_codegen::ir::StackSlot,
     imports: &'g Imports,
 }
 
@@ -261,7 +339,9 @@ impl Emitter<'_> {
         if let Some(v) = self.bases.get(&offset) {
             return Some(*v);
         }
-        let v = b.ins().load(self.ptr, MemFlagsData::trusted(), self.args?, offset);
+        let v = b
+            .ins()
+            .load(self.ptr, MemFlagsData::trusted(), self.args?, offset);
         self.bases.insert(offset, v);
         Some(v)
     }
@@ -276,19 +356,74 @@ impl Emitter<'_> {
         }
     }
 
+    /// The value of operand `id`. Constants are not kept in registers: each use gets its own
+    /// `f64const`, which the backend folds into the instruction as a constant-pool operand
+    /// (or a register clear for 0), instead of holding it live (and spilling it) across the
+    /// function.
+    fn operand(&mut self, b: &mut FunctionBuilder, id: Id) -> Option<Value> {
+        if let Some(&(slot, offset)) = self.slots.get(&id) {
+            return Some(b.ins().stack_load(self.ptr, types::F64, slot, offset));
+        }
+        match self.graph.node(id) {
+            Node::Const(bits) => Some(b.ins().f64const(Ieee64::with_bits(bits))),
+            _ => self.get(id),
+        }
+    }
+
+    /// Whether `id` needs no emitting: done already, a constant, or a result in a slot.
+    fn available(&self, id: Id) -> bool {
+        self.get(id).is_some()
+            || self.slots.contains_key(&id)
+            || matches!(self.graph.node(id), Node::Const(_))
+    }
+
+    /// `[col·x, col·y]` as one two-lane product: the same two roundings as two scalar
+    /// products. Splats and lane pairs are shared between the six rows of a coefficient pair.
+    fn pair(&mut self, b: &mut FunctionBuilder, col: Id, x: Id, y: Id) -> Option<Value> {
+        if self.graph.value(col) == Some(0.0) {
+            // A register clear, rematerialised at each use like the scalar constants.
+            let zero = b
+                .func
+                .dfg
+                .constants
+                .insert(ConstantData::from(&[0u8; 16][..]));
+            return Some(b.ins().vconst(types::F64X2, zero));
+        }
+        let splat = match self.splats.get(&col) {
+            Some(v) => *v,
+            None => {
+                let c = self.value(b, col)?;
+                let v = b.ins().splat(types::F64X2, c);
+                self.splats.insert(col, v);
+                v
+            }
+        };
+        let lanes = match self.lanes.get(&(x, y)) {
+            Some(v) => *v,
+            None => {
+                let (xv, yv) = (self.value(b, x)?, self.value(b, y)?);
+                let v = b.ins().scalar_to_vector(types::F64X2, xv);
+                let v = b.ins().insertlane(v, yv, 1);
+                self.lanes.insert((x, y), v);
+                v
+            }
+        };
+        Some(b.ins().fmul(splat, lanes))
+    }
+
     /// Emits `root` and whatever it needs, depth first without recursion (sums over hundreds
     /// of coefficients make deep operand chains).
     fn value(&mut self, b: &mut FunctionBuilder, root: Id) -> Option<Value> {
         let mut stack = vec![(root, false)];
         while let Some((id, ready)) = stack.pop() {
-            if self.get(id).is_some() {
+            if self.available(id) {
                 continue;
             }
             let node = self.graph.node(id);
             if !ready {
                 stack.push((id, true));
                 for op in super::graph::operands(node) {
-                    if self.get(op).is_none() {
+                    if !self.available(op) {
                         stack.push((op, false));
                     }
                 }
@@ -297,67 +432,92 @@ impl Emitter<'_> {
             let v = self.emit(b, id, node)?;
             self.set(id, v);
         }
-        self.get(root)
+        self.operand(b, root)
     }
 
     fn emit(&mut self, b: &mut FunctionBuilder, id: Id, node: Node) -> Option<Value> {
         let flags = MemFlagsData::trusted();
+        let mut ops = [None; 4];
+        for (slot, op) in ops.iter_mut().zip(super::graph::operands(node)) {
+            *slot = Some(self.operand(b, op)?);
+        }
+        let [p, q, r, t] = ops;
         Some(match node {
             Node::Const(bits) => b.ins().f64const(Ieee64::with_bits(bits)),
-            Node::Load(Src::Time, _) => b.ins().load(types::F64, flags, self.args?, field(Src::Time)),
+            Node::Load(Src::Time, _) => {
+                b.ins()
+                    .load(types::F64, flags, self.args?, field(Src::Time))
+            }
             Node::Load(src, i) => {
                 let base = self.base_ptr(b, field(src))?;
                 b.ins().load(types::F64, flags, base, elem(i))
             }
-            Node::Add(x, y) => b.ins().fadd(self.get(x)?, self.get(y)?),
-            Node::Sub(x, y) => b.ins().fsub(self.get(x)?, self.get(y)?),
-            Node::Mul(x, y) => b.ins().fmul(self.get(x)?, self.get(y)?),
-            Node::Div(x, y) => b.ins().fdiv(self.get(x)?, self.get(y)?),
-            Node::Neg(x) => b.ins().fneg(self.get(x)?),
-            Node::Floor(x) => b.ins().floor(self.get(x)?),
+            Node::Add(..) => b.ins().fadd(p?, q?),
+            Node::Sub(..) => b.ins().fsub(p?, q?),
+            Node::Mul(..) => b.ins().fmul(p?, q?),
+            Node::Div(..) => b.ins().fdiv(p?, q?),
+            Node::Max(..) => {
+                // `maxpd` on lane 0: no branch and no NaN fix-up sequence (the scalar `fmax`
+                // lowers to a compare-and-jump). `x > y ? x : y`, the second operand when
+                // unordered — which the graph's uses (`max(u − t, 0)`) never are.
+                let xv = b.ins().scalar_to_vector(types::F64X2, p?);
+                let yv = b.ins().scalar_to_vector(types::F64X2, q?);
+                let lt = b.ins().fcmp(FloatCC::LessThan, yv, xv);
+                let mask = b.ins().bitcast(types::F64X2, MemFlagsData::new(), lt);
+                let m = b.ins().bitselect(mask, xv, yv);
+                b.ins().extractlane(m, 0)
+            }
+            Node::Neg(_) => b.ins().fneg(p?),
+            Node::Floor(_) => b.ins().floor(p?),
             Node::Sin(x) | Node::Cos(x) => {
-                // One call gives both; the partner node, when the graph has it, takes the other.
-                let arg = self.get(x)?;
-                let addr = b.ins().stack_addr(self.ptr, self.slot, 0);
-                b.ins().call(self.imports.sincos, &[arg, addr]);
-                let s = b.ins().load(types::F64, flags, addr, 0);
-                let c = b.ins().load(types::F64, flags, addr, 8);
-                let (mine, other, other_node) = match node {
-                    Node::Sin(_) => (s, c, Node::Cos(x)),
-                    _ => (c, s, Node::Sin(x)),
-                };
-                if let Some(partner) = self.graph.find(&other_node) {
-                    if partner != id {
-                        self.set(partner, other);
+                // One call gives both, into a stack slot of its own. The results stay there
+                // and are loaded at each use: every float register dies at the next call, so
+                // holding them in registers would only add a spill.
+                let slot = b.create_sized_stack_slot(StackSlotData::new(
+                    StackSlotKind::ExplicitSlot,
+                    16,
+                    3,
+                ));
+                let addr = b.ins().stack_addr(self.ptr, slot, 0);
+                b.ins().call(self.imports.sincos, &[p?, addr]);
+                for (node, offset) in [(Node::Sin(x), 0), (Node::Cos(x), 8)] {
+                    if let Some(n) = self.graph.find(&node) {
+                        self.slots.insert(n, (slot, offset));
                     }
                 }
-                mine
+                let offset = if matches!(node, Node::Sin(_)) { 0 } else { 8 };
+                self.slots.insert(id, (slot, offset));
+                b.ins().stack_load(self.ptr, types::F64, slot, offset)
             }
-            Node::Fmod(x, y) => {
-                let (x, y) = (self.get(x)?, self.get(y)?);
-                let call = b.ins().call(self.imports.fmod, &[x, y]);
+            Node::Fmod(..) => {
+                let call = b.ins().call(self.imports.fmod, &[p?, q?]);
                 b.inst_results(call).first().copied()?
             }
-            Node::Select(cmp, x, y, t, e) => {
+            Node::Select(cmp, ..) => {
                 let cc = match cmp {
                     Cmp::Gt => FloatCC::GreaterThan,
                     Cmp::Ge => FloatCC::GreaterThanOrEqual,
                 };
-                let c = b.ins().fcmp(cc, self.get(x)?, self.get(y)?);
-                b.ins().select(c, self.get(t)?, self.get(e)?)
+                let c = b.ins().fcmp(cc, p?, q?);
+                b.ins().select(c, r?, t?)
             }
-            Node::IfTool(i, x) => {
+            Node::IfTool(i, _) => {
                 let tool = match self.tool {
                     Some(t) => t,
                     None => {
-                        let t = b.ins().load(types::I64, flags, self.args?, offset_of!(Args, tool) as i32);
+                        let t = b.ins().load(
+                            types::I64,
+                            flags,
+                            self.args?,
+                            offset_of!(Args, tool) as i32,
+                        );
                         self.tool = Some(t);
                         t
                     }
                 };
                 let c = b.ins().icmp_imm_u(IntCC::Equal, tool, i64::from(i));
                 let zero = b.ins().f64const(0.0);
-                b.ins().select(c, self.get(x)?, zero)
+                b.ins().select(c, p?, zero)
             }
         })
     }

@@ -83,6 +83,8 @@ pub(super) enum Node {
     Floor(Id),
     Sin(Id),
     Cos(Id),
+    /// `max(a, b)`; NaN if either is NaN (both operands are never NaN where it is used).
+    Max(Id, Id),
     /// `a % b` as Rust (and C's `fmod`) define it: exact, so any implementation agrees.
     Fmod(Id, Id),
     /// `if a CMP b { then } else { otherwise }`; false when either side is NaN, as in Rust.
@@ -97,6 +99,9 @@ pub(super) enum Node {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Effect {
     Store(Dst, u32, Id),
+    /// Stores `col·a` at `index` and `col·b` at `index + 1`: two Jacobian entries of one
+    /// column, as one two-lane multiply and one 16-byte store.
+    Pair(Dst, u32, Id, Id, Id),
     Eval(Id),
 }
 
@@ -118,7 +123,10 @@ impl Graph {
     }
 
     pub(super) fn node(&self, id: Id) -> Node {
-        self.nodes.get(id.index()).copied().unwrap_or(Node::Const(0))
+        self.nodes
+            .get(id.index())
+            .copied()
+            .unwrap_or(Node::Const(0))
     }
 
     /// The node, if it was ever built (used to pair `sin x` with `cos x` into one call).
@@ -141,6 +149,11 @@ impl Graph {
     pub(super) fn store(&mut self, dst: Dst, index: usize, value: Id) {
         let index = u32::try_from(index).unwrap_or(u32::MAX);
         self.effects.push(Effect::Store(dst, index, value));
+    }
+
+    pub(super) fn store_pair(&mut self, dst: Dst, index: usize, col: Id, a: Id, b: Id) {
+        let index = u32::try_from(index).unwrap_or(u32::MAX);
+        self.effects.push(Effect::Pair(dst, index, col, a, b));
     }
 
     /// Asks for `value` to be computed here, before the effects that follow.
@@ -171,42 +184,58 @@ impl Graph {
     }
 
     pub(super) fn add(&mut self, a: Id, b: Id) -> Id {
-        match (self.value(a), self.value(b)) {
-            (Some(x), Some(y)) => self.konst(x + y),
-            (Some(z), _) if z == 0.0 => b,
-            (_, Some(z)) if z == 0.0 => a,
-            // IEEE addition is commutative, so one canonical order finds more common terms.
-            _ => self.intern(Node::Add(a.min(b), a.max(b))),
+        if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+            return self.konst(x + y);
         }
+        if self.is(a, 0.0) {
+            return b;
+        }
+        if self.is(b, 0.0) {
+            return a;
+        }
+        // IEEE addition is commutative, so one canonical order finds more common terms.
+        self.intern(Node::Add(a.min(b), a.max(b)))
     }
 
     pub(super) fn sub(&mut self, a: Id, b: Id) -> Id {
-        match (self.value(a), self.value(b)) {
-            (Some(x), Some(y)) => self.konst(x - y),
-            (_, Some(z)) if z == 0.0 => a,
-            (Some(z), _) if z == 0.0 => self.neg(b),
-            _ => self.intern(Node::Sub(a, b)),
+        if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+            return self.konst(x - y);
         }
+        if self.is(b, 0.0) {
+            return a;
+        }
+        if self.is(a, 0.0) {
+            return self.neg(b);
+        }
+        self.intern(Node::Sub(a, b))
     }
 
     pub(super) fn mul(&mut self, a: Id, b: Id) -> Id {
-        match (self.value(a), self.value(b)) {
-            (Some(x), Some(y)) => self.konst(x * y),
-            (Some(z), _) | (_, Some(z)) if z == 0.0 => self.konst(0.0),
-            (Some(o), _) if o == 1.0 => b,
-            (_, Some(o)) if o == 1.0 => a,
-            (Some(m), _) if m == -1.0 => self.neg(b),
-            (_, Some(m)) if m == -1.0 => self.neg(a),
-            _ => self.intern(Node::Mul(a.min(b), a.max(b))),
+        if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+            return self.konst(x * y);
         }
+        if self.is(a, 0.0) || self.is(b, 0.0) {
+            return self.konst(0.0);
+        }
+        for (one, other) in [(a, b), (b, a)] {
+            if self.is(one, 1.0) {
+                return other;
+            }
+            if self.is(one, -1.0) {
+                return self.neg(other);
+            }
+        }
+        self.intern(Node::Mul(a.min(b), a.max(b)))
     }
 
     pub(super) fn div(&mut self, a: Id, b: Id) -> Id {
-        match (self.value(a), self.value(b)) {
-            (Some(x), Some(y)) => self.konst(x / y),
-            (_, Some(o)) if o == 1.0 => a,
-            _ => self.intern(Node::Div(a, b)),
+        if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+            return self.konst(x / y);
         }
+        if self.is(b, 1.0) {
+            return a;
+        }
+        self.intern(Node::Div(a, b))
     }
 
     pub(super) fn neg(&mut self, a: Id) -> Id {
@@ -235,6 +264,13 @@ impl Graph {
         match self.value(a) {
             Some(x) => self.konst(libm::cos(x)),
             None => self.intern(Node::Cos(a)),
+        }
+    }
+
+    pub(super) fn max(&mut self, a: Id, b: Id) -> Id {
+        match (self.value(a), self.value(b)) {
+            (Some(x), Some(y)) => self.konst(x.max(y)),
+            _ => self.intern(Node::Max(a, b)),
         }
     }
 
@@ -283,11 +319,15 @@ impl Graph {
     /// Which nodes the effects need, directly or through operands.
     pub(super) fn live(&self) -> Vec<bool> {
         let mut live = vec![false; self.nodes.len()];
-        for v in self.effects.iter().map(|e| match e {
-            Effect::Store(_, _, v) | Effect::Eval(v) => v,
-        }) {
-            if let Some(l) = live.get_mut(v.index()) {
-                *l = true;
+        for e in &self.effects {
+            let roots = match *e {
+                Effect::Store(_, _, v) | Effect::Eval(v) => [Some(v), None, None],
+                Effect::Pair(_, _, c, a, b) => [Some(c), Some(a), Some(b)],
+            };
+            for v in roots.into_iter().flatten() {
+                if let Some(l) = live.get_mut(v.index()) {
+                    *l = true;
+                }
             }
         }
         // Operands precede their users, so one backward sweep reaches everything.
@@ -312,9 +352,12 @@ pub(super) fn operands(node: Node) -> impl Iterator<Item = Id> {
         Node::Neg(a) | Node::Floor(a) | Node::Sin(a) | Node::Cos(a) | Node::IfTool(_, a) => {
             [Some(a), None, None, None]
         }
-        Node::Add(a, b) | Node::Sub(a, b) | Node::Mul(a, b) | Node::Div(a, b) | Node::Fmod(a, b) => {
-            [Some(a), Some(b), None, None]
-        }
+        Node::Add(a, b)
+        | Node::Sub(a, b)
+        | Node::Mul(a, b)
+        | Node::Div(a, b)
+        | Node::Max(a, b)
+        | Node::Fmod(a, b) => [Some(a), Some(b), None, None],
         Node::Select(_, a, b, t, e) => [Some(a), Some(b), Some(t), Some(e)],
     };
     list.into_iter().flatten()

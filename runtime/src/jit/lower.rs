@@ -48,13 +48,21 @@ pub(super) fn validate(m: &Machine) -> Result<(), JitError> {
     for (chain, elements) in [("tool", &m.tool_chain), ("workpiece", &m.workpiece_chain)] {
         for (k, e) in elements.iter().enumerate() {
             if e.axis >= m.axes.len() {
-                return bad(format!("element {k} of the {chain} chain uses axis {}, but there are {}", e.axis, m.axes.len()));
+                return bad(format!(
+                    "element {k} of the {chain} chain uses axis {}, but there are {}",
+                    e.axis,
+                    m.axes.len()
+                ));
             }
         }
     }
     for (i, l) in m.lags.iter().enumerate() {
         if l.input >= m.inputs.len() {
-            return bad(format!("lag {i} reads input {}, but there are {}", l.input, m.inputs.len()));
+            return bad(format!(
+                "lag {i} reads input {}, but there are {}",
+                l.input,
+                m.inputs.len()
+            ));
         }
     }
     let n = m.coefficients.len();
@@ -71,16 +79,26 @@ pub(super) fn validate(m: &Machine) -> Result<(), JitError> {
             FrameRef::ToolEnd(None) | FrameRef::WorkpieceEnd => true,
         };
         if !ok {
-            return bad(format!("error model {e} refers to a frame the machine does not have"));
+            return bad(format!(
+                "error model {e} refers to a frame the machine does not have"
+            ));
         }
         for term in &model.terms {
             check_scalar(m, &term.scale)?;
             let mut size = 1usize;
             for f in &term.factors {
                 check_var(m, f.var)?;
-                if let Basis::Periodic { wavelength: Wavelength::Fitted(p), .. } = &f.basis {
+                if let Basis::Periodic {
+                    wavelength: Wavelength::Fitted(p),
+                    ..
+                } = &f.basis
+                {
                     if p.index >= m.nonlinear.len() {
-                        return bad(format!("a wavelength reads non-linear parameter {}, but there are {}", p.index, m.nonlinear.len()));
+                        return bad(format!(
+                            "a wavelength reads non-linear parameter {}, but there are {}",
+                            p.index,
+                            m.nonlinear.len()
+                        ));
                     }
                 }
                 size = size.saturating_mul(f.basis.size());
@@ -88,7 +106,10 @@ pub(super) fn validate(m: &Machine) -> Result<(), JitError> {
             if term.coefficients == 0 {
                 continue;
             }
-            let end = term.first.checked_add(term.coefficients).filter(|&end| end <= n);
+            let end = term
+                .first
+                .checked_add(term.coefficients)
+                .filter(|&end| end <= n);
             if size != term.coefficients || end.is_none() {
                 return bad(format!("a term of error model {e} has {} coefficients from {}, its factors give {size} and there are {n}", term.coefficients, term.first));
             }
@@ -112,7 +133,9 @@ fn check_var(m: &Machine, v: Var) -> Result<(), JitError> {
     if ok {
         Ok(())
     } else {
-        Err(JitError::Model { message: format!("the variable {v:?} does not exist in the machine") })
+        Err(JitError::Model {
+            message: format!("the variable {v:?} does not exist in the machine"),
+        })
     }
 }
 
@@ -150,7 +173,10 @@ struct FrameF {
 /// Builds one graph for `m`. `tool_rotation` is the tools' common rotation when they all share
 /// one (it is then folded in as constants), else `None` and it is loaded with the tool offset.
 pub(super) fn build(m: &Machine, kind: Kind, tool_rotation: Option<[[f64; 3]; 3]>) -> Graph {
-    let mut b = Builder { g: Graph::default(), m };
+    let mut b = Builder {
+        g: Graph::default(),
+        m,
+    };
     let kin = b.kinematics(tool_rotation);
     match kind {
         Kind::Error | Kind::Jacobian => b.errors(&kin, kind == Kind::Jacobian),
@@ -187,7 +213,10 @@ impl Builder<'_> {
     }
 
     fn identity(&mut self) -> Rigid {
-        self.constant_rigid([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [0.0; 3])
+        self.constant_rigid(
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0; 3],
+        )
     }
 
     /// `Σ_k a_k b_k` in index order, as a matrix–vector product element.
@@ -313,16 +342,29 @@ impl Builder<'_> {
             let arm = b.mat_vec(&wr_rot_t, &rel);
             FrameF { r, arm }
         };
-        let tool_frames = tool_frames.iter().map(|f| frame_f(self, f, false)).collect();
+        let tool_frames = tool_frames
+            .iter()
+            .map(|f| frame_f(self, f, false))
+            .collect();
         let workpiece_frames = wp_frames.iter().map(|f| frame_f(self, f, true)).collect();
         let zero = self.c(0.0);
         let minus_one = self.c(-1.0);
-        let tool_end = FrameF { r: rotation, arm: [zero; 3] };
+        let tool_end = FrameF {
+            r: rotation,
+            arm: [zero; 3],
+        };
         let workpiece_end = FrameF {
             r: [0, 1, 2].map(|i| [0, 1, 2].map(|j| if i == j { minus_one } else { zero })),
             arm: position,
         };
-        Kinematics { tool_frames, workpiece_frames, tool_end, workpiece_end, position, rotation }
+        Kinematics {
+            tool_frames,
+            workpiece_frames,
+            tool_end,
+            workpiece_end,
+            position,
+            rotation,
+        }
     }
 
     /// Column `c` of `F = [[r, −[a]× r], [0, r]]` (`r` already carries the chain's sign).
@@ -333,18 +375,24 @@ impl Builder<'_> {
         if !c.is_rotation() {
             return [rj[0], rj[1], rj[2], zero, zero, zero];
         }
-        // −[a]× r_j, with [a]× written out as `Vector3::cross_matrix` does.
+        // −[a]× r_j = r_j × a. Each entry is one difference of two products, a single rounding
+        // whatever the order, so this is bit for bit the interpreter's `−(cross_matrix · r)`
+        // (whose third product is with an exact zero), without its negations.
         let a = f.arm;
-        let na = a.map(|v| self.g.neg(v));
-        let cross = [[zero, na[2], a[1]], [a[2], zero, na[0]], [na[1], a[0], zero]];
-        let top = [0, 1, 2].map(|i| {
-            let d = self.dot(cross[i], rj);
-            self.g.neg(d)
-        });
+        let cross = |g: &mut Graph, p: Id, q: Id, r: Id, t: Id| {
+            let x = g.mul(p, q);
+            let y = g.mul(r, t);
+            g.sub(x, y)
+        };
+        let top = [
+            cross(&mut self.g, rj[1], a[2], rj[2], a[1]),
+            cross(&mut self.g, rj[2], a[0], rj[0], a[2]),
+            cross(&mut self.g, rj[0], a[1], rj[1], a[0]),
+        ];
         [top[0], top[1], top[2], rj[0], rj[1], rj[2]]
     }
 
-    fn frame<'k>(kin: &'k Kinematics, frame: FrameRef) -> Option<&'k FrameF> {
+    fn frame(kin: &Kinematics, frame: FrameRef) -> Option<&FrameF> {
         match frame {
             FrameRef::Tool(k) => kin.tool_frames.get(k),
             FrameRef::Workpiece(k) => kin.workpiece_frames.get(k),
@@ -403,7 +451,8 @@ impl Builder<'_> {
     /// `rem_euclid(2π)` = `r = x % 2π; if r < 0 { r + 2π } else { r }` (spec: factors, variables).
     fn factor_var(&mut self, v: Var) -> Id {
         let x = self.var(v);
-        let continuous = matches!(v, Var::Axis(a) if self.m.axes.get(a).is_some_and(|axis| axis.continuous));
+        let continuous =
+            matches!(v, Var::Axis(a) if self.m.axes.get(a).is_some_and(|axis| axis.continuous));
         if !continuous {
             return x;
         }
@@ -431,16 +480,25 @@ impl Builder<'_> {
         r
     }
 
-    /// `u^l` or `(u − t)_+^l` (eq. 3.3), selecting rather than clamping, as `Power::value`.
+    /// `u^l` or `(u − t)_+^l` (eq. 3.3), as `Power::value`.
+    ///
+    /// `Power::value` selects (`if u > t { (u − t)^l } else { 0 }`). For `l ≥ 1` this computes
+    /// `max(u − t, 0)^l` instead, the same number (`u > t` exactly when `u − t > 0`, and `0^l`
+    /// is 0) without a branch on the data, which random states mispredict half the time. Only a
+    /// NaN `u` differs (NaN here, 0 there), and then the other functions are NaN in both.
     fn power(&mut self, p: Power, u: Id) -> Id {
         match p.knot {
             None => self.ipow(u, p.power),
             Some(t) => {
                 let t = self.c(t);
                 let d = self.g.sub(u, t);
-                let v = self.ipow(d, p.power);
                 let zero = self.c(0.0);
-                self.g.select(Cmp::Gt, u, t, v, zero)
+                if p.power == 0 {
+                    let one = self.c(1.0);
+                    return self.g.select(Cmp::Gt, u, t, one, zero);
+                }
+                let clamped = self.g.max(d, zero);
+                self.ipow(clamped, p.power)
             }
         }
     }
@@ -477,7 +535,13 @@ impl Builder<'_> {
                 }
                 out
             }
-            Basis::Spline { lo, hi, detrend, functions, .. } => {
+            Basis::Spline {
+                lo,
+                hi,
+                detrend,
+                functions,
+                ..
+            } => {
                 let s = self.normalise(x, *lo, *hi);
                 let rev = match detrend {
                     Detrend::OncePerRev => {
@@ -519,7 +583,12 @@ impl Builder<'_> {
                 }
                 out
             }
-            Basis::Periodic { wavelength, phase, functions, .. } => {
+            Basis::Periodic {
+                wavelength,
+                phase,
+                functions,
+                ..
+            } => {
                 // w = frac((x − φ)/τ) ∈ [0, 1) (eq. 3.13, `basis::wavelength_fraction`).
                 let tau = match wavelength {
                     Wavelength::Fixed(t) => self.c(*t),
@@ -593,7 +662,9 @@ impl Builder<'_> {
         let zero = self.c(0.0);
         let mut error = [zero; 6];
         for model in models {
-            let Some(f) = Self::frame(kin, model.frame) else { continue };
+            let Some(f) = Self::frame(kin, model.frame) else {
+                continue;
+            };
             let f = *f;
             let mut col = self.column(&f, model.component);
             if sign < 0.0 {
@@ -620,6 +691,7 @@ impl Builder<'_> {
                 g.eval(v);
                 value = Some(v);
             };
+            let mut pending: Option<(usize, Id)> = None;
             for term in &model.terms {
                 let values = self.term(term);
                 if term.coefficients == 0 {
@@ -631,19 +703,32 @@ impl Builder<'_> {
                 for (k, &v) in values.iter().enumerate().take(term.coefficients) {
                     let j = term.first + k;
                     if jacobian {
-                        for (r, &c) in col.iter().enumerate() {
-                            let p = self.g.mul(c, v);
-                            let p = gate(&mut self.g, p);
-                            self.g.store(Dst::Jac, r * n + j, p);
-                        }
                         if let Some(w) = written.get_mut(j) {
                             *w = true;
+                        }
+                        // Adjacent coefficients of one component share the column: their
+                        // entries go out in pairs (another tool's gated ones one by one).
+                        match pending.take() {
+                            Some((i, u)) if i + 1 == j && only.is_none() => {
+                                for (r, &c) in col.iter().enumerate() {
+                                    self.g.store_pair(Dst::Jac, r * n + i, c, u, v);
+                                }
+                            }
+                            other => {
+                                if let Some((i, u)) = other {
+                                    self.jac_single(&col, only, n, i, u);
+                                }
+                                pending = Some((j, v));
+                            }
                         }
                     }
                     let b = self.g.load(Src::Beta, j);
                     let vb = self.g.mul(v, b);
                     accumulate(&mut self.g, vb);
                 }
+            }
+            if let Some((i, u)) = pending.take() {
+                self.jac_single(&col, only, n, i, u);
             }
             let value = value.unwrap_or(zero);
             for (e, &c) in error.iter_mut().zip(&col) {
@@ -669,6 +754,18 @@ impl Builder<'_> {
         }
     }
 
+    /// The six Jacobian entries of coefficient `j` with basis value `v`, one by one.
+    fn jac_single(&mut self, col: &[Id; 6], only: Option<usize>, n: usize, j: usize, v: Id) {
+        for (r, &c) in col.iter().enumerate() {
+            let p = self.g.mul(c, v);
+            let p = match only {
+                Some(i) => self.g.if_tool(i, p),
+                None => p,
+            };
+            self.g.store(Dst::Jac, r * n + j, p);
+        }
+    }
+
     /// The nominal location and its joint Jacobian (`FirstOrderModel::nominal_jacobian`): a
     /// joint motion `dq` of element k is an error `u·dq` of frame k, so column j is
     /// `Σ F_k·(u, 0)` (prismatic) or `Σ F_k·(0, u)` (revolute) over the elements axis j drives.
@@ -676,10 +773,15 @@ impl Builder<'_> {
         let m = self.m;
         let axes = m.axes.len();
         let mut columns: Vec<[Vec<Id>; 6]> = vec![Default::default(); axes];
-        let chains = [(&m.tool_chain, &kin.tool_frames), (&m.workpiece_chain, &kin.workpiece_frames)];
+        let chains = [
+            (&m.tool_chain, &kin.tool_frames),
+            (&m.workpiece_chain, &kin.workpiece_frames),
+        ];
         for (elements, frames) in chains {
             for (e, f) in elements.iter().zip(frames) {
-                let Some(axis) = m.axes.get(e.axis) else { continue };
+                let Some(axis) = m.axes.get(e.axis) else {
+                    continue;
+                };
                 let components = match axis.kind {
                     JointKind::Prismatic => [Component::Tx, Component::Ty, Component::Tz],
                     JointKind::Revolute => [Component::Rx, Component::Ry, Component::Rz],

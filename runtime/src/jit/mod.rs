@@ -72,7 +72,12 @@ pub enum JitError {
 #[derive(Debug, PartialEq, Error)]
 pub enum BatchError {
     #[error("{what} holds {got} values, {expected} are needed for {rows} rows")]
-    Size { what: &'static str, rows: usize, expected: usize, got: usize },
+    Size {
+        what: &'static str,
+        rows: usize,
+        expected: usize,
+        got: usize,
+    },
     #[error("row {row}: {source}")]
     Row { row: usize, source: EvalError },
 }
@@ -105,7 +110,13 @@ impl<'a> StateRows<'a> {
         let row = |v: &'a [f64], width: usize| -> &'a [f64] {
             v.get(r * width..(r + 1) * width).unwrap_or(&[])
         };
-        let width = |v: &[f64]| if self.is_empty() { 0 } else { v.len() / self.len() };
+        let width = |v: &[f64]| {
+            if self.is_empty() {
+                0
+            } else {
+                v.len() / self.len()
+            }
+        };
         State {
             q: row(self.q, width(self.q)),
             inputs: row(self.inputs, width(self.inputs)),
@@ -121,53 +132,68 @@ impl<'a> StateRows<'a> {
 /// Compiles `machine` to native code. See the module docs.
 pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
     let start = Instant::now();
-    lower::validate(machine)?;
     let tools = tool_transforms(machine);
-    let rotation = common_rotation(&tools);
-    let graphs = [Kind::Error, Kind::Jacobian, Kind::Nominal].map(|k| lower::build(machine, k, rotation));
-    let named = [("error", &graphs[0]), ("error_jacobian", &graphs[1]), ("nominal", &graphs[2])];
-    let emitted = emit::compile(&named, None)?;
+    let graphs = graphs(machine, &tools)?;
+    let emitted = emit::compile(&named(&graphs), None)?;
     let [error, jacobian, nominal] = match emitted.functions.as_slice() {
         [a, b, c] => [*a, *b, *c],
         _ => {
             // SAFETY: no pointer into the module survives this branch.
             unsafe { emitted.module.free_memory() };
-            return Err(JitError::Codegen { message: "missing function".into() });
+            return Err(JitError::Codegen {
+                message: "missing function".into(),
+            });
         }
     };
     // SAFETY: each pointer is the entry of a function just compiled with the signature
     // `fn(pointer)` and no result in the host's default (C) calling convention, which is
     // `RawFn`. It stays valid while `module` lives, and `module` lives as long as the `Inner`
     // that holds these pointers (its `Drop` frees the code).
-    let [error, jacobian, nominal] = [error, jacobian, nominal].map(|p| unsafe { std::mem::transmute::<*const u8, RawFn>(p) });
-    let used = (0..machine.tools.len()).map(|t| used_vars(machine, t)).collect();
-    let inner = Inner {
+    let [error, jacobian, nominal] =
+        [error, jacobian, nominal].map(|p| unsafe { std::mem::transmute::<*const u8, RawFn>(p) });
+    let mut inner = Inner {
         machine: machine.clone(),
         error,
         jacobian,
         nominal,
         tools,
-        used,
-        nodes: graphs.iter().map(|g| g.live().iter().filter(|l| **l).count()).sum(),
+        used: (0..machine.tools.len())
+            .map(|t| used_vars(machine, t))
+            .collect(),
+        nodes: graphs
+            .iter()
+            .map(|g| g.live().iter().filter(|l| **l).count())
+            .sum(),
         compile_time: Duration::ZERO,
         module: Mutex::new(Some(emitted.module)),
     };
-    let mut inner = inner;
     inner.compile_time = start.elapsed();
-    Ok(JitModel { inner: Arc::new(inner) })
+    Ok(JitModel {
+        inner: Arc::new(inner),
+    })
 }
 
-/// The Cranelift IR of the three functions of `machine`, for `--dump clif` and golden tests.
+/// The Cranelift IR of the three functions of `machine` and the machine code each became, for
+/// `--dump clif`, golden tests and looking at what the code generator does.
 pub fn dump_clif(machine: &Machine) -> Result<String, JitError> {
-    lower::validate(machine)?;
-    let rotation = common_rotation(&tool_transforms(machine));
-    let graphs = [Kind::Error, Kind::Jacobian, Kind::Nominal].map(|k| lower::build(machine, k, rotation));
-    let named = [("error", &graphs[0]), ("error_jacobian", &graphs[1]), ("nominal", &graphs[2])];
+    let graphs = graphs(machine, &tool_transforms(machine))?;
     let mut text = String::new();
-    let emitted = emit::compile(&named, Some(&mut text))?;
+    let emitted = emit::compile(&named(&graphs), Some(&mut text))?;
     // SAFETY: only the text is kept; no pointer into the module was taken.
     unsafe { emitted.module.free_memory() };
     Ok(text)
+}
+
+/// The graphs of the error, error-and-Jacobian and nominal functions, in that order.
+fn graphs(machine: &Machine, tools: &[[f64; 12]]) -> Result<[graph::Graph; 3], JitError> {
+    lower::validate(machine)?;
+    let rotation = common_rotation(tools);
+    Ok([Kind::Error, Kind::Jacobian, Kind::Nominal].map(|k| lower::build(machine, k, rotation)))
+}
+
+fn named(graphs: &[graph::Graph; 3]) -> [(&'static str, &graph::Graph); 3] {
+    let [a, b, c] = graphs;
+    [("error", a), ("error_jacobian", b), ("nominal", c)]
 }
 
 /// A compiled machine. Cloning shares the code.
@@ -250,7 +276,13 @@ impl JitModel {
         let n = self.inner.machine.coefficients.len();
         JitEvaluator {
             model: self.clone(),
-            nonlinear: self.inner.machine.nonlinear.iter().map(|p| p.value).collect(),
+            nonlinear: self
+                .inner
+                .machine
+                .nonlinear
+                .iter()
+                .map(|p| p.value)
+                .collect(),
             jac1: vec![0.0; 6 * n],
             jac2: vec![0.0; 6 * n],
             joint: vec![0.0; 6 * self.inner.machine.axes.len()],
@@ -259,7 +291,12 @@ impl JitModel {
 
     /// The tool-location error at `state` (task sign, eq. 2.24/2.31/2.34) for coefficients
     /// `beta` and non-linear parameter values `nonlinear` (indexed like `Machine::nonlinear`).
-    pub fn error(&self, state: &State, beta: &[f64], nonlinear: &[f64]) -> Result<[f64; 6], EvalError> {
+    pub fn error(
+        &self,
+        state: &State,
+        beta: &[f64],
+        nonlinear: &[f64],
+    ) -> Result<[f64; 6], EvalError> {
         let mut out = [0.0; 12];
         self.call(Function::Error, state, beta, nonlinear, &mut out, &mut [])?;
         Ok(first6(&out))
@@ -267,7 +304,14 @@ impl JitModel {
 
     /// The error and its Jacobian with respect to β, 6 × n row-major (row r is error component
     /// r): `error = fixed + jac·β`.
-    pub fn error_and_jacobian(&self, state: &State, beta: &[f64], nonlinear: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError> {
+    pub fn error_and_jacobian(
+        &self,
+        state: &State,
+        beta: &[f64],
+        nonlinear: &[f64],
+        err: &mut [f64; 6],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
         let mut out = [0.0; 12];
         self.call(Function::Jacobian, state, beta, nonlinear, &mut out, jac)?;
         *err = first6(&out);
@@ -277,23 +321,42 @@ impl JitModel {
     /// The nominal location of the tool in wr and its Jacobian with respect to the joint
     /// positions: `jac[6j..6j+6]` is `(dp/dq_j, ω_j)` in wr axes, as
     /// `Interpreter::nominal_jacobian` gives `out[j]`.
-    pub fn nominal_jacobian(&self, state: &State, jac: &mut [f64]) -> Result<ToolLocation, EvalError> {
+    pub fn nominal_jacobian(
+        &self,
+        state: &State,
+        jac: &mut [f64],
+    ) -> Result<ToolLocation, EvalError> {
         let mut out = [0.0; 12];
         self.call(Function::Nominal, state, &[], &[], &mut out, jac)?;
         Ok(ToolLocation {
             position: Vector3::new(out[0], out[1], out[2]),
-            rotation: Matrix3::new(out[3], out[4], out[5], out[6], out[7], out[8], out[9], out[10], out[11]),
+            rotation: Matrix3::new(
+                out[3], out[4], out[5], out[6], out[7], out[8], out[9], out[10], out[11],
+            ),
         })
     }
 
     /// [`JitModel::error`] over many rows: `err` holds 6 values per row.
-    pub fn error_rows(&self, rows: &StateRows, beta: &[f64], nonlinear: &[f64], err: &mut [f64]) -> Result<(), BatchError> {
+    pub fn error_rows(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        nonlinear: &[f64],
+        err: &mut [f64],
+    ) -> Result<(), BatchError> {
         self.check_rows(rows)?;
         check_len("the error rows", rows.len(), 6 * rows.len(), err.len())?;
         let mut out = [0.0; 12];
         for (r, e) in err.chunks_exact_mut(6).enumerate() {
-            self.call(Function::Error, &rows.get(r), beta, nonlinear, &mut out, &mut [])
-                .map_err(|source| BatchError::Row { row: r, source })?;
+            self.call(
+                Function::Error,
+                &rows.get(r),
+                beta,
+                nonlinear,
+                &mut out,
+                &mut [],
+            )
+            .map_err(|source| BatchError::Row { row: r, source })?;
             e.copy_from_slice(&out[..6]);
         }
         Ok(())
@@ -301,18 +364,41 @@ impl JitModel {
 
     /// [`JitModel::error_and_jacobian`] over many rows: `err` holds 6 values per row and `jac`
     /// one 6 × n block per row, rows one after the other — the design-matrix rows of a fit.
-    pub fn error_and_jacobian_rows(&self, rows: &StateRows, beta: &[f64], nonlinear: &[f64], err: &mut [f64], jac: &mut [f64]) -> Result<(), BatchError> {
+    pub fn error_and_jacobian_rows(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        nonlinear: &[f64],
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), BatchError> {
         self.check_rows(rows)?;
         let block = 6 * self.inner.machine.coefficients.len();
         check_len("the error rows", rows.len(), 6 * rows.len(), err.len())?;
-        check_len("the Jacobian rows", rows.len(), block * rows.len(), jac.len())?;
+        check_len(
+            "the Jacobian rows",
+            rows.len(),
+            block * rows.len(),
+            jac.len(),
+        )?;
         let mut out = [0.0; 12];
         // A machine without coefficients has empty Jacobian blocks; chunks of 0 are not allowed.
         let mut blocks = jac.chunks_exact_mut(block.max(1));
         for (r, e) in err.chunks_exact_mut(6).enumerate() {
-            let j: &mut [f64] = if block == 0 { &mut [] } else { blocks.next().unwrap_or(&mut []) };
-            self.call(Function::Jacobian, &rows.get(r), beta, nonlinear, &mut out, j)
-                .map_err(|source| BatchError::Row { row: r, source })?;
+            let j: &mut [f64] = if block == 0 {
+                &mut []
+            } else {
+                blocks.next().unwrap_or(&mut [])
+            };
+            self.call(
+                Function::Jacobian,
+                &rows.get(r),
+                beta,
+                nonlinear,
+                &mut out,
+                j,
+            )
+            .map_err(|source| BatchError::Row { row: r, source })?;
             e.copy_from_slice(&out[..6]);
         }
         Ok(())
@@ -334,7 +420,15 @@ impl JitModel {
 
     /// Checks everything a call relies on and calls. This is the only place generated code is
     /// entered.
-    fn call(&self, f: Function, state: &State, beta: &[f64], nonlinear: &[f64], out: &mut Out, jac: &mut [f64]) -> Result<(), EvalError> {
+    fn call(
+        &self,
+        f: Function,
+        state: &State,
+        beta: &[f64],
+        nonlinear: &[f64],
+        out: &mut Out,
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
         let inner = &*self.inner;
         let m = &inner.machine;
         let sizes = [
@@ -345,13 +439,21 @@ impl JitModel {
         ];
         for (what, expected, got) in sizes {
             if expected != got {
-                return Err(EvalError::StateSize { what, expected, got });
+                return Err(EvalError::StateSize {
+                    what,
+                    expected,
+                    got,
+                });
             }
         }
         let n = m.coefficients.len();
         if f != Function::Nominal {
             buffer("the β", n, beta.len())?;
-            buffer("the non-linear parameter", m.nonlinear.len(), nonlinear.len())?;
+            buffer(
+                "the non-linear parameter",
+                m.nonlinear.len(),
+                nonlinear.len(),
+            )?;
         }
         match f {
             Function::Error => {}
@@ -359,7 +461,11 @@ impl JitModel {
             Function::Nominal => buffer("the joint Jacobian", 6 * m.axes.len(), jac.len())?,
         }
         let Some(tool) = inner.tools.get(state.tool) else {
-            return Err(KinematicsError::ToolIndex { index: state.tool, count: m.tools.len() }.into());
+            return Err(KinematicsError::ToolIndex {
+                index: state.tool,
+                count: m.tools.len(),
+            }
+            .into());
         };
         let mut tool_tf = *tool;
         if let Some(t) = state.tool_offset {
@@ -369,7 +475,9 @@ impl JitModel {
         if f != Function::Nominal {
             for &v in inner.used.get(state.tool).map_or(&[][..], |u| u.as_slice()) {
                 if value(v, state).is_none_or(f64::is_nan) {
-                    return Err(EvalError::Missing { name: var_name(v, m) });
+                    return Err(EvalError::Missing {
+                        name: var_name(v, m),
+                    });
                 }
             }
         }
@@ -412,15 +520,29 @@ fn buffer(what: &'static str, expected: usize, got: usize) -> Result<(), EvalErr
     if expected == got {
         Ok(())
     } else {
-        Err(EvalError::Buffer { what, expected, got })
+        Err(EvalError::Buffer {
+            what,
+            expected,
+            got,
+        })
     }
 }
 
-fn check_len(what: &'static str, rows: usize, expected: usize, got: usize) -> Result<(), BatchError> {
+fn check_len(
+    what: &'static str,
+    rows: usize,
+    expected: usize,
+    got: usize,
+) -> Result<(), BatchError> {
     if expected == got {
         Ok(())
     } else {
-        Err(BatchError::Size { what, rows, expected, got })
+        Err(BatchError::Size {
+            what,
+            rows,
+            expected,
+            got,
+        })
     }
 }
 
@@ -489,7 +611,12 @@ fn tool_transforms(m: &Machine) -> Vec<[f64; 12]> {
 /// folded into the code instead of loaded.
 fn common_rotation(tools: &[[f64; 12]]) -> Option<[[f64; 3]; 3]> {
     let first = tools.first()?;
-    let same = tools.iter().all(|t| t[..9].iter().zip(&first[..9]).all(|(a, b)| a.to_bits() == b.to_bits()));
+    let same = tools.iter().all(|t| {
+        t[..9]
+            .iter()
+            .zip(&first[..9])
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    });
     same.then(|| [0, 1, 2].map(|i| [0, 1, 2].map(|j| first[3 * i + j])))
 }
 
@@ -514,7 +641,11 @@ impl JitEvaluator {
         &self.nonlinear
     }
 
-    pub fn nominal_jacobian(&self, state: &State, jac: &mut [f64]) -> Result<ToolLocation, EvalError> {
+    pub fn nominal_jacobian(
+        &self,
+        state: &State,
+        jac: &mut [f64],
+    ) -> Result<ToolLocation, EvalError> {
         self.model.nominal_jacobian(state, jac)
     }
 }
@@ -525,7 +656,11 @@ impl Evaluator for JitEvaluator {
     }
 
     fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError> {
-        buffer("the non-linear parameter", self.nonlinear.len(), values.len())?;
+        buffer(
+            "the non-linear parameter",
+            self.nonlinear.len(),
+            values.len(),
+        )?;
         self.nonlinear.copy_from_slice(values);
         Ok(())
     }
@@ -534,24 +669,53 @@ impl Evaluator for JitEvaluator {
         self.model.error(state, beta, &self.nonlinear)
     }
 
-    fn error_and_jacobian(&mut self, state: &State, beta: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError> {
-        self.model.error_and_jacobian(state, beta, &self.nonlinear, err, jac)
+    fn error_and_jacobian(
+        &mut self,
+        state: &State,
+        beta: &[f64],
+        err: &mut [f64; 6],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.model
+            .error_and_jacobian(state, beta, &self.nonlinear, err, jac)
     }
 
     /// Eq. 4.5: `dL = u·(Δp₂ − Δp₁)` and its row `uᵀ(J₂ − J₁)` over the position rows, from
     /// two calls of the Jacobian function (which also returns the nominal positions for `u`).
-    fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError> {
+    fn length_and_row(
+        &mut self,
+        s1: &State,
+        s2: &State,
+        beta: &[f64],
+        row: &mut [f64],
+    ) -> Result<f64, EvalError> {
         let n = self.model.machine().coefficients.len();
         buffer("the length row", n, row.len())?;
         let (mut o1, mut o2) = ([0.0; 12], [0.0; 12]);
-        self.model.call(Function::Jacobian, s1, beta, &self.nonlinear, &mut o1, &mut self.jac1)?;
-        self.model.call(Function::Jacobian, s2, beta, &self.nonlinear, &mut o2, &mut self.jac2)?;
+        self.model.call(
+            Function::Jacobian,
+            s1,
+            beta,
+            &self.nonlinear,
+            &mut o1,
+            &mut self.jac1,
+        )?;
+        self.model.call(
+            Function::Jacobian,
+            s2,
+            beta,
+            &self.nonlinear,
+            &mut o2,
+            &mut self.jac2,
+        )?;
         let p1 = Vector3::new(o1[6], o1[7], o1[8]);
         let p2 = Vector3::new(o2[6], o2[7], o2[8]);
         let u = length_direction(&p1, &p2)?;
         for (j, slot) in row.iter_mut().enumerate() {
             let at = |jac: &[f64], r: usize| jac.get(r * n + j).copied().unwrap_or(0.0);
-            *slot = (0..3).map(|r| u[r] * (at(&self.jac2, r) - at(&self.jac1, r))).sum();
+            *slot = (0..3)
+                .map(|r| u[r] * (at(&self.jac2, r) - at(&self.jac1, r)))
+                .sum();
         }
         let dp1 = Vector3::new(o1[0], o1[1], o1[2]);
         let dp2 = Vector3::new(o2[0], o2[1], o2[2]);

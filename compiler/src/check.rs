@@ -1335,8 +1335,10 @@ impl<'a> Options<'a> {
                 };
                 let mut out = Vec::with_capacity(items.len());
                 let mut last: Option<(f64, Span)> = None;
+                // Knots of an absolute temperature are absolute temperatures, like its range.
+                let absolute = unit.offset != 0.0;
                 for item in items {
-                    let v = quantity_of(item, unit.dim, &unit, false, "a knot position", sink)?;
+                    let v = quantity_of(item, unit.dim, &unit, absolute, "a knot position", sink)?;
                     if !(v > range[0] && v < range[1]) {
                         sink.push(
                             Diagnostic::error("E0301", "knot outside the range", item.span)

@@ -181,7 +181,11 @@ impl Pose {
     fn select(&self, rows: &[usize]) -> Pose {
         Pose {
             axes: self.axes.iter().map(|c| pick(c, rows)).collect(),
-            dir: self.dir.iter().map(|c| c.as_ref().map(|c| pick(c, rows))).collect(),
+            dir: self
+                .dir
+                .iter()
+                .map(|c| c.as_ref().map(|c| pick(c, rows)))
+                .collect(),
         }
     }
 }
@@ -192,11 +196,24 @@ impl Rows {
         Rows {
             line: pick(&self.line, rows),
             time: self.time.as_ref().map(|t| pick(t, rows)),
-            run: self.run.as_ref().map(|g| Groups { of_row: pick(&g.of_row, rows), labels: g.labels.clone() }),
-            artifact: self.artifact.as_ref().map(|g| Groups { of_row: pick(&g.of_row, rows), labels: g.labels.clone() }),
+            run: self.run.as_ref().map(|g| Groups {
+                of_row: pick(&g.of_row, rows),
+                labels: g.labels.clone(),
+            }),
+            artifact: self.artifact.as_ref().map(|g| Groups {
+                of_row: pick(&g.of_row, rows),
+                labels: g.labels.clone(),
+            }),
             tool: pick(&self.tool, rows),
-            tool_offset: self.tool_offset.as_ref().map(|[x, y, z]| [pick(x, rows), pick(y, rows), pick(z, rows)]),
-            inputs: self.inputs.iter().map(|c| c.as_ref().map(|c| pick(c, rows))).collect(),
+            tool_offset: self
+                .tool_offset
+                .as_ref()
+                .map(|[x, y, z]| [pick(x, rows), pick(y, rows), pick(z, rows)]),
+            inputs: self
+                .inputs
+                .iter()
+                .map(|c| c.as_ref().map(|c| pick(c, rows)))
+                .collect(),
         }
     }
 }
@@ -209,7 +226,9 @@ impl Observations {
             Observations::Points(p) => Observations::Points(PointData {
                 rows: p.rows.select(rows),
                 pose: p.pose.select(rows),
-                observed: std::array::from_fn(|k| p.observed.get(k).cloned().flatten().map(|c| pick(&c, rows))),
+                observed: std::array::from_fn(|k| {
+                    p.observed.get(k).cloned().flatten().map(|c| pick(&c, rows))
+                }),
             }),
             Observations::Lengths(l) => Observations::Lengths(LengthData {
                 rows: l.rows.select(rows),

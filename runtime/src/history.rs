@@ -10,11 +10,21 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum HistoryError {
     #[error("cannot read the fit history `{path}`: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("cannot write the fit history `{path}`: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{path}, line {line}: not a history entry: {source}")]
-    Parse { path: PathBuf, line: usize, source: serde_json::Error },
+    Parse {
+        path: PathBuf,
+        line: usize,
+        source: serde_json::Error,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -54,14 +64,30 @@ pub fn read(model: &Path) -> Result<Vec<Entry>, HistoryError> {
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).map_err(|source| HistoryError::Parse { path: path.clone(), line: i + 1, source }))
+        .map(|(i, l)| {
+            serde_json::from_str(l).map_err(|source| HistoryError::Parse {
+                path: path.clone(),
+                line: i + 1,
+                source,
+            })
+        })
         .collect()
 }
 
 pub fn append(model: &Path, entry: &Entry) -> Result<(), HistoryError> {
     let path = path_for(model);
-    let line = serde_json::to_string(entry).map_err(|e| HistoryError::Write { path: path.clone(), source: std::io::Error::other(e) })?;
-    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(&path).map_err(|source| HistoryError::Write { path: path.clone(), source })?;
+    let line = serde_json::to_string(entry).map_err(|e| HistoryError::Write {
+        path: path.clone(),
+        source: std::io::Error::other(e),
+    })?;
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&path)
+        .map_err(|source| HistoryError::Write {
+            path: path.clone(),
+            source,
+        })?;
     writeln!(f, "{line}").map_err(|source| HistoryError::Write { path, source })
 }
 

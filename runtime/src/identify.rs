@@ -45,7 +45,10 @@ pub enum Observe {
 pub enum Column {
     Coefficient(usize),
     /// Alignment of the artifact: translation along or rotation about axis 0..3 of wr.
-    Alignment { rotation: bool, axis: usize },
+    Alignment {
+        rotation: bool,
+        axis: usize,
+    },
     /// Another nuisance parameter of a fit, by name (an artifact's placement or length).
     Nuisance(String),
 }
@@ -77,7 +80,12 @@ pub const TOLERANCE: f64 = 1e-8;
 
 /// Builds the design matrix of `observe` at `states` (row-major, columns = coefficients, then
 /// six alignment columns when `aligned`).
-pub fn design(m: &Machine, states: &States, observe: Observe, aligned: bool) -> Result<(Vec<f64>, Vec<Column>), IdentifyError> {
+pub fn design(
+    m: &Machine,
+    states: &States,
+    observe: Observe,
+    aligned: bool,
+) -> Result<(Vec<f64>, Vec<Column>), IdentifyError> {
     let n = m.coefficients.len();
     let mut columns: Vec<Column> = Vec::new();
     if aligned && observe != Observe::Length {
@@ -102,7 +110,11 @@ pub fn design(m: &Machine, states: &States, observe: Observe, aligned: bool) -> 
             for r in 0..states.len() {
                 let s = states.get(r);
                 it.error_and_jacobian(&s, &beta, &mut err, &mut jac)?;
-                let p = if aligned { it.nominal_jacobian(&s, &mut jq)?.position } else { nalgebra::Vector3::zeros() };
+                let p = if aligned {
+                    it.nominal_jacobian(&s, &mut jq)?.position
+                } else {
+                    nalgebra::Vector3::zeros()
+                };
                 for c in 0..comps {
                     let mut row = vec![0.0; width];
                     if aligned {
@@ -149,16 +161,33 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
         return Err(IdentifyError::Empty);
     }
     let at = |i: usize, j: usize| x.get(i * n + j).copied().unwrap_or(0.0);
-    let norms: Vec<f64> = (0..n).map(|j| (0..rows).map(|i| at(i, j).powi(2)).sum::<f64>().sqrt()).collect();
+    let norms: Vec<f64> = (0..n)
+        .map(|j| (0..rows).map(|i| at(i, j).powi(2)).sum::<f64>().sqrt())
+        .collect();
     let biggest = norms.iter().copied().fold(0.0, f64::max);
     // A column far below the others has no effect worth the name: scale it to zero rather than
     // blow rounding noise up to unit length.
-    let scale: Vec<f64> = norms.iter().map(|&v| if v > 1e-14 * biggest && v > 0.0 { 1.0 / v } else { 0.0 }).collect();
-    let a = Mat::<f64>::from_fn(rows, n, |i, j| at(i, j) * scale.get(j).copied().unwrap_or(0.0));
+    let scale: Vec<f64> = norms
+        .iter()
+        .map(|&v| {
+            if v > 1e-14 * biggest && v > 0.0 {
+                1.0 / v
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let a = Mat::<f64>::from_fn(rows, n, |i, j| {
+        at(i, j) * scale.get(j).copied().unwrap_or(0.0)
+    });
 
     let sv: Vec<f64> = a.singular_values().map_err(|_| IdentifyError::Svd)?;
     let top = sv.first().copied().unwrap_or(0.0);
-    let kept: Vec<f64> = sv.iter().copied().filter(|s| *s > TOLERANCE * top).collect();
+    let kept: Vec<f64> = sv
+        .iter()
+        .copied()
+        .filter(|s| *s > TOLERANCE * top)
+        .collect();
     let rank = kept.len();
     let condition = match kept.last() {
         Some(s) if *s > 0.0 => top / s,
@@ -176,7 +205,10 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
         let norm = col.iter().map(|v| v * v).sum::<f64>().sqrt();
         let column = columns.get(j).cloned().unwrap_or(Column::Coefficient(j));
         if norm == 0.0 {
-            dependencies.push(Dependency { column, combination: Vec::new() });
+            dependencies.push(Dependency {
+                column,
+                combination: Vec::new(),
+            });
             continue;
         }
         let mut resid = col.clone();
@@ -198,7 +230,12 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
             for i in (0..k).rev() {
                 let mut s = coef.get(i).copied().unwrap_or(0.0);
                 for (jj, wj) in w.iter().enumerate().skip(i + 1) {
-                    s -= r_cols.get(jj).and_then(|c| c.get(i)).copied().unwrap_or(0.0) * wj;
+                    s -= r_cols
+                        .get(jj)
+                        .and_then(|c| c.get(i))
+                        .copied()
+                        .unwrap_or(0.0)
+                        * wj;
                 }
                 let d = r_cols.get(i).and_then(|c| c.get(i)).copied().unwrap_or(1.0);
                 w[i] = s / d;
@@ -207,10 +244,18 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
                 .iter()
                 .zip(&w)
                 .filter(|(_, wi)| wi.abs() > 1e-6)
-                .map(|(&c, &wi)| (columns.get(c).cloned().unwrap_or(Column::Coefficient(c)), wi))
+                .map(|(&c, &wi)| {
+                    (
+                        columns.get(c).cloned().unwrap_or(Column::Coefficient(c)),
+                        wi,
+                    )
+                })
                 .collect();
             combination.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-            dependencies.push(Dependency { column, combination });
+            dependencies.push(Dependency {
+                column,
+                combination,
+            });
         } else {
             for v in &mut resid {
                 *v /= rn;
@@ -222,12 +267,25 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
             independent.push(j);
         }
     }
-    Ok(Report { rows, columns: n, rank, tolerance: TOLERANCE, condition, dependencies })
+    Ok(Report {
+        rows,
+        columns: n,
+        rank,
+        tolerance: TOLERANCE,
+        condition,
+        dependencies,
+    })
 }
 
 /// Identifiability of a machine's coefficients from `observe` at `n` states sampled over its
 /// ranges (what `kin check` runs).
-pub fn sampled(m: &Machine, observe: Observe, aligned: bool, n: usize, seed: u64) -> Result<Report, IdentifyError> {
+pub fn sampled(
+    m: &Machine,
+    observe: Observe,
+    aligned: bool,
+    n: usize,
+    seed: u64,
+) -> Result<Report, IdentifyError> {
     let states = States::sample(m, n, seed);
     let (x, columns) = design(m, &states, observe, aligned)?;
     analyse(&x, &columns)
@@ -259,7 +317,13 @@ fn column_span(map: &SourceMap, c: &Column) -> Option<Span> {
 }
 
 /// Turns a report into located diagnostics (E0601), one per invisible direction.
-pub fn diagnostics(m: &Machine, map: &SourceMap, report: &Report, observe: Observe, aligned: bool) -> Vec<Diagnostic> {
+pub fn diagnostics(
+    m: &Machine,
+    map: &SourceMap,
+    report: &Report,
+    observe: Observe,
+    aligned: bool,
+) -> Vec<Diagnostic> {
     let what = match (observe, aligned) {
         (Observe::Position, false) => "position errors at poses spread over the axis ranges",
         (Observe::Position, true) => "position errors on an artifact of unknown placement",
@@ -289,7 +353,10 @@ pub fn diagnostics(m: &Machine, map: &SourceMap, report: &Report, observe: Obser
                 "E0601",
                 format!(
                     "{name} cannot be told apart from {}",
-                    d.combination.first().map(|(c, _)| column_name(m, c)).unwrap_or_default()
+                    d.combination
+                        .first()
+                        .map(|(c, _)| column_name(m, c))
+                        .unwrap_or_default()
                 ),
                 span,
             )

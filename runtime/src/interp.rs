@@ -18,9 +18,17 @@ pub enum EvalError {
     #[error(transparent)]
     Kinematics(#[from] KinematicsError),
     #[error("the state has {got} {what}, the machine declares {expected}")]
-    StateSize { what: &'static str, expected: usize, got: usize },
+    StateSize {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     #[error("{what} buffer has {got} entries, {expected} are needed")]
-    Buffer { what: &'static str, expected: usize, got: usize },
+    Buffer {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     #[error("the model uses `{name}`, which this observation does not give")]
     Missing { name: String },
 }
@@ -43,7 +51,11 @@ pub struct State<'a> {
 
 impl State<'_> {
     fn pose(&self) -> Pose<'_> {
-        Pose { q: self.q, tool: self.tool, tool_offset: self.tool_offset }
+        Pose {
+            q: self.q,
+            tool: self.tool,
+            tool_offset: self.tool_offset,
+        }
     }
 }
 
@@ -99,7 +111,11 @@ impl<'m> Interpreter<'m> {
     /// Replaces the non-linear parameter values (a fit moves them).
     pub fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError> {
         if values.len() != self.nonlinear.len() {
-            return Err(EvalError::Buffer { what: "the non-linear parameter", expected: self.nonlinear.len(), got: values.len() });
+            return Err(EvalError::Buffer {
+                what: "the non-linear parameter",
+                expected: self.nonlinear.len(),
+                got: values.len(),
+            });
         }
         self.nonlinear.copy_from_slice(values);
         Ok(())
@@ -107,10 +123,19 @@ impl<'m> Interpreter<'m> {
 
     fn check_state(&self, s: &State) -> Result<(), EvalError> {
         let m = self.machine;
-        let sizes = [("axis positions", m.axes.len(), s.q.len()), ("inputs", m.inputs.len(), s.inputs.len()), ("lag states", m.lags.len(), s.lags.len()), ("directions", m.axes.len(), s.dirs.len())];
+        let sizes = [
+            ("axis positions", m.axes.len(), s.q.len()),
+            ("inputs", m.inputs.len(), s.inputs.len()),
+            ("lag states", m.lags.len(), s.lags.len()),
+            ("directions", m.axes.len(), s.dirs.len()),
+        ];
         for (what, expected, got) in sizes {
             if expected != got {
-                return Err(EvalError::StateSize { what, expected, got });
+                return Err(EvalError::StateSize {
+                    what,
+                    expected,
+                    got,
+                });
             }
         }
         Ok(())
@@ -118,11 +143,20 @@ impl<'m> Interpreter<'m> {
 
     /// The parametric errors of every frame at `state` for coefficients `beta` (in SI), in the
     /// frames' own axes. Shared by the first-order model and the exact simulator.
-    pub fn frame_errors(&mut self, state: &State, beta: &[f64], out: &mut FrameErrors) -> Result<(), EvalError> {
+    pub fn frame_errors(
+        &mut self,
+        state: &State,
+        beta: &[f64],
+        out: &mut FrameErrors,
+    ) -> Result<(), EvalError> {
         self.check_state(state)?;
         self.check_beta(beta)?;
         out.check(self.machine)?;
-        for e in out.tool_chain.iter_mut().chain(out.workpiece_chain.iter_mut()) {
+        for e in out
+            .tool_chain
+            .iter_mut()
+            .chain(out.workpiece_chain.iter_mut())
+        {
             *e = [0.0; 6];
         }
         out.tool_end = [0.0; 6];
@@ -154,14 +188,26 @@ impl<'m> Interpreter<'m> {
     fn check_beta(&self, beta: &[f64]) -> Result<(), EvalError> {
         let n = self.machine.coefficients.len();
         if beta.len() != n {
-            return Err(EvalError::Buffer { what: "the β", expected: n, got: beta.len() });
+            return Err(EvalError::Buffer {
+                what: "the β",
+                expected: n,
+                got: beta.len(),
+            });
         }
         Ok(())
     }
 
     /// The tool-location error (ex, ey, ez, erx, ery, erz) at `state`, with the task's sign.
     pub fn error(&mut self, state: &State, beta: &[f64]) -> Result<[f64; 6], EvalError> {
-        let mut errors = std::mem::replace(&mut self.errors, FrameErrors { tool_chain: Vec::new(), workpiece_chain: Vec::new(), tool_end: [0.0; 6], workpiece_end: [0.0; 6] });
+        let mut errors = std::mem::replace(
+            &mut self.errors,
+            FrameErrors {
+                tool_chain: Vec::new(),
+                workpiece_chain: Vec::new(),
+                tool_end: [0.0; 6],
+                workpiece_end: [0.0; 6],
+            },
+        );
         let result = self.frame_errors(state, beta, &mut errors).and_then(|()| {
             self.first.evaluate(&state.pose(), &mut self.sens)?;
             Ok(self.sens.first_order_error(&errors)? * self.machine.task.sign())
@@ -173,12 +219,22 @@ impl<'m> Interpreter<'m> {
     /// The error at `state` and its Jacobian with respect to β: `jac` is 6 × n_β, row-major
     /// (row r is error component r). The error includes the fixed (known) terms, so
     /// `error = fixed + jac · β`.
-    pub fn error_and_jacobian(&mut self, state: &State, beta: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError> {
+    pub fn error_and_jacobian(
+        &mut self,
+        state: &State,
+        beta: &[f64],
+        err: &mut [f64; 6],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
         self.check_state(state)?;
         self.check_beta(beta)?;
         let n = self.machine.coefficients.len();
         if jac.len() != 6 * n {
-            return Err(EvalError::Buffer { what: "the Jacobian", expected: 6 * n, got: jac.len() });
+            return Err(EvalError::Buffer {
+                what: "the Jacobian",
+                expected: 6 * n,
+                got: jac.len(),
+            });
         }
         self.first.evaluate(&state.pose(), &mut self.sens)?;
         let sign = self.machine.task.sign();
@@ -212,9 +268,15 @@ impl<'m> Interpreter<'m> {
 
     /// The nominal tool location in wr (position, then the rotation as a matrix) and its
     /// Jacobian with respect to the joint positions: `out[j]` is `(dp/dq_j, ω_j)` in wr axes.
-    pub fn nominal_jacobian(&mut self, state: &State, out: &mut [Vector6<f64>]) -> Result<crate::kinematics::ToolLocation, EvalError> {
+    pub fn nominal_jacobian(
+        &mut self,
+        state: &State,
+        out: &mut [Vector6<f64>],
+    ) -> Result<crate::kinematics::ToolLocation, EvalError> {
         self.check_state(state)?;
-        Ok(self.first.nominal_jacobian(&state.pose(), &mut self.sens, out)?)
+        Ok(self
+            .first
+            .nominal_jacobian(&state.pose(), &mut self.sens, out)?)
     }
 
     /// The nominal tool position in wr at `state`.
@@ -226,10 +288,20 @@ impl<'m> Interpreter<'m> {
 
     /// A length observation between two states (eq. 4.5): `dL = u · (Δp₂ − Δp₁)` with the
     /// task's sign, and its row of the design matrix (`dL = fixed + row · β`).
-    pub fn length_and_row(&mut self, s1: &State, s2: &State, beta: &[f64], row: &mut [f64]) -> Result<f64, EvalError> {
+    pub fn length_and_row(
+        &mut self,
+        s1: &State,
+        s2: &State,
+        beta: &[f64],
+        row: &mut [f64],
+    ) -> Result<f64, EvalError> {
         let n = self.machine.coefficients.len();
         if row.len() != n {
-            return Err(EvalError::Buffer { what: "the length row", expected: n, got: row.len() });
+            return Err(EvalError::Buffer {
+                what: "the length row",
+                expected: n,
+                got: row.len(),
+            });
         }
         let mut jac = vec![0.0; 6 * n];
         let mut e1 = [0.0; 6];
@@ -298,7 +370,9 @@ fn var(v: Var, s: &State, m: &Machine) -> Result<f64, EvalError> {
     };
     match value {
         Some(x) if !x.is_nan() => Ok(x),
-        _ => Err(EvalError::Missing { name: var_name(v, m) }),
+        _ => Err(EvalError::Missing {
+            name: var_name(v, m),
+        }),
     }
 }
 
@@ -307,7 +381,11 @@ pub fn var_name(v: Var, m: &Machine) -> String {
     let name = match v {
         Var::Axis(i) => m.axes.get(i).map(|a| a.name.clone()),
         Var::Input(i) => m.inputs.get(i).map(|a| a.name.clone()),
-        Var::Lag(i) => m.lags.get(i).and_then(|l| m.inputs.get(l.input)).map(|a| format!("lag of {}", a.name)),
+        Var::Lag(i) => m
+            .lags
+            .get(i)
+            .and_then(|l| m.inputs.get(l.input))
+            .map(|a| format!("lag of {}", a.name)),
         Var::Time => Some("time".to_string()),
         Var::Direction(i) => m.axes.get(i).map(|a| format!("dir_{}", a.name)),
     };

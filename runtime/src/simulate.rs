@@ -76,18 +76,41 @@ enum Engine {
 
 /// Simulates measurements at the poses of `poses` (a poses file: the rows of a point or length
 /// file, observed columns ignored) for coefficients `beta`, with the exact transforms.
-pub fn simulate(m: &Machine, beta: &[f64], poses: &Observations, options: &Options) -> Result<Observations, SimulateError> {
+pub fn simulate(
+    m: &Machine,
+    beta: &[f64],
+    poses: &Observations,
+    options: &Options,
+) -> Result<Observations, SimulateError> {
     run(m, beta, poses, options, Engine::Exact)
 }
 
 /// The first-order model's prediction at the poses of `poses`, without noise (`kin eval`).
-pub fn predict(m: &Machine, beta: &[f64], poses: &Observations, observe: [bool; 6]) -> Result<Observations, SimulateError> {
-    let options = Options { observe, ..Options::default() };
+pub fn predict(
+    m: &Machine,
+    beta: &[f64],
+    poses: &Observations,
+    observe: [bool; 6],
+) -> Result<Observations, SimulateError> {
+    let options = Options {
+        observe,
+        ..Options::default()
+    };
     run(m, beta, poses, &options, Engine::FirstOrder)
 }
 
-fn run(m: &Machine, beta: &[f64], poses: &Observations, options: &Options, engine: Engine) -> Result<Observations, SimulateError> {
-    if !(options.noise >= 0.0 && options.noise.is_finite() && options.noise_tilt >= 0.0 && options.noise_tilt.is_finite()) {
+fn run(
+    m: &Machine,
+    beta: &[f64],
+    poses: &Observations,
+    options: &Options,
+    engine: Engine,
+) -> Result<Observations, SimulateError> {
+    if !(options.noise >= 0.0
+        && options.noise.is_finite()
+        && options.noise_tilt >= 0.0
+        && options.noise_tilt.is_finite())
+    {
         return Err(SimulateError::Noise);
     }
     let mut rng = rand::rngs::StdRng::seed_from_u64(options.seed);
@@ -108,12 +131,21 @@ fn run(m: &Machine, beta: &[f64], poses: &Observations, options: &Options, engin
                 }
             }
             // Each artifact's true placement: a rigid displacement (t, ω) drawn once per label.
-            let labels = p.rows.artifact.as_ref().map(|g| g.labels.len()).unwrap_or(0);
+            let labels = p
+                .rows
+                .artifact
+                .as_ref()
+                .map(|g| g.labels.len())
+                .unwrap_or(0);
             let placements: Vec<[f64; 6]> = (0..labels)
                 .map(|_| {
                     let mut d = [0.0; 6];
                     for (k, v) in d.iter_mut().enumerate() {
-                        *v = gauss(if k < 3 { options.artifact_shift } else { options.artifact_rotation });
+                        *v = gauss(if k < 3 {
+                            options.artifact_shift
+                        } else {
+                            options.artifact_rotation
+                        });
                     }
                     d
                 })
@@ -121,13 +153,21 @@ fn run(m: &Machine, beta: &[f64], poses: &Observations, options: &Options, engin
             for r in 0..states.len() {
                 let line = states.line.get(r).copied().unwrap_or(0);
                 let mut e = model.error(&states.get(r), line)?;
-                if let Some(d) = p.rows.artifact_of(r).and_then(|a| placements.get(a as usize)) {
+                if let Some(d) = p
+                    .rows
+                    .artifact_of(r)
+                    .and_then(|a| placements.get(a as usize))
+                {
                     // A point p of a displaced artifact is found at p + t + ω × p: the observed
                     // error grows by that, and the orientation by ω (first order in the
                     // displacement, which the fit models the same way).
                     let pos = model.position(&states.get(r), line)?;
                     let w = [d[3], d[4], d[5]];
-                    let cross = [w[1] * pos[2] - w[2] * pos[1], w[2] * pos[0] - w[0] * pos[2], w[0] * pos[1] - w[1] * pos[0]];
+                    let cross = [
+                        w[1] * pos[2] - w[2] * pos[1],
+                        w[2] * pos[0] - w[0] * pos[2],
+                        w[0] * pos[1] - w[1] * pos[0],
+                    ];
                     for k in 0..3 {
                         e[k] += d[k] + cross[k];
                         e[3 + k] += w[k];
@@ -135,26 +175,52 @@ fn run(m: &Machine, beta: &[f64], poses: &Observations, options: &Options, engin
                 }
                 for (k, col) in observed.iter_mut().enumerate() {
                     if let Some(col) = col {
-                        let sigma = if k < 3 { options.noise } else { options.noise_tilt };
+                        let sigma = if k < 3 {
+                            options.noise
+                        } else {
+                            options.noise_tilt
+                        };
                         col.push(e.get(k).copied().unwrap_or(0.0) + gauss(sigma));
                     }
                 }
             }
-            Ok(Observations::Points(PointData { rows: p.rows.clone(), pose: p.pose.clone(), observed }))
+            Ok(Observations::Points(PointData {
+                rows: p.rows.clone(),
+                pose: p.pose.clone(),
+                observed,
+            }))
         }
         Observations::Lengths(l) => {
             let [p1, p2] = &l.poses;
             let s1 = States::new(m, &l.rows, p1, "_1")?;
             let s2 = States::new(m, &l.rows, p2, "_2")?;
-            let labels = l.rows.artifact.as_ref().map(|g| g.labels.len()).unwrap_or(0);
-            let lengths: Vec<f64> = (0..labels).map(|_| gauss(options.artifact_length)).collect();
+            let labels = l
+                .rows
+                .artifact
+                .as_ref()
+                .map(|g| g.labels.len())
+                .unwrap_or(0);
+            let lengths: Vec<f64> = (0..labels)
+                .map(|_| gauss(options.artifact_length))
+                .collect();
             let mut dl = Vec::with_capacity(s1.len());
             for r in 0..s1.len() {
                 let line = s1.line.get(r).copied().unwrap_or(0);
-                let artifact = l.rows.artifact_of(r).and_then(|a| lengths.get(a as usize)).copied().unwrap_or(0.0);
-                dl.push(model.length(&s1.get(r), &s2.get(r), line)? + artifact + gauss(options.noise));
+                let artifact = l
+                    .rows
+                    .artifact_of(r)
+                    .and_then(|a| lengths.get(a as usize))
+                    .copied()
+                    .unwrap_or(0.0);
+                dl.push(
+                    model.length(&s1.get(r), &s2.get(r), line)? + artifact + gauss(options.noise),
+                );
             }
-            Ok(Observations::Lengths(LengthData { rows: l.rows.clone(), poses: l.poses.clone(), dl }))
+            Ok(Observations::Lengths(LengthData {
+                rows: l.rows.clone(),
+                poses: l.poses.clone(),
+                dl,
+            }))
         }
     }
 }
@@ -173,7 +239,15 @@ struct Model<'m> {
 impl<'m> Model<'m> {
     fn new(m: &'m Machine, beta: &'m [f64], engine: Engine) -> Result<Self, SimulateError> {
         let it = Interpreter::new(m).map_err(|source| SimulateError::Eval { line: 0, source })?;
-        Ok(Model { m, beta, it, engine, e1: FrameErrors::zeros(m), e2: FrameErrors::zeros(m), row: vec![0.0; m.coefficients.len()] })
+        Ok(Model {
+            m,
+            beta,
+            it,
+            engine,
+            e1: FrameErrors::zeros(m),
+            e2: FrameErrors::zeros(m),
+            row: vec![0.0; m.coefficients.len()],
+        })
     }
 
     /// The reported error (task sign) at one state.
@@ -182,9 +256,16 @@ impl<'m> Model<'m> {
         match self.engine {
             Engine::FirstOrder => self.it.error(s, self.beta).map_err(eval),
             Engine::Exact => {
-                self.it.frame_errors(s, self.beta, &mut self.e1).map_err(eval)?;
-                let pose = Pose { q: s.q, tool: s.tool, tool_offset: s.tool_offset };
-                let e = exact::positioning_error(self.m, &pose, &self.e1).map_err(|source| SimulateError::Kinematics { line, source })?;
+                self.it
+                    .frame_errors(s, self.beta, &mut self.e1)
+                    .map_err(eval)?;
+                let pose = Pose {
+                    q: s.q,
+                    tool: s.tool,
+                    tool_offset: s.tool_offset,
+                };
+                let e = exact::positioning_error(self.m, &pose, &self.e1)
+                    .map_err(|source| SimulateError::Kinematics { line, source })?;
                 Ok((e * self.m.task.sign()).into())
             }
         }
@@ -192,20 +273,38 @@ impl<'m> Model<'m> {
 
     /// The nominal tool position in wr.
     fn position(&mut self, s: &State, line: usize) -> Result<[f64; 3], SimulateError> {
-        self.it.nominal_position(s).map_err(|source| SimulateError::Eval { line, source })
+        self.it
+            .nominal_position(s)
+            .map_err(|source| SimulateError::Eval { line, source })
     }
 
     /// The reported length error between two states.
     fn length(&mut self, a: &State, b: &State, line: usize) -> Result<f64, SimulateError> {
         let eval = |source| SimulateError::Eval { line, source };
         match self.engine {
-            Engine::FirstOrder => self.it.length_and_row(a, b, self.beta, &mut self.row).map_err(eval),
+            Engine::FirstOrder => self
+                .it
+                .length_and_row(a, b, self.beta, &mut self.row)
+                .map_err(eval),
             Engine::Exact => {
-                self.it.frame_errors(a, self.beta, &mut self.e1).map_err(eval)?;
-                self.it.frame_errors(b, self.beta, &mut self.e2).map_err(eval)?;
-                let pa = Pose { q: a.q, tool: a.tool, tool_offset: a.tool_offset };
-                let pb = Pose { q: b.q, tool: b.tool, tool_offset: b.tool_offset };
-                let d = exact::length_error(self.m, &pa, &self.e1, &pb, &self.e2).map_err(|source| SimulateError::Kinematics { line, source })?;
+                self.it
+                    .frame_errors(a, self.beta, &mut self.e1)
+                    .map_err(eval)?;
+                self.it
+                    .frame_errors(b, self.beta, &mut self.e2)
+                    .map_err(eval)?;
+                let pa = Pose {
+                    q: a.q,
+                    tool: a.tool,
+                    tool_offset: a.tool_offset,
+                };
+                let pb = Pose {
+                    q: b.q,
+                    tool: b.tool,
+                    tool_offset: b.tool_offset,
+                };
+                let d = exact::length_error(self.m, &pa, &self.e1, &pb, &self.e2)
+                    .map_err(|source| SimulateError::Kinematics { line, source })?;
                 Ok(d * self.m.task.sign())
             }
         }
@@ -216,9 +315,17 @@ impl<'m> Model<'m> {
 /// --sample N` and for tests: the rows a poses file would hold.
 pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
     let states = States::sample(m, n, seed);
-    let mut pose = DataPose { axes: vec![Vec::with_capacity(n); m.axes.len()], dir: vec![None; m.axes.len()] };
+    let mut pose = DataPose {
+        axes: vec![Vec::with_capacity(n); m.axes.len()],
+        dir: vec![None; m.axes.len()],
+    };
     let mut dirs: Vec<Vec<f64>> = vec![Vec::with_capacity(n); m.axes.len()];
-    let mut rows = Rows { line: (1..=n).collect(), tool: Vec::with_capacity(n), inputs: vec![None; m.inputs.len()], ..Rows::default() };
+    let mut rows = Rows {
+        line: (1..=n).collect(),
+        tool: Vec::with_capacity(n),
+        inputs: vec![None; m.inputs.len()],
+        ..Rows::default()
+    };
     let mut inputs: Vec<Vec<f64>> = vec![Vec::with_capacity(n); m.inputs.len()];
     for r in 0..n {
         let s = states.get(r);
@@ -250,5 +357,9 @@ pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
         // A sampled table is one run in steady state: one minute between rows.
         rows.time = Some((0..n).map(|r| 60.0 * r as f64).collect());
     }
-    PointData { rows, pose, observed: Default::default() }
+    PointData {
+        rows,
+        pose,
+        observed: Default::default(),
+    }
 }

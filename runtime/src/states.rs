@@ -85,20 +85,38 @@ impl States {
                 _ => var_name(v, m),
             }
         };
-        for &v in used.iter().chain(m.axes.iter().enumerate().map(|(a, _)| Var::Axis(a)).collect::<Vec<_>>().iter()) {
+        for &v in used.iter().chain(
+            m.axes
+                .iter()
+                .enumerate()
+                .map(|(a, _)| Var::Axis(a))
+                .collect::<Vec<_>>()
+                .iter(),
+        ) {
             if matches!(v, Var::Lag(_)) {
                 continue;
             }
             let Some(col) = column_of(v) else {
                 if v == Var::Time {
                     if let Some(l) = m.lags.first() {
-                        return Err(StateError::NoTime { input: m.inputs.get(l.input).map(|i| i.name.clone()).unwrap_or_default() });
+                        return Err(StateError::NoTime {
+                            input: m
+                                .inputs
+                                .get(l.input)
+                                .map(|i| i.name.clone())
+                                .unwrap_or_default(),
+                        });
                     }
                 }
-                return Err(StateError::MissingColumn { column: column_name(v) });
+                return Err(StateError::MissingColumn {
+                    column: column_name(v),
+                });
             };
             if let Some(row) = col.iter().position(|x| x.is_nan()) {
-                return Err(StateError::EmptyCell { line: rows.line.get(row).copied().unwrap_or(0), column: column_name(v) });
+                return Err(StateError::EmptyCell {
+                    line: rows.line.get(row).copied().unwrap_or(0),
+                    column: column_name(v),
+                });
             }
         }
         let axes = m.axes.len();
@@ -145,8 +163,19 @@ impl States {
         for (li, lag) in m.lags.iter().enumerate() {
             let tau = nonlinear.get(lag.tau.index).copied().unwrap_or(f64::NAN);
             for run in &runs {
-                let times: Vec<f64> = run.iter().map(|&r| self.time.get(r).copied().unwrap_or(0.0)).collect();
-                let u: Vec<f64> = run.iter().map(|&r| self.input.get(r * self.inputs + lag.input).copied().unwrap_or(f64::NAN)).collect();
+                let times: Vec<f64> = run
+                    .iter()
+                    .map(|&r| self.time.get(r).copied().unwrap_or(0.0))
+                    .collect();
+                let u: Vec<f64> = run
+                    .iter()
+                    .map(|&r| {
+                        self.input
+                            .get(r * self.inputs + lag.input)
+                            .copied()
+                            .unwrap_or(f64::NAN)
+                    })
+                    .collect();
                 let mut x = vec![0.0; run.len()];
                 lag_run(&times, &u, tau, &mut x);
                 for (&r, v) in run.iter().zip(x) {
@@ -234,8 +263,12 @@ impl States {
                 .map(|i| {
                     // Without a declared range: a plausible spread around a neutral value.
                     let (lo, hi) = match i.unit.dim {
-                        _ if i.range.is_some() => i.range.map(|r| (r[0], r[1])).unwrap_or((0.0, 1.0)),
-                        d if d == kin_compiler::units::Dim::TEMPERATURE && i.absolute => (291.15, 295.15),
+                        _ if i.range.is_some() => {
+                            i.range.map(|r| (r[0], r[1])).unwrap_or((0.0, 1.0))
+                        }
+                        d if d == kin_compiler::units::Dim::TEMPERATURE && i.absolute => {
+                            (291.15, 295.15)
+                        }
                         d if d == kin_compiler::units::Dim::TEMPERATURE => (0.0, 4.0),
                         d if d == kin_compiler::units::Dim::FORCE => (0.0, 1000.0),
                         _ => (0.0, 1.0),

@@ -5,7 +5,9 @@ use kin_runtime::identify::{self, Column, Observe, Report};
 
 fn report(src: &str, observe: Observe, aligned: bool) -> (kin_compiler::Compiled, Report) {
     let out = compile(src);
-    let c = out.compiled.unwrap_or_else(|| panic!("{:#?}", out.diagnostics));
+    let c = out
+        .compiled
+        .unwrap_or_else(|| panic!("{:#?}", out.diagnostics));
     let r = identify::sampled(&c.machine, observe, aligned, 300, 11).expect("analysis");
     (c, r)
 }
@@ -14,7 +16,9 @@ fn names(c: &kin_compiler::Compiled, cols: impl IntoIterator<Item = Column>) -> 
     cols.into_iter()
         .map(|col| match col {
             Column::Coefficient(j) => c.machine.coefficients[j].name.clone(),
-            Column::Alignment { rotation, axis } => format!("align:{}{axis}", if rotation { "r" } else { "t" }),
+            Column::Alignment { rotation, axis } => {
+                format!("align:{}{axis}", if rotation { "r" } else { "t" })
+            }
             Column::Nuisance(name) => name,
         })
         .collect()
@@ -46,10 +50,20 @@ machine cmm2d {
 fn thesis_2d_cmm_lengths_see_exactly_the_three_parameters() {
     let (c, r) = report(CMM_2D, Observe::Length, false);
     assert_eq!(r.columns, 5);
-    assert_eq!(r.rank, 3, "squareness and the two scales are estimable from lengths");
+    assert_eq!(
+        r.rank, 3,
+        "squareness and the two scales are estimable from lengths"
+    );
     let invisible: Vec<String> = names(&c, r.dependencies.iter().map(|d| d.column.clone()));
-    assert_eq!(invisible, ["X.tx[1]", "Y.ty[1]"], "the offsets are what lengths cannot see");
-    assert!(r.dependencies.iter().all(|d| d.combination.is_empty()), "offsets have no effect on a length at all");
+    assert_eq!(
+        invisible,
+        ["X.tx[1]", "Y.ty[1]"],
+        "the offsets are what lengths cannot see"
+    );
+    assert!(
+        r.dependencies.iter().all(|d| d.combination.is_empty()),
+        "offsets have no effect on a length at all"
+    );
 }
 
 #[test]
@@ -67,34 +81,58 @@ fn offsets_are_absorbed_by_an_unknown_artifact_placement() {
     // squareness is a shear, which no rigid motion of the artifact reproduces.
     assert!(invisible.contains(&"X.tx[1]".to_string()), "{invisible:?}");
     assert!(invisible.contains(&"Y.ty[1]".to_string()), "{invisible:?}");
-    assert!(!invisible.contains(&"X.rz[0]".to_string()), "a shear is not a rigid motion: {invisible:?}");
-    let x_offset = r.dependencies.iter().find(|d| names(&c, [d.column.clone()])[0] == "X.tx[1]").unwrap();
+    assert!(
+        !invisible.contains(&"X.rz[0]".to_string()),
+        "a shear is not a rigid motion: {invisible:?}"
+    );
+    let x_offset = r
+        .dependencies
+        .iter()
+        .find(|d| names(&c, [d.column.clone()])[0] == "X.tx[1]")
+        .unwrap();
     let by = names(&c, x_offset.combination.iter().map(|(col, _)| col.clone()));
     assert_eq!(by, ["align:t0"], "absorbed by the shift along x");
 }
 
 #[test]
 fn straightness_slope_and_squareness_are_the_same_effect() {
-    let trap = CMM_2D.replace("Y.ty = linear(Y) + const", "Y.ty = linear(Y)\n        Y.tx = spline(Y, knots 2)");
+    let trap = CMM_2D.replace(
+        "Y.ty = linear(Y) + const",
+        "Y.ty = linear(Y)\n        Y.tx = spline(Y, knots 2)",
+    );
     let (c, r) = report(&trap, Observe::Position, false);
     let dep: Vec<(String, Vec<String>)> = r
         .dependencies
         .iter()
-        .map(|d| (names(&c, [d.column.clone()])[0].clone(), names(&c, d.combination.iter().map(|(col, _)| col.clone()))))
+        .map(|d| {
+            (
+                names(&c, [d.column.clone()])[0].clone(),
+                names(&c, d.combination.iter().map(|(col, _)| col.clone())),
+            )
+        })
         .collect();
     assert_eq!(dep.len(), 1, "{dep:?}");
     assert_eq!(dep[0].0, "Y.tx[0]", "the slope of the straightness (s^1) …");
-    assert!(dep[0].1.contains(&"X.rz[0]".to_string()), "… is the squareness: {dep:?}");
+    assert!(
+        dep[0].1.contains(&"X.rz[0]".to_string()),
+        "… is the squareness: {dep:?}"
+    );
 
     // The straightness family removes the line by construction (eq. 3.4–3.8): no trap.
-    let fixed = CMM_2D.replace("Y.ty = linear(Y) + const", "Y.ty = linear(Y)\n        Y.tx = straightness(Y, knots 2)");
+    let fixed = CMM_2D.replace(
+        "Y.ty = linear(Y) + const",
+        "Y.ty = linear(Y)\n        Y.tx = straightness(Y, knots 2)",
+    );
     let (_, r) = report(&fixed, Observe::Position, false);
     assert!(r.dependencies.is_empty(), "{:?}", r.dependencies);
 }
 
 #[test]
 fn the_same_effect_declared_twice_is_named_with_both_declarations() {
-    let twice = CMM_2D.replace("X.tx = linear(X) + const", "X.tx = linear(X) + const + poly(X, degree 1)");
+    let twice = CMM_2D.replace(
+        "X.tx = linear(X) + const",
+        "X.tx = linear(X) + const + poly(X, degree 1)",
+    );
     let out = compile(&twice);
     let c = out.compiled.expect("compiles");
     let r = identify::sampled(&c.machine, Observe::Position, false, 300, 3).unwrap();
@@ -102,15 +140,30 @@ fn the_same_effect_declared_twice_is_named_with_both_declarations() {
     assert_eq!(diags.len(), 1, "{diags:#?}");
     let d = &diags[0];
     assert_eq!(d.code, "E0601");
-    assert!(d.message.contains("X.tx[2]") && d.message.contains("X.tx[0]"), "{}", d.message);
-    let texts: Vec<&str> = d.labels.iter().map(|l| &twice[l.span.start..l.span.end]).collect();
-    assert_eq!(texts, ["poly(X, degree 1)", "linear(X)"], "points at both declarations");
+    assert!(
+        d.message.contains("X.tx[2]") && d.message.contains("X.tx[0]"),
+        "{}",
+        d.message
+    );
+    let texts: Vec<&str> = d
+        .labels
+        .iter()
+        .map(|l| &twice[l.span.start..l.span.end])
+        .collect();
+    assert_eq!(
+        texts,
+        ["poly(X, degree 1)", "linear(X)"],
+        "points at both declarations"
+    );
 }
 
 #[test]
 fn a_term_that_moves_nothing_observed_is_named() {
     // A rotation of the probe about its own tip moves no point.
-    let src = CMM_2D.replace("Y.ty = linear(Y) + const", "Y.ty = linear(Y)\n        probe.rz = const");
+    let src = CMM_2D.replace(
+        "Y.ty = linear(Y) + const",
+        "Y.ty = linear(Y)\n        probe.rz = const",
+    );
     let (c, r) = report(&src, Observe::Position, false);
     let invisible = names(&c, r.dependencies.iter().map(|d| d.column.clone()));
     assert_eq!(invisible, ["probe.rz[0]"]);
@@ -123,7 +176,12 @@ fn a_term_that_moves_nothing_observed_is_named() {
 /// bridge CMM, whose styli have offsets in x, y and z, is identifiable from positions alone.
 #[test]
 fn the_bundled_examples_are_identifiable() {
-    let cases = [("bridge_cmm", Observe::Position), ("bridge_cmm", Observe::Pose), ("milling_5axis", Observe::Pose), ("robot_6axis", Observe::Pose)];
+    let cases = [
+        ("bridge_cmm", Observe::Position),
+        ("bridge_cmm", Observe::Pose),
+        ("milling_5axis", Observe::Pose),
+        ("robot_6axis", Observe::Pose),
+    ];
     for (name, observe) in cases {
         let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
         let src = std::fs::read_to_string(&path).unwrap();
@@ -131,7 +189,15 @@ fn the_bundled_examples_are_identifiable() {
         let n = (2 * c.machine.coefficients.len()).max(200);
         let r = identify::sampled(&c.machine, observe, false, n, 0x6b696e).unwrap();
         let diags = identify::diagnostics(&c.machine, &c.map, &r, observe, false);
-        assert!(diags.is_empty(), "{name}: {}", diags.iter().map(|d| d.message.clone()).collect::<Vec<_>>().join("\n"));
+        assert!(
+            diags.is_empty(),
+            "{name}: {}",
+            diags
+                .iter()
+                .map(|d| d.message.clone())
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
         assert_eq!(r.rank, r.columns, "{name}");
     }
 }
@@ -141,10 +207,16 @@ fn the_bundled_examples_are_identifiable() {
 /// them, and the analysis says so.
 #[test]
 fn table_yaw_needs_orientation_observations() {
-    let path = format!("{}/../examples/milling_5axis.kin", env!("CARGO_MANIFEST_DIR"));
+    let path = format!(
+        "{}/../examples/milling_5axis.kin",
+        env!("CARGO_MANIFEST_DIR")
+    );
     let src = std::fs::read_to_string(&path).unwrap();
     let c = compile(&src).compiled.unwrap();
     let r = identify::sampled(&c.machine, Observe::Position, false, 400, 5).unwrap();
     let invisible = names(&c, r.dependencies.iter().map(|d| d.column.clone()));
-    assert!(invisible.iter().any(|n| n.starts_with("Y.rz")), "{invisible:?}");
+    assert!(
+        invisible.iter().any(|n| n.starts_with("Y.rz")),
+        "{invisible:?}"
+    );
 }

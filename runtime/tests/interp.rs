@@ -13,7 +13,9 @@ fn example(name: &str) -> Machine {
     let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
     let src = std::fs::read_to_string(&path).expect("example readable");
     let out = compile(&src);
-    out.compiled.unwrap_or_else(|| panic!("{name}: {:#?}", out.diagnostics)).machine
+    out.compiled
+        .unwrap_or_else(|| panic!("{name}: {:#?}", out.diagnostics))
+        .machine
 }
 
 const EXAMPLES: [&str; 3] = ["bridge_cmm", "milling_5axis", "robot_6axis"];
@@ -26,7 +28,13 @@ fn random_beta(m: &Machine, size: f64, seed: u64) -> Vec<f64> {
         .iter()
         .map(|c| {
             // Coefficients of scaled terms (um/K, urad/N …) are divided by the typical scale.
-            let per = if c.unit.dim.temperature != 0 { 2.0 } else if c.unit.dim.force != 0 { 1000.0 } else { 1.0 };
+            let per = if c.unit.dim.temperature != 0 {
+                2.0
+            } else if c.unit.dim.force != 0 {
+                1000.0
+            } else {
+                1.0
+            };
             size * rng.random_range(-1.0..1.0) / per
         })
         .collect()
@@ -58,15 +66,24 @@ fn error_is_fixed_plus_jacobian_times_beta() {
             let s = states.get(r);
             let mut e = [0.0; 6];
             let mut e0 = [0.0; 6];
-            it.error_and_jacobian(&s, &beta, &mut e, &mut jac).expect("eval");
-            it.error_and_jacobian(&s, &zero, &mut e0, &mut jac0).expect("eval");
+            it.error_and_jacobian(&s, &beta, &mut e, &mut jac)
+                .expect("eval");
+            it.error_and_jacobian(&s, &zero, &mut e0, &mut jac0)
+                .expect("eval");
             assert_eq!(jac, jac0, "{name}: the Jacobian does not depend on β");
             let plain = it.error(&s, &beta).expect("eval");
             for c in 0..6 {
                 let row: f64 = (0..n).map(|j| jac[c * n + j] * beta[j]).sum();
                 let want = e0[c] + row;
-                assert!((e[c] - want).abs() <= 1e-12 * (1.0 + want.abs()) + 1e-18, "{name} comp {c}: {} vs {want}", e[c]);
-                assert!((plain[c] - e[c]).abs() <= 1e-12 * e[c].abs() + 1e-18, "{name}: error() and error_and_jacobian() differ");
+                assert!(
+                    (e[c] - want).abs() <= 1e-12 * (1.0 + want.abs()) + 1e-18,
+                    "{name} comp {c}: {} vs {want}",
+                    e[c]
+                );
+                assert!(
+                    (plain[c] - e[c]).abs() <= 1e-12 * e[c].abs() + 1e-18,
+                    "{name}: error() and error_and_jacobian() differ"
+                );
             }
         }
     }
@@ -82,7 +99,11 @@ fn gap(m: &Machine, beta: &[f64], states: &States) -> f64 {
         let s = states.get(r);
         it.frame_errors(&s, beta, &mut fe).expect("frame errors");
         let first = it.error(&s, beta).expect("eval");
-        let pose = Pose { q: s.q, tool: s.tool, tool_offset: s.tool_offset };
+        let pose = Pose {
+            q: s.q,
+            tool: s.tool,
+            tool_offset: s.tool_offset,
+        };
         let ex = exact::positioning_error(m, &pose, &fe).expect("exact") * m.task.sign();
         for c in 0..6 {
             worst = worst.max((first[c] - ex[c]).abs());
@@ -105,7 +126,10 @@ fn first_order_agrees_with_exact_to_second_order_on_every_example() {
             // above rounding (1e-16 × 1 m), so the ratio is clean.
             assert!(g1 > 1e-12, "{name}: gap {g1} too small to test");
             let ratio = g1 / g2;
-            assert!((3.6..4.4).contains(&ratio), "{name} seed {seed}: gap {g1:e} → {g2:e}, ratio {ratio}");
+            assert!(
+                (3.6..4.4).contains(&ratio),
+                "{name} seed {seed}: gap {g1:e} → {g2:e}, ratio {ratio}"
+            );
         }
     }
 }
@@ -120,5 +144,8 @@ fn missing_direction_is_a_named_error() {
     let mut it = Interpreter::new(&m).expect("interpreter");
     let beta = vec![0.0; m.coefficients.len()];
     let err = it.error(&state, &beta).unwrap_err();
-    assert_eq!(err.to_string(), "the model uses `dir_Y`, which this observation does not give");
+    assert_eq!(
+        err.to_string(),
+        "the model uses `dir_Y`, which this observation does not give"
+    );
 }

@@ -11,8 +11,7 @@ use super::library::{self, Available, Proposal};
 use super::{Bin, Diagnosis, Finding, Region, Spectrum};
 use crate::data::Observations;
 use crate::fit::report::{component_name, model_hash};
-use crate::fit::stepwise::restrict;
-use crate::fit::{self, DataSet, FitResult, Layout, Reduced, StreamingQr, LENGTH};
+use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, LENGTH};
 use crate::interp::Interpreter;
 
 #[derive(Debug, Error)]
@@ -39,12 +38,23 @@ pub struct Settings {
 
 impl Default for Settings {
     fn default() -> Self {
-        Settings { alpha: 0.01, taus: vec![600.0, 1800.0, 5400.0], bins: 8 }
+        Settings {
+            alpha: 0.01,
+            taus: vec![600.0, 1800.0, 5400.0],
+            bins: 8,
+        }
     }
 }
 
 /// Diagnoses a fitted model: `base` is the fit of `compiled` (from `source`) to `files`.
-pub fn diagnose(compiled: &Compiled, source: &str, files: &[DataSet], base: &FitResult, options: &fit::Options, settings: &Settings) -> Result<Diagnosis, DiagnoseError> {
+pub fn diagnose(
+    compiled: &Compiled,
+    source: &str,
+    files: &[DataSet],
+    base: &FitResult,
+    options: &fit::Options,
+    settings: &Settings,
+) -> Result<Diagnosis, DiagnoseError> {
     let m = &compiled.machine;
     let s = m.units.error.scale;
     let rows = positions(m, files, base);
@@ -54,7 +64,11 @@ pub fn diagnose(compiled: &Compiled, source: &str, files: &[DataSet], base: &Fit
         .filter(|sp| sp.peak_false_alarm < 0.01)
         .filter_map(|sp| {
             let a = m.axes.iter().position(|ax| ax.name == sp.variable)?;
-            let (k, _) = sp.power.iter().enumerate().max_by(|x, y| x.1.total_cmp(y.1))?;
+            let (k, _) = sp
+                .power
+                .iter()
+                .enumerate()
+                .max_by(|x, y| x.1.total_cmp(y.1))?;
             let unit = &m.units.length;
             Some((a, unit.to_si(*sp.wavelengths.get(k)?) - unit.to_si(0.0)))
         })
@@ -85,12 +99,23 @@ fn available(m: &Machine, files: &[DataSet]) -> Available {
             .map(|a| {
                 all(&|d: &DataSet| match &d.observations {
                     Observations::Points(p) => p.pose.dir.get(a).is_some_and(|c| c.is_some()),
-                    Observations::Lengths(l) => l.poses.iter().all(|p| p.dir.get(a).is_some_and(|c| c.is_some())),
+                    Observations::Lengths(l) => l
+                        .poses
+                        .iter()
+                        .all(|p| p.dir.get(a).is_some_and(|c| c.is_some())),
                 })
             })
             .collect(),
         inputs: (0..m.inputs.len())
-            .map(|i| all(&|d: &DataSet| d.observations.rows().inputs.get(i).is_some_and(|c| c.as_ref().is_some_and(|v| v.iter().all(|x| !x.is_nan())))))
+            .map(|i| {
+                all(&|d: &DataSet| {
+                    d.observations
+                        .rows()
+                        .inputs
+                        .get(i)
+                        .is_some_and(|c| c.as_ref().is_some_and(|v| v.iter().all(|x| !x.is_nan())))
+                })
+            })
             .collect(),
         time: all(&|d: &DataSet| d.observations.rows().time.is_some()),
     }
@@ -112,16 +137,40 @@ fn variables(m: &Machine) -> Vec<(String, String)> {
     let mut v: Vec<(String, String)> = m
         .axes
         .iter()
-        .map(|a| (a.name.clone(), if a.kind == JointKind::Prismatic { m.units.length.name.clone() } else { m.units.angle.name.clone() }))
+        .map(|a| {
+            (
+                a.name.clone(),
+                if a.kind == JointKind::Prismatic {
+                    m.units.length.name.clone()
+                } else {
+                    m.units.angle.name.clone()
+                },
+            )
+        })
         .collect();
-    v.extend(m.inputs.iter().map(|i| (i.name.clone(), i.unit.name.clone())));
+    v.extend(
+        m.inputs
+            .iter()
+            .map(|i| (i.name.clone(), i.unit.name.clone())),
+    );
     v.push(("time".into(), m.units.time.name.clone()));
     v
 }
 
 fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
     let s = m.units.error.scale;
-    let index: Vec<HashMap<usize, usize>> = files.iter().map(|f| f.observations.rows().line.iter().enumerate().map(|(r, &l)| (l, r)).collect()).collect();
+    let index: Vec<HashMap<usize, usize>> = files
+        .iter()
+        .map(|f| {
+            f.observations
+                .rows()
+                .line
+                .iter()
+                .enumerate()
+                .map(|(r, &l)| (l, r))
+                .collect()
+        })
+        .collect();
     let axis_unit = |a: usize| match m.axes.get(a).map(|x| x.kind) {
         Some(JointKind::Revolute) => &m.units.angle,
         _ => &m.units.length,
@@ -130,27 +179,75 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
         .iter()
         .filter_map(|r| {
             let f = files.get(r.meta.file as usize)?;
-            let row = *index.get(r.meta.file as usize)?.get(&(r.meta.line as usize))?;
+            let row = *index
+                .get(r.meta.file as usize)?
+                .get(&(r.meta.line as usize))?;
             let rows = f.observations.rows();
             let mut values: Vec<f64> = match &f.observations {
-                Observations::Points(p) => p.pose.axes.iter().enumerate().map(|(a, c)| c.get(row).map(|v| axis_unit(a).from_si(*v)).unwrap_or(f64::NAN)).collect(),
+                Observations::Points(p) => p
+                    .pose
+                    .axes
+                    .iter()
+                    .enumerate()
+                    .map(|(a, c)| {
+                        c.get(row)
+                            .map(|v| axis_unit(a).from_si(*v))
+                            .unwrap_or(f64::NAN)
+                    })
+                    .collect(),
                 // A length is located at the middle of its two ends.
                 Observations::Lengths(l) => (0..m.axes.len())
                     .map(|a| {
-                        let end = |e: usize| l.poses[e].axes.get(a).and_then(|c| c.get(row)).copied().unwrap_or(f64::NAN);
+                        let end = |e: usize| {
+                            l.poses[e]
+                                .axes
+                                .get(a)
+                                .and_then(|c| c.get(row))
+                                .copied()
+                                .unwrap_or(f64::NAN)
+                        };
                         axis_unit(a).from_si((end(0) + end(1)) / 2.0)
                     })
                     .collect(),
             };
             for (i, input) in m.inputs.iter().enumerate() {
-                values.push(rows.inputs.get(i).and_then(|c| c.as_ref()).and_then(|c| c.get(row)).map(|v| input.unit.from_si(*v)).unwrap_or(f64::NAN));
+                values.push(
+                    rows.inputs
+                        .get(i)
+                        .and_then(|c| c.as_ref())
+                        .and_then(|c| c.get(row))
+                        .map(|v| input.unit.from_si(*v))
+                        .unwrap_or(f64::NAN),
+                );
             }
-            values.push(rows.time.as_ref().and_then(|t| t.get(row)).map(|t| m.units.time.from_si(*t)).unwrap_or(f64::NAN));
+            values.push(
+                rows.time
+                    .as_ref()
+                    .and_then(|t| t.get(row))
+                    .map(|t| m.units.time.from_si(*t))
+                    .unwrap_or(f64::NAN),
+            );
             let dirs = match &f.observations {
-                Observations::Points(p) => (0..m.axes.len()).map(|a| p.pose.dir.get(a).and_then(|c| c.as_ref()).and_then(|c| c.get(row)).copied().unwrap_or(f64::NAN)).collect(),
+                Observations::Points(p) => (0..m.axes.len())
+                    .map(|a| {
+                        p.pose
+                            .dir
+                            .get(a)
+                            .and_then(|c| c.as_ref())
+                            .and_then(|c| c.get(row))
+                            .copied()
+                            .unwrap_or(f64::NAN)
+                    })
+                    .collect(),
                 Observations::Lengths(_) => vec![f64::NAN; m.axes.len()],
             };
-            Some(Located { component: r.meta.component, residual: r.residual / s, leverage: r.leverage, values, dirs })
+            Some(Located {
+                component: r.meta.component,
+                residual: r.residual / s,
+                leverage: r.leverage,
+                values,
+                dirs,
+            })
         })
         .collect()
 }
@@ -166,7 +263,12 @@ fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
         let unit = &m.units.length;
         let range = unit.from_si(axis.range[1]) - unit.from_si(axis.range[0]);
         for c in [0u8, 1, 2, LENGTH] {
-            let pts: Vec<(f64, f64)> = rows.iter().filter(|r| r.component == c).filter_map(|r| Some((*r.values.get(a)?, r.residual))).filter(|(x, _)| x.is_finite()).collect();
+            let pts: Vec<(f64, f64)> = rows
+                .iter()
+                .filter(|r| r.component == c)
+                .filter_map(|r| Some((*r.values.get(a)?, r.residual)))
+                .filter(|(x, _)| x.is_finite())
+                .collect();
             if pts.len() < 30 {
                 continue;
             }
@@ -181,15 +283,21 @@ fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
             let shortest = (4.0 * range / n).max(range / 2000.0);
             let count = 600;
             let mut wavelengths = Vec::with_capacity(count);
+            let mut trig: Vec<(f64, f64)> = Vec::with_capacity(pts.len());
             let mut power = Vec::with_capacity(count);
             for k in 0..count {
                 let lambda = longest * (shortest / longest).powf(k as f64 / (count - 1) as f64);
                 let w = std::f64::consts::TAU / lambda;
-                let (s2, c2): (f64, f64) = pts.iter().fold((0.0, 0.0), |(s, c), (x, _)| (s + libm::sin(2.0 * w * x), c + libm::cos(2.0 * w * x)));
-                let tau = libm::atan2(s2, c2) / (2.0 * w);
+                // One sincos per point: the double angle gives τ's sums, the angle difference
+                // the projections (four trigonometric calls per point otherwise).
+                trig.clear();
+                trig.extend(pts.iter().map(|(x, _)| libm::sincos(w * x)));
+                let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| (s + 2.0 * sn * cs, c + cs * cs - sn * sn));
+                let (st, ct) = libm::sincos(0.5 * libm::atan2(s2, c2));
                 let (mut yc, mut ys, mut cc, mut ss) = (0.0, 0.0, 0.0, 0.0);
-                for (x, y) in &pts {
-                    let (sn, cs) = (libm::sin(w * (x - tau)), libm::cos(w * (x - tau)));
+                for ((_, y), (sn, cs)) in pts.iter().zip(&trig) {
+                    // sin(w(x − τ)) and cos(w(x − τ)) with wτ = atan2(s2, c2)/2.
+                    let (sn, cs) = (sn * ct - cs * st, cs * ct + sn * st);
                     yc += (y - mean) * cs;
                     ys += (y - mean) * sn;
                     cc += cs * cs;
@@ -218,8 +326,13 @@ fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
 
 /// Compiles the model with every candidate appended, dropping candidates that do not compile.
 /// Returns the super-model and, per kept proposal, its coefficient columns.
-fn super_model(compiled: &Compiled, source: &str, proposals: &[Proposal]) -> Result<(Compiled, Vec<(usize, Vec<usize>)>), DiagnoseError> {
-    let file = kin_compiler::syntax::parse_file(source).map_err(|d| DiagnoseError::Candidates(d.message))?;
+fn super_model(
+    compiled: &Compiled,
+    source: &str,
+    proposals: &[Proposal],
+) -> Result<(Compiled, Vec<(usize, Vec<usize>)>), DiagnoseError> {
+    let file = kin_compiler::syntax::parse_file(source)
+        .map_err(|d| DiagnoseError::Candidates(d.message))?;
     let end = file
         .machine
         .items
@@ -233,7 +346,11 @@ fn super_model(compiled: &Compiled, source: &str, proposals: &[Proposal]) -> Res
     // new block before the machine's closing brace.
     let (at, open, close) = match end {
         Some(e) => (e.saturating_sub(1), String::new(), String::new()),
-        None => (file.machine.span.end.saturating_sub(1), "errors {\n".to_string(), "}\n".to_string()),
+        None => (
+            file.machine.span.end.saturating_sub(1),
+            "errors {\n".to_string(),
+            "}\n".to_string(),
+        ),
     };
     let build = |chosen: &[usize]| -> (String, Vec<(usize, std::ops::Range<usize>)>) {
         let mut text = String::from(source.get(..at).unwrap_or(""));
@@ -251,13 +368,27 @@ fn super_model(compiled: &Compiled, source: &str, proposals: &[Proposal]) -> Res
         text.push_str(source.get(at..).unwrap_or(""));
         (text, ranges)
     };
-    let compiles = |chosen: &[usize]| -> bool { compile(&build(chosen).0).diagnostics.iter().all(|d: &Diagnostic| !d.is_error()) };
+    let compiles = |chosen: &[usize]| -> bool {
+        compile(&build(chosen).0)
+            .diagnostics
+            .iter()
+            .all(|d: &Diagnostic| !d.is_error())
+    };
     let all: Vec<usize> = (0..proposals.len()).collect();
-    let chosen: Vec<usize> = if compiles(&all) { all } else { (0..proposals.len()).filter(|&k| compiles(&[k])).collect() };
+    let chosen: Vec<usize> = if compiles(&all) {
+        all
+    } else {
+        (0..proposals.len()).filter(|&k| compiles(&[k])).collect()
+    };
     let (text, ranges) = build(&chosen);
     let out = compile(&text);
     let Some(mut sup) = out.compiled else {
-        return Err(DiagnoseError::Candidates(out.diagnostics.first().map(|d| d.message.clone()).unwrap_or_default()));
+        return Err(DiagnoseError::Candidates(
+            out.diagnostics
+                .first()
+                .map(|d| d.message.clone())
+                .unwrap_or_default(),
+        ));
     };
     // The base model's non-linear parameters keep their fitted values.
     for p in &mut sup.machine.nonlinear {
@@ -268,18 +399,51 @@ fn super_model(compiled: &Compiled, source: &str, proposals: &[Proposal]) -> Res
     let columns = ranges
         .into_iter()
         .map(|(k, range)| {
-            let cols: Vec<usize> = sup.map.coefficients.iter().enumerate().filter(|(_, s)| s.start >= range.start && s.end <= range.end).map(|(j, _)| j).collect();
+            let cols: Vec<usize> = sup
+                .map
+                .coefficients
+                .iter()
+                .enumerate()
+                .filter(|(_, s)| s.start >= range.start && s.end <= range.end)
+                .map(|(j, _)| j)
+                .collect();
             (k, cols)
         })
         .collect();
     Ok((sup, columns))
 }
 
-/// Rank of a restricted triangle: diagonal entries that are not negligible against their
-/// column's norm.
-fn rank_of(red: &Reduced) -> usize {
-    let q = red.norms.len();
-    (0..q).filter(|&j| red.r[(j, j)].abs() > 1e-9 * red.norms[j].max(f64::MIN_POSITIVE)).count()
+/// A column that keeps less than this fraction of its norm once the columns before it are
+/// projected out adds no direction (the rank threshold).
+const DEPENDENT: f64 = 1e-9;
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Removes from `v` its components along the orthonormal `basis` (Gram–Schmidt, twice, so the
+/// result is orthogonal to working precision).
+fn project_out(v: &mut [f64], basis: &[Vec<f64>]) {
+    for _ in 0..2 {
+        for b in basis {
+            let d = dot(v, b);
+            v.iter_mut().zip(b).for_each(|(x, y)| *x -= d * y);
+        }
+    }
+}
+
+/// Appends `v` (already orthogonal to `basis`) to the basis if it keeps a direction of its own
+/// against the norm `norm` of its column of X.
+fn extend(basis: &mut Vec<Vec<f64>>, mut v: Vec<f64>, norm: f64) -> bool {
+    let n = dot(&v, &v).sqrt();
+    // NaN counts as dependent.
+    let own = n > DEPENDENT * norm.max(f64::MIN_POSITIVE);
+    if !own {
+        return false;
+    }
+    v.iter_mut().for_each(|x| *x /= n);
+    basis.push(v);
+    true
 }
 
 fn test_candidates(
@@ -297,7 +461,18 @@ fn test_candidates(
     let m = &compiled.machine;
     let (sup, columns) = super_model(compiled, source, proposals)?;
     let values: Vec<f64> = match &base.nonlinear {
-        Some(n) => sup.machine.nonlinear.iter().map(|p| m.nonlinear.iter().position(|q| q.name == p.name).and_then(|i| n.values.get(i).copied()).unwrap_or(p.value)).collect(),
+        Some(n) => sup
+            .machine
+            .nonlinear
+            .iter()
+            .map(|p| {
+                m.nonlinear
+                    .iter()
+                    .position(|q| q.name == p.name)
+                    .and_then(|i| n.values.get(i).copied())
+                    .unwrap_or(p.value)
+            })
+            .collect(),
         None => sup.machine.nonlinear.iter().map(|p| p.value).collect(),
     };
     let mut engine = Interpreter::new(&sup.machine)?;
@@ -305,15 +480,33 @@ fn test_candidates(
     let layout = Layout::new(&sup.machine, files);
     let states = fit::states_with(&sup.machine, files, &values)?;
     let mut acc = StreamingQr::new(layout.columns(), options.block);
-    fit::for_each_row(&mut engine, files, &states, &layout, |_, x, y| acc.push(x, y))?;
+    fit::for_each_row(&mut engine, files, &states, &layout, |_, x, y| {
+        acc.push(x, y)
+    })?;
     let red = acc.finish();
     let n_base = m.coefficients.len();
     let width = layout.columns();
-    let base_mask: Vec<bool> = (0..width).map(|j| j < n_base || j >= layout.coefficients).collect();
-    let base_red = restrict(&red, &base_mask);
-    let base_rank = rank_of(&base_red);
-    let q_base = base_red.r.nrows() - 1;
-    let rss_base = base_red.r[(q_base, q_base)].powi(2);
+    let base_mask: Vec<bool> = (0..width)
+        .map(|j| j < n_base || j >= layout.coefficients)
+        .collect();
+    // Everything is done on the columns of R, whose inner products are those of the columns of
+    // X. An orthonormal basis of the base model's columns first; then each candidate column
+    // with the base projected out, once. A candidate column the base (or the candidate's own
+    // earlier columns) already spans is dropped: a spline with more knots shares its `s`, `s²`
+    // with the one in the model. (An unpivoted re-triangularisation of the restricted columns
+    // cannot be used here: after a dependent column its triangle is meaningless.)
+    let column = |j: usize| -> Vec<f64> { (0..red.r.nrows()).map(|i| red.r[(i, j)]).collect() };
+    let mut base_basis: Vec<Vec<f64>> = Vec::new();
+    for j in (0..width).filter(|&j| base_mask[j]) {
+        let mut v = column(j);
+        project_out(&mut v, &base_basis);
+        extend(&mut base_basis, v, red.norms[j]);
+    }
+    let base_rank = base_basis.len();
+    let mut y = column(width);
+    project_out(&mut y, &base_basis);
+    let rss_base = dot(&y, &y);
+    let mut outside: HashMap<usize, Vec<f64>> = HashMap::new();
     let rows = red.rows as f64;
     let s = m.units.error.scale;
 
@@ -322,24 +515,35 @@ fn test_candidates(
         if cols.is_empty() {
             continue;
         }
-        let mut mask = base_mask.clone();
+        let mut own: Vec<Vec<f64>> = Vec::new();
         for &j in cols {
-            mask[j] = true;
+            let mut v = outside
+                .entry(j)
+                .or_insert_with(|| {
+                    let mut v = column(j);
+                    project_out(&mut v, &base_basis);
+                    v
+                })
+                .clone();
+            project_out(&mut v, &own);
+            extend(&mut own, v, red.norms[j]);
         }
-        let sub = restrict(&red, &mask);
-        let q = sub.r.nrows() - 1;
-        let rss = sub.r[(q, q)].powi(2);
-        let added = rank_of(&sub).saturating_sub(base_rank);
+        let added = own.len();
         // A candidate the model already contains, or one the data cannot see, adds nothing.
         if added == 0 {
             continue;
         }
+        let mut e = y.clone();
+        project_out(&mut e, &own);
+        let rss = dot(&e, &e);
         let dof = rows - (base_rank + added) as f64;
         if dof <= 0.0 || rss <= 0.0 {
             continue;
         }
         let f = ((rss_base - rss) / added as f64) / (rss / dof);
-        let p = FisherSnedecor::new(added as f64, dof).map(|d| 1.0 - d.cdf(f.max(0.0))).unwrap_or(1.0);
+        let p = FisherSnedecor::new(added as f64, dof)
+            .map(|d| 1.0 - d.cdf(f.max(0.0)))
+            .unwrap_or(1.0);
         tested.push((
             *k,
             Finding {
@@ -377,13 +581,22 @@ fn test_candidates(
         }
     }
     let mut findings: Vec<Finding> = best.into_values().collect();
-    findings.sort_by(|a, b| b.significant.cmp(&a.significant).then(b.explained.total_cmp(&a.explained)));
+    findings.sort_by(|a, b| {
+        b.significant
+            .cmp(&a.significant)
+            .then(b.explained.total_cmp(&a.explained))
+    });
     Ok(findings)
 }
 
 /// Residuals binned along every variable, and the regions where they exceed what the noise
 /// and the model's uncertainty allow (each residual's variance is σ̂²(1 − h)).
-fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings) -> (Vec<Region>, Vec<Bin>) {
+fn regions(
+    m: &Machine,
+    rows: &[Located],
+    base: &FitResult,
+    settings: &Settings,
+) -> (Vec<Region>, Vec<Bin>) {
     let vars = variables(m);
     let sigma = base.sigma / m.units.error.scale;
     let comps: Vec<u8> = {
@@ -396,10 +609,18 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
     let tests = (comps.len() * vars.len() * settings.bins * 2).max(1) as f64;
     let chi = |r: &[&Located]| -> (f64, f64, f64) {
         let n = r.len() as f64;
-        let stat: f64 = r.iter().map(|x| x.residual.powi(2) / (sigma * sigma * (1.0 - x.leverage).max(1e-9))).sum();
-        let p = ChiSquared::new(n.max(1.0)).map(|d| 1.0 - d.cdf(stat)).unwrap_or(1.0);
+        let stat: f64 = r
+            .iter()
+            .map(|x| x.residual.powi(2) / (sigma * sigma * (1.0 - x.leverage).max(1e-9)))
+            .sum();
+        let p = ChiSquared::new(n.max(1.0))
+            .map(|d| 1.0 - d.cdf(stat))
+            .unwrap_or(1.0);
         let rms = (r.iter().map(|x| x.residual.powi(2)).sum::<f64>() / n.max(1.0)).sqrt();
-        let allowed = sigma * (r.iter().map(|x| 1.0 - x.leverage).sum::<f64>() / n.max(1.0)).max(0.0).sqrt();
+        let allowed = sigma
+            * (r.iter().map(|x| 1.0 - x.leverage).sum::<f64>() / n.max(1.0))
+                .max(0.0)
+                .sqrt();
         (p, rms, allowed)
     };
     let mut bins = Vec::new();
@@ -426,10 +647,19 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
                 ),
             });
         }
-        let level = if throughout { rms_all / allowed_all.max(f64::MIN_POSITIVE) } else { 1.0 };
+        let level = if throughout {
+            rms_all / allowed_all.max(f64::MIN_POSITIVE)
+        } else {
+            1.0
+        };
         // The direction of motion: a residual that shifts with it is a backlash or hysteresis.
         for (a, axis) in m.axes.iter().enumerate() {
-            let side = |d: f64| -> Vec<f64> { mine.iter().filter(|r| r.dirs.get(a) == Some(&d)).map(|r| r.residual).collect() };
+            let side = |d: f64| -> Vec<f64> {
+                mine.iter()
+                    .filter(|r| r.dirs.get(a) == Some(&d))
+                    .map(|r| r.residual)
+                    .collect()
+            };
             let (plus, minus) = (side(1.0), side(-1.0));
             if plus.len() < 10 || minus.len() < 10 {
                 continue;
@@ -438,7 +668,11 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
             let shift = mean(&plus) - mean(&minus);
             let se = sigma * (1.0 / plus.len() as f64 + 1.0 / minus.len() as f64).sqrt();
             let z = shift / se.max(f64::MIN_POSITIVE);
-            let p = 2.0 * (1.0 - statrs::distribution::Normal::new(0.0, 1.0).map(|d| d.cdf(z.abs())).unwrap_or(1.0));
+            let p = 2.0
+                * (1.0
+                    - statrs::distribution::Normal::new(0.0, 1.0)
+                        .map(|d| d.cdf(z.abs()))
+                        .unwrap_or(1.0));
             if p < settings.alpha / tests && shift.abs() > 0.5 * sigma {
                 found.push(Region {
                     component: cname.clone(),
@@ -457,11 +691,19 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
             }
         }
         for (v, (vname, unit)) in vars.iter().enumerate() {
-            let vals: Vec<f64> = mine.iter().filter_map(|r| r.values.get(v).copied()).filter(|x| x.is_finite()).collect();
+            let vals: Vec<f64> = mine
+                .iter()
+                .filter_map(|r| r.values.get(v).copied())
+                .filter(|x| x.is_finite())
+                .collect();
             if vals.len() < 2 * settings.bins {
                 continue;
             }
-            let (lo, hi) = vals.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(*x), b.max(*x)));
+            let (lo, hi) = vals
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                    (a.min(*x), b.max(*x))
+                });
             if !(hi > lo) {
                 continue;
             }
@@ -469,20 +711,43 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
             let mut flagged: Vec<(usize, f64, f64, usize)> = Vec::new();
             for b in 0..settings.bins {
                 let (blo, bhi) = (lo + b as f64 * width, lo + (b + 1) as f64 * width);
-                let inside: Vec<&Located> = mine.iter().copied().filter(|r| r.values.get(v).is_some_and(|x| *x >= blo && (*x < bhi || (b + 1 == settings.bins && *x <= bhi)))).collect();
+                let inside: Vec<&Located> = mine
+                    .iter()
+                    .copied()
+                    .filter(|r| {
+                        r.values.get(v).is_some_and(|x| {
+                            *x >= blo && (*x < bhi || (b + 1 == settings.bins && *x <= bhi))
+                        })
+                    })
+                    .collect();
                 if inside.is_empty() {
                     continue;
                 }
                 let (p, rms, allowed) = chi(&inside);
                 let mean = inside.iter().map(|r| r.residual).sum::<f64>() / inside.len() as f64;
-                bins.push(Bin { component: cname.clone(), variable: vname.clone(), unit: unit.clone(), lo: blo, hi: bhi, rows: inside.len(), mean, rms, allowed });
+                bins.push(Bin {
+                    component: cname.clone(),
+                    variable: vname.clone(),
+                    unit: unit.clone(),
+                    lo: blo,
+                    hi: bhi,
+                    rows: inside.len(),
+                    mean,
+                    rms,
+                    allowed,
+                });
                 // Against the component's own level when it is raised everywhere: a bin is
                 // notable for being worse than the rest, not for sharing the common excess.
                 let ratio = rms / (allowed * level).max(f64::MIN_POSITIVE);
                 let excess = if throughout {
                     let n = inside.len() as f64;
-                    let stat: f64 = inside.iter().map(|x| x.residual.powi(2) / (rms_all * rms_all)).sum();
-                    ChiSquared::new(n.max(1.0)).map(|d| 1.0 - d.cdf(stat)).unwrap_or(1.0)
+                    let stat: f64 = inside
+                        .iter()
+                        .map(|x| x.residual.powi(2) / (rms_all * rms_all))
+                        .sum();
+                    ChiSquared::new(n.max(1.0))
+                        .map(|d| 1.0 - d.cdf(stat))
+                        .unwrap_or(1.0)
                 } else {
                     p
                 };
@@ -522,7 +787,12 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
                     ratio,
                     rows: count,
                     p,
-                    text: format!("{cname} residuals are {:.1}× what the noise allows (σ̂ = {} {}) for {cond}", ratio, nice(sigma), m.units.error.name),
+                    text: format!(
+                        "{cname} residuals are {:.1}× what the noise allows (σ̂ = {} {}) for {cond}",
+                        ratio,
+                        nice(sigma),
+                        m.units.error.name
+                    ),
                 });
                 i = j + 1;
             }
@@ -537,8 +807,20 @@ fn regions(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings)
 fn combine(found: Vec<Region>) -> Vec<Region> {
     let mut out: Vec<Region> = Vec::new();
     for r in found {
-        let local = |o: &Region| o.conditions.iter().all(|c| c != "throughout the workspace" && !c.starts_with("direction of motion"));
-        if let Some(prev) = out.iter_mut().find(|o| local(o) && local(&r) && o.component == r.component && o.conditions.len() == 1 && !o.conditions.iter().any(|c| c.split_whitespace().next() == r.conditions[0].split_whitespace().next())) {
+        let local = |o: &Region| {
+            o.conditions
+                .iter()
+                .all(|c| c != "throughout the workspace" && !c.starts_with("direction of motion"))
+        };
+        if let Some(prev) = out.iter_mut().find(|o| {
+            local(o)
+                && local(&r)
+                && o.component == r.component
+                && o.conditions.len() == 1
+                && !o.conditions.iter().any(|c| {
+                    c.split_whitespace().next() == r.conditions[0].split_whitespace().next()
+                })
+        }) {
             prev.conditions.extend(r.conditions.clone());
             prev.text = format!("{} and {}", prev.text, r.conditions.join(" and "));
             continue;
@@ -550,6 +832,14 @@ fn combine(found: Vec<Region>) -> Vec<Region> {
 
 fn nice(v: f64) -> String {
     let a = v.abs();
-    let digits = if a >= 100.0 { 0 } else if a >= 10.0 { 1 } else if a >= 1.0 { 2 } else { 3 };
+    let digits = if a >= 100.0 {
+        0
+    } else if a >= 10.0 {
+        1
+    } else if a >= 1.0 {
+        2
+    } else {
+        3
+    };
     format!("{:.*}", digits, v)
 }

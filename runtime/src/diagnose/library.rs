@@ -2,6 +2,7 @@
 //! machine's structure and what the data can show (a backlash needs directions of motion, a
 //! thermal lag needs time and the input).
 
+use kin_compiler::basis::{Basis, Wavelength};
 use kin_compiler::ir::{Component, FrameRef, JointKind, Machine, Var};
 use kin_compiler::units::Dim;
 
@@ -29,7 +30,12 @@ pub struct Proposal {
 }
 
 fn frame_name(m: &Machine, f: FrameRef) -> Option<String> {
-    let axis = |chain: &[kin_compiler::ir::Element], k: usize| chain.get(k).and_then(|e| m.axes.get(e.axis)).map(|a| a.name.clone());
+    let axis = |chain: &[kin_compiler::ir::Element], k: usize| {
+        chain
+            .get(k)
+            .and_then(|e| m.axes.get(e.axis))
+            .map(|a| a.name.clone())
+    };
     match f {
         FrameRef::Tool(k) => axis(&m.tool_chain, k),
         FrameRef::Workpiece(k) => axis(&m.workpiece_chain, k),
@@ -41,14 +47,26 @@ fn frame_name(m: &Machine, f: FrameRef) -> Option<String> {
 
 /// The frame of each axis, in chain order.
 fn axis_frames(m: &Machine) -> Vec<(usize, FrameRef)> {
-    let mut out: Vec<(usize, FrameRef)> = m.tool_chain.iter().enumerate().map(|(k, e)| (e.axis, FrameRef::Tool(k))).collect();
-    out.extend(m.workpiece_chain.iter().enumerate().map(|(k, e)| (e.axis, FrameRef::Workpiece(k))));
+    let mut out: Vec<(usize, FrameRef)> = m
+        .tool_chain
+        .iter()
+        .enumerate()
+        .map(|(k, e)| (e.axis, FrameRef::Tool(k)))
+        .collect();
+    out.extend(
+        m.workpiece_chain
+            .iter()
+            .enumerate()
+            .map(|(k, e)| (e.axis, FrameRef::Workpiece(k))),
+    );
     out
 }
 
 /// Which of tx, ty, tz lies along a unit direction (the largest component).
 fn along(direction: [f64; 3]) -> Component {
-    let k = (0..3).max_by(|&a, &b| direction[a].abs().total_cmp(&direction[b].abs())).unwrap_or(0);
+    let k = (0..3)
+        .max_by(|&a, &b| direction[a].abs().total_cmp(&direction[b].abs()))
+        .unwrap_or(0);
     [Component::Tx, Component::Ty, Component::Tz][k]
 }
 
@@ -61,8 +79,17 @@ fn rotation_about(direction: [f64; 3]) -> Component {
 }
 
 /// Whether a model already has a term of the given shape on a target.
-fn has(m: &Machine, frame: FrameRef, comp: Component, test: impl Fn(&kin_compiler::ir::Term) -> bool) -> bool {
-    m.errors.iter().filter(|e| e.frame == frame && e.component == comp).flat_map(|e| &e.terms).any(test)
+fn has(
+    m: &Machine,
+    frame: FrameRef,
+    comp: Component,
+    test: impl Fn(&kin_compiler::ir::Term) -> bool,
+) -> bool {
+    m.errors
+        .iter()
+        .filter(|e| e.frame == frame && e.component == comp)
+        .flat_map(|e| &e.terms)
+        .any(test)
 }
 
 fn is_const(t: &kin_compiler::ir::Term) -> bool {
@@ -76,19 +103,40 @@ fn uses(t: &kin_compiler::ir::Term, v: Var) -> bool {
 /// Every candidate the library proposes for `m` given what the data offer. `wavelengths` are
 /// spectral peaks found along axes (axis index → wavelength in SI), `taus` the time constants
 /// scanned for lags (SI).
-pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)], taus: &[f64]) -> Vec<Proposal> {
+pub fn propose(
+    m: &Machine,
+    available: &Available,
+    wavelengths: &[(usize, f64)],
+    taus: &[f64],
+) -> Vec<Proposal> {
     let mut out = Vec::new();
-    let mut push = |family: Family, target: String, text: String, test_text: Option<String>, explanation: String, group: Option<String>| {
+    let mut push = |family: Family,
+                    target: String,
+                    text: String,
+                    test_text: Option<String>,
+                    explanation: String,
+                    group: Option<String>| {
         let test_text = test_text.unwrap_or_else(|| text.clone());
         let group = group.unwrap_or_else(|| test_text.clone());
-        out.push(Proposal { candidate: Candidate { family, target, text, explanation }, test_text, group });
+        out.push(Proposal {
+            candidate: Candidate {
+                family,
+                target,
+                text,
+                explanation,
+            },
+            test_text,
+            group,
+        });
     };
     let length = &m.units.length;
     let angle = &m.units.angle;
     let fmt_len = |v: f64| format!("{} {}", round(length.from_si(v)), length.name);
     for (a, frame) in axis_frames(m) {
         let Some(axis) = m.axes.get(a) else { continue };
-        let Some(name) = frame_name(m, frame) else { continue };
+        let Some(name) = frame_name(m, frame) else {
+            continue;
+        };
         let own = Var::Axis(a);
         let revolute = axis.kind == JointKind::Revolute;
         let motion = along(axis.direction);
@@ -102,7 +150,14 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
                 } else {
                     format!("a constant offset of the {name} axis line along {} (an axis-location error)", &comp.name()[1..])
                 };
-                push(Family::Constant, target.clone(), format!("{target} += const"), None, what, None);
+                push(
+                    Family::Constant,
+                    target.clone(),
+                    format!("{target} += const"),
+                    None,
+                    what,
+                    None,
+                );
             }
         }
 
@@ -126,7 +181,11 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
         // Backlash and hysteresis with the direction of motion.
         if available.directions.get(a).copied().unwrap_or(false) {
             let dir = Var::Direction(a);
-            let comps: Vec<Component> = if revolute { vec![rotation_about(axis.direction)] } else { vec![motion, Component::Rx, Component::Ry, Component::Rz] };
+            let comps: Vec<Component> = if revolute {
+                vec![rotation_about(axis.direction)]
+            } else {
+                vec![motion, Component::Rx, Component::Ry, Component::Rz]
+            };
             for comp in comps {
                 if !has(m, frame, comp, |t| uses(t, dir)) {
                     let target = format!("{name}.{}", comp.name());
@@ -179,18 +238,66 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
             }
         }
 
-        // Too stiff a model: a spline with more knots on a component that already depends on
-        // the axis. The extra functions are what the existing ones cannot follow.
+        // Too stiff a model: more knots on a component that already depends on the axis. The
+        // text must add only the new knot functions: a second `spline` (or `straightness`)
+        // repeats the `s`, `s²` (or the detrended `s²`) the model already has, and a fit of
+        // the model with the line added would be rank-deficient (E0601). One period of a
+        // periodic spline over the whole range is exactly those knot functions with their
+        // `w`, `w²` part removed (eq. 3.12, `w = s`); its knots are placed at least twice as
+        // densely as the model's and never on one of them.
         for comp in Component::ALL {
             if has(m, frame, comp, |t| uses(t, own)) && !revolute {
                 let target = format!("{name}.{}", comp.name());
-                let family = if !comp.is_rotation() && comp != motion { "straightness" } else { "spline" };
+                let range = axis.range[1] - axis.range[0];
+                let existing: Vec<f64> = m
+                    .errors
+                    .iter()
+                    .filter(|e| e.frame == frame && e.component == comp)
+                    .flat_map(|e| &e.terms)
+                    .flat_map(|t| &t.factors)
+                    .filter(|f| f.var == own)
+                    .flat_map(|f| match &f.basis {
+                        Basis::Spline { knots, .. } => knots.clone(),
+                        Basis::Periodic {
+                            knots,
+                            wavelength: Wavelength::Fixed(w),
+                            ..
+                        } if (w - range).abs() <= 1e-9 * range => knots.clone(),
+                        _ => Vec::new(),
+                    })
+                    .collect();
+                let clear = |n: usize| {
+                    (1..=n).all(|k| {
+                        existing
+                            .iter()
+                            .all(|u| (k as f64 / (n + 1) as f64 - u).abs() > 1e-6)
+                    })
+                };
+                let Some(knots) = (7.max(2 * existing.len() + 1)..=50).find(|&n| clear(n)) else {
+                    continue;
+                };
+                let phase = axis.range[0].rem_euclid(range);
+                let exact = |v: f64| {
+                    format!(
+                        "{} {}",
+                        (length.from_si(v) * 1e9).round() / 1e9,
+                        length.name
+                    )
+                };
+                let phase = if phase > 1e-9 * range && range - phase > 1e-9 * range {
+                    format!(", phase {}", exact(phase))
+                } else {
+                    String::new()
+                };
                 push(
                     Family::MoreKnots,
                     target.clone(),
-                    format!("{target} += {family}({}, knots 7)", axis.name),
+                    format!("{target} += periodic({}, wavelength {}, knots {knots}{phase})", axis.name, exact(range)),
                     None,
-                    format!("{target} varies along {} faster than its model's knots allow: more knots", axis.name),
+                    format!(
+                        "{target} varies along {} faster than its model's knots allow: {knots} more knots, evenly spaced (one period over the whole range adds only the new knot functions)",
+                        axis.name
+                    ),
                     None,
                 );
             }
@@ -205,7 +312,10 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
                 }
                 let target = format!("{name}.{}", comp.name());
                 let (text, what) = if revolute {
-                    (format!("{target} += linear({})", other.name), format!("{target} changes with the position of {}", other.name))
+                    (
+                        format!("{target} += linear({})", other.name),
+                        format!("{target} changes with the position of {}", other.name),
+                    )
                 } else {
                     (
                         format!("{target} += linear({}) + linear({}) * linear({})", other.name, other.name, axis.name),
@@ -215,7 +325,10 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
                 push(Family::CrossCoupling, target, text, None, what, None);
             }
             for (i, input) in m.inputs.iter().enumerate() {
-                if !available.inputs.get(i).copied().unwrap_or(false) || input.range.is_none() || input.unit.dim == Dim::TEMPERATURE {
+                if !available.inputs.get(i).copied().unwrap_or(false)
+                    || input.range.is_none()
+                    || input.unit.dim == Dim::TEMPERATURE
+                {
                     continue;
                 }
                 if has(m, frame, comp, |t| uses(t, Var::Input(i))) {
@@ -225,9 +338,15 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
                 push(
                     Family::CrossCoupling,
                     target.clone(),
-                    format!("{target} += linear({}) + linear({}) * linear({})", input.name, input.name, axis.name),
+                    format!(
+                        "{target} += linear({}) + linear({}) * linear({})",
+                        input.name, input.name, axis.name
+                    ),
                     None,
-                    format!("{target} changes with {} (a load deflecting the structure)", input.name),
+                    format!(
+                        "{target} changes with {} (a load deflecting the structure)",
+                        input.name
+                    ),
                     None,
                 );
             }
@@ -238,18 +357,28 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
     // Thermal drift: a temperature input through a lag, on the tool (growth of the spindle or
     // ram) and on each prismatic axis' scale.
     for (i, input) in m.inputs.iter().enumerate() {
-        if input.unit.dim != Dim::TEMPERATURE || !available.inputs.get(i).copied().unwrap_or(false) {
+        if input.unit.dim != Dim::TEMPERATURE || !available.inputs.get(i).copied().unwrap_or(false)
+        {
             continue;
         }
-        let value = if input.absolute { format!("({} - 20 degC)", input.name) } else { input.name.clone() };
+        let value = if input.absolute {
+            format!("({} - 20 degC)", input.name)
+        } else {
+            input.name.clone()
+        };
         let mut targets: Vec<(String, String)> = [Component::Tx, Component::Ty, Component::Tz]
             .iter()
             .map(|c| (format!("tool.{}", c.name()), "const".to_string()))
             .collect();
         for (a, frame) in axis_frames(m) {
-            let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else { continue };
+            let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else {
+                continue;
+            };
             if axis.kind == JointKind::Prismatic {
-                targets.push((format!("{name}.{}", along(axis.direction).name()), format!("linear({})", axis.name)));
+                targets.push((
+                    format!("{name}.{}", along(axis.direction).name()),
+                    format!("linear({})", axis.name),
+                ));
             }
         }
         for (target, factor) in targets {
@@ -260,8 +389,14 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
                         Family::Thermal,
                         target.clone(),
                         format!("{target} += lag({}, tau fit {t}) * {factor}", input.name),
-                        Some(format!("{target} += lag({}, tau {t}) * {factor}", input.name)),
-                        format!("{target} follows {} with a thermal lag (time constant ≈ {t})", input.name),
+                        Some(format!(
+                            "{target} += lag({}, tau {t}) * {factor}",
+                            input.name
+                        )),
+                        format!(
+                            "{target} follows {} with a thermal lag (time constant ≈ {t})",
+                            input.name
+                        ),
                         Some(format!("thermal {target} {}", input.name)),
                     );
                 }
@@ -271,7 +406,10 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
                 target.clone(),
                 format!("{target} += {value} * {factor}"),
                 None,
-                format!("{target} follows {} directly (thermal expansion)", input.name),
+                format!(
+                    "{target} follows {} directly (thermal expansion)",
+                    input.name
+                ),
                 Some(format!("thermal {target} {}", input.name)),
             );
         }
@@ -286,7 +424,10 @@ pub fn propose(m: &Machine, available: &Available, wavelengths: &[(usize, f64)],
                 target.clone(),
                 format!("{target} += time * const"),
                 None,
-                format!("the tool drifts along {} over time (an unmeasured warm-up)", &comp.name()[1..]),
+                format!(
+                    "the tool drifts along {} over time (an unmeasured warm-up)",
+                    &comp.name()[1..]
+                ),
                 None,
             );
         }

@@ -155,6 +155,17 @@ pub fn fit(
         return Err(FitError::NoRows);
     }
 
+    // Selection reads sub-models off the triangle, which needs independent columns: a
+    // deficient model is reported (or fitted by minimum norm) before anything is selected.
+    if options.stepwise.is_some() && !options.min_norm {
+        if let Err(s) = solve::solve(&red, options.solver, options.tolerance, false) {
+            return Err(FitError::RankDeficient {
+                rank: s.rank,
+                columns: p,
+                diagnostics: name_invisible(compiled, &layout, &red),
+            });
+        }
+    }
     let selection = options
         .stepwise
         .map(|sw| stepwise::select(&red, layout.coefficients, sw.remove, sw.enter));

@@ -32,12 +32,12 @@ impl From<ObserveArg> for Observe {
 
 /// Identifiability on states sampled over the ranges: enough rows to see every coefficient
 /// several times over, with a fixed seed so `kin check` is reproducible.
-fn identify(c: &Compiled, observe: Observe, aligned: bool) -> Vec<kin_compiler::Diagnostic> {
+fn identify(c: &Compiled, observe: Observe, aligned: bool, engine: kin_runtime::engine::Engine) -> Vec<kin_compiler::Diagnostic> {
     if c.machine.coefficients.is_empty() {
         return Vec::new();
     }
     let n = (2 * c.machine.coefficients.len()).max(200);
-    match kin_runtime::identify::sampled(&c.machine, observe, aligned, n, 0x6b696e) {
+    match kin_runtime::identify::sampled_with(&c.machine, observe, aligned, n, 0x6b696e, engine) {
         Ok(report) => {
             kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)
         }
@@ -54,6 +54,7 @@ pub fn run(
     format: Format,
     color: bool,
     identifiability: Option<(ObserveArg, bool)>,
+    engine: kin_runtime::engine::Engine,
 ) -> ExitCode {
     let name = path.display().to_string();
     let source = match std::fs::read_to_string(path) {
@@ -65,7 +66,7 @@ pub fn run(
     };
     let mut out = compile(&source);
     if let (Some(c), Some((observe, aligned))) = (&out.compiled, identifiability) {
-        let found = identify(c, observe.into(), aligned);
+        let found = identify(c, observe.into(), aligned, engine);
         if !found.is_empty() {
             out.diagnostics.extend(found);
             out.compiled = None;

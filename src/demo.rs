@@ -51,6 +51,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         enter: None,
         holdout: None,
         seed: 0,
+        engine: kin_runtime::engine::Engine::default(),
         color,
     };
     for round in 1..=rounds + 1 {

@@ -24,6 +24,7 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
     let fitted = fitcmd::fit_quietly(&a.fit)?;
     let settings = Settings {
         alpha: a.alpha,
+        engine: a.fit.engine,
         ..Settings::default()
     };
     let diagnosis = diagnose::diagnose(

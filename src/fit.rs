@@ -6,7 +6,6 @@ use std::process::ExitCode;
 use indicatif::{ProgressBar, ProgressStyle};
 use kin_runtime::fit::{self, report, DataSet, FitError, Options, Solver};
 use kin_runtime::history;
-use kin_runtime::interp::Interpreter;
 
 use crate::load::{self, Failed};
 
@@ -28,6 +27,7 @@ pub struct FitArgs {
     pub enter: Option<f64>,
     pub holdout: Option<f64>,
     pub seed: u64,
+    pub engine: kin_runtime::engine::Engine,
     pub color: bool,
 }
 
@@ -106,7 +106,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} rows ({eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let mut engine = Interpreter::new(m).map_err(|e| {
+    let mut engine = kin_runtime::engine::make(m, a.engine).map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
@@ -120,13 +120,15 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     };
     let result = fit::fit(
         &compiled,
-        &mut engine,
+        engine.as_mut(),
         &files,
         &validate,
         &options,
         &mut progress,
     );
     bar.finish_and_clear();
+    // The engine borrows the machine, which the result takes along.
+    drop(engine);
     let result = match result {
         Ok(r) => r,
         Err(FitError::RankDeficient {
@@ -153,7 +155,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
             return Err(Failed::INPUT);
         }
     };
-    let report = report::build(m, &source, "interp", &files, &validate, &result, &options);
+    let report = report::build(m, &source, a.engine.name(), &files, &validate, &result, &options);
     Ok(Fitted {
         source,
         compiled,

@@ -1,5 +1,6 @@
 //! `kin`: check, simulate, evaluate and fit models of multi-axis machines.
 
+mod bench;
 mod check;
 mod demo;
 mod diagnose;
@@ -52,6 +53,9 @@ enum Command {
         /// Skip the identifiability analysis.
         #[arg(long)]
         no_identify: bool,
+        /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
     },
     /// Simulate measurements with a known truth: the machine's errors applied exactly
     /// (finite transforms), written in the measurement-file format.
@@ -125,6 +129,9 @@ enum Command {
         /// Seed of the held-out draw.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -154,6 +161,9 @@ enum Command {
         /// Add candidate N (as numbered in the list) to the model file and refit.
         #[arg(long, value_name = "N")]
         apply: Option<usize>,
+        /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -167,6 +177,9 @@ enum Command {
         output: Option<PathBuf>,
         #[arg(long, value_enum, default_value_t = simulate::Components::Pose)]
         components: simulate::Components,
+        /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -185,6 +198,20 @@ enum Command {
         data: Vec<PathBuf>,
         #[arg(short, long)]
         output: PathBuf,
+        #[arg(long, default_value = "auto")]
+        color: String,
+    },
+    /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
+    /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
+    /// A measurement on this computer, not a test.
+    Bench {
+        machine: PathBuf,
+        /// Poses sampled over the axis ranges, evaluated in turn.
+        #[arg(long, default_value_t = 1000)]
+        poses: usize,
+        /// Seconds spent on each figure (best of 5 rounds).
+        #[arg(long, default_value_t = 0.6)]
+        seconds: f64,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -208,10 +235,11 @@ fn main() -> ExitCode {
             observe,
             aligned,
             no_identify,
+            engine,
         } => {
             let color = use_color(&color);
             let identify = (!no_identify).then_some((observe, aligned));
-            check::run(&file, format, color, identify)
+            check::run(&file, format, color, identify, engine)
         }
         Command::Simulate {
             machine,
@@ -254,6 +282,7 @@ fn main() -> ExitCode {
             enter,
             holdout,
             seed,
+            engine,
             color,
         } => fit::run(fit::FitArgs {
             machine,
@@ -267,6 +296,7 @@ fn main() -> ExitCode {
             enter,
             holdout,
             seed,
+            engine,
             color: use_color(&color),
         }),
         Command::Demo { dir, rounds, color } => demo::run(dir, rounds, use_color(&color)),
@@ -276,6 +306,7 @@ fn main() -> ExitCode {
             alpha,
             output,
             apply,
+            engine,
             color,
         } => diagnose::run(diagnose::DiagnoseArgs {
             fit: fit::FitArgs {
@@ -290,6 +321,7 @@ fn main() -> ExitCode {
                 enter: None,
                 holdout: None,
                 seed: 0,
+                engine,
                 color: use_color(&color),
             },
             alpha,
@@ -302,6 +334,7 @@ fn main() -> ExitCode {
             params,
             output,
             components,
+            engine,
             color,
         } => simulate::eval(
             &machine,
@@ -309,6 +342,7 @@ fn main() -> ExitCode {
             &poses,
             output.as_deref(),
             components,
+            engine,
             use_color(&color),
         ),
         Command::Report {
@@ -326,5 +360,11 @@ fn main() -> ExitCode {
             output,
             color: use_color(&color),
         }),
+        Command::Bench {
+            machine,
+            poses,
+            seconds,
+            color,
+        } => bench::run(&machine, poses, seconds, use_color(&color)),
     }
 }

@@ -131,13 +131,14 @@ pub fn eval(
     poses: &Path,
     output: Option<&Path>,
     components: Components,
+    engine: kin_runtime::engine::Engine,
     color: bool,
 ) -> ExitCode {
     finish((|| {
         let compiled = load::machine(machine, params, color)?;
         let m = &compiled.machine;
         let poses = load::observations(poses, &compiled, true)?;
-        let out = simulate::predict(m, &m.beta, &poses, components.mask()).map_err(|e| {
+        let out = simulate::predict_with(m, &m.beta, &poses, components.mask(), engine).map_err(|e| {
             eprintln!("error: {e}");
             Failed::INPUT
         })?;

@@ -27,8 +27,13 @@ fn column(path: &Path, name: &str) -> Vec<f64> {
     let s = std::fs::read_to_string(path).expect("csv");
     let mut lines = s.lines().filter(|l| !l.starts_with('#'));
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
-    let k = header.iter().position(|h| h.split('[').next() == Some(name)).unwrap_or_else(|| panic!("no column {name} in {header:?}"));
-    lines.map(|l| l.split(',').nth(k).expect("cell").parse().expect("number")).collect()
+    let k = header
+        .iter()
+        .position(|h| h.split('[').next() == Some(name))
+        .unwrap_or_else(|| panic!("no column {name} in {header:?}"));
+    lines
+        .map(|l| l.split(',').nth(k).expect("cell").parse().expect("number"))
+        .collect()
 }
 
 const PARAMS: &str = "params {\n    Y.rz = [3, -2, 1, 0.5, 0.2, 4] urad\n    X.ty = [1.5, -0.5, 0.8, 0.3] um\n    X.tx[0] = 2 um\n    Z.tz.tau = 35 min\n}\n";
@@ -39,7 +44,10 @@ fn check_prints_a_summary_for_every_example() {
         let out = kin(&["check", &format!("examples/{name}.kin")]);
         assert!(out.status.success(), "{name}: {}", text(&out.stderr));
         let stdout = text(&out.stdout);
-        assert!(stdout.contains("checks clean") && stdout.contains("coefficients"), "{stdout}");
+        assert!(
+            stdout.contains("checks clean") && stdout.contains("coefficients"),
+            "{stdout}"
+        );
     }
     let json = kin(&["check", "examples/milling_5axis.kin", "--format", "json"]);
     let v: serde_json::Value = serde_json::from_slice(&json.stdout).expect("json");
@@ -52,17 +60,41 @@ fn simulate_then_eval_agree_to_second_order() {
     let params = tmp("truth.params");
     std::fs::write(&params, PARAMS).unwrap();
     let sim = tmp("sim.csv");
-    let out = kin(&["simulate", "examples/bridge_cmm.kin", "--params", params.to_str().unwrap(), "--sample", "40", "--seed", "9", "-o", sim.to_str().unwrap()]);
+    let out = kin(&[
+        "simulate",
+        "examples/bridge_cmm.kin",
+        "--params",
+        params.to_str().unwrap(),
+        "--sample",
+        "40",
+        "--seed",
+        "9",
+        "-o",
+        sim.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let eval = tmp("eval.csv");
-    let out = kin(&["eval", "examples/bridge_cmm.kin", sim.to_str().unwrap(), "--params", params.to_str().unwrap(), "--components", "position", "-o", eval.to_str().unwrap()]);
+    let out = kin(&[
+        "eval",
+        "examples/bridge_cmm.kin",
+        sim.to_str().unwrap(),
+        "--params",
+        params.to_str().unwrap(),
+        "--components",
+        "position",
+        "-o",
+        eval.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     for c in ["ex", "ey", "ez"] {
         let exact = column(&sim, c);
         let first = column(&eval, c);
         assert_eq!(exact.len(), 40);
         let scale = exact.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        assert!(scale > 0.5 || c != "ey", "the truth produces micrometre errors in y");
+        assert!(
+            scale > 0.5 || c != "ey",
+            "the truth produces micrometre errors in y"
+        );
         for (a, b) in exact.iter().zip(&first) {
             // Errors of a few µm over a metre: the first-order model is exact to ~1e-5 µm.
             assert!((a - b).abs() < 1e-4, "{c}: exact {a} vs first-order {b}");
@@ -75,7 +107,18 @@ fn simulated_noise_has_the_requested_size() {
     let sim = tmp("noise.csv");
     let zero = tmp("zero.csv");
     for (path, noise) in [(&sim, "0.5um"), (&zero, "0um")] {
-        let out = kin(&["simulate", "examples/bridge_cmm.kin", "--sample", "2000", "--seed", "1", "--noise", noise, "-o", path.to_str().unwrap()]);
+        let out = kin(&[
+            "simulate",
+            "examples/bridge_cmm.kin",
+            "--sample",
+            "2000",
+            "--seed",
+            "1",
+            "--noise",
+            noise,
+            "-o",
+            path.to_str().unwrap(),
+        ]);
         assert!(out.status.success(), "{}", text(&out.stderr));
     }
     let a = column(&sim, "ex");
@@ -91,10 +134,20 @@ fn simulated_noise_has_the_requested_size() {
 fn a_bad_params_file_is_located() {
     let params = tmp("bad.params");
     std::fs::write(&params, "params {\n    Y.rz = [3, -2] urad\n}\n").unwrap();
-    let out = kin(&["simulate", "examples/bridge_cmm.kin", "--params", params.to_str().unwrap(), "--sample", "3"]);
+    let out = kin(&[
+        "simulate",
+        "examples/bridge_cmm.kin",
+        "--params",
+        params.to_str().unwrap(),
+        "--sample",
+        "3",
+    ]);
     assert_eq!(out.status.code(), Some(1));
     let err = text(&out.stderr);
-    assert!(err.contains("E0501") && err.contains("`Y.rz` has 6 coefficients, but 2 values are given"), "{err}");
+    assert!(
+        err.contains("E0501") && err.contains("`Y.rz` has 6 coefficients, but 2 values are given"),
+        "{err}"
+    );
     assert!(err.contains("bad.params:2:12"), "points at the list: {err}");
 }
 
@@ -105,7 +158,10 @@ fn a_bad_measurement_cell_names_file_line_and_column() {
     let out = kin(&["eval", "examples/bridge_cmm.kin", csv.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
     let err = text(&out.stderr);
-    assert!(err.contains("bad.csv") && err.contains("line 4, column 4") && err.contains("2O"), "{err}");
+    assert!(
+        err.contains("bad.csv") && err.contains("line 4, column 4") && err.contains("2O"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -125,24 +181,68 @@ fn fit_recovers_the_truth_and_its_parameters_load_back() {
     let params = tmp("fit-truth.params");
     std::fs::write(&params, PARAMS).unwrap();
     let sim = tmp("fit-data.csv");
-    let out = kin(&["simulate", "examples/bridge_cmm.kin", "--params", params.to_str().unwrap(), "--sample", "1500", "--noise", "0.2um", "--seed", "4", "-o", sim.to_str().unwrap()]);
+    let out = kin(&[
+        "simulate",
+        "examples/bridge_cmm.kin",
+        "--params",
+        params.to_str().unwrap(),
+        "--sample",
+        "1500",
+        "--noise",
+        "0.2um",
+        "--seed",
+        "4",
+        "-o",
+        sim.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let report = tmp("fit.json");
-    let out = kin(&["fit", "examples/bridge_cmm.kin", sim.to_str().unwrap(), "-o", report.to_str().unwrap()]);
+    let out = kin(&[
+        "fit",
+        "examples/bridge_cmm.kin",
+        sim.to_str().unwrap(),
+        "-o",
+        report.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
-    assert!(stdout.contains("σ̂ = ") && stdout.contains("error component"), "{stdout}");
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert!(
+        stdout.contains("σ̂ = ") && stdout.contains("error component"),
+        "{stdout}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     let sigma = v["sigma"].as_f64().unwrap();
     assert!((sigma - 0.2).abs() < 0.02, "σ̂ {sigma} µm for 0.2 µm noise");
     assert_eq!(v["rank"], v["columns"]);
-    let coef = |name: &str| v["coefficients"].as_array().unwrap().iter().find(|c| c["name"] == name).cloned().unwrap();
+    let coef = |name: &str| {
+        v["coefficients"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["name"] == name)
+            .cloned()
+            .unwrap()
+    };
     let x0 = coef("X.tx[0]");
-    assert!(((x0["value"].as_f64().unwrap() - 2.0) / x0["se"].as_f64().unwrap()).abs() < 4.0, "{x0}");
+    assert!(
+        ((x0["value"].as_f64().unwrap() - 2.0) / x0["se"].as_f64().unwrap()).abs() < 4.0,
+        "{x0}"
+    );
     // The fitted parameters (FIT.json or FIT.params) load into eval: predictions match the
     // data to the noise.
     let eval = tmp("fit-eval.csv");
-    let out = kin(&["eval", "examples/bridge_cmm.kin", sim.to_str().unwrap(), "--params", report.to_str().unwrap(), "--components", "position", "-o", eval.to_str().unwrap()]);
+    let out = kin(&[
+        "eval",
+        "examples/bridge_cmm.kin",
+        sim.to_str().unwrap(),
+        "--params",
+        report.to_str().unwrap(),
+        "--components",
+        "position",
+        "-o",
+        eval.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let (a, b) = (column(&sim, "ey"), column(&eval, "ey"));
     let rms = (a.iter().zip(&b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt();
@@ -153,10 +253,18 @@ fn fit_recovers_the_truth_and_its_parameters_load_back() {
 #[test]
 fn fit_names_a_bad_cell_and_an_invisible_term() {
     let csv = tmp("fit-nan.csv");
-    std::fs::write(&csv, "Y,X,Z,dir_Y,T_scale,T_room,time,ex\n1,2,-3,+1,20,1,0,NaN\n").unwrap();
+    std::fs::write(
+        &csv,
+        "Y,X,Z,dir_Y,T_scale,T_room,time,ex\n1,2,-3,+1,20,1,0,NaN\n",
+    )
+    .unwrap();
     let out = kin(&["fit", "examples/bridge_cmm.kin", csv.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
-    assert!(text(&out.stderr).contains("line 2, column 18 (`ex`)"), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("line 2, column 18 (`ex`)"),
+        "{}",
+        text(&out.stderr)
+    );
 
     // Only ex observed along a line in x: most terms are invisible; the fit says which, at the
     // declarations, instead of returning numbers.
@@ -166,20 +274,45 @@ fn fit_names_a_bad_cell_and_an_invisible_term() {
         s.push_str(&format!("100,{},-200,+1,20,1,{i},0.1\n", 10 * i));
     }
     std::fs::write(&line, s).unwrap();
-    let out = kin(&["fit", "examples/bridge_cmm.kin", line.to_str().unwrap(), "--color", "never"]);
+    let out = kin(&[
+        "fit",
+        "examples/bridge_cmm.kin",
+        line.to_str().unwrap(),
+        "--color",
+        "never",
+    ]);
     assert_eq!(out.status.code(), Some(1));
     let err = text(&out.stderr);
-    assert!(err.contains("E0601") && err.contains("examples/bridge_cmm.kin:") && err.contains("--min-norm"), "{err}");
+    assert!(
+        err.contains("E0601")
+            && err.contains("examples/bridge_cmm.kin:")
+            && err.contains("--min-norm"),
+        "{err}"
+    );
 }
 
 /// The README's first command: the bundled data fit back to their truth.
 #[test]
 fn the_readme_main_command_fits_the_bundled_data() {
-    let out = kin(&["fit", "examples/bridge_cmm.kin", "examples/data/bridge_cmm_points.csv", "--stepwise", "1e-4"]);
+    let out = kin(&[
+        "fit",
+        "examples/bridge_cmm.kin",
+        "examples/data/bridge_cmm_points.csv",
+        "--stepwise",
+        "1e-4",
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let s = text(&out.stdout);
-    let sigma: f64 = s.split("σ̂ = ").nth(1).and_then(|t| t.split_whitespace().next()).and_then(|v| v.parse().ok()).expect("σ̂ printed");
-    assert!((sigma - 0.2).abs() < 0.02, "σ̂ {sigma} for 0.2 µm simulated noise");
+    let sigma: f64 = s
+        .split("σ̂ = ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("σ̂ printed");
+    assert!(
+        (sigma - 0.2).abs() < 0.02,
+        "σ̂ {sigma} for 0.2 µm simulated noise"
+    );
     // The planted backlash (0.8 µm) survives selection.
     assert!(s.contains("0.800±"), "{s}");
 }
@@ -191,14 +324,27 @@ fn the_readme_demo_finds_both_hidden_effects() {
     let out = kin(&["demo", "--dir", dir.to_str().unwrap()]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let s = text(&out.stdout);
-    assert!(s.contains("adding candidate 1 to the model: X.tx += backlash(X)"), "{s}");
+    assert!(
+        s.contains("adding candidate 1 to the model: X.tx += backlash(X)"),
+        "{s}"
+    );
     assert!(s.contains("X.tx += periodic(X, wavelength fit 25."), "{s}");
-    assert!(s.contains("model revised") && s.contains("no candidate is significant"), "{s}");
-    let sigma: f64 = s.rsplit("σ̂ = ").next().and_then(|t| t.split_whitespace().next()).and_then(|v| v.parse().ok()).expect("final σ̂");
+    assert!(
+        s.contains("model revised") && s.contains("no candidate is significant"),
+        "{s}"
+    );
+    let sigma: f64 = s
+        .rsplit("σ̂ = ")
+        .next()
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("final σ̂");
     assert!(sigma < 1.2 * 0.2, "σ̂ {sigma} within 1.2× the 0.2 µm noise");
     // The model file was changed (the copy, not the bundled one) and the history recorded.
     let model = std::fs::read_to_string(dir.join("bridge_cmm.kin")).unwrap();
     assert!(model.contains("// added by `kin diagnose`"));
-    assert!(!std::fs::read_to_string("examples/demo/start.kin").unwrap().contains("added by"));
+    assert!(!std::fs::read_to_string("examples/demo/start.kin")
+        .unwrap()
+        .contains("added by"));
     assert!(dir.join("bridge_cmm.kin.history.jsonl").exists());
 }

@@ -1329,14 +1329,23 @@ impl<'a> Options<'a> {
                 unit: u,
                 span,
             } => {
+                // Knots of an absolute temperature are absolute temperatures, like its range;
+                // the variable decides (its unit carries the offset), not the knots' unit text,
+                // in which a lone `degC` always reads as absolute.
+                let absolute = unit.offset != 0.0;
                 let unit = match u {
-                    Some(u) => parse_unit(u, sink)?,
+                    Some(u) => {
+                        let parsed = parse_unit(u, sink)?;
+                        if absolute {
+                            parsed.as_absolute()
+                        } else {
+                            parsed.as_difference()
+                        }
+                    }
                     None => unit.clone(),
                 };
                 let mut out = Vec::with_capacity(items.len());
                 let mut last: Option<(f64, Span)> = None;
-                // Knots of an absolute temperature are absolute temperatures, like its range.
-                let absolute = unit.offset != 0.0;
                 for item in items {
                     let v = quantity_of(item, unit.dim, &unit, absolute, "a knot position", sink)?;
                     if !(v > range[0] && v < range[1]) {

@@ -40,3 +40,21 @@ fn every_example_checks_clean() {
     }
     assert!(seen >= 3);
 }
+
+/// Knot positions follow the variable: absolute for an absolute temperature, differences for a
+/// temperature rise, whatever the knot's own unit text says.
+#[test]
+fn knots_of_temperature_inputs() {
+    let src = |input: &str, knots: &str| {
+        format!(
+            "machine m {{ task position  axis X prismatic along x range 0 mm .. 500 mm  input T : temperature {input}
+             tool chain {{ X moving  tool t }}  errors {{ X.tx = spline(T, knots at ({knots}) degC) }} }}"
+        )
+    };
+    let ok = compile(&src("absolute range 15 degC .. 30 degC", "20, 25"));
+    assert!(ok.diagnostics.is_empty(), "{:#?}", ok.diagnostics);
+    let ok = compile(&src("rise range 0 degC .. 5 degC", "2.5"));
+    assert!(ok.diagnostics.is_empty(), "{:#?}", ok.diagnostics);
+    let bad = compile(&src("absolute range 15 degC .. 30 degC", "2.5"));
+    assert_eq!(bad.diagnostics.first().map(|d| d.code), Some("E0301"), "2.5 °C is outside 15–30 °C");
+}

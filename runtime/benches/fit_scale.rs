@@ -303,6 +303,57 @@ struct DenseRun {
     rss: f64,
     /// Per block size: the streaming QR of the in-memory matrix, and its β's difference.
     in_memory: Vec<(usize, T, f64)>,
+    leverage: Leverage,
+}
+
+/// The per-row leverage `h = ‖G x‖²` over all rows, two ways, in blocks of 4096 rows.
+struct Leverage {
+    /// As the fit's residual pass does it: a dense `G` (p × p), `X_b Gᵀ`, row sums read across
+    /// the column-major product.
+    dense: T,
+    /// With the triangle: `Z = R⁻ᵀ X_bᵀ` by a triangular solve, column norms.
+    triangular: T,
+}
+
+fn leverage_kernels(x: MatRef<'_, f64>, r: MatRef<'_, f64>) -> Leverage {
+    use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
+    let (m, p) = (x.nrows(), x.ncols());
+    const B: usize = 4096;
+    // G = R⁻ᵀ (lower triangular, held dense like the fit's SVD-based G).
+    let mut g = Mat::<f64>::identity(p, p);
+    solve_lower_triangular_in_place(r.transpose(), g.as_mut(), faer::Par::Seq);
+    let clock = Clock::start();
+    let (mut sum_a, mut i0) = (0.0, 0);
+    while i0 < m {
+        let b = B.min(m - i0);
+        let gx = x.get(i0..i0 + b, ..) * g.transpose();
+        for i in 0..b {
+            let h: f64 = (0..gx.ncols()).map(|k| gx[(i, k)].powi(2)).sum();
+            sum_a += h;
+        }
+        i0 += b;
+    }
+    let dense = clock.elapsed();
+    let clock = Clock::start();
+    let (mut sum_b, mut i0) = (0.0, 0);
+    let mut z = Mat::<f64>::zeros(p, B);
+    while i0 < m {
+        let b = B.min(m - i0);
+        z.get_mut(.., ..b)
+            .copy_from(x.get(i0..i0 + b, ..).transpose());
+        solve_lower_triangular_in_place(r.transpose(), z.get_mut(.., ..b), faer::Par::Seq);
+        for i in 0..b {
+            sum_b += z.col(i).squared_norm_l2();
+        }
+        i0 += b;
+    }
+    let triangular = clock.elapsed();
+    // Σ h = trace of the hat matrix = p, both ways.
+    assert!(
+        (sum_a - p as f64).abs() < 1e-6 * p as f64 && (sum_b - p as f64).abs() < 1e-6 * p as f64,
+        "Σh {sum_a} {sum_b}"
+    );
+    Leverage { dense, triangular }
 }
 
 // ---- main -----------------------------------------------------------------------------------
@@ -478,7 +529,9 @@ fn main() {
         qr.solve_lstsq_in_place(&mut rhs);
         let beta: Vec<f64> = (0..p).map(|j| rhs[(j, 0)]).collect();
         let solve = clock.elapsed();
+        let rt = Mat::from_fn(p, p, |i, j| if j >= i { qr.thin_R()[(i, j)] } else { 0.0 });
         drop(qr);
+        let leverage = leverage_kernels(d.x.as_ref(), rt.as_ref());
         let clock = Clock::start();
         let bm = Mat::from_fn(p, 1, |j, _| beta[j]);
         let fitted = &d.x * &bm;
@@ -509,6 +562,7 @@ fn main() {
             beta,
             rss,
             in_memory,
+            leverage,
         }
     });
 
@@ -569,6 +623,16 @@ fn main() {
         line("  factorise (faer Householder QR, x.qr())", d.factor, None);
         line("  solve (Qᵀy, back substitution)", d.solve, None);
         line("  residuals y − Xβ", d.resid, None);
+        line(
+            "leverage kernel as in pass 2: x·Gᵀ, G dense",
+            d.leverage.dense,
+            None,
+        );
+        line(
+            "leverage kernel, triangular: ‖R⁻ᵀx‖²",
+            d.leverage.triangular,
+            None,
+        );
         for (block, el, _) in &d.in_memory {
             line(
                 &format!("streaming QR alone, X in memory, block {block}"),

@@ -6,13 +6,12 @@
 //! Besides criterion's report, a summary with the ratios is printed at the start
 //! (`cargo bench -p kin-runtime --bench jit`).
 
-mod baseline_5axis;
-
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use kin_compiler::ir::Machine;
+use kin_runtime::bench::baseline_5axis;
 use kin_runtime::interp::Interpreter;
 use kin_runtime::jit;
 use kin_runtime::states::States;
@@ -131,7 +130,7 @@ fn summary() {
         eprintln!("{name:<16} {n:>4} {interp:>12.0} {fast:>12.0} {:>8.1} {error_only:>12.0} {compile_ms:>12.2} {source_ms:>12.2}", fast / interp);
         if name == "milling_5axis" {
             let mut base = |trig| {
-                let mut b = baseline_5axis::Baseline::new(&s.m, trig);
+                let mut b = baseline_5axis::Baseline::new(&s.m, trig).expect("the 5-axis example");
                 rate(budget, || {
                     for r in 0..POSES {
                         b.error_and_jacobian(
@@ -194,7 +193,8 @@ fn bench(c: &mut Criterion) {
             })
         });
         if name == "milling_5axis" {
-            let mut base = baseline_5axis::Baseline::new(&s.m, baseline_5axis::Trig::Exact);
+            let mut base = baseline_5axis::Baseline::new(&s.m, baseline_5axis::Trig::Exact)
+                .expect("the 5-axis example");
             group.bench_with_input(BenchmarkId::new("baseline", &label), &(), |b, _| {
                 b.iter(|| {
                     for r in 0..POSES {

@@ -125,7 +125,7 @@ impl std::str::FromStr for Engine {
 }
 
 /// Why an engine could not be made for a machine.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[derive(Debug, PartialEq, thiserror::Error)]
 pub enum EngineError {
     #[error(transparent)]
     Interp(#[from] EvalError),

@@ -14,13 +14,15 @@ use kin_compiler::ir::Machine;
 use kin_compiler::SourceMap;
 use thiserror::Error;
 
-use crate::interp::{EvalError, Interpreter, State};
+use crate::interp::{EvalError, State};
 use crate::states::States;
 
 #[derive(Debug, Error)]
 pub enum IdentifyError {
     #[error(transparent)]
     Eval(#[from] EvalError),
+    #[error(transparent)]
+    Engine(#[from] crate::engine::EngineError),
     #[error("the singular value decomposition did not converge")]
     Svd,
     #[error("no observations to analyse")]
@@ -80,12 +82,22 @@ pub const TOLERANCE: f64 = 1e-8;
 
 /// Builds the design matrix of `observe` at `states` (row-major, columns = coefficients, then
 /// six alignment columns when `aligned`).
+/// As [`design_with`], evaluated by the interpreter.
 pub fn design(
     m: &Machine,
     states: &States,
     observe: Observe,
     aligned: bool,
 ) -> Result<(Vec<f64>, Vec<Column>), IdentifyError> {
+    design_with(m, states, observe, aligned, crate::engine::Engine::Interp)
+}
+
+/// Builds the design matrix of `observe` at `states` with the chosen engine.
+pub fn design_with(
+    m: &Machine,
+    states: &States,
+    observe: Observe,
+    aligned: bool, engine: crate::engine::Engine) -> Result<(Vec<f64>, Vec<Column>), IdentifyError> {
     let n = m.coefficients.len();
     let mut columns: Vec<Column> = Vec::new();
     if aligned && observe != Observe::Length {
@@ -98,7 +110,7 @@ pub fn design(
     let offset = columns.len();
     columns.extend((0..n).map(Column::Coefficient));
     let width = columns.len();
-    let mut it = Interpreter::new(m)?;
+    let mut it = crate::engine::make(m, engine)?;
     let beta = vec![0.0; n];
     let mut jac = vec![0.0; 6 * n];
     let mut err = [0.0; 6];
@@ -106,12 +118,11 @@ pub fn design(
     match observe {
         Observe::Position | Observe::Pose | Observe::Data => {
             let comps = if observe == Observe::Position { 3 } else { 6 };
-            let mut jq = vec![nalgebra::Vector6::zeros(); m.axes.len()];
             for r in 0..states.len() {
                 let s = states.get(r);
                 it.error_and_jacobian(&s, &beta, &mut err, &mut jac)?;
                 let p = if aligned {
-                    it.nominal_jacobian(&s, &mut jq)?.position
+                    nalgebra::Vector3::from(it.nominal_position(&s)?)
                 } else {
                     nalgebra::Vector3::zeros()
                 };
@@ -286,8 +297,20 @@ pub fn sampled(
     n: usize,
     seed: u64,
 ) -> Result<Report, IdentifyError> {
+    sampled_with(m, observe, aligned, n, seed, crate::engine::Engine::Interp)
+}
+
+/// As [`sampled`], with the chosen engine.
+pub fn sampled_with(
+    m: &Machine,
+    observe: Observe,
+    aligned: bool,
+    n: usize,
+    seed: u64,
+    engine: crate::engine::Engine,
+) -> Result<Report, IdentifyError> {
     let states = States::sample(m, n, seed);
-    let (x, columns) = design(m, &states, observe, aligned)?;
+    let (x, columns) = design_with(m, &states, observe, aligned, engine)?;
     analyse(&x, &columns)
 }
 

@@ -1,6 +1,10 @@
 //! The `.kin` runtime.
+//!
+//! To embed a model in a program, start at [`Model`] (the [`embed`] module).
+pub mod bench;
 pub mod data;
 pub mod diagnose;
+pub mod embed;
 pub mod engine;
 pub mod exact;
 pub mod fit;
@@ -12,3 +16,6 @@ pub mod kinematics;
 pub mod lag;
 pub mod simulate;
 pub mod states;
+
+pub use embed::{Model, RowsBuf, StateBuf};
+pub use engine::Engine;

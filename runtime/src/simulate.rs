@@ -34,6 +34,8 @@ pub enum SimulateError {
     },
     #[error("noise must be a finite, non-negative standard deviation")]
     Noise,
+    #[error("{0}")]
+    Engine(String),
 }
 
 /// Which error components a simulated point file holds, and the measurement noise.
@@ -83,6 +85,44 @@ pub fn simulate(
     options: &Options,
 ) -> Result<Observations, SimulateError> {
     run(m, beta, poses, options, Engine::Exact)
+}
+
+/// The first-order model's prediction at the poses of `poses` by the chosen engine (`kin eval`).
+pub fn predict_with(m: &Machine, beta: &[f64], poses: &Observations, observe: [bool; 6], engine: crate::engine::Engine) -> Result<Observations, SimulateError> {
+    let mut ev = crate::engine::make(m, engine).map_err(|e| SimulateError::Engine(e.to_string()))?;
+    match poses {
+        Observations::Points(p) => {
+            let states = States::new(m, &p.rows, &p.pose, "")?;
+            let mut observed: [Option<Vec<f64>>; 6] = Default::default();
+            for (k, slot) in observed.iter_mut().enumerate() {
+                if observe.get(k).copied().unwrap_or(false) {
+                    *slot = Some(Vec::with_capacity(states.len()));
+                }
+            }
+            for r in 0..states.len() {
+                let line = states.line.get(r).copied().unwrap_or(0);
+                let e = ev.error(&states.get(r), beta).map_err(|source| SimulateError::Eval { line, source })?;
+                for (k, col) in observed.iter_mut().enumerate() {
+                    if let Some(col) = col {
+                        col.push(e.get(k).copied().unwrap_or(0.0));
+                    }
+                }
+            }
+            Ok(Observations::Points(PointData { rows: p.rows.clone(), pose: p.pose.clone(), observed }))
+        }
+        Observations::Lengths(l) => {
+            let [p1, p2] = &l.poses;
+            let s1 = States::new(m, &l.rows, p1, "_1")?;
+            let s2 = States::new(m, &l.rows, p2, "_2")?;
+            let mut row = vec![0.0; m.coefficients.len()];
+            let mut dl = Vec::with_capacity(s1.len());
+            for r in 0..s1.len() {
+                let line = s1.line.get(r).copied().unwrap_or(0);
+                dl.push(ev.length_and_row(&s1.get(r), &s2.get(r), beta, &mut row).map_err(|source| SimulateError::Eval { line, source })?);
+            }
+            Ok(Observations::Lengths(LengthData { rows: l.rows.clone(), poses: l.poses.clone(), dl }))
+        }
+    }
 }
 
 /// The first-order model's prediction at the poses of `poses`, without noise (`kin eval`).

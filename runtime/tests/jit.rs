@@ -5,10 +5,8 @@
 //! a Jacobian row against its largest entry, an error component against `|fixed| + Σ|J·β|`
 //! (entries of a row cancel, so the result itself can be ~0 while its parts are not).
 
-#[path = "../benches/baseline_5axis.rs"]
-mod baseline;
-
 use kin_compiler::ir::{JointKind, Machine};
+use kin_runtime::bench::baseline_5axis as baseline;
 use kin_runtime::engine::Evaluator;
 use kin_runtime::interp::{EvalError, Interpreter, State};
 use kin_runtime::jit::{self, BatchError, JitModel, StateRows};
@@ -1031,7 +1029,7 @@ fn the_hand_written_baseline_agrees_with_the_interpreter() {
     let n = m.coefficients.len();
     let mut it = Interpreter::new(&m).expect("interpreter");
     for trig in [baseline::Trig::Exact, baseline::Trig::Recurrence] {
-        let mut base = baseline::Baseline::new(&m, trig);
+        let mut base = baseline::Baseline::new(&m, trig).expect("the 5-axis example");
         let mut rng = StdRng::seed_from_u64(12);
         let beta: Vec<f64> = (0..n).map(|_| rng.random_range(-1e-5..1e-5)).collect();
         let zero = vec![0.0; n];

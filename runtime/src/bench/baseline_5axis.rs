@@ -18,10 +18,28 @@
 //! numbers, 9 calls per pose); [`Trig::Recurrence`] is what one would write without that
 //! constraint: harmonics by angle addition from one `sincos`, 4 calls per pose, agreeing to
 //! ~1e-14 instead of bit for bit.
+//!
+//! [`Baseline::new`] refuses any other machine (or a changed example) with [`NotTheExample`],
+//! so `kin bench` can offer the comparison exactly when it applies.
 
 use kin_compiler::basis::{Basis, Detrend, Power, Wavelength};
 use kin_compiler::ir::{Component, FrameKind, FrameRef, JointKind, Machine, Scalar, Var};
-use kin_runtime::interp::State;
+
+use crate::interp::State;
+
+/// The machine is not `examples/milling_5axis.kin` as the baseline was written for: what differs.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("not the 5-axis example the baseline was written for: {0}")]
+pub struct NotTheExample(pub String);
+
+/// Returns [`NotTheExample`] unless the condition holds.
+macro_rules! ensure {
+    ($cond:expr, $($msg:tt)+) => {
+        if !$cond {
+            return Err(NotTheExample(format!($($msg)+)));
+        }
+    };
+}
 
 /// Number of coefficients of the example.
 pub const N: usize = 173;
@@ -81,13 +99,16 @@ pub struct Baseline {
     y_load: Scalar,
 }
 
-fn knots_of<const M: usize>(functions: &[Power]) -> [f64; M] {
+fn knots_of<const M: usize>(functions: &[Power]) -> Result<[f64; M], NotTheExample> {
     let knots: Vec<f64> = functions.iter().filter_map(|p| p.knot).collect();
-    knots.try_into().expect("knot count")
+    let count = knots.len();
+    knots
+        .try_into()
+        .map_err(|_| NotTheExample(format!("{count} knots where {M} were expected")))
 }
 
 /// Reads a `spline(…)`/`straightness(…)` factor of degree 2, smooth 1 with `M` knots.
-fn quad<const M: usize>(basis: &Basis, detrend: Detrend) -> Quad<M> {
+fn quad<const M: usize>(basis: &Basis, detrend: Detrend) -> Result<Quad<M>, NotTheExample> {
     let Basis::Spline {
         lo,
         hi,
@@ -98,9 +119,14 @@ fn quad<const M: usize>(basis: &Basis, detrend: Detrend) -> Quad<M> {
         ..
     } = basis
     else {
-        panic!("expected a quadratic spline, got {basis:?}")
+        return Err(NotTheExample(format!(
+            "expected a quadratic spline, got {basis:?}"
+        )));
     };
-    assert_eq!(*d, detrend);
+    ensure!(
+        *d == detrend,
+        "detrending {d:?} where {detrend:?} was expected"
+    );
     let first = if detrend == Detrend::Line { 2 } else { 1 };
     let expect: Vec<(Option<()>, u32)> = (first..=2)
         .map(|p| (None, p))
@@ -110,20 +136,23 @@ fn quad<const M: usize>(basis: &Basis, detrend: Detrend) -> Quad<M> {
         .iter()
         .map(|f| (f.g.knot.map(|_| ()), f.g.power))
         .collect();
-    assert_eq!(got, expect, "function layout");
+    ensure!(
+        got == expect,
+        "function layout {got:?}, expected {expect:?}"
+    );
     let mut trend = [[0.0; 2]; 10];
     for (t, f) in trend.iter_mut().zip(functions) {
         *t = f.trend;
     }
-    Quad {
+    Ok(Quad {
         lo: *lo,
         span: hi - lo,
-        knots: knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>()),
+        knots: knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>())?,
         trend,
-    }
+    })
 }
 
-fn periodic2(basis: &Basis) -> Periodic2 {
+fn periodic2(basis: &Basis) -> Result<Periodic2, NotTheExample> {
     let Basis::Periodic {
         wavelength: Wavelength::Fixed(tau),
         phase,
@@ -133,21 +162,34 @@ fn periodic2(basis: &Basis) -> Periodic2 {
         ..
     } = basis
     else {
-        panic!("expected a periodic term, got {basis:?}")
+        return Err(NotTheExample(format!(
+            "expected a periodic term, got {basis:?}"
+        )));
     };
-    assert_eq!(*phase, 0.0);
-    assert_eq!(functions.len(), 2);
-    assert!(functions
-        .iter()
-        .all(|f| f.g.power == 2 && f.g.knot.is_some() && f.alpha.len() == 2));
-    Periodic2 {
+    ensure!(*phase == 0.0, "a periodic term with a phase");
+    let alpha = |f: &kin_compiler::basis::PeriodicFunction| -> Option<[f64; 2]> {
+        (f.g.power == 2 && f.g.knot.is_some())
+            .then(|| f.alpha.as_slice().try_into().ok())
+            .flatten()
+    };
+    let [Some(a0), Some(a1)] = [
+        functions.first().and_then(alpha),
+        functions.get(1).and_then(alpha),
+    ] else {
+        return Err(NotTheExample(
+            "the periodic terms have another layout".into(),
+        ));
+    };
+    ensure!(
+        functions.len() == 2,
+        "{} periodic functions where 2 were expected",
+        functions.len()
+    );
+    Ok(Periodic2 {
         tau: *tau,
-        knots: knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>()),
-        alpha: [
-            [functions[0].alpha[0], functions[0].alpha[1]],
-            [functions[1].alpha[0], functions[1].alpha[1]],
-        ],
-    }
+        knots: knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>())?,
+        alpha: [a0, a1],
+    })
 }
 
 /// `max(u − t, 0)²`: `(u − t)₊²` without a branch on the data (random poses would mispredict
@@ -221,7 +263,9 @@ fn scalar(s: &Scalar, st: &State) -> f64 {
         Scalar::Num(x) => *x,
         Scalar::Var(Var::Axis(i)) => st.q[*i],
         Scalar::Var(Var::Input(i)) => st.inputs[*i],
-        Scalar::Var(v) => panic!("unexpected {v:?}"),
+        Scalar::Var(Var::Lag(i)) => st.lags[*i],
+        Scalar::Var(Var::Direction(i)) => st.dirs[*i],
+        Scalar::Var(Var::Time) => st.time,
         Scalar::Neg(a) => -scalar(a, st),
         Scalar::Add(a, b) => scalar(a, st) + scalar(b, st),
         Scalar::Sub(a, b) => scalar(a, st) - scalar(b, st),
@@ -292,42 +336,56 @@ fn add_angles(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
 
 impl Baseline {
     /// Reads the tables of `m`, which must be the 5-axis example: the layout is checked and
-    /// anything else panics (this is a baseline for one machine, not an engine).
-    pub fn new(m: &Machine, trig: Trig) -> Baseline {
-        assert_eq!(m.coefficients.len(), N);
+    /// anything else is refused (this is a baseline for one machine, not an engine).
+    pub fn new(m: &Machine, trig: Trig) -> Result<Baseline, NotTheExample> {
+        ensure!(
+            m.coefficients.len() == N,
+            "{} coefficients, not {N}",
+            m.coefficients.len()
+        );
         let names: Vec<&str> = m.axes.iter().map(|a| a.name.as_str()).collect();
-        assert_eq!(names, ["Y", "X", "Z", "A", "C"]);
+        ensure!(names == ["Y", "X", "Z", "A", "C"], "axes {names:?}");
         let dirs: Vec<([f64; 3], JointKind, bool)> = m
             .axes
             .iter()
             .map(|a| (a.direction, a.kind, a.continuous))
             .collect();
-        assert_eq!(
-            dirs,
-            [
+        ensure!(
+            dirs == [
                 ([0.0, -1.0, 0.0], JointKind::Prismatic, false),
                 ([-1.0, 0.0, 0.0], JointKind::Prismatic, false),
                 ([0.0, 0.0, 1.0], JointKind::Prismatic, false),
                 ([1.0, 0.0, 0.0], JointKind::Revolute, false),
                 ([0.0, 0.0, 1.0], JointKind::Revolute, true),
-            ]
+            ],
+            "axis directions {dirs:?}"
         );
         let wp: Vec<usize> = m.workpiece_chain.iter().map(|e| e.axis).collect();
-        assert_eq!(wp, [0, 1, 3, 4]);
-        assert!(m
-            .workpiece_chain
-            .iter()
-            .all(|e| e.frame == FrameKind::Fixed && e.shape.rotation == [0.0; 3]));
-        assert_eq!(m.tool_chain.len(), 1);
-        assert_eq!(
-            (m.tool_chain[0].axis, m.tool_chain[0].frame),
-            (2, FrameKind::Moving)
+        ensure!(wp == [0, 1, 3, 4], "workpiece chain {wp:?}");
+        ensure!(
+            m.workpiece_chain
+                .iter()
+                .all(|e| e.frame == FrameKind::Fixed && e.shape.rotation == [0.0; 3]),
+            "a moving or rotated workpiece-chain frame"
         );
-        assert!(m.tools.iter().all(|t| t.offset.rotation == [0.0; 3]));
-        assert_eq!(m.tools[1].name, "probe");
-        assert_eq!(
-            (m.workpiece.translation, m.workpiece.rotation),
-            ([0.0; 3], [0.0; 3])
+        let tool_chain: Vec<(usize, FrameKind)> =
+            m.tool_chain.iter().map(|e| (e.axis, e.frame)).collect();
+        ensure!(
+            tool_chain == [(2, FrameKind::Moving)],
+            "tool chain {tool_chain:?}"
+        );
+        ensure!(
+            m.tools.iter().all(|t| t.offset.rotation == [0.0; 3]),
+            "a rotated tool"
+        );
+        let tools: Vec<&str> = m.tools.iter().map(|t| t.name.as_str()).collect();
+        ensure!(
+            tools.len() == 2 && tools.get(1) == Some(&"probe"),
+            "tools {tools:?}"
+        );
+        ensure!(
+            (m.workpiece.translation, m.workpiece.rotation) == ([0.0; 3], [0.0; 3]),
+            "the workpiece offset"
         );
 
         // The layout: (frame, component, first coefficient, count, variable) of every term.
@@ -405,32 +463,46 @@ impl Baseline {
             (ToolEnd(Some(1)), Ty, 171, 1, None),
             (ToolEnd(Some(1)), Tz, 172, 1, None),
         ];
-        assert_eq!(layout, expected, "the example changed: update the baseline");
+        ensure!(
+            layout == expected,
+            "the error models changed (update the baseline)"
+        );
         let term = |frame: FrameRef, c: Component, i: usize| {
-            &m.errors
+            m.errors
                 .iter()
                 .find(|e| e.frame == frame && e.component == c)
-                .expect("model")
-                .terms[i]
+                .and_then(|e| e.terms.get(i))
+                .ok_or_else(|| NotTheExample(format!("no term {i} of {frame:?}.{c:?}")))
         };
-        let basis = |frame: FrameRef, c: Component, i: usize| &term(frame, c, i).factors[0].basis;
-        let harmonics = |c: Component, i: usize, h: &[u32]| {
-            assert_eq!(
-                basis(Workpiece(3), c, i),
-                &Basis::Fourier {
+        let basis = |frame: FrameRef, c: Component, i: usize| {
+            term(frame, c, i)?
+                .factors
+                .first()
+                .map(|f| &f.basis)
+                .ok_or_else(|| NotTheExample(format!("term {i} of {frame:?}.{c:?} has no factor")))
+        };
+        let harmonics = |c: Component, i: usize, h: &[u32]| -> Result<(), NotTheExample> {
+            let b = basis(Workpiece(3), c, i)?;
+            ensure!(
+                b == &Basis::Fourier {
                     harmonics: h.to_vec()
-                }
-            )
+                },
+                "C.{c:?} term {i} is {b:?}"
+            );
+            Ok(())
         };
-        harmonics(Tx, 1, &[2, 3, 4]);
-        harmonics(Tz, 0, &[1, 2, 3]);
-        harmonics(Rx, 1, &[2, 3]);
-        harmonics(Ry, 1, &[2, 3]);
-        harmonics(Rz, 0, &[1, 2, 3, 4]);
-        harmonics(Rz, 1, &[90, 180]);
+        harmonics(Tx, 1, &[2, 3, 4])?;
+        harmonics(Tz, 0, &[1, 2, 3])?;
+        harmonics(Rx, 1, &[2, 3])?;
+        harmonics(Ry, 1, &[2, 3])?;
+        harmonics(Rz, 0, &[1, 2, 3, 4])?;
+        harmonics(Rz, 1, &[90, 180])?;
         for (c, i) in [(Ty, 2), (Tx, 2)] {
             let f = if c == Ty { 0 } else { 1 };
-            assert!(matches!(basis(Workpiece(f), c, i), Basis::Sign));
+            ensure!(
+                matches!(basis(Workpiece(f), c, i)?, Basis::Sign),
+                "no backlash term"
+            );
         }
         let Basis::Spline {
             lo,
@@ -440,85 +512,111 @@ impl Baseline {
             detrend: Detrend::None,
             functions,
             ..
-        } = basis(Tool(0), Tz, 0)
+        } = basis(Tool(0), Tz, 0)?
         else {
-            panic!("Z.tz")
+            return Err(NotTheExample("Z.tz is not a cubic spline".into()));
         };
         let powers: Vec<(bool, u32)> = functions
             .iter()
             .map(|f| (f.g.knot.is_some(), f.g.power))
             .collect();
-        assert_eq!(
-            powers,
-            [
-                (false, 1),
-                (false, 2),
-                (false, 3),
-                (true, 3),
-                (true, 3),
-                (true, 3),
-                (true, 3)
-            ]
+        ensure!(
+            powers
+                == [
+                    (false, 1),
+                    (false, 2),
+                    (false, 3),
+                    (true, 3),
+                    (true, 3),
+                    (true, 3),
+                    (true, 3)
+                ],
+            "Z.tz has another layout"
         );
         let z_tz = (
             *lo,
             hi - lo,
-            knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>()),
+            knots_of(&functions.iter().map(|f| f.g).collect::<Vec<_>>())?,
         );
         let Basis::Legendre {
             lo: a_lo,
             hi: a_hi,
             degree: 3,
-        } = *basis(Workpiece(2), Tx, 0)
+        } = *basis(Workpiece(2), Tx, 0)?
         else {
-            panic!("A.tx")
+            return Err(NotTheExample("A.tx is not a cubic polynomial".into()));
         };
-        assert_eq!(
-            basis(Workpiece(2), Ry, 1),
-            &Basis::Linear { lo: a_lo, hi: a_hi }
+        ensure!(
+            basis(Workpiece(2), Ry, 1)? == &Basis::Linear { lo: a_lo, hi: a_hi },
+            "A.ry is not linear"
         );
         let Basis::Spline {
             lo: c_lo, hi: c_hi, ..
-        } = basis(Workpiece(3), Ty, 1)
+        } = basis(Workpiece(3), Ty, 1)?
         else {
-            panic!("C.ty")
+            return Err(NotTheExample("C.ty is not a spline".into()));
         };
         let c_mid = c_lo + 0.5 * (c_hi - c_lo);
         // Lags read in the tool terms.
-        assert_eq!(term(ToolEnd(None), Tz, 0).scale, Scalar::Var(Var::Lag(0)));
-        assert_eq!(term(ToolEnd(None), Ry, 0).scale, Scalar::Var(Var::Lag(1)));
-        Baseline {
+        ensure!(
+            term(ToolEnd(None), Tz, 0)?.scale == Scalar::Var(Var::Lag(0)),
+            "tool.tz is not scaled by the first lag"
+        );
+        ensure!(
+            term(ToolEnd(None), Ry, 0)?.scale == Scalar::Var(Var::Lag(1)),
+            "tool.ry is not scaled by the second lag"
+        );
+        // Every scale is evaluated by `scalar`, which reads the state without checks.
+        ensure!(
+            m.inputs.len() == 3 && m.lags.len() == 2,
+            "{} inputs and {} lags",
+            m.inputs.len(),
+            m.lags.len()
+        );
+        let shape = |chain: &[kin_compiler::ir::Element], k: usize| {
+            chain
+                .get(k)
+                .map(|e| e.shape.translation)
+                .unwrap_or_default()
+        };
+        Ok(Baseline {
             trig,
-            s_y: m.workpiece_chain[0].shape.translation,
-            s_x: m.workpiece_chain[1].shape.translation,
-            s_a: m.workpiece_chain[2].shape.translation,
-            s_c: m.workpiece_chain[3].shape.translation,
-            s_z: m.tool_chain[0].shape.translation,
+            s_y: shape(&m.workpiece_chain, 0),
+            s_x: shape(&m.workpiece_chain, 1),
+            s_a: shape(&m.workpiece_chain, 2),
+            s_c: shape(&m.workpiece_chain, 3),
+            s_z: shape(&m.tool_chain, 0),
             tools: m.tools.iter().map(|t| t.offset.translation).collect(),
-            y_ty: quad(basis(Workpiece(0), Ty, 0), Detrend::None),
-            y_per: periodic2(basis(Workpiece(0), Ty, 1)),
-            y_str: quad(basis(Workpiece(0), Tx, 0), Detrend::Line),
-            y_rot: quad(basis(Workpiece(0), Rx, 0), Detrend::None),
-            x_load: quad(basis(Workpiece(0), Rx, 1), Detrend::None),
-            x_tx: quad(basis(Workpiece(1), Tx, 0), Detrend::None),
-            x_per: periodic2(basis(Workpiece(1), Tx, 1)),
-            x_str: quad(basis(Workpiece(1), Ty, 0), Detrend::Line),
-            x_rot: quad(basis(Workpiece(1), Rx, 0), Detrend::None),
+            y_ty: quad(basis(Workpiece(0), Ty, 0)?, Detrend::None)?,
+            y_per: periodic2(basis(Workpiece(0), Ty, 1)?)?,
+            y_str: quad(basis(Workpiece(0), Tx, 0)?, Detrend::Line)?,
+            y_rot: quad(basis(Workpiece(0), Rx, 0)?, Detrend::None)?,
+            x_load: quad(basis(Workpiece(0), Rx, 1)?, Detrend::None)?,
+            x_tx: quad(basis(Workpiece(1), Tx, 0)?, Detrend::None)?,
+            x_per: periodic2(basis(Workpiece(1), Tx, 1)?)?,
+            x_str: quad(basis(Workpiece(1), Ty, 0)?, Detrend::Line)?,
+            x_rot: quad(basis(Workpiece(1), Rx, 0)?, Detrend::None)?,
             z_tz,
-            z_str: quad(basis(Tool(0), Tx, 0), Detrend::Line),
-            z_rot: quad(basis(Tool(0), Rx, 0), Detrend::None),
+            z_str: quad(basis(Tool(0), Tx, 0)?, Detrend::Line)?,
+            z_rot: quad(basis(Tool(0), Rx, 0)?, Detrend::None)?,
             a_lo,
             a_span: a_hi - a_lo,
-            a_sp2: quad(basis(Workpiece(2), Ty, 1), Detrend::None),
-            a_sp3: quad(basis(Workpiece(2), Rx, 0), Detrend::None),
-            c_rev: quad(basis(Workpiece(3), Ty, 1), Detrend::OncePerRev),
+            a_sp2: quad(basis(Workpiece(2), Ty, 1)?, Detrend::None)?,
+            a_sp3: quad(basis(Workpiece(2), Rx, 0)?, Detrend::None)?,
+            c_rev: quad(basis(Workpiece(3), Ty, 1)?, Detrend::OncePerRev)?,
             c_mid,
-            y_scale: term(Workpiece(0), Ty, 3).scale.clone(),
-            y_load: term(Workpiece(0), Rx, 1).scale.clone(),
-        }
+            y_scale: term(Workpiece(0), Ty, 3)?.scale.clone(),
+            y_load: term(Workpiece(0), Rx, 1)?.scale.clone(),
+        })
     }
 
     /// The error (position task: actual − nominal) and its β-Jacobian, 6 × n row-major.
+    ///
+    /// # Panics
+    ///
+    /// When the state, `beta` or `jac` do not have the example's sizes, or the tool index is out
+    /// of range: a yardstick reads its buffers without the checks an engine makes (callers size
+    /// them from the machine, as [`crate::bench`] does).
     pub fn error_and_jacobian(
         &mut self,
         st: &State,

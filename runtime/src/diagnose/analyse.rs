@@ -12,7 +12,6 @@ use super::{Bin, Diagnosis, Finding, Region, Spectrum};
 use crate::data::Observations;
 use crate::fit::report::{component_name, model_hash};
 use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, LENGTH};
-use crate::interp::Interpreter;
 
 #[derive(Debug, Error)]
 pub enum DiagnoseError {
@@ -24,6 +23,8 @@ pub enum DiagnoseError {
     Candidates(String),
     #[error(transparent)]
     Eval(#[from] crate::interp::EvalError),
+    #[error(transparent)]
+    Engine(#[from] crate::engine::EngineError),
 }
 
 #[derive(Debug, Clone)]
@@ -34,6 +35,8 @@ pub struct Settings {
     pub taus: Vec<f64>,
     /// Bins per variable for locating failures.
     pub bins: usize,
+    /// What evaluates the model with all its candidates.
+    pub engine: crate::engine::Engine,
 }
 
 impl Default for Settings {
@@ -42,6 +45,7 @@ impl Default for Settings {
             alpha: 0.01,
             taus: vec![600.0, 1800.0, 5400.0],
             bins: 8,
+            engine: crate::engine::Engine::default(),
         }
     }
 }
@@ -475,12 +479,12 @@ fn test_candidates(
             .collect(),
         None => sup.machine.nonlinear.iter().map(|p| p.value).collect(),
     };
-    let mut engine = Interpreter::new(&sup.machine)?;
+    let mut engine = crate::engine::make(&sup.machine, settings.engine)?;
     engine.set_nonlinear(&values)?;
     let layout = Layout::new(&sup.machine, files);
     let states = fit::states_with(&sup.machine, files, &values)?;
     let mut acc = StreamingQr::new(layout.columns(), options.block);
-    fit::for_each_row(&mut engine, files, &states, &layout, |_, x, y| {
+    fit::for_each_row(engine.as_mut(), files, &states, &layout, |_, x, y| {
         acc.push(x, y)
     })?;
     let red = acc.finish();

@@ -1,0 +1,163 @@
+/*
+ * kin.h: the C ABI of the .kin runtime (crate `kin-capi`, library `libkin_capi`).
+ *
+ * Compile a .kin model from source, then evaluate the tool-location error of a multi-axis
+ * machine (Soons 1993, eq. 2.24), its Jacobian with respect to the coefficients beta, and the
+ * nominal tool location with its joint Jacobian, one state or many at a time.
+ *
+ * Conventions
+ *  - Every function that can fail returns a status: KIN_OK (0) or a KIN_ERR_* code. The message
+ *    of the last failure on the calling thread is available from kin_last_error().
+ *  - Arrays come with their lengths. A NULL pointer is allowed only with a length of 0; every
+ *    length is checked against the model; nothing is read or written outside the given lengths.
+ *  - All quantities are SI: metres, radians, seconds, kelvin, newtons.
+ *  - Evaluation (kin_eval*, kin_nominal_jacobian) takes a const model, allocates nothing on
+ *    success and takes no lock: many threads may evaluate one model at once, each with its own
+ *    buffers. kin_model_bind_params, kin_model_set_beta and kin_model_free must not run while
+ *    another thread uses the model.
+ *  - No panic of the Rust code crosses this boundary (KIN_ERR_PANIC instead).
+ *
+ * Example: capi/examples/eval.c. Keep this file in step with capi/src/lib.rs (a test checks
+ * that every function and status is declared here).
+ */
+#ifndef KIN_H
+#define KIN_H
+
+#include <stddef.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Status codes. */
+#define KIN_OK 0
+#define KIN_ERR_POINTER 1 /* a pointer is NULL (with a non-zero length) or misaligned */
+#define KIN_ERR_SIZE 2    /* a length does not match the model */
+#define KIN_ERR_UTF8 3    /* a text is not UTF-8 */
+#define KIN_ERR_COMPILE 4 /* the source does not compile: "line:column: error[CODE]: ..." lines */
+#define KIN_ERR_PARAMS 5  /* a parameter text cannot be bound */
+#define KIN_ERR_EVAL 6    /* the state cannot be evaluated (a value the model uses is NaN, bad tool) */
+#define KIN_ERR_IO 7      /* a file cannot be read or written, or is not a saved model */
+#define KIN_ERR_INDEX 8   /* an index (axis, name) is out of range */
+#define KIN_ERR_PANIC 9   /* a bug in kin: please report the message */
+
+/* Which name kin_model_name() returns. */
+#define KIN_NAME_AXIS 0
+#define KIN_NAME_INPUT 1
+#define KIN_NAME_TOOL 2
+#define KIN_NAME_COEFFICIENT 3
+
+/* A compiled model. */
+typedef struct kin_model kin_model;
+
+/* One observation state; arrays indexed like the machine's axes, inputs and lags. */
+typedef struct kin_state {
+    const double *q;      /* joint positions (m, rad), n_q = axes */
+    size_t n_q;
+    const double *inputs; /* input values, NaN where not given, n_inputs = inputs */
+    size_t n_inputs;
+    const double *lags;   /* lag states, n_lags = lags */
+    size_t n_lags;
+    const double *dirs;   /* direction of motion per axis: +1, -1 or NaN, n_dirs = axes */
+    size_t n_dirs;
+    double time;          /* s */
+    size_t tool;          /* tool index, in declaration order */
+} kin_state;
+
+/* Many states, row-major: row r of q is q[r*axes .. (r+1)*axes], and so on. */
+typedef struct kin_rows {
+    size_t n_rows;
+    const double *q;      /* n_q = n_rows * axes */
+    size_t n_q;
+    const double *inputs; /* n_inputs = n_rows * inputs */
+    size_t n_inputs;
+    const double *lags;   /* n_lags = n_rows * lags */
+    size_t n_lags;
+    const double *dirs;   /* n_dirs = n_rows * axes */
+    size_t n_dirs;
+    const double *time;   /* n_time = n_rows */
+    size_t n_time;
+    const size_t *tool;   /* n_tool = n_rows */
+    size_t n_tool;
+} kin_rows;
+
+/* The library's version, e.g. "0.1.0" (static). */
+const char *kin_version(void);
+
+/* Copies this thread's last error message into buf (len bytes, NUL-terminated, truncated if
+ * need be); returns its full length. buf may be NULL to ask for the length. */
+size_t kin_last_error(char *buf, size_t len);
+
+/* Compiles len bytes of .kin source (a machine, optionally followed by its params). On success
+ * *out is the model; on failure *out is NULL and the message is written to err (err_len bytes;
+ * err may be NULL). */
+int kin_model_compile(const char *src, size_t len, kin_model **out, char *err, size_t err_len);
+
+/* Binds a parameter text (params { ... }, len bytes) on top of the model's values; on failure
+ * the model is unchanged. */
+int kin_model_bind_params(kin_model *model, const char *src, size_t len, char *err, size_t err_len);
+
+/* Saves the model (source, bound parameter texts, exact values) as JSON to path. */
+int kin_model_save(const kin_model *model, const char *path);
+
+/* Loads a saved model: the source is compiled again and the values restored exactly. */
+int kin_model_load(const char *path, kin_model **out);
+
+/* Frees a model (NULL is ignored). */
+void kin_model_free(kin_model *model);
+
+/* Counts (0 for a NULL model). */
+size_t kin_model_axes(const kin_model *model);
+size_t kin_model_inputs(const kin_model *model);
+size_t kin_model_lags(const kin_model *model);
+size_t kin_model_tools(const kin_model *model);
+size_t kin_model_coefficients(const kin_model *model);
+
+/* The declared range of an axis (m or rad; [0, 2 pi] for a continuous axis). */
+int kin_model_axis_range(const kin_model *model, size_t axis, double *lo, double *hi);
+
+/* A typical range of an input (SI): the declared one, or 18-22 degC for an absolute temperature,
+ * 0-4 K for a temperature rise, 0-1000 N for a force, 0-1 otherwise. */
+int kin_model_input_range(const kin_model *model, size_t input, double *lo, double *hi);
+
+/* The input that lag state `lag` follows (in steady state the lag state equals its value). */
+int kin_model_lag_input(const kin_model *model, size_t lag, size_t *input);
+
+/* Copies the name of axis, input, tool or coefficient `index` (what = KIN_NAME_*) into buf as
+ * kin_last_error does; returns its length, or (size_t)-1 when out of range. */
+size_t kin_model_name(const kin_model *model, int what, size_t index, char *buf, size_t len);
+
+/* The bound coefficient values (SI; zeros where none was bound), n_beta = coefficients. */
+int kin_model_beta(const kin_model *model, double *beta, size_t n_beta);
+
+/* Replaces the coefficient values (e.g. with a fit's). */
+int kin_model_set_beta(kin_model *model, const double *beta, size_t n_beta);
+
+/* The tool-location error at a state for coefficients beta (n_beta = coefficients; beta NULL
+ * and n_beta 0 for the model's bound values): err receives ex, ey, ez, erx, ery, erz with the
+ * task's sign; n_err = 6. */
+int kin_eval(const kin_model *model, const kin_state *state, const double *beta, size_t n_beta,
+             double *err, size_t n_err);
+
+/* The error and its Jacobian with respect to beta: jac (n_jac = 6 * coefficients) receives the
+ * 6 x n matrix row-major (row r is error component r): err = fixed + jac * beta. */
+int kin_eval_jacobian(const kin_model *model, const kin_state *state, const double *beta,
+                      size_t n_beta, double *err, size_t n_err, double *jac, size_t n_jac);
+
+/* The nominal tool location in the workpiece frame: location (n_location = 12) receives the
+ * position (3) and the rotation R(wr->tl) row-major (9); jac (n_jac = 6 * axes) the joint
+ * Jacobian, entries 6j .. 6j+5 being (dp/dq_j, omega_j). */
+int kin_nominal_jacobian(const kin_model *model, const kin_state *state, double *location,
+                         size_t n_location, double *jac, size_t n_jac);
+
+/* kin_eval_jacobian over rows->n_rows states: err (n_err = 6 * n_rows) receives 6 values per row,
+ * jac (n_jac = 6 * coefficients * n_rows) one 6 x n block per row; with jac NULL and n_jac 0 only
+ * the errors. Stops at the first row that cannot be evaluated (the message names it). */
+int kin_eval_batch(const kin_model *model, const kin_rows *rows, const double *beta, size_t n_beta,
+                   double *err, size_t n_err, double *jac, size_t n_jac);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* KIN_H */

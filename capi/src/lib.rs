@@ -1,0 +1,962 @@
+//! The C ABI of the `.kin` runtime: compile a model from source, evaluate its tool-location error,
+//! the error's β-Jacobian and the nominal joint Jacobian, one state or many at a time.
+//!
+//! The header is `include/kin.h`; `examples/eval.c` is a complete program. Built as
+//! `libkin_capi.so` (or `.dylib`/`.dll`) and `libkin_capi.a`.
+//!
+//! Every function returns a status (`KIN_OK` or a `KIN_ERR_*` code) and, on failure, leaves a
+//! message for [`kin_last_error`] (per thread). Every pointer is checked against NULL (where the
+//! length it comes with is not 0) and alignment, every length against the model, and no panic
+//! crosses the boundary: one would be caught and reported as `KIN_ERR_PANIC`. The evaluation
+//! functions take a `const kin_model*`, allocate nothing on success and take no lock: many threads
+//! may call them on one model at once. Functions that change a model (`kin_model_bind_params`,
+//! `kin_model_set_beta`) must not run while another thread uses it.
+//!
+//! All quantities are SI: metres, radians, seconds, kelvin, newtons.
+#![allow(non_camel_case_types)]
+
+use std::cell::RefCell;
+use std::ffi::{c_char, c_int, CStr};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::Path;
+
+use kin_runtime::embed::Error;
+use kin_runtime::interp::{EvalError, State};
+use kin_runtime::jit::{BatchError, StateRows};
+use kin_runtime::Model;
+
+pub const KIN_OK: c_int = 0;
+/// A pointer is NULL (with a non-zero length) or misaligned.
+pub const KIN_ERR_POINTER: c_int = 1;
+/// A length does not match the model (axes, inputs, lags, coefficients, outputs).
+pub const KIN_ERR_SIZE: c_int = 2;
+/// A text is not UTF-8.
+pub const KIN_ERR_UTF8: c_int = 3;
+/// The source does not compile (the message lists every error with its line and column).
+pub const KIN_ERR_COMPILE: c_int = 4;
+/// A parameter text cannot be bound.
+pub const KIN_ERR_PARAMS: c_int = 5;
+/// The state cannot be evaluated: a value the model uses is NaN, the tool index is out of range,
+/// two poses of a length coincide.
+pub const KIN_ERR_EVAL: c_int = 6;
+/// A file cannot be read or written, or is not a saved model.
+pub const KIN_ERR_IO: c_int = 7;
+/// An index (axis, coefficient) is out of range.
+pub const KIN_ERR_INDEX: c_int = 8;
+/// A bug: the library panicked. The model is still usable; please report the message.
+pub const KIN_ERR_PANIC: c_int = 9;
+
+/// A compiled model (opaque to C).
+pub struct kin_model {
+    model: Model,
+}
+
+/// One observation state. Arrays are indexed like the machine's axes, inputs and lags; a NULL
+/// pointer is allowed with a length of 0.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct kin_state {
+    /// Joint positions (m, rad).
+    pub q: *const f64,
+    pub n_q: usize,
+    /// Input values; NaN where not given.
+    pub inputs: *const f64,
+    pub n_inputs: usize,
+    /// Lag states.
+    pub lags: *const f64,
+    pub n_lags: usize,
+    /// Direction of motion per axis: +1, -1, or NaN where not given.
+    pub dirs: *const f64,
+    pub n_dirs: usize,
+    /// Time (s).
+    pub time: f64,
+    /// Tool index, in declaration order.
+    pub tool: usize,
+}
+
+/// Many states, row-major: row r of `q` is `q[r*axes .. (r+1)*axes]`, and so on; `time` and
+/// `tool` hold one value per row.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct kin_rows {
+    pub n_rows: usize,
+    pub q: *const f64,
+    pub n_q: usize,
+    pub inputs: *const f64,
+    pub n_inputs: usize,
+    pub lags: *const f64,
+    pub n_lags: usize,
+    pub dirs: *const f64,
+    pub n_dirs: usize,
+    pub time: *const f64,
+    pub n_time: usize,
+    pub tool: *const usize,
+    pub n_tool: usize,
+}
+
+/// A failure: status and message.
+struct Fail(c_int, String);
+
+thread_local! {
+    static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
+}
+
+/// Runs `f`, catching a panic; on failure records the message and returns the status.
+fn guard(f: impl FnOnce() -> Result<(), Fail>) -> c_int {
+    let result = catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|panic| {
+        let what = panic.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| panic.downcast_ref::<String>().cloned()).unwrap_or_default();
+        Err(Fail(KIN_ERR_PANIC, format!("internal error (a bug in kin): {what}")))
+    });
+    match result {
+        Ok(()) => KIN_OK,
+        Err(Fail(code, message)) => {
+            LAST_ERROR.with(|e| {
+                if let Ok(mut e) = e.try_borrow_mut() {
+                    *e = message;
+                }
+            });
+            code
+        }
+    }
+}
+
+/// Copies `text` into `buf` (`len` bytes, NUL-terminated, cut at a character boundary) and
+/// returns the length of the whole text, as `snprintf` does.
+///
+/// # Safety
+///
+/// `buf` is NULL or valid for `len` bytes of writing.
+unsafe fn write_text(buf: *mut c_char, len: usize, text: &str) -> usize {
+    if !buf.is_null() && len > 0 {
+        let mut n = text.len().min(len - 1);
+        while !text.is_char_boundary(n) {
+            n -= 1;
+        }
+        // SAFETY: `buf` is valid for `len > n` bytes (caller's contract), `text` for `n`, and a
+        // Rust string cannot overlap the caller's buffer.
+        unsafe {
+            std::ptr::copy_nonoverlapping(text.as_ptr(), buf.cast::<u8>(), n);
+            *buf.add(n) = 0;
+        }
+    }
+    text.len()
+}
+
+/// `n` values at `p`: empty when `n` is 0, otherwise `p` must be non-NULL and aligned.
+///
+/// # Safety
+///
+/// When non-NULL, `p` points to `n` initialised values that stay valid and unchanged for `'a`.
+unsafe fn slice<'a, T>(p: *const T, n: usize, what: &str) -> Result<&'a [T], Fail> {
+    if n == 0 {
+        return Ok(&[]);
+    }
+    check_pointer(p, n, what)?;
+    // SAFETY: non-NULL, aligned, the size fits an isize (checked), and valid for `n` values for
+    // `'a` (caller's contract).
+    Ok(unsafe { std::slice::from_raw_parts(p, n) })
+}
+
+/// As [`slice`], for writing.
+///
+/// # Safety
+///
+/// When non-NULL, `p` points to `n` values that nothing else reads or writes during `'a`.
+unsafe fn slice_mut<'a, T>(p: *mut T, n: usize, what: &str) -> Result<&'a mut [T], Fail> {
+    if n == 0 {
+        return Ok(&mut []);
+    }
+    check_pointer(p.cast_const(), n, what)?;
+    // SAFETY: as in `slice`, and exclusive for `'a` (caller's contract).
+    Ok(unsafe { std::slice::from_raw_parts_mut(p, n) })
+}
+
+fn check_pointer<T>(p: *const T, n: usize, what: &str) -> Result<(), Fail> {
+    if p.is_null() {
+        return Err(Fail(KIN_ERR_POINTER, format!("`{what}` is NULL but its length is {n}")));
+    }
+    if !p.is_aligned() {
+        return Err(Fail(KIN_ERR_POINTER, format!("`{what}` is not aligned for its type")));
+    }
+    if n.checked_mul(std::mem::size_of::<T>()).is_none_or(|bytes| bytes > isize::MAX as usize) {
+        return Err(Fail(KIN_ERR_SIZE, format!("`{what}`: a length of {n} cannot be")));
+    }
+    Ok(())
+}
+
+/// The model behind a pointer.
+///
+/// # Safety
+///
+/// `model` is NULL or was returned by this library and not freed.
+unsafe fn model<'a>(model: *const kin_model) -> Result<&'a Model, Fail> {
+    if model.is_null() {
+        return Err(Fail(KIN_ERR_POINTER, "the model is NULL".into()));
+    }
+    // SAFETY: a live `kin_model` from `Box::into_raw` (caller's contract).
+    Ok(unsafe { &(*model).model })
+}
+
+/// A text given as pointer and length.
+///
+/// # Safety
+///
+/// As [`slice`].
+unsafe fn text<'a>(p: *const c_char, len: usize, what: &str) -> Result<&'a str, Fail> {
+    // SAFETY: caller's contract.
+    let bytes = unsafe { slice(p.cast::<u8>(), len, what)? };
+    std::str::from_utf8(bytes).map_err(|e| Fail(KIN_ERR_UTF8, format!("`{what}` is not UTF-8: {e}")))
+}
+
+/// A NUL-terminated path.
+///
+/// # Safety
+///
+/// `p` is NULL or a NUL-terminated string.
+unsafe fn path<'a>(p: *const c_char) -> Result<&'a Path, Fail> {
+    if p.is_null() {
+        return Err(Fail(KIN_ERR_POINTER, "the path is NULL".into()));
+    }
+    // SAFETY: NUL-terminated (caller's contract).
+    let s = unsafe { CStr::from_ptr(p) };
+    s.to_str().map(Path::new).map_err(|e| Fail(KIN_ERR_UTF8, format!("the path is not UTF-8: {e}")))
+}
+
+/// Every error diagnostic as `line:column: error[CODE]: message`, one per line.
+fn located(source: &str, e: &Error) -> String {
+    let mut out = Vec::new();
+    for d in e.diagnostics().iter().filter(|d| d.is_error()) {
+        let at = d.primary_span().start.min(source.len());
+        let before = source.get(..at).unwrap_or("");
+        let line = before.matches('\n').count() + 1;
+        let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+        let mut text = format!("{line}:{column}: error[{}]: {}", d.code, d.message);
+        if let Some(help) = &d.help {
+            text.push_str(&format!(" (help: {help})"));
+        }
+        out.push(text);
+    }
+    out.join("\n")
+}
+
+fn model_error(e: Error, source: &str) -> Fail {
+    match e {
+        Error::Compile { .. } => Fail(KIN_ERR_COMPILE, located(source, &e)),
+        Error::Params { .. } => Fail(KIN_ERR_PARAMS, located(source, &e)),
+        Error::Values { .. } => Fail(KIN_ERR_SIZE, e.to_string()),
+        Error::Io { .. } | Error::Format { .. } => Fail(KIN_ERR_IO, e.to_string()),
+        Error::Jit(_) => Fail(KIN_ERR_COMPILE, e.to_string()),
+    }
+}
+
+fn eval_error(e: EvalError) -> Fail {
+    match e {
+        EvalError::StateSize { .. } | EvalError::Buffer { .. } => Fail(KIN_ERR_SIZE, e.to_string()),
+        _ => Fail(KIN_ERR_EVAL, e.to_string()),
+    }
+}
+
+fn batch_error(e: BatchError) -> Fail {
+    match e {
+        BatchError::Size { .. } => Fail(KIN_ERR_SIZE, e.to_string()),
+        BatchError::Row { row, source } => {
+            let Fail(code, message) = eval_error(source);
+            Fail(code, format!("row {row}: {message}"))
+        }
+    }
+}
+
+fn check(what: &str, expected: usize, got: usize) -> Result<(), Fail> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(Fail(KIN_ERR_SIZE, format!("`{what}` has length {got}, {expected} are needed")))
+    }
+}
+
+/// The state behind a `kin_state*`.
+///
+/// # Safety
+///
+/// `state` is NULL or points to a `kin_state` whose arrays are valid for their lengths.
+unsafe fn state<'a>(state: *const kin_state) -> Result<State<'a>, Fail> {
+    if state.is_null() {
+        return Err(Fail(KIN_ERR_POINTER, "the state is NULL".into()));
+    }
+    if !state.is_aligned() {
+        return Err(Fail(KIN_ERR_POINTER, "the state is not aligned".into()));
+    }
+    // SAFETY: non-NULL, aligned and valid (caller's contract); `kin_state` is `Copy`.
+    let s = unsafe { *state };
+    // SAFETY: each array valid for its length (caller's contract).
+    unsafe {
+        Ok(State {
+            q: slice(s.q, s.n_q, "q")?,
+            inputs: slice(s.inputs, s.n_inputs, "inputs")?,
+            lags: slice(s.lags, s.n_lags, "lags")?,
+            time: s.time,
+            dirs: slice(s.dirs, s.n_dirs, "dirs")?,
+            tool: s.tool,
+            tool_offset: None,
+        })
+    }
+}
+
+/// β from the caller, or the model's bound values when `beta` is NULL and `n_beta` 0.
+///
+/// # Safety
+///
+/// As [`slice`].
+unsafe fn beta(model: &Model, beta: *const f64, n_beta: usize) -> Result<&[f64], Fail> {
+    if beta.is_null() && n_beta == 0 {
+        return Ok(model.beta());
+    }
+    // SAFETY: caller's contract.
+    let b = unsafe { slice(beta, n_beta, "beta")? };
+    check("beta", model.coefficients(), b.len())?;
+    Ok(b)
+}
+
+/// The library's version, e.g. `"0.1.0"` (a static string).
+#[no_mangle]
+pub extern "C" fn kin_version() -> *const c_char {
+    concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr().cast()
+}
+
+/// Copies this thread's last error message into `buf` (`len` bytes, NUL-terminated, truncated if
+/// need be) and returns its full length in bytes; `buf` may be NULL to ask for the length.
+///
+/// # Safety
+///
+/// `buf` is NULL or valid for `len` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn kin_last_error(buf: *mut c_char, len: usize) -> usize {
+    let message = LAST_ERROR.with(|e| e.try_borrow().map(|e| e.clone()).unwrap_or_default());
+    // SAFETY: caller's contract.
+    unsafe { write_text(buf, len, &message) }
+}
+
+/// Records a failure's message in `err` too (for the functions that take a buffer).
+///
+/// # Safety
+///
+/// As [`write_text`].
+unsafe fn with_err_buffer(code: c_int, err: *mut c_char, err_len: usize) -> c_int {
+    let message = if code == KIN_OK { String::new() } else { LAST_ERROR.with(|e| e.try_borrow().map(|e| e.clone()).unwrap_or_default()) };
+    // SAFETY: caller's contract.
+    unsafe { write_text(err, err_len, &message) };
+    code
+}
+
+/// Compiles `len` bytes of `.kin` source at `src` (a machine, optionally followed by its
+/// `params`) to native code. On success `*out` is the model (free it with `kin_model_free`);
+/// on failure `*out` is NULL and the message — every error as `line:column: error[CODE]: …` —
+/// is written to `err` (`err_len` bytes, may be NULL) and kept for `kin_last_error`.
+///
+/// # Safety
+///
+/// `src` is valid for `len` bytes, `out` is NULL or valid for writing one pointer, `err` is NULL
+/// or valid for `err_len` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_compile(src: *const c_char, len: usize, out: *mut *mut kin_model, err: *mut c_char, err_len: usize) -> c_int {
+    let code = guard(|| {
+        let out = out_pointer(out)?;
+        // SAFETY: caller's contract.
+        let source = unsafe { text(src, len, "src")? };
+        let model = Model::compile(source).map_err(|e| model_error(e, source))?;
+        // SAFETY: `out` checked non-NULL and aligned; valid for writing (caller's contract).
+        unsafe { *out = Box::into_raw(Box::new(kin_model { model })) };
+        Ok(())
+    });
+    // SAFETY: caller's contract.
+    unsafe { with_err_buffer(code, err, err_len) }
+}
+
+/// Checks `out` and sets `*out` to NULL, so a failure leaves no dangling value.
+fn out_pointer(out: *mut *mut kin_model) -> Result<*mut *mut kin_model, Fail> {
+    if out.is_null() {
+        return Err(Fail(KIN_ERR_POINTER, "`out` is NULL".into()));
+    }
+    if !out.is_aligned() {
+        return Err(Fail(KIN_ERR_POINTER, "`out` is not aligned".into()));
+    }
+    // SAFETY: non-NULL, aligned; valid for writing (the callers' contract).
+    unsafe { *out = std::ptr::null_mut() };
+    Ok(out)
+}
+
+/// Binds a parameter text (`params { … }`, `len` bytes) on top of the model's values. On failure
+/// the model is unchanged. Not while other threads use the model.
+///
+/// # Safety
+///
+/// `model` is a live model, `src` valid for `len` bytes, `err` NULL or valid for `err_len` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_bind_params(model: *mut kin_model, src: *const c_char, len: usize, err: *mut c_char, err_len: usize) -> c_int {
+    let code = guard(|| {
+        if model.is_null() {
+            return Err(Fail(KIN_ERR_POINTER, "the model is NULL".into()));
+        }
+        // SAFETY: caller's contract.
+        let params = unsafe { text(src, len, "src")? };
+        // SAFETY: a live model, not used elsewhere meanwhile (caller's contract).
+        let m = unsafe { &mut (*model).model };
+        m.bind_params(params).map_err(|e| model_error(e, params))
+    });
+    // SAFETY: caller's contract.
+    unsafe { with_err_buffer(code, err, err_len) }
+}
+
+/// Saves the model (source, bound parameter texts, exact values) as JSON to the file at `path`
+/// (NUL-terminated).
+///
+/// # Safety
+///
+/// `model` is a live model, `path` a NUL-terminated string.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_save(model: *const kin_model, path: *const c_char) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, p) = unsafe { (self::model(model)?, self::path(path)?) };
+        m.save(p).map_err(|e| model_error(e, ""))
+    })
+}
+
+/// Loads a model saved by `kin_model_save` (or `Model::save`): the source is compiled again and
+/// the values restored exactly. `*out` as for `kin_model_compile`.
+///
+/// # Safety
+///
+/// `path` is a NUL-terminated string, `out` NULL or valid for writing one pointer.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_load(path: *const c_char, out: *mut *mut kin_model) -> c_int {
+    guard(|| {
+        let out = out_pointer(out)?;
+        // SAFETY: caller's contract.
+        let p = unsafe { self::path(path)? };
+        let model = Model::load(p).map_err(|e| match e {
+            Error::Compile { .. } | Error::Params { .. } => Fail(KIN_ERR_IO, format!("{}: {e}", p.display())),
+            e => model_error(e, ""),
+        })?;
+        // SAFETY: checked by `out_pointer`; valid for writing (caller's contract).
+        unsafe { *out = Box::into_raw(Box::new(kin_model { model })) };
+        Ok(())
+    })
+}
+
+/// Frees a model; NULL is ignored.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model that no other thread is using; it is invalid afterwards.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_free(model: *mut kin_model) {
+    if !model.is_null() {
+        // Dropping frees the native code; a panic in a destructor must not unwind into C.
+        let _ = catch_unwind(AssertUnwindSafe(|| {
+            // SAFETY: from `Box::into_raw` in this library, not freed before (caller's contract).
+            drop(unsafe { Box::from_raw(model) });
+        }));
+    }
+}
+
+/// Reads a count of a model; 0 for NULL.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model.
+unsafe fn count(model: *const kin_model, f: impl Fn(&Model) -> usize) -> usize {
+    // SAFETY: caller's contract.
+    unsafe { self::model(model) }.map_or(0, f)
+}
+
+/// Number of axes (joint positions per state); 0 for NULL.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_axes(model: *const kin_model) -> usize {
+    // SAFETY: caller's contract.
+    unsafe { count(model, Model::axes) }
+}
+
+/// Number of declared inputs; 0 for NULL.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_inputs(model: *const kin_model) -> usize {
+    // SAFETY: caller's contract.
+    unsafe { count(model, Model::inputs) }
+}
+
+/// Number of lag states; 0 for NULL.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_lags(model: *const kin_model) -> usize {
+    // SAFETY: caller's contract.
+    unsafe { count(model, Model::lags) }
+}
+
+/// Number of tools; 0 for NULL.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_tools(model: *const kin_model) -> usize {
+    // SAFETY: caller's contract.
+    unsafe { count(model, Model::tools) }
+}
+
+/// Number of coefficients β (the Jacobian has 6 × this many entries); 0 for NULL.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_coefficients(model: *const kin_model) -> usize {
+    // SAFETY: caller's contract.
+    unsafe { count(model, Model::coefficients) }
+}
+
+/// The declared range of axis `axis` (m or rad; `[0, 2π]` for a continuous axis).
+///
+/// # Safety
+///
+/// `model` is a live model, `lo` and `hi` valid for writing one double each.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_axis_range(model: *const kin_model, axis: usize, lo: *mut f64, hi: *mut f64) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, lo, hi) = unsafe { (self::model(model)?, slice_mut(lo, 1, "lo")?, slice_mut(hi, 1, "hi")?) };
+        let Some(a) = m.machine().axes.get(axis) else {
+            return Err(Fail(KIN_ERR_INDEX, format!("axis {axis} of {}", m.axes())));
+        };
+        lo.copy_from_slice(&a.range[..1]);
+        hi.copy_from_slice(&a.range[1..]);
+        Ok(())
+    })
+}
+
+/// A typical range of input `input` (SI): the declared one, or — as the sampled states of
+/// `kin check` use — 18–22 °C for an absolute temperature, 0–4 K for a temperature rise,
+/// 0–1000 N for a force, 0–1 otherwise.
+///
+/// # Safety
+///
+/// `model` is a live model, `lo` and `hi` valid for writing one double each.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_input_range(model: *const kin_model, input: usize, lo: *mut f64, hi: *mut f64) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, lo, hi) = unsafe { (self::model(model)?, slice_mut(lo, 1, "lo")?, slice_mut(hi, 1, "hi")?) };
+        let Some(i) = m.machine().inputs.get(input) else {
+            return Err(Fail(KIN_ERR_INDEX, format!("input {input} of {}", m.inputs())));
+        };
+        use kin_compiler::units::Dim;
+        let range = match i.range {
+            Some(r) => r,
+            None if i.unit.dim == Dim::TEMPERATURE && i.absolute => [291.15, 295.15],
+            None if i.unit.dim == Dim::TEMPERATURE => [0.0, 4.0],
+            None if i.unit.dim == Dim::FORCE => [0.0, 1000.0],
+            None => [0.0, 1.0],
+        };
+        lo.copy_from_slice(&range[..1]);
+        hi.copy_from_slice(&range[1..]);
+        Ok(())
+    })
+}
+
+/// The input whose lag lag state `lag` is (its steady state equals that input's value).
+///
+/// # Safety
+///
+/// `model` is a live model, `input` valid for writing one `size_t`.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_lag_input(model: *const kin_model, lag: usize, input: *mut usize) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, out) = unsafe { (self::model(model)?, slice_mut(input, 1, "input")?) };
+        let Some(l) = m.machine().lags.get(lag) else {
+            return Err(Fail(KIN_ERR_INDEX, format!("lag {lag} of {}", m.lags())));
+        };
+        out.copy_from_slice(&[l.input]);
+        Ok(())
+    })
+}
+
+/// Copies a name — of axis `index` (`what` = 0), input (1), tool (2) or coefficient (3) — into
+/// `buf` as [`kin_last_error`] does; returns its length, or -1 (as `(size_t)-1`) if `what` or
+/// `index` is out of range or the model is NULL.
+///
+/// # Safety
+///
+/// `model` is NULL or a live model, `buf` NULL or valid for `len` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_name(model: *const kin_model, what: c_int, index: usize, buf: *mut c_char, len: usize) -> usize {
+    let name = catch_unwind(AssertUnwindSafe(|| {
+        // SAFETY: caller's contract.
+        let m = unsafe { self::model(model) }.ok()?.machine();
+        match what {
+            0 => m.axes.get(index).map(|a| a.name.clone()),
+            1 => m.inputs.get(index).map(|a| a.name.clone()),
+            2 => m.tools.get(index).map(|a| a.name.clone()),
+            3 => m.coefficients.get(index).map(|a| a.name.clone()),
+            _ => None,
+        }
+    }));
+    match name {
+        // SAFETY: caller's contract.
+        Ok(Some(name)) => unsafe { write_text(buf, len, &name) },
+        _ => usize::MAX,
+    }
+}
+
+/// Copies the model's bound coefficient values (SI; zeros where none was bound) into `beta`
+/// (`n_beta` = the number of coefficients).
+///
+/// # Safety
+///
+/// `model` is a live model, `beta` valid for `n_beta` doubles.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_beta(model: *const kin_model, beta: *mut f64, n_beta: usize) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, out) = unsafe { (self::model(model)?, slice_mut(beta, n_beta, "beta")?) };
+        check("beta", m.coefficients(), out.len())?;
+        out.copy_from_slice(m.beta());
+        Ok(())
+    })
+}
+
+/// Replaces the model's coefficient values (e.g. with a fit's). Not while other threads use
+/// the model.
+///
+/// # Safety
+///
+/// `model` is a live model, `beta` valid for `n_beta` doubles.
+#[no_mangle]
+pub unsafe extern "C" fn kin_model_set_beta(model: *mut kin_model, beta: *const f64, n_beta: usize) -> c_int {
+    guard(|| {
+        if model.is_null() {
+            return Err(Fail(KIN_ERR_POINTER, "the model is NULL".into()));
+        }
+        // SAFETY: caller's contract.
+        let values = unsafe { slice(beta, n_beta, "beta")? };
+        // SAFETY: a live model, not used elsewhere meanwhile (caller's contract).
+        let m = unsafe { &mut (*model).model };
+        m.set_beta(values).map_err(|e| model_error(e, ""))
+    })
+}
+
+/// The tool-location error at `state` for coefficients `beta` (`n_beta` values; NULL and 0 for
+/// the model's bound values): `err` receives (ex, ey, ez, erx, ery, erz) with the task's sign,
+/// `n_err` must be 6.
+///
+/// # Safety
+///
+/// `model` is a live model, `state` a valid `kin_state`, `beta` valid for `n_beta` doubles and
+/// `err` for `n_err`.
+#[no_mangle]
+pub unsafe extern "C" fn kin_eval(model: *const kin_model, state: *const kin_state, beta: *const f64, n_beta: usize, err: *mut f64, n_err: usize) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, s, out) = unsafe { (self::model(model)?, self::state(state)?, slice_mut(err, n_err, "err")?) };
+        // SAFETY: caller's contract.
+        let b = unsafe { self::beta(m, beta, n_beta)? };
+        let out: &mut [f64; 6] = out.try_into().map_err(|_| Fail(KIN_ERR_SIZE, format!("`err` has length {n_err}, 6 are needed")))?;
+        m.eval(&s, b, out).map_err(eval_error)
+    })
+}
+
+/// The error and its Jacobian with respect to β: `jac` (`n_jac` = 6 × coefficients) receives the
+/// 6 × n matrix row-major (row r is error component r), so that `err = fixed + jac·β`.
+///
+/// # Safety
+///
+/// As [`kin_eval`], and `jac` valid for `n_jac` doubles.
+#[no_mangle]
+pub unsafe extern "C" fn kin_eval_jacobian(
+    model: *const kin_model,
+    state: *const kin_state,
+    beta: *const f64,
+    n_beta: usize,
+    err: *mut f64,
+    n_err: usize,
+    jac: *mut f64,
+    n_jac: usize,
+) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, s, out, jac) = unsafe { (self::model(model)?, self::state(state)?, slice_mut(err, n_err, "err")?, slice_mut(jac, n_jac, "jac")?) };
+        // SAFETY: caller's contract.
+        let b = unsafe { self::beta(m, beta, n_beta)? };
+        let out: &mut [f64; 6] = out.try_into().map_err(|_| Fail(KIN_ERR_SIZE, format!("`err` has length {n_err}, 6 are needed")))?;
+        check("jac", 6 * m.coefficients(), jac.len())?;
+        m.eval_jacobian(&s, b, out, jac).map_err(eval_error)
+    })
+}
+
+/// The nominal tool location in the workpiece frame — `location` (`n_location` = 12) receives
+/// the position (3) and then the rotation matrix R(wr→tl) row-major (9) — and its Jacobian with
+/// respect to the joint positions: `jac` (`n_jac` = 6 × axes), entries `6j .. 6j+6` are
+/// (dp/dq_j, ω_j).
+///
+/// # Safety
+///
+/// `model` is a live model, `state` a valid `kin_state`, `location` valid for `n_location`
+/// doubles and `jac` for `n_jac`.
+#[no_mangle]
+pub unsafe extern "C" fn kin_nominal_jacobian(model: *const kin_model, state: *const kin_state, location: *mut f64, n_location: usize, jac: *mut f64, n_jac: usize) -> c_int {
+    guard(|| {
+        // SAFETY: caller's contract.
+        let (m, s, loc, jac) = unsafe { (self::model(model)?, self::state(state)?, slice_mut(location, n_location, "location")?, slice_mut(jac, n_jac, "jac")?) };
+        check("location", 12, loc.len())?;
+        check("jac", 6 * m.axes(), jac.len())?;
+        let l = m.nominal_jacobian(&s, jac).map_err(eval_error)?;
+        let r = &l.rotation;
+        let values = [l.position.x, l.position.y, l.position.z, r.m11, r.m12, r.m13, r.m21, r.m22, r.m23, r.m31, r.m32, r.m33];
+        loc.copy_from_slice(&values);
+        Ok(())
+    })
+}
+
+/// [`kin_eval_jacobian`] over `rows->n_rows` states: `err` (`n_err` = 6 × rows) receives 6 values
+/// per row and `jac` (`n_jac` = 6 × coefficients × rows) one 6 × n block per row. With `jac` NULL
+/// and `n_jac` 0 only the errors are computed. Stops at the first row that cannot be evaluated
+/// (the message names it).
+///
+/// # Safety
+///
+/// `model` is a live model, `rows` a valid `kin_rows`, `beta` valid for `n_beta` doubles, `err`
+/// for `n_err` and `jac` for `n_jac`.
+#[no_mangle]
+pub unsafe extern "C" fn kin_eval_batch(
+    model: *const kin_model,
+    rows: *const kin_rows,
+    beta: *const f64,
+    n_beta: usize,
+    err: *mut f64,
+    n_err: usize,
+    jac: *mut f64,
+    n_jac: usize,
+) -> c_int {
+    guard(|| {
+        if rows.is_null() || !rows.is_aligned() {
+            return Err(Fail(KIN_ERR_POINTER, "`rows` is NULL or misaligned".into()));
+        }
+        // SAFETY: non-NULL and aligned, valid (caller's contract); `kin_rows` is `Copy`.
+        let r = unsafe { *rows };
+        // SAFETY: caller's contract.
+        let (m, out, jac) = unsafe { (self::model(model)?, slice_mut(err, n_err, "err")?, slice_mut(jac, n_jac, "jac")?) };
+        // SAFETY: caller's contract.
+        let b = unsafe { self::beta(m, beta, n_beta)? };
+        check("time", r.n_rows, r.n_time)?;
+        // SAFETY: each array valid for its length (caller's contract).
+        let state_rows = unsafe {
+            StateRows {
+                q: slice(r.q, r.n_q, "q")?,
+                inputs: slice(r.inputs, r.n_inputs, "inputs")?,
+                lags: slice(r.lags, r.n_lags, "lags")?,
+                time: slice(r.time, r.n_time, "time")?,
+                dirs: slice(r.dirs, r.n_dirs, "dirs")?,
+                tool: slice(r.tool, r.n_tool, "tool")?,
+                tool_offset: &[],
+            }
+        };
+        if jac.is_empty() && m.coefficients() > 0 && r.n_rows > 0 {
+            m.eval_rows(&state_rows, b, out).map_err(batch_error)
+        } else {
+            m.eval_jacobian_rows(&state_rows, b, out, jac).map_err(batch_error)
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::ptr::{null, null_mut};
+
+    const SRC: &str = "machine m {
+        task position
+        axis X prismatic along x range 0 mm .. 500 mm
+        tool chain { X moving tool t at (0, 0, -100) mm }
+        errors { X.tx = spline(X, knots 2)  X.ry = const }
+    }";
+
+    fn compile(src: &str) -> Result<*mut kin_model, (c_int, String)> {
+        let mut out = null_mut();
+        let mut err = [0 as c_char; 512];
+        // SAFETY: valid pointers and lengths.
+        let code = unsafe { kin_model_compile(src.as_ptr().cast(), src.len(), &mut out, err.as_mut_ptr(), err.len()) };
+        if code == KIN_OK {
+            Ok(out)
+        } else {
+            // SAFETY: NUL-terminated by `kin_model_compile`.
+            let msg = unsafe { CStr::from_ptr(err.as_ptr()) }.to_string_lossy().into_owned();
+            assert!(out.is_null());
+            Err((code, msg))
+        }
+    }
+
+    fn last_error() -> String {
+        let mut buf = [0 as c_char; 512];
+        // SAFETY: valid buffer.
+        unsafe { kin_last_error(buf.as_mut_ptr(), buf.len()) };
+        // SAFETY: NUL-terminated.
+        unsafe { CStr::from_ptr(buf.as_ptr()) }.to_string_lossy().into_owned()
+    }
+
+    #[test]
+    fn compile_errors_have_lines_and_columns() {
+        let (code, msg) = compile("machine m {\n  axis X wobbly\n}").expect_err("bad source");
+        assert_eq!(code, KIN_ERR_COMPILE);
+        assert!(msg.starts_with("2:"), "{msg}");
+        assert_eq!(msg, last_error());
+        let (code, _) = compile("\u{0}\u{ff}").expect_err("bad source");
+        assert_eq!(code, KIN_ERR_COMPILE);
+        // Not UTF-8.
+        let bytes = [0xffu8, 0xfe];
+        let mut out = null_mut();
+        // SAFETY: valid pointers; no error buffer.
+        let code = unsafe { kin_model_compile(bytes.as_ptr().cast(), 2, &mut out, null_mut(), 0) };
+        assert_eq!(code, KIN_ERR_UTF8);
+        // SAFETY: NULL source with a length.
+        assert_eq!(unsafe { kin_model_compile(null(), 3, &mut out, null_mut(), 0) }, KIN_ERR_POINTER);
+        // SAFETY: NULL out.
+        assert_eq!(unsafe { kin_model_compile(SRC.as_ptr().cast(), SRC.len(), null_mut(), null_mut(), 0) }, KIN_ERR_POINTER);
+    }
+
+    #[test]
+    fn every_length_is_checked() {
+        let model = compile(SRC).expect("compiles");
+        // SAFETY: a live model; every buffer below is valid for the length given with it.
+        unsafe {
+            assert_eq!((kin_model_axes(model), kin_model_inputs(model), kin_model_lags(model), kin_model_coefficients(model)), (1, 0, 0, 5));
+            assert_eq!(kin_model_axes(null()), 0);
+            let q = [0.2];
+            let dirs = [f64::NAN];
+            let mut st = kin_state { q: q.as_ptr(), n_q: 1, inputs: null(), n_inputs: 0, lags: null(), n_lags: 0, dirs: dirs.as_ptr(), n_dirs: 1, time: 0.0, tool: 0 };
+            let beta = [1e-6, 2e-6, 0.0, 0.0, 3e-6];
+            let mut err = [0.0; 6];
+            let mut jac = [0.0; 30];
+            assert_eq!(kin_eval(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 6), KIN_OK);
+            assert_eq!(kin_eval(model, &st, beta.as_ptr(), 4, err.as_mut_ptr(), 6), KIN_ERR_SIZE);
+            assert_eq!(kin_eval(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 5), KIN_ERR_SIZE);
+            assert_eq!(kin_eval(model, &st, null(), 5, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
+            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_OK, "bound β");
+            assert_eq!(kin_eval(model, null(), null(), 0, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
+            assert_eq!(kin_eval(null(), &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
+            assert_eq!(kin_eval_jacobian(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 6, jac.as_mut_ptr(), 29), KIN_ERR_SIZE);
+            assert_eq!(kin_eval_jacobian(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 6, jac.as_mut_ptr(), 30), KIN_OK);
+            st.tool = 3;
+            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_EVAL);
+            assert!(last_error().contains("tool"), "{}", last_error());
+            st.tool = 0;
+            st.n_q = 2;
+            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_SIZE);
+            st.n_q = 1;
+            let misaligned = (q.as_ptr() as *const u8).add(1).cast::<f64>();
+            st.q = misaligned;
+            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
+            let (mut lo, mut hi) = (0.0, 0.0);
+            assert_eq!(kin_model_axis_range(model, 0, &mut lo, &mut hi), KIN_OK);
+            assert_eq!((lo, hi), (0.0, 0.5));
+            assert_eq!(kin_model_axis_range(model, 1, &mut lo, &mut hi), KIN_ERR_INDEX);
+            let mut name = [0 as c_char; 4];
+            assert_eq!(kin_model_name(model, 3, 4, name.as_mut_ptr(), name.len()), "X.ry[0]".len());
+            assert_eq!(CStr::from_ptr(name.as_ptr()).to_str(), Ok("X.r"), "truncated");
+            assert_eq!(kin_model_name(model, 3, 5, name.as_mut_ptr(), name.len()), usize::MAX);
+            let params = "params { X.ry[0] = 3 urad }";
+            assert_eq!(kin_model_bind_params(model, params.as_ptr().cast(), params.len(), null_mut(), 0), KIN_OK);
+            let mut bound = [0.0; 5];
+            assert_eq!(kin_model_beta(model, bound.as_mut_ptr(), 5), KIN_OK);
+            assert!((bound[4] - 3e-6).abs() < 1e-18);
+            let bad = "params { X.ry = 3 }";
+            assert_eq!(kin_model_bind_params(model, bad.as_ptr().cast(), bad.len(), null_mut(), 0), KIN_ERR_PARAMS);
+            assert!(last_error().contains("E0501"), "{}", last_error());
+            kin_model_free(model);
+            kin_model_free(null_mut());
+        }
+    }
+
+    #[test]
+    fn batch_and_save_round_trip() {
+        let model = compile(SRC).expect("compiles");
+        // SAFETY: a live model; every buffer below is valid for the length given with it.
+        unsafe {
+            let q = [0.0, 0.1, 0.2, 0.3];
+            let time = [0.0; 4];
+            let dirs = [f64::NAN; 4];
+            let tool = [0usize; 4];
+            let rows = kin_rows {
+                n_rows: 4,
+                q: q.as_ptr(),
+                n_q: 4,
+                inputs: null(),
+                n_inputs: 0,
+                lags: null(),
+                n_lags: 0,
+                dirs: dirs.as_ptr(),
+                n_dirs: 4,
+                time: time.as_ptr(),
+                n_time: 4,
+                tool: tool.as_ptr(),
+                n_tool: 4,
+            };
+            let beta = [1e-6, 2e-6, -1e-6, 0.5e-6, 3e-6];
+            let mut err = [0.0; 24];
+            let mut jac = [0.0; 120];
+            assert_eq!(kin_eval_batch(model, &rows, beta.as_ptr(), 5, err.as_mut_ptr(), 24, jac.as_mut_ptr(), 120), KIN_OK);
+            let mut only = [0.0; 24];
+            assert_eq!(kin_eval_batch(model, &rows, beta.as_ptr(), 5, only.as_mut_ptr(), 24, null_mut(), 0), KIN_OK);
+            assert!(err.iter().zip(&only).all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
+            assert_eq!(kin_eval_batch(model, &rows, beta.as_ptr(), 5, err.as_mut_ptr(), 23, null_mut(), 0), KIN_ERR_SIZE);
+            assert_eq!(kin_model_set_beta(model, beta.as_ptr(), 5), KIN_OK);
+            let dir = std::env::temp_dir().join(format!("kin-capi-{}", std::process::id()));
+            std::fs::create_dir_all(&dir).expect("temp dir");
+            let path = std::ffi::CString::new(dir.join("m.json").to_str().expect("utf-8")).expect("path");
+            assert_eq!(kin_model_save(model, path.as_ptr()), KIN_OK);
+            let mut loaded = null_mut();
+            assert_eq!(kin_model_load(path.as_ptr(), &mut loaded), KIN_OK);
+            let mut again = [0.0; 24];
+            assert_eq!(kin_eval_batch(loaded, &rows, null(), 0, again.as_mut_ptr(), 24, null_mut(), 0), KIN_OK);
+            assert_eq!(again, only);
+            let missing = std::ffi::CString::new(dir.join("none.json").to_str().expect("utf-8")).expect("path");
+            assert_eq!(kin_model_load(missing.as_ptr(), &mut loaded), KIN_ERR_IO);
+            assert!(loaded.is_null());
+            let _ = std::fs::remove_dir_all(&dir);
+            kin_model_free(model);
+        }
+    }
+
+    #[test]
+    fn the_header_declares_every_function() {
+        let header = include_str!("../include/kin.h");
+        let source = include_str!("lib.rs");
+        let mut count = 0;
+        for line in source.lines() {
+            let Some(rest) = line.split("extern \"C\" fn ").nth(1) else { continue };
+            let Some(name) = rest.split('(').next() else { continue };
+            if name.starts_with("kin_") {
+                let declared = header.lines().any(|l| !l.starts_with("/*") && !l.starts_with(" *") && l.contains(&format!("{name}(")));
+                assert!(declared, "kin.h does not declare `{name}`");
+                count += 1;
+            }
+        }
+        assert!(count >= 15, "{count}");
+        for line in source.lines() {
+            if let Some(rest) = line.strip_prefix("pub const KIN_") {
+                let (name, value) = rest.split_once(": c_int = ").expect("a status");
+                let value = value.trim_end_matches(';');
+                assert!(header.contains(&format!("#define KIN_{name} {value}")), "kin.h: KIN_{name}");
+            }
+        }
+    }
+}

@@ -1,0 +1,313 @@
+//! `kin bench`: how fast the engines evaluate a machine, measured in one run.
+//!
+//! A measurement, not a test: the figures depend on the computer and on what else it is doing.
+//! For poses sampled over the machine's ranges it times, per pose, the error and its full
+//! β-Jacobian written into a reused buffer (what a fit needs), and the error alone (what a
+//! compensation needs), for the [interpreter](crate::interp) and the [JIT](crate::jit) — one pose
+//! at a time and through the batch call — and, when the machine is `examples/milling_5axis.kin`,
+//! for the [hand-written baseline](baseline_5axis) of that machine; and the time from source text
+//! to callable native functions. Every figure is the best of a few rounds, so a moment of load
+//! elsewhere shows less.
+
+pub mod baseline_5axis;
+
+use std::fmt;
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+use kin_compiler::ir::Machine;
+
+use crate::embed::{Error, Model, RowsBuf};
+use crate::interp::{EvalError, Interpreter, State};
+use crate::jit::{BatchError, StateRows};
+use crate::states::States;
+
+/// What to measure and for how long.
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    /// Poses sampled over the machine's ranges, evaluated in turn.
+    pub poses: usize,
+    /// Wall time spent on each throughput figure (split over the rounds).
+    pub time: Duration,
+    /// Rounds per figure; the best counts.
+    pub rounds: u32,
+    /// Seed of the sampled poses.
+    pub seed: u64,
+}
+
+impl Default for Options {
+    fn default() -> Options {
+        Options { poses: 1000, time: Duration::from_millis(600), rounds: 5, seed: 1 }
+    }
+}
+
+/// Poses per second of one way of evaluating.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rates {
+    /// The error and its 6 × n β-Jacobian.
+    pub jacobian: f64,
+    /// The error alone.
+    pub error: f64,
+}
+
+/// Every figure of one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Figures {
+    pub machine: String,
+    pub coefficients: usize,
+    pub axes: usize,
+    pub poses: usize,
+    pub interp: Rates,
+    /// One pose per call.
+    pub jit: Rates,
+    /// All poses in one batch call, rows out into reused buffers.
+    pub jit_batch: Rates,
+    /// The hand-written baseline (error and Jacobian only; it computes both at once), with
+    /// `libm` harmonics (the interpreter's numbers) and with harmonic recurrences; `None` when the
+    /// machine is not the 5-axis example, with the reason.
+    pub baseline: Result<BaselineRates, String>,
+    /// Source text to callable functions: parse, check, lower and JIT-compile.
+    pub compile: Duration,
+    /// The front end alone (source to IR).
+    pub front_end: Duration,
+    /// The JIT alone (IR to callable functions).
+    pub jit_compile: Duration,
+    /// Whether this code was built without optimisations (figures not representative).
+    pub debug_build: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BaselineRates {
+    pub exact: f64,
+    pub recurrence: f64,
+}
+
+/// Why a bench could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Model(#[from] Error),
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+    #[error(transparent)]
+    Batch(#[from] BatchError),
+    #[error("--poses must be at least 1")]
+    NoPoses,
+}
+
+/// Poses per second of `f`, which evaluates `poses` poses: the best of `rounds` rounds sharing
+/// `time`, after one untimed call (code and data in cache).
+fn rate<E>(options: &Options, mut f: impl FnMut() -> Result<(), E>) -> Result<f64, E> {
+    f()?;
+    let round = options.time / options.rounds.max(1);
+    let mut best: f64 = 0.0;
+    for _ in 0..options.rounds.max(1) {
+        let start = Instant::now();
+        let mut calls = 0u32;
+        while calls == 0 || start.elapsed() < round {
+            f()?;
+            calls += 1;
+        }
+        best = best.max(f64::from(calls) * options.poses as f64 / start.elapsed().as_secs_f64());
+    }
+    Ok(best)
+}
+
+/// The smallest of `k` timings of `f`.
+fn fastest<T, E>(k: usize, mut f: impl FnMut() -> Result<T, E>) -> Result<Duration, E> {
+    let mut best = Duration::MAX;
+    for _ in 0..k {
+        let start = Instant::now();
+        black_box(f()?);
+        best = best.min(start.elapsed());
+    }
+    Ok(best)
+}
+
+/// Measures everything for the machine in `source` (with its own `params` block, if any, bound).
+pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
+    if options.poses == 0 {
+        return Err(BenchError::NoPoses);
+    }
+    let model = Model::compile(source)?;
+    let compile = fastest(5, || Model::compile(source))?;
+    let front_end = fastest(5, || kin_compiler::compile(source).compiled.ok_or(())).map_err(|()| Error::Compile { diagnostics: kin_compiler::compile(source).diagnostics })?;
+    let jit_compile = fastest(5, || crate::jit::compile(model.machine())).map_err(Error::from)?;
+    let m: &Machine = model.machine();
+    let n = m.coefficients.len();
+    let states = States::sample(m, options.poses, options.seed);
+    let poses = RowsBuf::from_states(&states);
+    let rows = poses.rows();
+    let state = |r: usize| -> State<'_> { rows.get(r) };
+    // Small coefficients of both signs: every term contributes, nothing overflows.
+    let beta: Vec<f64> = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
+    let nonlinear = model.nonlinear().to_vec();
+    let count = options.poses;
+    let mut err = [0.0; 6];
+    let mut jac = vec![0.0; 6 * n];
+
+    let mut it = Interpreter::new(m)?;
+    it.set_nonlinear(&nonlinear)?;
+    let interp = Rates {
+        jacobian: rate(options, || {
+            for r in 0..count {
+                it.error_and_jacobian(&state(r), &beta, &mut err, &mut jac)?;
+            }
+            black_box(&jac);
+            Ok::<(), EvalError>(())
+        })?,
+        error: rate(options, || {
+            for r in 0..count {
+                black_box(it.error(&state(r), &beta)?);
+            }
+            Ok::<(), EvalError>(())
+        })?,
+    };
+
+    let jit = model.jit();
+    let jit_rates = Rates {
+        jacobian: rate(options, || {
+            for r in 0..count {
+                jit.error_and_jacobian(&state(r), &beta, &nonlinear, &mut err, &mut jac)?;
+            }
+            black_box(&jac);
+            Ok::<(), EvalError>(())
+        })?,
+        error: rate(options, || {
+            for r in 0..count {
+                black_box(jit.error(&state(r), &beta, &nonlinear)?);
+            }
+            Ok::<(), EvalError>(())
+        })?,
+    };
+    let mut errs = vec![0.0; 6 * count];
+    let mut jacs = vec![0.0; 6 * n * count];
+    let jit_batch = Rates {
+        jacobian: rate(options, || {
+            jit.error_and_jacobian_rows(&rows, &beta, &nonlinear, &mut errs, &mut jacs)?;
+            black_box(&jacs);
+            Ok::<(), BatchError>(())
+        })?,
+        error: rate(options, || {
+            jit.error_rows(&rows, &beta, &nonlinear, &mut errs)?;
+            black_box(&errs);
+            Ok::<(), BatchError>(())
+        })?,
+    };
+
+    let baseline = baseline_rates(m, options, &rows, &beta, &nonlinear);
+    Ok(Figures {
+        machine: m.name.clone(),
+        coefficients: n,
+        axes: m.axes.len(),
+        poses: count,
+        interp,
+        jit: jit_rates,
+        jit_batch,
+        baseline,
+        compile,
+        front_end,
+        jit_compile,
+        debug_build: cfg!(debug_assertions),
+    })
+}
+
+fn baseline_rates(m: &Machine, options: &Options, rows: &StateRows, beta: &[f64], nonlinear: &[f64]) -> Result<BaselineRates, String> {
+    let n = m.coefficients.len();
+    let mut err = [0.0; 6];
+    let mut jac = vec![0.0; 6 * n];
+    let mut run = |trig| -> Result<f64, String> {
+        let mut b = baseline_5axis::Baseline::new(m, trig).map_err(|e| e.to_string())?;
+        rate(options, || {
+            for r in 0..rows.len() {
+                b.error_and_jacobian(&rows.get(r), beta, nonlinear, &mut err, &mut jac);
+            }
+            black_box(&jac);
+            Ok::<(), String>(())
+        })
+    };
+    Ok(BaselineRates { exact: run(baseline_5axis::Trig::Exact)?, recurrence: run(baseline_5axis::Trig::Recurrence)? })
+}
+
+/// `1234567.8` as `1 234 568`.
+fn grouped(x: f64) -> String {
+    let digits = format!("{:.0}", x.max(0.0));
+    let mut out = String::new();
+    for (i, c) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i) % 3 == 0 {
+            out.push(' ');
+        }
+        out.push(c);
+    }
+    out
+}
+
+fn ms(d: Duration) -> String {
+    format!("{:.2} ms", d.as_secs_f64() * 1e3)
+}
+
+impl fmt::Display for Figures {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "{}: {} axes, {} coefficients; {} poses sampled over the ranges, best of the rounds", self.machine, self.axes, self.coefficients, self.poses)?;
+        writeln!(f, "A measurement on this computer, not a test: figures vary with the CPU and its load.")?;
+        if self.debug_build {
+            writeln!(f, "warning: this `kin` was built without optimisations; build with --release for representative figures")?;
+        }
+        writeln!(f)?;
+        writeln!(f, "{:<40} {:>14} {:>9}   {:>14} {:>9}", "poses per second", "error + β-Jac", "× interp", "error only", "× interp")?;
+        let line = |f: &mut fmt::Formatter<'_>, name: &str, r: &Rates| {
+            writeln!(f, "{name:<40} {:>14} {:>9.1}   {:>14} {:>9.1}", grouped(r.jacobian), r.jacobian / self.interp.jacobian, grouped(r.error), r.error / self.interp.error)
+        };
+        line(f, "interpreter", &self.interp)?;
+        line(f, "JIT, one pose per call", &self.jit)?;
+        line(f, "JIT, batch of all poses", &self.jit_batch)?;
+        match &self.baseline {
+            Ok(b) => {
+                for (name, rate) in [("hand-written Rust, libm harmonics", b.exact), ("hand-written Rust, harmonic recurrences", b.recurrence)] {
+                    writeln!(f, "{name:<40} {:>14} {:>9.1}   {:>14} {:>9}", grouped(rate), rate / self.interp.jacobian, "-", "")?;
+                }
+                writeln!(f)?;
+                writeln!(
+                    f,
+                    "baseline / JIT (error + β-Jacobian, one pose per call): {:.2} with libm harmonics, {:.2} with recurrences",
+                    b.exact / self.jit.jacobian,
+                    b.recurrence / self.jit.jacobian
+                )?;
+            }
+            Err(why) => {
+                writeln!(f)?;
+                writeln!(f, "no hand-written baseline: it exists for examples/milling_5axis.kin only ({why})")?;
+            }
+        }
+        writeln!(f, "JIT / interpreter: {:.1}× (error + β-Jacobian), {:.1}× (error only)", self.jit.jacobian / self.interp.jacobian, self.jit.error / self.interp.error)?;
+        writeln!(f, "compile, source to callable functions: {} (front end {}, JIT {})", ms(self.compile), ms(self.front_end), ms(self.jit_compile))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grouping() {
+        assert_eq!(grouped(0.4), "0");
+        assert_eq!(grouped(999.0), "999");
+        assert_eq!(grouped(1000.0), "1 000");
+        assert_eq!(grouped(1234567.8), "1 234 568");
+    }
+
+    #[test]
+    fn a_short_bench_gives_every_figure() {
+        let src = "machine m { task position  axis X prismatic along x range 0 mm .. 500 mm
+            tool chain { X moving tool t }  errors { X.tx = spline(X, knots 2)  X.ry = const } }";
+        let options = Options { poses: 20, time: Duration::from_millis(10), rounds: 2, seed: 3 };
+        let figures = measure(src, &options).expect("measures");
+        for r in [figures.interp, figures.jit, figures.jit_batch] {
+            assert!(r.jacobian > 0.0 && r.error > 0.0, "{figures:?}");
+        }
+        assert!(figures.baseline.is_err());
+        let text = figures.to_string();
+        assert!(text.contains("not a test") && text.contains("no hand-written baseline"), "{text}");
+        assert!(matches!(measure(src, &Options { poses: 0, ..options }), Err(BenchError::NoPoses)));
+    }
+}

@@ -31,8 +31,13 @@ pub struct Summary {
 pub fn main() {
     let mut args = std::env::args().skip(1);
     let here = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
-    let machine = args.next().map(PathBuf::from).unwrap_or_else(|| here.join("bridge_cmm.kin"));
-    let params = args.next().map(PathBuf::from).or_else(|| (machine == here.join("bridge_cmm.kin")).then(|| here.join("data/bridge_cmm_truth.params")));
+    let machine = args
+        .next()
+        .map(PathBuf::from)
+        .unwrap_or_else(|| here.join("bridge_cmm.kin"));
+    let params = args.next().map(PathBuf::from).or_else(|| {
+        (machine == here.join("bridge_cmm.kin")).then(|| here.join("data/bridge_cmm_truth.params"))
+    });
     if let Err(e) = run(&machine, params.as_deref()) {
         eprintln!("error: {e}");
         std::process::exit(1);
@@ -46,8 +51,16 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
         Ok(model) => model,
         Err(e) => {
             for d in e.diagnostics() {
-                let line = source.get(..d.primary_span().start).map_or(0, |s| s.lines().count());
-                eprintln!("{}:{line}: {:?}[{}]: {}", machine.display(), d.severity, d.code, d.message);
+                let line = source
+                    .get(..d.primary_span().start)
+                    .map_or(0, |s| s.lines().count());
+                eprintln!(
+                    "{}:{line}: {:?}[{}]: {}",
+                    machine.display(),
+                    d.severity,
+                    d.code,
+                    d.message
+                );
             }
             return Err(e.into());
         }
@@ -57,7 +70,13 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
         model = model.with_params(&std::fs::read_to_string(p)?)?;
     }
     let n = model.coefficients();
-    println!("{}: {} axes, {} inputs, {} tools, {n} coefficients", model.machine().name, model.axes(), model.inputs(), model.tools());
+    println!(
+        "{}: {} axes, {} inputs, {} tools, {n} coefficients",
+        model.machine().name,
+        model.axes(),
+        model.inputs(),
+        model.tools()
+    );
 
     // 3. One state: the middle of every axis range, inputs at their declared range's middle or
     //    20 °C / no rise, lags in steady state, directions positive, the first tool.
@@ -68,7 +87,11 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
         state.dirs[a] = 1.0;
     }
     for (i, input) in m.inputs.iter().enumerate() {
-        state.inputs[i] = input.range.map_or(if input.absolute { 293.15 } else { 0.0 }, |r| 0.5 * (r[0] + r[1]));
+        state.inputs[i] = input
+            .range
+            .map_or(if input.absolute { 293.15 } else { 0.0 }, |r| {
+                0.5 * (r[0] + r[1])
+            });
     }
     for (l, lag) in m.lags.iter().enumerate() {
         state.lags[l] = state.inputs[lag.input];
@@ -83,8 +106,18 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
     let mut jac = vec![0.0; 6 * n];
     let mut err2 = [0.0; 6];
     model.eval_jacobian(&state.get(), model.beta(), &mut err2, &mut jac)?;
-    let fixed: Vec<f64> = (0..6).map(|r| err2[r] - (0..n).map(|j| jac[r * n + j] * model.beta()[j]).sum::<f64>()).collect();
-    println!("known (fixed) part of the error (µm, µrad): {:.3?}", fixed.iter().map(|e| e * 1e6).collect::<Vec<_>>());
+    let fixed: Vec<f64> = (0..6)
+        .map(|r| {
+            err2[r]
+                - (0..n)
+                    .map(|j| jac[r * n + j] * model.beta()[j])
+                    .sum::<f64>()
+        })
+        .collect();
+    println!(
+        "known (fixed) part of the error (µm, µrad): {:.3?}",
+        fixed.iter().map(|e| e * 1e6).collect::<Vec<_>>()
+    );
 
     // 5. A batch: many states, rows out into buffers allocated once and reused.
     let states = States::sample(m, 10_000, 7);
@@ -97,7 +130,12 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
     let start = Instant::now();
     model.eval_jacobian_rows(&rows.rows(), model.beta(), &mut errs, &mut jacs)?;
     let elapsed = start.elapsed();
-    println!("{} states with their Jacobians in {:.2} ms ({:.0} poses/s)", rows.len(), elapsed.as_secs_f64() * 1e3, rows.len() as f64 / elapsed.as_secs_f64());
+    println!(
+        "{} states with their Jacobians in {:.2} ms ({:.0} poses/s)",
+        rows.len(),
+        elapsed.as_secs_f64() * 1e3,
+        rows.len() as f64 / elapsed.as_secs_f64()
+    );
 
     // 6. The interpreter, the reference, checked against the JIT on the same states.
     let mut interp = model.evaluator_with(Engine::Interp)?;
@@ -121,7 +159,10 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
                 let (model, states, only) = (&model, &states, &only);
                 scope.spawn(move || {
                     let mut e = [0.0; 6];
-                    (t..states.len()).step_by(4).all(|r| model.eval(&states.get(r), model.beta(), &mut e).is_ok() && e[..] == only[6 * r..6 * r + 6])
+                    (t..states.len()).step_by(4).all(|r| {
+                        model.eval(&states.get(r), model.beta(), &mut e).is_ok()
+                            && e[..] == only[6 * r..6 * r + 6]
+                    })
                 })
             })
             .collect();
@@ -136,8 +177,16 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
     let _ = std::fs::remove_file(&path);
     let mut again = vec![0.0; 6 * rows.len()];
     reloaded.eval_rows(&rows.rows(), reloaded.beta(), &mut again)?;
-    let reloaded_identical = again.iter().zip(&only).all(|(a, b)| a.to_bits() == b.to_bits());
+    let reloaded_identical = again
+        .iter()
+        .zip(&only)
+        .all(|(a, b)| a.to_bits() == b.to_bits());
     println!("saved, reloaded, identical: {reloaded_identical}");
 
-    Ok(Summary { coefficients: n, engines, reloaded_identical, threads_agree })
+    Ok(Summary {
+        coefficients: n,
+        engines,
+        reloaded_identical,
+        threads_agree,
+    })
 }

@@ -25,8 +25,16 @@ fn bench(path: &Path, poses: usize, seconds: f64, color: bool) -> Result<(), Fai
         eprintln!("error: cannot read `{}`: {e}", path.display());
         Failed::USAGE
     })?;
-    let options = Options { poses, time: Duration::from_secs_f64(seconds), ..Options::default() };
-    eprintln!("measuring {} (about {:.0} s)…", path.display(), seconds * 7.0 + 0.5);
+    let options = Options {
+        poses,
+        time: Duration::from_secs_f64(seconds),
+        ..Options::default()
+    };
+    eprintln!(
+        "measuring {} (about {:.0} s)…",
+        path.display(),
+        seconds * 7.0 + 0.5
+    );
     match measure(&source, &options) {
         Ok(figures) => {
             print!("{figures}");

@@ -32,7 +32,12 @@ impl From<ObserveArg> for Observe {
 
 /// Identifiability on states sampled over the ranges: enough rows to see every coefficient
 /// several times over, with a fixed seed so `kin check` is reproducible.
-fn identify(c: &Compiled, observe: Observe, aligned: bool, engine: kin_runtime::engine::Engine) -> Vec<kin_compiler::Diagnostic> {
+fn identify(
+    c: &Compiled,
+    observe: Observe,
+    aligned: bool,
+    engine: kin_runtime::engine::Engine,
+) -> Vec<kin_compiler::Diagnostic> {
     if c.machine.coefficients.is_empty() {
         return Vec::new();
     }

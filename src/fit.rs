@@ -155,7 +155,15 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
             return Err(Failed::INPUT);
         }
     };
-    let report = report::build(m, &source, a.engine.name(), &files, &validate, &result, &options);
+    let report = report::build(
+        m,
+        &source,
+        a.engine.name(),
+        &files,
+        &validate,
+        &result,
+        &options,
+    );
     Ok(Fitted {
         source,
         compiled,

@@ -138,10 +138,11 @@ pub fn eval(
         let compiled = load::machine(machine, params, color)?;
         let m = &compiled.machine;
         let poses = load::observations(poses, &compiled, true)?;
-        let out = simulate::predict_with(m, &m.beta, &poses, components.mask(), engine).map_err(|e| {
-            eprintln!("error: {e}");
-            Failed::INPUT
-        })?;
+        let out =
+            simulate::predict_with(m, &m.beta, &poses, components.mask(), engine).map_err(|e| {
+                eprintln!("error: {e}");
+                Failed::INPUT
+            })?;
         write(
             &out,
             m,

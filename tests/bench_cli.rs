@@ -4,25 +4,63 @@
 use std::process::Command;
 
 fn kin(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_kin")).args(args).current_dir(env!("CARGO_MANIFEST_DIR")).output().expect("runs kin")
+    Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("runs kin")
 }
 
 #[test]
 fn bench_prints_rates_ratios_and_compile_time() {
-    let out = kin(&["bench", "examples/milling_5axis.kin", "--poses", "20", "--seconds", "0.05"]);
+    let out = kin(&[
+        "bench",
+        "examples/milling_5axis.kin",
+        "--poses",
+        "20",
+        "--seconds",
+        "0.05",
+    ]);
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
-    for expected in ["not a test", "interpreter", "JIT, one pose per call", "JIT, batch", "hand-written Rust", "baseline / JIT", "compile, source to callable functions"] {
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for expected in [
+        "not a test",
+        "interpreter",
+        "JIT, one pose per call",
+        "JIT, batch",
+        "hand-written Rust",
+        "baseline / JIT",
+        "compile, source to callable functions",
+    ] {
         assert!(stdout.contains(expected), "missing `{expected}`:\n{stdout}");
     }
-    let out = kin(&["bench", "examples/bridge_cmm.kin", "--poses", "20", "--seconds", "0.05"]);
+    let out = kin(&[
+        "bench",
+        "examples/bridge_cmm.kin",
+        "--poses",
+        "20",
+        "--seconds",
+        "0.05",
+    ]);
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && stdout.contains("no hand-written baseline"), "{stdout}");
+    assert!(
+        out.status.success() && stdout.contains("no hand-written baseline"),
+        "{stdout}"
+    );
 }
 
 #[test]
 fn bench_refuses_bad_options_and_machines() {
-    assert_eq!(kin(&["bench", "examples/milling_5axis.kin", "--poses", "0"]).status.code(), Some(2));
+    assert_eq!(
+        kin(&["bench", "examples/milling_5axis.kin", "--poses", "0"])
+            .status
+            .code(),
+        Some(2)
+    );
     assert_eq!(kin(&["bench", "examples/nope.kin"]).status.code(), Some(2));
     let dir = std::env::temp_dir().join(format!("kin-bench-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");

@@ -10,10 +10,17 @@ use std::path::Path;
 #[test]
 fn the_embedding_example_runs() {
     let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
-    let summary = embed::run(&examples.join("bridge_cmm.kin"), Some(&examples.join("data/bridge_cmm_truth.params"))).expect("the example runs");
+    let summary = embed::run(
+        &examples.join("bridge_cmm.kin"),
+        Some(&examples.join("data/bridge_cmm_truth.params")),
+    )
+    .expect("the example runs");
     assert!(summary.coefficients > 0);
     assert!(summary.engines <= 1e-12, "{summary:?}");
-    assert!(summary.reloaded_identical && summary.threads_agree, "{summary:?}");
+    assert!(
+        summary.reloaded_identical && summary.threads_agree,
+        "{summary:?}"
+    );
 }
 
 #[test]
@@ -21,5 +28,8 @@ fn the_embedding_example_runs_on_the_mill() {
     let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
     let summary = embed::run(&examples.join("milling_5axis.kin"), None).expect("the example runs");
     assert_eq!(summary.coefficients, 173);
-    assert!(summary.engines <= 1e-12 && summary.reloaded_identical && summary.threads_agree, "{summary:?}");
+    assert!(
+        summary.engines <= 1e-12 && summary.reloaded_identical && summary.threads_agree,
+        "{summary:?}"
+    );
 }

@@ -104,8 +104,15 @@ thread_local! {
 /// Runs `f`, catching a panic; on failure records the message and returns the status.
 fn guard(f: impl FnOnce() -> Result<(), Fail>) -> c_int {
     let result = catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|panic| {
-        let what = panic.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| panic.downcast_ref::<String>().cloned()).unwrap_or_default();
-        Err(Fail(KIN_ERR_PANIC, format!("internal error (a bug in kin): {what}")))
+        let what = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        Err(Fail(
+            KIN_ERR_PANIC,
+            format!("internal error (a bug in kin): {what}"),
+        ))
     });
     match result {
         Ok(()) => KIN_OK,
@@ -173,13 +180,24 @@ unsafe fn slice_mut<'a, T>(p: *mut T, n: usize, what: &str) -> Result<&'a mut [T
 
 fn check_pointer<T>(p: *const T, n: usize, what: &str) -> Result<(), Fail> {
     if p.is_null() {
-        return Err(Fail(KIN_ERR_POINTER, format!("`{what}` is NULL but its length is {n}")));
+        return Err(Fail(
+            KIN_ERR_POINTER,
+            format!("`{what}` is NULL but its length is {n}"),
+        ));
     }
     if !p.is_aligned() {
-        return Err(Fail(KIN_ERR_POINTER, format!("`{what}` is not aligned for its type")));
+        return Err(Fail(
+            KIN_ERR_POINTER,
+            format!("`{what}` is not aligned for its type"),
+        ));
     }
-    if n.checked_mul(std::mem::size_of::<T>()).is_none_or(|bytes| bytes > isize::MAX as usize) {
-        return Err(Fail(KIN_ERR_SIZE, format!("`{what}`: a length of {n} cannot be")));
+    if n.checked_mul(std::mem::size_of::<T>())
+        .is_none_or(|bytes| bytes > isize::MAX as usize)
+    {
+        return Err(Fail(
+            KIN_ERR_SIZE,
+            format!("`{what}`: a length of {n} cannot be"),
+        ));
     }
     Ok(())
 }
@@ -205,7 +223,8 @@ unsafe fn model<'a>(model: *const kin_model) -> Result<&'a Model, Fail> {
 unsafe fn text<'a>(p: *const c_char, len: usize, what: &str) -> Result<&'a str, Fail> {
     // SAFETY: caller's contract.
     let bytes = unsafe { slice(p.cast::<u8>(), len, what)? };
-    std::str::from_utf8(bytes).map_err(|e| Fail(KIN_ERR_UTF8, format!("`{what}` is not UTF-8: {e}")))
+    std::str::from_utf8(bytes)
+        .map_err(|e| Fail(KIN_ERR_UTF8, format!("`{what}` is not UTF-8: {e}")))
 }
 
 /// A NUL-terminated path.
@@ -219,7 +238,9 @@ unsafe fn path<'a>(p: *const c_char) -> Result<&'a Path, Fail> {
     }
     // SAFETY: NUL-terminated (caller's contract).
     let s = unsafe { CStr::from_ptr(p) };
-    s.to_str().map(Path::new).map_err(|e| Fail(KIN_ERR_UTF8, format!("the path is not UTF-8: {e}")))
+    s.to_str()
+        .map(Path::new)
+        .map_err(|e| Fail(KIN_ERR_UTF8, format!("the path is not UTF-8: {e}")))
 }
 
 /// Every error diagnostic as `line:column: error[CODE]: message`, one per line.
@@ -270,7 +291,10 @@ fn check(what: &str, expected: usize, got: usize) -> Result<(), Fail> {
     if expected == got {
         Ok(())
     } else {
-        Err(Fail(KIN_ERR_SIZE, format!("`{what}` has length {got}, {expected} are needed")))
+        Err(Fail(
+            KIN_ERR_SIZE,
+            format!("`{what}` has length {got}, {expected} are needed"),
+        ))
     }
 }
 
@@ -342,7 +366,11 @@ pub unsafe extern "C" fn kin_last_error(buf: *mut c_char, len: usize) -> usize {
 ///
 /// As [`write_text`].
 unsafe fn with_err_buffer(code: c_int, err: *mut c_char, err_len: usize) -> c_int {
-    let message = if code == KIN_OK { String::new() } else { LAST_ERROR.with(|e| e.try_borrow().map(|e| e.clone()).unwrap_or_default()) };
+    let message = if code == KIN_OK {
+        String::new()
+    } else {
+        LAST_ERROR.with(|e| e.try_borrow().map(|e| e.clone()).unwrap_or_default())
+    };
     // SAFETY: caller's contract.
     unsafe { write_text(err, err_len, &message) };
     code
@@ -358,7 +386,13 @@ unsafe fn with_err_buffer(code: c_int, err: *mut c_char, err_len: usize) -> c_in
 /// `src` is valid for `len` bytes, `out` is NULL or valid for writing one pointer, `err` is NULL
 /// or valid for `err_len` bytes.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_compile(src: *const c_char, len: usize, out: *mut *mut kin_model, err: *mut c_char, err_len: usize) -> c_int {
+pub unsafe extern "C" fn kin_model_compile(
+    src: *const c_char,
+    len: usize,
+    out: *mut *mut kin_model,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
     let code = guard(|| {
         let out = out_pointer(out)?;
         // SAFETY: caller's contract.
@@ -392,7 +426,13 @@ fn out_pointer(out: *mut *mut kin_model) -> Result<*mut *mut kin_model, Fail> {
 ///
 /// `model` is a live model, `src` valid for `len` bytes, `err` NULL or valid for `err_len` bytes.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_bind_params(model: *mut kin_model, src: *const c_char, len: usize, err: *mut c_char, err_len: usize) -> c_int {
+pub unsafe extern "C" fn kin_model_bind_params(
+    model: *mut kin_model,
+    src: *const c_char,
+    len: usize,
+    err: *mut c_char,
+    err_len: usize,
+) -> c_int {
     let code = guard(|| {
         if model.is_null() {
             return Err(Fail(KIN_ERR_POINTER, "the model is NULL".into()));
@@ -435,7 +475,9 @@ pub unsafe extern "C" fn kin_model_load(path: *const c_char, out: *mut *mut kin_
         // SAFETY: caller's contract.
         let p = unsafe { self::path(path)? };
         let model = Model::load(p).map_err(|e| match e {
-            Error::Compile { .. } | Error::Params { .. } => Fail(KIN_ERR_IO, format!("{}: {e}", p.display())),
+            Error::Compile { .. } | Error::Params { .. } => {
+                Fail(KIN_ERR_IO, format!("{}: {e}", p.display()))
+            }
             e => model_error(e, ""),
         })?;
         // SAFETY: checked by `out_pointer`; valid for writing (caller's contract).
@@ -531,10 +573,21 @@ pub unsafe extern "C" fn kin_model_coefficients(model: *const kin_model) -> usiz
 ///
 /// `model` is a live model, `lo` and `hi` valid for writing one double each.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_axis_range(model: *const kin_model, axis: usize, lo: *mut f64, hi: *mut f64) -> c_int {
+pub unsafe extern "C" fn kin_model_axis_range(
+    model: *const kin_model,
+    axis: usize,
+    lo: *mut f64,
+    hi: *mut f64,
+) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
-        let (m, lo, hi) = unsafe { (self::model(model)?, slice_mut(lo, 1, "lo")?, slice_mut(hi, 1, "hi")?) };
+        let (m, lo, hi) = unsafe {
+            (
+                self::model(model)?,
+                slice_mut(lo, 1, "lo")?,
+                slice_mut(hi, 1, "hi")?,
+            )
+        };
         let Some(a) = m.machine().axes.get(axis) else {
             return Err(Fail(KIN_ERR_INDEX, format!("axis {axis} of {}", m.axes())));
         };
@@ -552,12 +605,26 @@ pub unsafe extern "C" fn kin_model_axis_range(model: *const kin_model, axis: usi
 ///
 /// `model` is a live model, `lo` and `hi` valid for writing one double each.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_input_range(model: *const kin_model, input: usize, lo: *mut f64, hi: *mut f64) -> c_int {
+pub unsafe extern "C" fn kin_model_input_range(
+    model: *const kin_model,
+    input: usize,
+    lo: *mut f64,
+    hi: *mut f64,
+) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
-        let (m, lo, hi) = unsafe { (self::model(model)?, slice_mut(lo, 1, "lo")?, slice_mut(hi, 1, "hi")?) };
+        let (m, lo, hi) = unsafe {
+            (
+                self::model(model)?,
+                slice_mut(lo, 1, "lo")?,
+                slice_mut(hi, 1, "hi")?,
+            )
+        };
         let Some(i) = m.machine().inputs.get(input) else {
-            return Err(Fail(KIN_ERR_INDEX, format!("input {input} of {}", m.inputs())));
+            return Err(Fail(
+                KIN_ERR_INDEX,
+                format!("input {input} of {}", m.inputs()),
+            ));
         };
         use kin_compiler::units::Dim;
         let range = match i.range {
@@ -579,7 +646,11 @@ pub unsafe extern "C" fn kin_model_input_range(model: *const kin_model, input: u
 ///
 /// `model` is a live model, `input` valid for writing one `size_t`.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_lag_input(model: *const kin_model, lag: usize, input: *mut usize) -> c_int {
+pub unsafe extern "C" fn kin_model_lag_input(
+    model: *const kin_model,
+    lag: usize,
+    input: *mut usize,
+) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
         let (m, out) = unsafe { (self::model(model)?, slice_mut(input, 1, "input")?) };
@@ -599,7 +670,13 @@ pub unsafe extern "C" fn kin_model_lag_input(model: *const kin_model, lag: usize
 ///
 /// `model` is NULL or a live model, `buf` NULL or valid for `len` bytes.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_name(model: *const kin_model, what: c_int, index: usize, buf: *mut c_char, len: usize) -> usize {
+pub unsafe extern "C" fn kin_model_name(
+    model: *const kin_model,
+    what: c_int,
+    index: usize,
+    buf: *mut c_char,
+    len: usize,
+) -> usize {
     let name = catch_unwind(AssertUnwindSafe(|| {
         // SAFETY: caller's contract.
         let m = unsafe { self::model(model) }.ok()?.machine();
@@ -625,7 +702,11 @@ pub unsafe extern "C" fn kin_model_name(model: *const kin_model, what: c_int, in
 ///
 /// `model` is a live model, `beta` valid for `n_beta` doubles.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_beta(model: *const kin_model, beta: *mut f64, n_beta: usize) -> c_int {
+pub unsafe extern "C" fn kin_model_beta(
+    model: *const kin_model,
+    beta: *mut f64,
+    n_beta: usize,
+) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
         let (m, out) = unsafe { (self::model(model)?, slice_mut(beta, n_beta, "beta")?) };
@@ -642,7 +723,11 @@ pub unsafe extern "C" fn kin_model_beta(model: *const kin_model, beta: *mut f64,
 ///
 /// `model` is a live model, `beta` valid for `n_beta` doubles.
 #[no_mangle]
-pub unsafe extern "C" fn kin_model_set_beta(model: *mut kin_model, beta: *const f64, n_beta: usize) -> c_int {
+pub unsafe extern "C" fn kin_model_set_beta(
+    model: *mut kin_model,
+    beta: *const f64,
+    n_beta: usize,
+) -> c_int {
     guard(|| {
         if model.is_null() {
             return Err(Fail(KIN_ERR_POINTER, "the model is NULL".into()));
@@ -664,13 +749,31 @@ pub unsafe extern "C" fn kin_model_set_beta(model: *mut kin_model, beta: *const 
 /// `model` is a live model, `state` a valid `kin_state`, `beta` valid for `n_beta` doubles and
 /// `err` for `n_err`.
 #[no_mangle]
-pub unsafe extern "C" fn kin_eval(model: *const kin_model, state: *const kin_state, beta: *const f64, n_beta: usize, err: *mut f64, n_err: usize) -> c_int {
+pub unsafe extern "C" fn kin_eval(
+    model: *const kin_model,
+    state: *const kin_state,
+    beta: *const f64,
+    n_beta: usize,
+    err: *mut f64,
+    n_err: usize,
+) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
-        let (m, s, out) = unsafe { (self::model(model)?, self::state(state)?, slice_mut(err, n_err, "err")?) };
+        let (m, s, out) = unsafe {
+            (
+                self::model(model)?,
+                self::state(state)?,
+                slice_mut(err, n_err, "err")?,
+            )
+        };
         // SAFETY: caller's contract.
         let b = unsafe { self::beta(m, beta, n_beta)? };
-        let out: &mut [f64; 6] = out.try_into().map_err(|_| Fail(KIN_ERR_SIZE, format!("`err` has length {n_err}, 6 are needed")))?;
+        let out: &mut [f64; 6] = out.try_into().map_err(|_| {
+            Fail(
+                KIN_ERR_SIZE,
+                format!("`err` has length {n_err}, 6 are needed"),
+            )
+        })?;
         m.eval(&s, b, out).map_err(eval_error)
     })
 }
@@ -694,10 +797,22 @@ pub unsafe extern "C" fn kin_eval_jacobian(
 ) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
-        let (m, s, out, jac) = unsafe { (self::model(model)?, self::state(state)?, slice_mut(err, n_err, "err")?, slice_mut(jac, n_jac, "jac")?) };
+        let (m, s, out, jac) = unsafe {
+            (
+                self::model(model)?,
+                self::state(state)?,
+                slice_mut(err, n_err, "err")?,
+                slice_mut(jac, n_jac, "jac")?,
+            )
+        };
         // SAFETY: caller's contract.
         let b = unsafe { self::beta(m, beta, n_beta)? };
-        let out: &mut [f64; 6] = out.try_into().map_err(|_| Fail(KIN_ERR_SIZE, format!("`err` has length {n_err}, 6 are needed")))?;
+        let out: &mut [f64; 6] = out.try_into().map_err(|_| {
+            Fail(
+                KIN_ERR_SIZE,
+                format!("`err` has length {n_err}, 6 are needed"),
+            )
+        })?;
         check("jac", 6 * m.coefficients(), jac.len())?;
         m.eval_jacobian(&s, b, out, jac).map_err(eval_error)
     })
@@ -713,15 +828,42 @@ pub unsafe extern "C" fn kin_eval_jacobian(
 /// `model` is a live model, `state` a valid `kin_state`, `location` valid for `n_location`
 /// doubles and `jac` for `n_jac`.
 #[no_mangle]
-pub unsafe extern "C" fn kin_nominal_jacobian(model: *const kin_model, state: *const kin_state, location: *mut f64, n_location: usize, jac: *mut f64, n_jac: usize) -> c_int {
+pub unsafe extern "C" fn kin_nominal_jacobian(
+    model: *const kin_model,
+    state: *const kin_state,
+    location: *mut f64,
+    n_location: usize,
+    jac: *mut f64,
+    n_jac: usize,
+) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
-        let (m, s, loc, jac) = unsafe { (self::model(model)?, self::state(state)?, slice_mut(location, n_location, "location")?, slice_mut(jac, n_jac, "jac")?) };
+        let (m, s, loc, jac) = unsafe {
+            (
+                self::model(model)?,
+                self::state(state)?,
+                slice_mut(location, n_location, "location")?,
+                slice_mut(jac, n_jac, "jac")?,
+            )
+        };
         check("location", 12, loc.len())?;
         check("jac", 6 * m.axes(), jac.len())?;
         let l = m.nominal_jacobian(&s, jac).map_err(eval_error)?;
         let r = &l.rotation;
-        let values = [l.position.x, l.position.y, l.position.z, r.m11, r.m12, r.m13, r.m21, r.m22, r.m23, r.m31, r.m32, r.m33];
+        let values = [
+            l.position.x,
+            l.position.y,
+            l.position.z,
+            r.m11,
+            r.m12,
+            r.m13,
+            r.m21,
+            r.m22,
+            r.m23,
+            r.m31,
+            r.m32,
+            r.m33,
+        ];
         loc.copy_from_slice(&values);
         Ok(())
     })
@@ -754,7 +896,13 @@ pub unsafe extern "C" fn kin_eval_batch(
         // SAFETY: non-NULL and aligned, valid (caller's contract); `kin_rows` is `Copy`.
         let r = unsafe { *rows };
         // SAFETY: caller's contract.
-        let (m, out, jac) = unsafe { (self::model(model)?, slice_mut(err, n_err, "err")?, slice_mut(jac, n_jac, "jac")?) };
+        let (m, out, jac) = unsafe {
+            (
+                self::model(model)?,
+                slice_mut(err, n_err, "err")?,
+                slice_mut(jac, n_jac, "jac")?,
+            )
+        };
         // SAFETY: caller's contract.
         let b = unsafe { self::beta(m, beta, n_beta)? };
         check("time", r.n_rows, r.n_time)?;
@@ -773,7 +921,8 @@ pub unsafe extern "C" fn kin_eval_batch(
         if jac.is_empty() && m.coefficients() > 0 && r.n_rows > 0 {
             m.eval_rows(&state_rows, b, out).map_err(batch_error)
         } else {
-            m.eval_jacobian_rows(&state_rows, b, out, jac).map_err(batch_error)
+            m.eval_jacobian_rows(&state_rows, b, out, jac)
+                .map_err(batch_error)
         }
     })
 }
@@ -794,12 +943,22 @@ mod tests {
         let mut out = null_mut();
         let mut err = [0 as c_char; 512];
         // SAFETY: valid pointers and lengths.
-        let code = unsafe { kin_model_compile(src.as_ptr().cast(), src.len(), &mut out, err.as_mut_ptr(), err.len()) };
+        let code = unsafe {
+            kin_model_compile(
+                src.as_ptr().cast(),
+                src.len(),
+                &mut out,
+                err.as_mut_ptr(),
+                err.len(),
+            )
+        };
         if code == KIN_OK {
             Ok(out)
         } else {
             // SAFETY: NUL-terminated by `kin_model_compile`.
-            let msg = unsafe { CStr::from_ptr(err.as_ptr()) }.to_string_lossy().into_owned();
+            let msg = unsafe { CStr::from_ptr(err.as_ptr()) }
+                .to_string_lossy()
+                .into_owned();
             assert!(out.is_null());
             Err((code, msg))
         }
@@ -810,7 +969,9 @@ mod tests {
         // SAFETY: valid buffer.
         unsafe { kin_last_error(buf.as_mut_ptr(), buf.len()) };
         // SAFETY: NUL-terminated.
-        unsafe { CStr::from_ptr(buf.as_ptr()) }.to_string_lossy().into_owned()
+        unsafe { CStr::from_ptr(buf.as_ptr()) }
+            .to_string_lossy()
+            .into_owned()
     }
 
     #[test]
@@ -828,9 +989,15 @@ mod tests {
         let code = unsafe { kin_model_compile(bytes.as_ptr().cast(), 2, &mut out, null_mut(), 0) };
         assert_eq!(code, KIN_ERR_UTF8);
         // SAFETY: NULL source with a length.
-        assert_eq!(unsafe { kin_model_compile(null(), 3, &mut out, null_mut(), 0) }, KIN_ERR_POINTER);
+        assert_eq!(
+            unsafe { kin_model_compile(null(), 3, &mut out, null_mut(), 0) },
+            KIN_ERR_POINTER
+        );
         // SAFETY: NULL out.
-        assert_eq!(unsafe { kin_model_compile(SRC.as_ptr().cast(), SRC.len(), null_mut(), null_mut(), 0) }, KIN_ERR_POINTER);
+        assert_eq!(
+            unsafe { kin_model_compile(SRC.as_ptr().cast(), SRC.len(), null_mut(), null_mut(), 0) },
+            KIN_ERR_POINTER
+        );
     }
 
     #[test]
@@ -838,48 +1005,141 @@ mod tests {
         let model = compile(SRC).expect("compiles");
         // SAFETY: a live model; every buffer below is valid for the length given with it.
         unsafe {
-            assert_eq!((kin_model_axes(model), kin_model_inputs(model), kin_model_lags(model), kin_model_coefficients(model)), (1, 0, 0, 5));
+            assert_eq!(
+                (
+                    kin_model_axes(model),
+                    kin_model_inputs(model),
+                    kin_model_lags(model),
+                    kin_model_coefficients(model)
+                ),
+                (1, 0, 0, 5)
+            );
             assert_eq!(kin_model_axes(null()), 0);
             let q = [0.2];
             let dirs = [f64::NAN];
-            let mut st = kin_state { q: q.as_ptr(), n_q: 1, inputs: null(), n_inputs: 0, lags: null(), n_lags: 0, dirs: dirs.as_ptr(), n_dirs: 1, time: 0.0, tool: 0 };
+            let mut st = kin_state {
+                q: q.as_ptr(),
+                n_q: 1,
+                inputs: null(),
+                n_inputs: 0,
+                lags: null(),
+                n_lags: 0,
+                dirs: dirs.as_ptr(),
+                n_dirs: 1,
+                time: 0.0,
+                tool: 0,
+            };
             let beta = [1e-6, 2e-6, 0.0, 0.0, 3e-6];
             let mut err = [0.0; 6];
             let mut jac = [0.0; 30];
-            assert_eq!(kin_eval(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 6), KIN_OK);
-            assert_eq!(kin_eval(model, &st, beta.as_ptr(), 4, err.as_mut_ptr(), 6), KIN_ERR_SIZE);
-            assert_eq!(kin_eval(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 5), KIN_ERR_SIZE);
-            assert_eq!(kin_eval(model, &st, null(), 5, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
-            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_OK, "bound β");
-            assert_eq!(kin_eval(model, null(), null(), 0, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
-            assert_eq!(kin_eval(null(), &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
-            assert_eq!(kin_eval_jacobian(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 6, jac.as_mut_ptr(), 29), KIN_ERR_SIZE);
-            assert_eq!(kin_eval_jacobian(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 6, jac.as_mut_ptr(), 30), KIN_OK);
+            assert_eq!(
+                kin_eval(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 6),
+                KIN_OK
+            );
+            assert_eq!(
+                kin_eval(model, &st, beta.as_ptr(), 4, err.as_mut_ptr(), 6),
+                KIN_ERR_SIZE
+            );
+            assert_eq!(
+                kin_eval(model, &st, beta.as_ptr(), 5, err.as_mut_ptr(), 5),
+                KIN_ERR_SIZE
+            );
+            assert_eq!(
+                kin_eval(model, &st, null(), 5, err.as_mut_ptr(), 6),
+                KIN_ERR_POINTER
+            );
+            assert_eq!(
+                kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6),
+                KIN_OK,
+                "bound β"
+            );
+            assert_eq!(
+                kin_eval(model, null(), null(), 0, err.as_mut_ptr(), 6),
+                KIN_ERR_POINTER
+            );
+            assert_eq!(
+                kin_eval(null(), &st, null(), 0, err.as_mut_ptr(), 6),
+                KIN_ERR_POINTER
+            );
+            assert_eq!(
+                kin_eval_jacobian(
+                    model,
+                    &st,
+                    beta.as_ptr(),
+                    5,
+                    err.as_mut_ptr(),
+                    6,
+                    jac.as_mut_ptr(),
+                    29
+                ),
+                KIN_ERR_SIZE
+            );
+            assert_eq!(
+                kin_eval_jacobian(
+                    model,
+                    &st,
+                    beta.as_ptr(),
+                    5,
+                    err.as_mut_ptr(),
+                    6,
+                    jac.as_mut_ptr(),
+                    30
+                ),
+                KIN_OK
+            );
             st.tool = 3;
-            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_EVAL);
+            assert_eq!(
+                kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6),
+                KIN_ERR_EVAL
+            );
             assert!(last_error().contains("tool"), "{}", last_error());
             st.tool = 0;
             st.n_q = 2;
-            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_SIZE);
+            assert_eq!(
+                kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6),
+                KIN_ERR_SIZE
+            );
             st.n_q = 1;
             let misaligned = (q.as_ptr() as *const u8).add(1).cast::<f64>();
             st.q = misaligned;
-            assert_eq!(kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6), KIN_ERR_POINTER);
+            assert_eq!(
+                kin_eval(model, &st, null(), 0, err.as_mut_ptr(), 6),
+                KIN_ERR_POINTER
+            );
             let (mut lo, mut hi) = (0.0, 0.0);
             assert_eq!(kin_model_axis_range(model, 0, &mut lo, &mut hi), KIN_OK);
             assert_eq!((lo, hi), (0.0, 0.5));
-            assert_eq!(kin_model_axis_range(model, 1, &mut lo, &mut hi), KIN_ERR_INDEX);
+            assert_eq!(
+                kin_model_axis_range(model, 1, &mut lo, &mut hi),
+                KIN_ERR_INDEX
+            );
             let mut name = [0 as c_char; 4];
-            assert_eq!(kin_model_name(model, 3, 4, name.as_mut_ptr(), name.len()), "X.ry[0]".len());
-            assert_eq!(CStr::from_ptr(name.as_ptr()).to_str(), Ok("X.r"), "truncated");
-            assert_eq!(kin_model_name(model, 3, 5, name.as_mut_ptr(), name.len()), usize::MAX);
+            assert_eq!(
+                kin_model_name(model, 3, 4, name.as_mut_ptr(), name.len()),
+                "X.ry[0]".len()
+            );
+            assert_eq!(
+                CStr::from_ptr(name.as_ptr()).to_str(),
+                Ok("X.r"),
+                "truncated"
+            );
+            assert_eq!(
+                kin_model_name(model, 3, 5, name.as_mut_ptr(), name.len()),
+                usize::MAX
+            );
             let params = "params { X.ry[0] = 3 urad }";
-            assert_eq!(kin_model_bind_params(model, params.as_ptr().cast(), params.len(), null_mut(), 0), KIN_OK);
+            assert_eq!(
+                kin_model_bind_params(model, params.as_ptr().cast(), params.len(), null_mut(), 0),
+                KIN_OK
+            );
             let mut bound = [0.0; 5];
             assert_eq!(kin_model_beta(model, bound.as_mut_ptr(), 5), KIN_OK);
             assert!((bound[4] - 3e-6).abs() < 1e-18);
             let bad = "params { X.ry = 3 }";
-            assert_eq!(kin_model_bind_params(model, bad.as_ptr().cast(), bad.len(), null_mut(), 0), KIN_ERR_PARAMS);
+            assert_eq!(
+                kin_model_bind_params(model, bad.as_ptr().cast(), bad.len(), null_mut(), 0),
+                KIN_ERR_PARAMS
+            );
             assert!(last_error().contains("E0501"), "{}", last_error());
             kin_model_free(model);
             kin_model_free(null_mut());
@@ -913,22 +1173,75 @@ mod tests {
             let beta = [1e-6, 2e-6, -1e-6, 0.5e-6, 3e-6];
             let mut err = [0.0; 24];
             let mut jac = [0.0; 120];
-            assert_eq!(kin_eval_batch(model, &rows, beta.as_ptr(), 5, err.as_mut_ptr(), 24, jac.as_mut_ptr(), 120), KIN_OK);
+            assert_eq!(
+                kin_eval_batch(
+                    model,
+                    &rows,
+                    beta.as_ptr(),
+                    5,
+                    err.as_mut_ptr(),
+                    24,
+                    jac.as_mut_ptr(),
+                    120
+                ),
+                KIN_OK
+            );
             let mut only = [0.0; 24];
-            assert_eq!(kin_eval_batch(model, &rows, beta.as_ptr(), 5, only.as_mut_ptr(), 24, null_mut(), 0), KIN_OK);
-            assert!(err.iter().zip(&only).all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
-            assert_eq!(kin_eval_batch(model, &rows, beta.as_ptr(), 5, err.as_mut_ptr(), 23, null_mut(), 0), KIN_ERR_SIZE);
+            assert_eq!(
+                kin_eval_batch(
+                    model,
+                    &rows,
+                    beta.as_ptr(),
+                    5,
+                    only.as_mut_ptr(),
+                    24,
+                    null_mut(),
+                    0
+                ),
+                KIN_OK
+            );
+            assert!(err
+                .iter()
+                .zip(&only)
+                .all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
+            assert_eq!(
+                kin_eval_batch(
+                    model,
+                    &rows,
+                    beta.as_ptr(),
+                    5,
+                    err.as_mut_ptr(),
+                    23,
+                    null_mut(),
+                    0
+                ),
+                KIN_ERR_SIZE
+            );
             assert_eq!(kin_model_set_beta(model, beta.as_ptr(), 5), KIN_OK);
             let dir = std::env::temp_dir().join(format!("kin-capi-{}", std::process::id()));
             std::fs::create_dir_all(&dir).expect("temp dir");
-            let path = std::ffi::CString::new(dir.join("m.json").to_str().expect("utf-8")).expect("path");
+            let path =
+                std::ffi::CString::new(dir.join("m.json").to_str().expect("utf-8")).expect("path");
             assert_eq!(kin_model_save(model, path.as_ptr()), KIN_OK);
             let mut loaded = null_mut();
             assert_eq!(kin_model_load(path.as_ptr(), &mut loaded), KIN_OK);
             let mut again = [0.0; 24];
-            assert_eq!(kin_eval_batch(loaded, &rows, null(), 0, again.as_mut_ptr(), 24, null_mut(), 0), KIN_OK);
+            assert_eq!(
+                kin_eval_batch(
+                    loaded,
+                    &rows,
+                    null(),
+                    0,
+                    again.as_mut_ptr(),
+                    24,
+                    null_mut(),
+                    0
+                ),
+                KIN_OK
+            );
             assert_eq!(again, only);
-            let missing = std::ffi::CString::new(dir.join("none.json").to_str().expect("utf-8")).expect("path");
+            let missing = std::ffi::CString::new(dir.join("none.json").to_str().expect("utf-8"))
+                .expect("path");
             assert_eq!(kin_model_load(missing.as_ptr(), &mut loaded), KIN_ERR_IO);
             assert!(loaded.is_null());
             let _ = std::fs::remove_dir_all(&dir);
@@ -942,10 +1255,16 @@ mod tests {
         let source = include_str!("lib.rs");
         let mut count = 0;
         for line in source.lines() {
-            let Some(rest) = line.split("extern \"C\" fn ").nth(1) else { continue };
-            let Some(name) = rest.split('(').next() else { continue };
+            let Some(rest) = line.split("extern \"C\" fn ").nth(1) else {
+                continue;
+            };
+            let Some(name) = rest.split('(').next() else {
+                continue;
+            };
             if name.starts_with("kin_") {
-                let declared = header.lines().any(|l| !l.starts_with("/*") && !l.starts_with(" *") && l.contains(&format!("{name}(")));
+                let declared = header.lines().any(|l| {
+                    !l.starts_with("/*") && !l.starts_with(" *") && l.contains(&format!("{name}("))
+                });
                 assert!(declared, "kin.h does not declare `{name}`");
                 count += 1;
             }
@@ -955,7 +1274,10 @@ mod tests {
             if let Some(rest) = line.strip_prefix("pub const KIN_") {
                 let (name, value) = rest.split_once(": c_int = ").expect("a status");
                 let value = value.trim_end_matches(';');
-                assert!(header.contains(&format!("#define KIN_{name} {value}")), "kin.h: KIN_{name}");
+                assert!(
+                    header.contains(&format!("#define KIN_{name} {value}")),
+                    "kin.h: KIN_{name}"
+                );
             }
         }
     }

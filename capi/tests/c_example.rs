@@ -18,14 +18,29 @@ fn root() -> PathBuf {
 fn library_dir() -> Option<PathBuf> {
     let exe = std::env::current_exe().ok()?;
     let deps = exe.parent()?;
-    let name = format!("{}kin_capi{}", std::env::consts::DLL_PREFIX, std::env::consts::DLL_SUFFIX);
-    let found = [deps.parent()?, deps].into_iter().find(|d| d.join(&name).exists()).map(Path::to_path_buf);
+    let name = format!(
+        "{}kin_capi{}",
+        std::env::consts::DLL_PREFIX,
+        std::env::consts::DLL_SUFFIX
+    );
+    let found = [deps.parent()?, deps]
+        .into_iter()
+        .find(|d| d.join(&name).exists())
+        .map(Path::to_path_buf);
     found
 }
 
 fn c_compiler() -> Option<String> {
-    let candidates = std::env::var("CC").ok().into_iter().chain(["cc".to_string(), "gcc".to_string()]);
-    candidates.into_iter().find(|cc| Command::new(cc).arg("--version").output().is_ok_and(|o| o.status.success()))
+    let candidates = std::env::var("CC")
+        .ok()
+        .into_iter()
+        .chain(["cc".to_string(), "gcc".to_string()]);
+    candidates.into_iter().find(|cc| {
+        Command::new(cc)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    })
 }
 
 /// The records of the program's output: tag, state, numbers.
@@ -49,10 +64,13 @@ fn close(a: f64, b: f64) -> bool {
 #[test]
 fn the_c_example_matches_the_rust_api() {
     let Some(cc) = c_compiler() else {
-        eprintln!("SKIPPED: no C compiler (cc, gcc or $CC) on the PATH, so the C example is not built");
+        eprintln!(
+            "SKIPPED: no C compiler (cc, gcc or $CC) on the PATH, so the C example is not built"
+        );
         return;
     };
-    let lib = library_dir().expect("libkin_capi next to the test binary (cargo builds the cdylib with the crate)");
+    let lib = library_dir()
+        .expect("libkin_capi next to the test binary (cargo builds the cdylib with the crate)");
     let out_dir = std::env::temp_dir().join(format!("kin-capi-example-{}", std::process::id()));
     std::fs::create_dir_all(&out_dir).expect("temp dir");
     let exe = out_dir.join("eval");
@@ -70,22 +88,48 @@ fn the_c_example_matches_the_rust_api() {
         .arg(&exe)
         .output()
         .expect("runs the C compiler");
-    assert!(build.status.success(), "{cc} failed:\n{}", String::from_utf8_lossy(&build.stderr));
+    assert!(
+        build.status.success(),
+        "{cc} failed:\n{}",
+        String::from_utf8_lossy(&build.stderr)
+    );
 
     let machine = root().join("examples/bridge_cmm.kin");
     let params = root().join("examples/data/bridge_cmm_truth.params");
-    let run = Command::new(&exe).arg(&machine).arg(&params).output().expect("runs the example");
+    let run = Command::new(&exe)
+        .arg(&machine)
+        .arg(&params)
+        .output()
+        .expect("runs the example");
     let _ = std::fs::remove_dir_all(&out_dir);
     let stdout = String::from_utf8_lossy(&run.stdout);
     let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(run.status.success(), "the example failed:\n{stdout}\n{stderr}");
-    assert!(stderr.contains("status 2"), "the wrong length is refused: {stderr}");
+    assert!(
+        run.status.success(),
+        "the example failed:\n{stdout}\n{stderr}"
+    );
+    assert!(
+        stderr.contains("status 2"),
+        "the wrong length is refused: {stderr}"
+    );
 
     let source = std::fs::read_to_string(&machine).expect("machine");
-    let model = Model::compile(&source).expect("compiles").with_params(&std::fs::read_to_string(&params).expect("params")).expect("binds");
+    let model = Model::compile(&source)
+        .expect("compiles")
+        .with_params(&std::fs::read_to_string(&params).expect("params"))
+        .expect("binds");
     let m = model.machine();
     let n = model.coefficients();
-    assert!(stdout.starts_with(&format!("counts {} {} {} {} {n}\n", model.axes(), model.inputs(), model.lags(), model.tools())), "{stdout}");
+    assert!(
+        stdout.starts_with(&format!(
+            "counts {} {} {} {} {n}\n",
+            model.axes(),
+            model.inputs(),
+            model.lags(),
+            model.tools()
+        )),
+        "{stdout}"
+    );
 
     // The same states, built as the program builds them.
     let states: Vec<kin_runtime::StateBuf> = (0..4)
@@ -126,22 +170,36 @@ fn the_c_example_matches_the_rust_api() {
             }
             "jac" => {
                 let (mut e, mut j) = ([0.0; 6], vec![0.0; 6 * n]);
-                model.eval_jacobian(&s, model.beta(), &mut e, &mut j).expect("eval");
+                model
+                    .eval_jacobian(&s, model.beta(), &mut e, &mut j)
+                    .expect("eval");
                 j
             }
             "nominal" => {
                 let mut j = vec![0.0; 6 * model.axes()];
-                model.nominal_jacobian(&s, &mut j).expect("nominal").position.iter().copied().collect()
+                model
+                    .nominal_jacobian(&s, &mut j)
+                    .expect("nominal")
+                    .position
+                    .iter()
+                    .copied()
+                    .collect()
             }
             other => panic!("unexpected record `{other}`"),
         };
         assert_eq!(values.len(), expected.len(), "{tag} {k}");
         for (i, (a, b)) in values.iter().zip(&expected).enumerate() {
-            assert!(close(*a, *b), "{tag} {k}[{i}]: C printed {a:e}, Rust gives {b:e}");
+            assert!(
+                close(*a, *b),
+                "{tag} {k}[{i}]: C printed {a:e}, Rust gives {b:e}"
+            );
             compared += 1;
         }
         if tag == "err" {
-            assert!(values.iter().any(|v| *v != 0.0), "the bound parameters act: {values:?}");
+            assert!(
+                values.iter().any(|v| *v != 0.0),
+                "the bound parameters act: {values:?}"
+            );
         }
     }
     eprintln!("the C example's {compared} numbers agree with the Rust API to 1e-12");

@@ -56,5 +56,9 @@ fn knots_of_temperature_inputs() {
     let ok = compile(&src("rise range 0 degC .. 5 degC", "2.5"));
     assert!(ok.diagnostics.is_empty(), "{:#?}", ok.diagnostics);
     let bad = compile(&src("absolute range 15 degC .. 30 degC", "2.5"));
-    assert_eq!(bad.diagnostics.first().map(|d| d.code), Some("E0301"), "2.5 °C is outside 15–30 °C");
+    assert_eq!(
+        bad.diagnostics.first().map(|d| d.code),
+        Some("E0301"),
+        "2.5 °C is outside 15–30 °C"
+    );
 }

@@ -70,9 +70,16 @@ pub enum Error {
     #[error(transparent)]
     Jit(#[from] JitError),
     #[error("{what} holds {got} values, the model has {expected}")]
-    Values { what: &'static str, expected: usize, got: usize },
+    Values {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     #[error("`{}`: {source}", path.display())]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     /// A saved model that cannot be read back: not one, of another version, or values that do not
     /// fit the recompiled source.
     #[error("not a saved kin model: {message}")]
@@ -120,14 +127,23 @@ impl Model {
     pub fn compile(source: &str) -> Result<Model, Error> {
         let out = kin_compiler::compile(source);
         let Some(mut compiled) = out.compiled else {
-            return Err(Error::Compile { diagnostics: out.diagnostics });
+            return Err(Error::Compile {
+                diagnostics: out.diagnostics,
+            });
         };
         let m = &mut compiled.machine;
         if m.beta.len() != m.coefficients.len() {
             m.beta = vec![0.0; m.coefficients.len()];
         }
         let jit = jit::compile(m)?;
-        Ok(Model { source: source.to_string(), params: Vec::new(), nonlinear: m.nonlinear.iter().map(|p| p.value).collect(), compiled, warnings: out.diagnostics, jit })
+        Ok(Model {
+            source: source.to_string(),
+            params: Vec::new(),
+            nonlinear: m.nonlinear.iter().map(|p| p.value).collect(),
+            compiled,
+            warnings: out.diagnostics,
+            jit,
+        })
     }
 
     /// Binds a parameter text (`params { … }`) on top of the values bound so far: the values it
@@ -222,7 +238,11 @@ impl Model {
 
     /// Replaces the non-linear parameter values.
     pub fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), Error> {
-        check_values("the non-linear parameter values", self.nonlinear.len(), values.len())?;
+        check_values(
+            "the non-linear parameter values",
+            self.nonlinear.len(),
+            values.len(),
+        )?;
         self.nonlinear.copy_from_slice(values);
         for (p, v) in self.compiled.machine.nonlinear.iter_mut().zip(values) {
             p.value = *v;
@@ -254,25 +274,48 @@ impl Model {
 
     /// The error and its Jacobian with respect to β, 6 × n row-major (row r is error component
     /// r): `error = fixed + jac·β`.
-    pub fn eval_jacobian(&self, state: &State, beta: &[f64], err: &mut [f64; 6], jac: &mut [f64]) -> Result<(), EvalError> {
-        self.jit.error_and_jacobian(state, beta, &self.nonlinear, err, jac)
+    pub fn eval_jacobian(
+        &self,
+        state: &State,
+        beta: &[f64],
+        err: &mut [f64; 6],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.jit
+            .error_and_jacobian(state, beta, &self.nonlinear, err, jac)
     }
 
     /// The nominal tool location in the workpiece frame and its Jacobian with respect to the
     /// joint positions: `jac[6j..6j+6]` is `(dp/dq_j, ω_j)`.
-    pub fn nominal_jacobian(&self, state: &State, jac: &mut [f64]) -> Result<ToolLocation, EvalError> {
+    pub fn nominal_jacobian(
+        &self,
+        state: &State,
+        jac: &mut [f64],
+    ) -> Result<ToolLocation, EvalError> {
         self.jit.nominal_jacobian(state, jac)
     }
 
     /// [`Model::eval`] over many states: `err` holds 6 values per row.
-    pub fn eval_rows(&self, rows: &StateRows, beta: &[f64], err: &mut [f64]) -> Result<(), BatchError> {
+    pub fn eval_rows(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        err: &mut [f64],
+    ) -> Result<(), BatchError> {
         self.jit.error_rows(rows, beta, &self.nonlinear, err)
     }
 
     /// [`Model::eval_jacobian`] over many states: `err` holds 6 values per row, `jac` one 6 × n
     /// block per row.
-    pub fn eval_jacobian_rows(&self, rows: &StateRows, beta: &[f64], err: &mut [f64], jac: &mut [f64]) -> Result<(), BatchError> {
-        self.jit.error_and_jacobian_rows(rows, beta, &self.nonlinear, err, jac)
+    pub fn eval_jacobian_rows(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), BatchError> {
+        self.jit
+            .error_and_jacobian_rows(rows, beta, &self.nonlinear, err, jac)
     }
 
     /// An [`Evaluator`] on the JIT's code (no compilation), with this model's non-linear values.
@@ -282,7 +325,10 @@ impl Model {
     }
 
     /// An [`Evaluator`] by the chosen engine, with this model's non-linear values.
-    pub fn evaluator_with(&self, engine: Engine) -> Result<Box<dyn Evaluator + Send + '_>, EngineError> {
+    pub fn evaluator_with(
+        &self,
+        engine: Engine,
+    ) -> Result<Box<dyn Evaluator + Send + '_>, EngineError> {
         Ok(match engine {
             Engine::Jit => Box::new(self.jit_evaluator()),
             Engine::Interp => {
@@ -309,7 +355,9 @@ impl Model {
             if v.is_finite() {
                 Ok(v)
             } else {
-                Err(Error::Format { message: format!("{what} `{name}` is {v}, which a saved model cannot hold") })
+                Err(Error::Format {
+                    message: format!("{what} `{name}` is {v}, which a saved model cannot hold"),
+                })
             }
         };
         let saved = Saved {
@@ -319,43 +367,88 @@ impl Model {
             source: self.source.clone(),
             params: self.params.clone(),
             coefficients: m.coefficients.iter().map(|c| c.name.clone()).collect(),
-            beta: m.coefficients.iter().zip(&m.beta).map(|(c, b)| finite("coefficient", &c.name, *b)).collect::<Result<_, _>>()?,
+            beta: m
+                .coefficients
+                .iter()
+                .zip(&m.beta)
+                .map(|(c, b)| finite("coefficient", &c.name, *b))
+                .collect::<Result<_, _>>()?,
             nonlinear: m
                 .nonlinear
                 .iter()
                 .zip(&self.nonlinear)
-                .map(|(p, v)| Ok(Named { name: p.name.clone(), value: finite("parameter", &p.name, *v)? }))
+                .map(|(p, v)| {
+                    Ok(Named {
+                        name: p.name.clone(),
+                        value: finite("parameter", &p.name, *v)?,
+                    })
+                })
                 .collect::<Result<_, Error>>()?,
         };
-        serde_json::to_string_pretty(&saved).map_err(|e| Error::Format { message: e.to_string() })
+        serde_json::to_string_pretty(&saved).map_err(|e| Error::Format {
+            message: e.to_string(),
+        })
     }
 
     /// Reads [`Model::to_json`]'s text: recompiles the source, binds the parameter texts and
     /// restores the saved values, checking that they fit the machine.
     pub fn from_json(text: &str) -> Result<Model, Error> {
-        let saved: Saved = serde_json::from_str(text).map_err(|e| Error::Format { message: e.to_string() })?;
+        let saved: Saved = serde_json::from_str(text).map_err(|e| Error::Format {
+            message: e.to_string(),
+        })?;
         if saved.format != FORMAT {
-            return Err(Error::Format { message: format!("the format is `{}`, not `{FORMAT}`", saved.format) });
+            return Err(Error::Format {
+                message: format!("the format is `{}`, not `{FORMAT}`", saved.format),
+            });
         }
         if saved.version != VERSION {
-            return Err(Error::Format { message: format!("version {} (this kin reads version {VERSION})", saved.version) });
+            return Err(Error::Format {
+                message: format!(
+                    "version {} (this kin reads version {VERSION})",
+                    saved.version
+                ),
+            });
         }
         let mut model = Model::compile(&saved.source)?;
         for p in &saved.params {
             model.bind_params(p)?;
         }
-        let names: Vec<&str> = model.machine().coefficients.iter().map(|c| c.name.as_str()).collect();
-        if names != saved.coefficients.iter().map(String::as_str).collect::<Vec<_>>() {
-            return Err(Error::Format { message: "the saved coefficients are not the source's".into() });
+        let names: Vec<&str> = model
+            .machine()
+            .coefficients
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect();
+        if names
+            != saved
+                .coefficients
+                .iter()
+                .map(String::as_str)
+                .collect::<Vec<_>>()
+        {
+            return Err(Error::Format {
+                message: "the saved coefficients are not the source's".into(),
+            });
         }
         model.set_beta(&saved.beta)?;
         let mut values = model.nonlinear.clone();
         if saved.nonlinear.len() != values.len() {
-            return Err(Error::Values { what: "the saved non-linear parameters", expected: values.len(), got: saved.nonlinear.len() });
+            return Err(Error::Values {
+                what: "the saved non-linear parameters",
+                expected: values.len(),
+                got: saved.nonlinear.len(),
+            });
         }
         for n in &saved.nonlinear {
-            let Some(k) = model.machine().nonlinear.iter().position(|p| p.name == n.name) else {
-                return Err(Error::Format { message: format!("the source has no non-linear parameter `{}`", n.name) });
+            let Some(k) = model
+                .machine()
+                .nonlinear
+                .iter()
+                .position(|p| p.name == n.name)
+            else {
+                return Err(Error::Format {
+                    message: format!("the source has no non-linear parameter `{}`", n.name),
+                });
             };
             if let Some(slot) = values.get_mut(k) {
                 *slot = n.value;
@@ -368,12 +461,18 @@ impl Model {
     /// Saves the model (see [`Model::to_json`]) to `path`.
     pub fn save(&self, path: &Path) -> Result<(), Error> {
         let text = self.to_json()?;
-        std::fs::write(path, text + "\n").map_err(|source| Error::Io { path: path.to_path_buf(), source })
+        std::fs::write(path, text + "\n").map_err(|source| Error::Io {
+            path: path.to_path_buf(),
+            source,
+        })
     }
 
     /// Loads a model saved with [`Model::save`].
     pub fn load(path: &Path) -> Result<Model, Error> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
         Model::from_json(&text)
     }
 }
@@ -382,7 +481,11 @@ fn check_values(what: &'static str, expected: usize, got: usize) -> Result<(), E
     if expected == got {
         Ok(())
     } else {
-        Err(Error::Values { what, expected, got })
+        Err(Error::Values {
+            what,
+            expected,
+            got,
+        })
     }
 }
 
@@ -431,7 +534,15 @@ pub struct StateBuf {
 
 impl StateBuf {
     pub fn get(&self) -> State<'_> {
-        State { q: &self.q, inputs: &self.inputs, lags: &self.lags, time: self.time, dirs: &self.dirs, tool: self.tool, tool_offset: self.tool_offset }
+        State {
+            q: &self.q,
+            inputs: &self.inputs,
+            lags: &self.lags,
+            time: self.time,
+            dirs: &self.dirs,
+            tool: self.tool,
+            tool_offset: self.tool_offset,
+        }
     }
 }
 
@@ -477,7 +588,15 @@ impl RowsBuf {
     }
 
     pub fn rows(&self) -> StateRows<'_> {
-        StateRows { q: &self.q, inputs: &self.inputs, lags: &self.lags, time: &self.time, dirs: &self.dirs, tool: &self.tool, tool_offset: &self.tool_offset }
+        StateRows {
+            q: &self.q,
+            inputs: &self.inputs,
+            lags: &self.lags,
+            time: &self.time,
+            dirs: &self.dirs,
+            tool: &self.tool,
+            tool_offset: &self.tool_offset,
+        }
     }
 }
 
@@ -511,26 +630,55 @@ mod tests {
     fn compile_errors_are_data() {
         let err = Model::compile("machine m { axis X wobbly }").expect_err("does not compile");
         assert!(!err.diagnostics().is_empty());
-        assert!(err.to_string().starts_with("the source does not compile: error["), "{err}");
+        assert!(
+            err.to_string()
+                .starts_with("the source does not compile: error["),
+            "{err}"
+        );
         let model = Model::compile(SRC).expect("compiles");
-        let err = model.clone().with_params("params { X.tx[0] = 1 }  junk").expect_err("bad params");
+        let err = model
+            .clone()
+            .with_params("params { X.tx[0] = 1 }  junk")
+            .expect_err("bad params");
         assert!(matches!(err, Error::Params { .. }), "{err}");
-        let err = model.with_params("params { X.nope[0] = 1 um }").expect_err("unknown");
+        let err = model
+            .with_params("params { X.nope[0] = 1 um }")
+            .expect_err("unknown");
         assert_eq!(err.diagnostics().first().map(|d| d.code), Some("E0501"));
     }
 
     #[test]
     fn params_bind_on_top_and_set_values_are_checked() {
-        let mut model = Model::compile(SRC).expect("compiles").with_params("params { X.ry[0] = 3 urad }").expect("binds");
-        assert!((model.nonlinear()[0] - 1500.0).abs() < 1e-9, "the source's own params: {:?}", model.nonlinear());
-        let k = model.machine().coefficients.iter().position(|c| c.name == "X.ry[0]").expect("X.ry");
+        let mut model = Model::compile(SRC)
+            .expect("compiles")
+            .with_params("params { X.ry[0] = 3 urad }")
+            .expect("binds");
+        assert!(
+            (model.nonlinear()[0] - 1500.0).abs() < 1e-9,
+            "the source's own params: {:?}",
+            model.nonlinear()
+        );
+        let k = model
+            .machine()
+            .coefficients
+            .iter()
+            .position(|c| c.name == "X.ry[0]")
+            .expect("X.ry");
         assert!((model.beta()[k] - 3e-6).abs() < 1e-18);
-        model.bind_params("params { X.tx.tau = 30 min }").expect("binds");
+        model
+            .bind_params("params { X.tx.tau = 30 min }")
+            .expect("binds");
         assert!((model.nonlinear()[0] - 1800.0).abs() < 1e-9);
-        assert!((model.beta()[k] - 3e-6).abs() < 1e-18, "earlier values stay");
+        assert!(
+            (model.beta()[k] - 3e-6).abs() < 1e-18,
+            "earlier values stay"
+        );
         assert_eq!(model.params().len(), 2);
         assert!(matches!(model.set_beta(&[1.0]), Err(Error::Values { .. })));
-        assert!(matches!(model.set_nonlinear(&[]), Err(Error::Values { .. })));
+        assert!(matches!(
+            model.set_nonlinear(&[]),
+            Err(Error::Values { .. })
+        ));
     }
 
     #[test]
@@ -547,11 +695,18 @@ mod tests {
         for r in 0..states.len() {
             let s = states.get(r);
             model.eval(&s, model.beta(), &mut e1).expect("eval");
-            model.eval_jacobian(&s, model.beta(), &mut e2, &mut j1).expect("eval");
-            interp.error_and_jacobian(&s, model.beta(), &mut e3, &mut j2).expect("interp");
+            model
+                .eval_jacobian(&s, model.beta(), &mut e2, &mut j1)
+                .expect("eval");
+            interp
+                .error_and_jacobian(&s, model.beta(), &mut e3, &mut j2)
+                .expect("interp");
             assert_eq!(jit.error(&s, model.beta()).expect("jit"), e1);
             for (a, b) in e1.iter().zip(&e3).chain(j1.iter().zip(&j2)) {
-                assert!((a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1e-9), "{a} vs {b}");
+                assert!(
+                    (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1e-9),
+                    "{a} vs {b}"
+                );
             }
             let mut nj = vec![0.0; 6 * model.axes()];
             let loc = model.nominal_jacobian(&s, &mut nj).expect("nominal");
@@ -562,12 +717,19 @@ mod tests {
 
     #[test]
     fn save_and_load_give_identical_numbers() {
-        let mut model = Model::compile(SRC).expect("compiles").with_params("params { X.ry[0] = 3 urad }").expect("binds");
+        let mut model = Model::compile(SRC)
+            .expect("compiles")
+            .with_params("params { X.ry[0] = 3 urad }")
+            .expect("binds");
         let n = model.coefficients();
         // Values with all 17 digits, which only an exact round trip keeps.
-        let beta: Vec<f64> = (0..n).map(|j| (j as f64 + 1.0).sqrt() * 1.234_567_890_123_456_7e-7_f64 / 3.0).collect();
+        let beta: Vec<f64> = (0..n)
+            .map(|j| (j as f64 + 1.0).sqrt() * 1.234_567_890_123_456_7e-7_f64 / 3.0)
+            .collect();
         model.set_beta(&beta).expect("β");
-        model.set_nonlinear(&[1_234.567_890_123_456_7 / 7.0]).expect("τ");
+        model
+            .set_nonlinear(&[1_234.567_890_123_456_7 / 7.0])
+            .expect("τ");
         let dir = std::env::temp_dir().join(format!("kin-embed-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("temp dir");
         let path = dir.join("model.json");
@@ -582,15 +744,28 @@ mod tests {
         let (mut a, mut b) = ([0.0; 6], [0.0; 6]);
         let (mut ja, mut jb) = (vec![0.0; 6 * n], vec![0.0; 6 * n]);
         for r in 0..states.len() {
-            model.eval_jacobian(&states.get(r), model.beta(), &mut a, &mut ja).expect("eval");
-            loaded.eval_jacobian(&states.get(r), loaded.beta(), &mut b, &mut jb).expect("eval");
+            model
+                .eval_jacobian(&states.get(r), model.beta(), &mut a, &mut ja)
+                .expect("eval");
+            loaded
+                .eval_jacobian(&states.get(r), loaded.beta(), &mut b, &mut jb)
+                .expect("eval");
             assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits));
             assert!(ja.iter().zip(&jb).all(|(x, y)| x.to_bits() == y.to_bits()));
         }
-        assert!(matches!(Model::load(&dir.join("missing.json")), Err(Error::Io { .. })));
+        assert!(matches!(
+            Model::load(&dir.join("missing.json")),
+            Err(Error::Io { .. })
+        ));
         assert!(matches!(Model::from_json("{}"), Err(Error::Format { .. })));
-        let other = model.to_json().expect("json").replace("\"version\": 1", "\"version\": 99");
-        assert!(matches!(Model::from_json(&other), Err(Error::Format { .. })));
+        let other = model
+            .to_json()
+            .expect("json")
+            .replace("\"version\": 1", "\"version\": 99");
+        assert!(matches!(
+            Model::from_json(&other),
+            Err(Error::Format { .. })
+        ));
         model.set_beta(&vec![f64::NAN; n]).expect("β");
         assert!(matches!(model.to_json(), Err(Error::Format { .. })));
     }
@@ -604,13 +779,20 @@ mod tests {
         let buf = RowsBuf::from_states(&states);
         let rows = buf.rows();
         let (mut errs, mut jacs) = (vec![0.0; 6 * rows.len()], vec![0.0; 6 * n * rows.len()]);
-        model.eval_jacobian_rows(&rows, &beta, &mut errs, &mut jacs).expect("batch");
+        model
+            .eval_jacobian_rows(&rows, &beta, &mut errs, &mut jacs)
+            .expect("batch");
         let mut only = vec![0.0; 6 * rows.len()];
         model.eval_rows(&rows, &beta, &mut only).expect("batch");
-        assert!(only.iter().zip(&errs).all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
+        assert!(only
+            .iter()
+            .zip(&errs)
+            .all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
         let (mut e, mut j) = ([0.0; 6], vec![0.0; 6 * n]);
         for r in 0..rows.len() {
-            model.eval_jacobian(&states.get(r), &beta, &mut e, &mut j).expect("eval");
+            model
+                .eval_jacobian(&states.get(r), &beta, &mut e, &mut j)
+                .expect("eval");
             assert_eq!(&errs[6 * r..6 * r + 6], &e);
             assert_eq!(&jacs[6 * n * r..6 * n * (r + 1)], j.as_slice());
         }

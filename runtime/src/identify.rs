@@ -97,7 +97,9 @@ pub fn design_with(
     m: &Machine,
     states: &States,
     observe: Observe,
-    aligned: bool, engine: crate::engine::Engine) -> Result<(Vec<f64>, Vec<Column>), IdentifyError> {
+    aligned: bool,
+    engine: crate::engine::Engine,
+) -> Result<(Vec<f64>, Vec<Column>), IdentifyError> {
     let n = m.coefficients.len();
     let mut columns: Vec<Column> = Vec::new();
     if aligned && observe != Observe::Length {

@@ -88,8 +88,15 @@ pub fn simulate(
 }
 
 /// The first-order model's prediction at the poses of `poses` by the chosen engine (`kin eval`).
-pub fn predict_with(m: &Machine, beta: &[f64], poses: &Observations, observe: [bool; 6], engine: crate::engine::Engine) -> Result<Observations, SimulateError> {
-    let mut ev = crate::engine::make(m, engine).map_err(|e| SimulateError::Engine(e.to_string()))?;
+pub fn predict_with(
+    m: &Machine,
+    beta: &[f64],
+    poses: &Observations,
+    observe: [bool; 6],
+    engine: crate::engine::Engine,
+) -> Result<Observations, SimulateError> {
+    let mut ev =
+        crate::engine::make(m, engine).map_err(|e| SimulateError::Engine(e.to_string()))?;
     match poses {
         Observations::Points(p) => {
             let states = States::new(m, &p.rows, &p.pose, "")?;
@@ -101,14 +108,20 @@ pub fn predict_with(m: &Machine, beta: &[f64], poses: &Observations, observe: [b
             }
             for r in 0..states.len() {
                 let line = states.line.get(r).copied().unwrap_or(0);
-                let e = ev.error(&states.get(r), beta).map_err(|source| SimulateError::Eval { line, source })?;
+                let e = ev
+                    .error(&states.get(r), beta)
+                    .map_err(|source| SimulateError::Eval { line, source })?;
                 for (k, col) in observed.iter_mut().enumerate() {
                     if let Some(col) = col {
                         col.push(e.get(k).copied().unwrap_or(0.0));
                     }
                 }
             }
-            Ok(Observations::Points(PointData { rows: p.rows.clone(), pose: p.pose.clone(), observed }))
+            Ok(Observations::Points(PointData {
+                rows: p.rows.clone(),
+                pose: p.pose.clone(),
+                observed,
+            }))
         }
         Observations::Lengths(l) => {
             let [p1, p2] = &l.poses;
@@ -118,9 +131,16 @@ pub fn predict_with(m: &Machine, beta: &[f64], poses: &Observations, observe: [b
             let mut dl = Vec::with_capacity(s1.len());
             for r in 0..s1.len() {
                 let line = s1.line.get(r).copied().unwrap_or(0);
-                dl.push(ev.length_and_row(&s1.get(r), &s2.get(r), beta, &mut row).map_err(|source| SimulateError::Eval { line, source })?);
+                dl.push(
+                    ev.length_and_row(&s1.get(r), &s2.get(r), beta, &mut row)
+                        .map_err(|source| SimulateError::Eval { line, source })?,
+                );
             }
-            Ok(Observations::Lengths(LengthData { rows: l.rows.clone(), poses: l.poses.clone(), dl }))
+            Ok(Observations::Lengths(LengthData {
+                rows: l.rows.clone(),
+                poses: l.poses.clone(),
+                dl,
+            }))
         }
     }
 }

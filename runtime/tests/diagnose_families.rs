@@ -434,7 +434,11 @@ fn hidden_case(case: &Case, n: usize, seed: u64, tally: &mut Tally) {
     let (o, d) = run(case.kind, Some((case.hidden, case.values)), n, seed);
     tally.runs += 1;
     tally.seconds += o.seconds;
-    tally.least_before = if tally.runs == 1 { o.rms_before } else { tally.least_before.min(o.rms_before) };
+    tally.least_before = if tally.runs == 1 {
+        o.rms_before
+    } else {
+        tally.least_before.min(o.rms_before)
+    };
     let ranked = matches!(&o.top, Some((f, t, _, true)) if *f == case.family && t == case.target);
     let rms_ok = o.rms_after.is_some_and(|r| r <= 1.2);
     if let Some(r) = o.rms_after {
@@ -455,10 +459,18 @@ fn control(kind: Kind, n: usize, seed: u64, tally: &mut Tally) {
     let (o, d) = run(kind, None, n, seed);
     tally.runs += 1;
     tally.seconds += o.seconds;
-    tally.least_before = if tally.runs == 1 { o.rms_before } else { tally.least_before.min(o.rms_before) };
+    tally.least_before = if tally.runs == 1 {
+        o.rms_before
+    } else {
+        tally.least_before.min(o.rms_before)
+    };
     // How close the strongest candidate came to an alarm.
     let least_p = d.findings.iter().map(|f| f.p_adjusted).fold(1.0, f64::min);
-    tally.least_p = if tally.runs == 1 { least_p } else { tally.least_p.min(least_p) };
+    tally.least_p = if tally.runs == 1 {
+        least_p
+    } else {
+        tally.least_p.min(least_p)
+    };
     if o.significant.is_empty() {
         tally.hits += 1;
     } else {
@@ -492,7 +504,10 @@ fn report(name: &str, t: &Tally) {
         t.seconds / t.runs.max(1) as f64
     );
     if t.least_p > 0.0 {
-        println!("{:<36} smallest adjusted p of any candidate {:.3}", "", t.least_p);
+        println!(
+            "{:<36} smallest adjusted p of any candidate {:.3}",
+            "", t.least_p
+        );
     }
     for m in &t.misses {
         println!("    miss: {m}");
@@ -622,5 +637,3 @@ fn diagnose_timing() {
             .map(|f| (&f.candidate.text, f.significant))
     );
 }
-
-

@@ -678,11 +678,20 @@ fn a_fit_report_with_undetermined_values_reads_back() {
     let beta = truth(&c, 51);
     let files = [simulated(&c, &beta, 100, 0.3e-6, 52, 0)];
     let r = run(&c, &files, &Options::default()).unwrap();
-    let mut rep = kin_runtime::fit::report::build(&c.machine, CMM, "interp", &files, &[], &r, &Options::default());
+    let mut rep = kin_runtime::fit::report::build(
+        &c.machine,
+        CMM,
+        "interp",
+        &files,
+        &[],
+        &r,
+        &Options::default(),
+    );
     rep.coefficients[0].se = f64::INFINITY;
     rep.r2 = f64::NAN;
     let json = serde_json::to_string(&rep).unwrap();
-    let back: kin_runtime::fit::report::FitReport = serde_json::from_str(&json).expect("reads back");
+    let back: kin_runtime::fit::report::FitReport =
+        serde_json::from_str(&json).expect("reads back");
     assert!(back.coefficients[0].se.is_nan() && back.r2.is_nan());
     assert_eq!(back.coefficients[1].value, rep.coefficients[1].value);
 }

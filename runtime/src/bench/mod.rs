@@ -37,7 +37,12 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Options {
-        Options { poses: 1000, time: Duration::from_millis(600), rounds: 5, seed: 1 }
+        Options {
+            poses: 1000,
+            time: Duration::from_millis(600),
+            rounds: 5,
+            seed: 1,
+        }
     }
 }
 
@@ -131,7 +136,12 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
     }
     let model = Model::compile(source)?;
     let compile = fastest(5, || Model::compile(source))?;
-    let front_end = fastest(5, || kin_compiler::compile(source).compiled.ok_or(())).map_err(|()| Error::Compile { diagnostics: kin_compiler::compile(source).diagnostics })?;
+    let front_end =
+        fastest(5, || kin_compiler::compile(source).compiled.ok_or(())).map_err(|()| {
+            Error::Compile {
+                diagnostics: kin_compiler::compile(source).diagnostics,
+            }
+        })?;
     let jit_compile = fastest(5, || crate::jit::compile(model.machine())).map_err(Error::from)?;
     let m: &Machine = model.machine();
     let n = m.coefficients.len();
@@ -212,7 +222,13 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
     })
 }
 
-fn baseline_rates(m: &Machine, options: &Options, rows: &StateRows, beta: &[f64], nonlinear: &[f64]) -> Result<BaselineRates, String> {
+fn baseline_rates(
+    m: &Machine,
+    options: &Options,
+    rows: &StateRows,
+    beta: &[f64],
+    nonlinear: &[f64],
+) -> Result<BaselineRates, String> {
     let n = m.coefficients.len();
     let mut err = [0.0; 6];
     let mut jac = vec![0.0; 6 * n];
@@ -226,7 +242,10 @@ fn baseline_rates(m: &Machine, options: &Options, rows: &StateRows, beta: &[f64]
             Ok::<(), String>(())
         })
     };
-    Ok(BaselineRates { exact: run(baseline_5axis::Trig::Exact)?, recurrence: run(baseline_5axis::Trig::Recurrence)? })
+    Ok(BaselineRates {
+        exact: run(baseline_5axis::Trig::Exact)?,
+        recurrence: run(baseline_5axis::Trig::Recurrence)?,
+    })
 }
 
 /// `1234567.8` as `1 234 568`.
@@ -248,23 +267,51 @@ fn ms(d: Duration) -> String {
 
 impl fmt::Display for Figures {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "{}: {} axes, {} coefficients; {} poses sampled over the ranges, best of the rounds", self.machine, self.axes, self.coefficients, self.poses)?;
-        writeln!(f, "A measurement on this computer, not a test: figures vary with the CPU and its load.")?;
+        writeln!(
+            f,
+            "{}: {} axes, {} coefficients; {} poses sampled over the ranges, best of the rounds",
+            self.machine, self.axes, self.coefficients, self.poses
+        )?;
+        writeln!(
+            f,
+            "A measurement on this computer, not a test: figures vary with the CPU and its load."
+        )?;
         if self.debug_build {
             writeln!(f, "warning: this `kin` was built without optimisations; build with --release for representative figures")?;
         }
         writeln!(f)?;
-        writeln!(f, "{:<40} {:>14} {:>9}   {:>14} {:>9}", "poses per second", "error + β-Jac", "× interp", "error only", "× interp")?;
+        writeln!(
+            f,
+            "{:<40} {:>14} {:>9}   {:>14} {:>9}",
+            "poses per second", "error + β-Jac", "× interp", "error only", "× interp"
+        )?;
         let line = |f: &mut fmt::Formatter<'_>, name: &str, r: &Rates| {
-            writeln!(f, "{name:<40} {:>14} {:>9.1}   {:>14} {:>9.1}", grouped(r.jacobian), r.jacobian / self.interp.jacobian, grouped(r.error), r.error / self.interp.error)
+            writeln!(
+                f,
+                "{name:<40} {:>14} {:>9.1}   {:>14} {:>9.1}",
+                grouped(r.jacobian),
+                r.jacobian / self.interp.jacobian,
+                grouped(r.error),
+                r.error / self.interp.error
+            )
         };
         line(f, "interpreter", &self.interp)?;
         line(f, "JIT, one pose per call", &self.jit)?;
         line(f, "JIT, batch of all poses", &self.jit_batch)?;
         match &self.baseline {
             Ok(b) => {
-                for (name, rate) in [("hand-written Rust, libm harmonics", b.exact), ("hand-written Rust, harmonic recurrences", b.recurrence)] {
-                    writeln!(f, "{name:<40} {:>14} {:>9.1}   {:>14} {:>9}", grouped(rate), rate / self.interp.jacobian, "-", "")?;
+                for (name, rate) in [
+                    ("hand-written Rust, libm harmonics", b.exact),
+                    ("hand-written Rust, harmonic recurrences", b.recurrence),
+                ] {
+                    writeln!(
+                        f,
+                        "{name:<40} {:>14} {:>9.1}   {:>14} {:>9}",
+                        grouped(rate),
+                        rate / self.interp.jacobian,
+                        "-",
+                        ""
+                    )?;
                 }
                 writeln!(f)?;
                 writeln!(
@@ -279,8 +326,19 @@ impl fmt::Display for Figures {
                 writeln!(f, "no hand-written baseline: it exists for examples/milling_5axis.kin only ({why})")?;
             }
         }
-        writeln!(f, "JIT / interpreter: {:.1}× (error + β-Jacobian), {:.1}× (error only)", self.jit.jacobian / self.interp.jacobian, self.jit.error / self.interp.error)?;
-        writeln!(f, "compile, source to callable functions: {} (front end {}, JIT {})", ms(self.compile), ms(self.front_end), ms(self.jit_compile))
+        writeln!(
+            f,
+            "JIT / interpreter: {:.1}× (error + β-Jacobian), {:.1}× (error only)",
+            self.jit.jacobian / self.interp.jacobian,
+            self.jit.error / self.interp.error
+        )?;
+        writeln!(
+            f,
+            "compile, source to callable functions: {} (front end {}, JIT {})",
+            ms(self.compile),
+            ms(self.front_end),
+            ms(self.jit_compile)
+        )
     }
 }
 
@@ -300,14 +358,31 @@ mod tests {
     fn a_short_bench_gives_every_figure() {
         let src = "machine m { task position  axis X prismatic along x range 0 mm .. 500 mm
             tool chain { X moving tool t }  errors { X.tx = spline(X, knots 2)  X.ry = const } }";
-        let options = Options { poses: 20, time: Duration::from_millis(10), rounds: 2, seed: 3 };
+        let options = Options {
+            poses: 20,
+            time: Duration::from_millis(10),
+            rounds: 2,
+            seed: 3,
+        };
         let figures = measure(src, &options).expect("measures");
         for r in [figures.interp, figures.jit, figures.jit_batch] {
             assert!(r.jacobian > 0.0 && r.error > 0.0, "{figures:?}");
         }
         assert!(figures.baseline.is_err());
         let text = figures.to_string();
-        assert!(text.contains("not a test") && text.contains("no hand-written baseline"), "{text}");
-        assert!(matches!(measure(src, &Options { poses: 0, ..options }), Err(BenchError::NoPoses)));
+        assert!(
+            text.contains("not a test") && text.contains("no hand-written baseline"),
+            "{text}"
+        );
+        assert!(matches!(
+            measure(
+                src,
+                &Options {
+                    poses: 0,
+                    ..options
+                }
+            ),
+            Err(BenchError::NoPoses)
+        ));
     }
 }

@@ -296,7 +296,9 @@ fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
                 // the projections (four trigonometric calls per point otherwise).
                 trig.clear();
                 trig.extend(pts.iter().map(|(x, _)| libm::sincos(w * x)));
-                let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| (s + 2.0 * sn * cs, c + cs * cs - sn * sn));
+                let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| {
+                    (s + 2.0 * sn * cs, c + cs * cs - sn * sn)
+                });
                 let (st, ct) = libm::sincos(0.5 * libm::atan2(s2, c2));
                 let (mut yc, mut ys, mut cc, mut ss) = (0.0, 0.0, 0.0, 0.0);
                 for ((_, y), (sn, cs)) in pts.iter().zip(&trig) {
@@ -307,7 +309,11 @@ fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
                     cc += cs * cs;
                     ss += sn * sn;
                 }
-                let p = if cc > 0.0 && ss > 0.0 { (yc * yc / cc + ys * ys / ss) / (2.0 * var) } else { 0.0 };
+                let p = if cc > 0.0 && ss > 0.0 {
+                    (yc * yc / cc + ys * ys / ss) / (2.0 * var)
+                } else {
+                    0.0
+                };
                 wavelengths.push(lambda);
                 power.push(p);
             }

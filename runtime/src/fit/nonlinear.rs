@@ -38,14 +38,14 @@ fn residuals(
     Ok((r, rank))
 }
 
-/// The linear fit at `values`: residuals, rank and β̂.
-fn linear_fit(
+/// The engine and the states set to the non-linear `values` (lags depend on time constants),
+/// and the problem's columns.
+fn at_values(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
     files: &[DataSet],
     values: &[f64],
-    options: &Options,
-) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
+) -> Result<(Vec<design::FileStates>, Layout), FitError> {
     let m = &compiled.machine;
     engine
         .set_nonlinear(values)
@@ -54,8 +54,18 @@ fn linear_fit(
             line: 0,
             source,
         })?;
-    let states = design::states_with(m, files, values)?;
-    let layout = Layout::new(m, files);
+    Ok((design::states_with(m, files, values)?, Layout::new(m, files)))
+}
+
+/// The linear fit at `values`: residuals, rank and β̂.
+fn linear_fit(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    options: &Options,
+) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
+    let (states, layout) = at_values(compiled, engine, files, values)?;
     let mut acc = StreamingQr::new(layout.columns(), options.block);
     design::for_each_row(engine, files, &states, &layout, |_, x, y| acc.push(x, y))?;
     let red = acc.finish();
@@ -78,16 +88,7 @@ fn predictions(
     values: &[f64],
     beta: &[f64],
 ) -> Result<Vec<f64>, FitError> {
-    let m = &compiled.machine;
-    engine
-        .set_nonlinear(values)
-        .map_err(|source| design::DesignError::Eval {
-            path: String::new(),
-            line: 0,
-            source,
-        })?;
-    let states = design::states_with(m, files, values)?;
-    let layout = Layout::new(m, files);
+    let (states, layout) = at_values(compiled, engine, files, values)?;
     let mut out = Vec::new();
     design::for_each_row(engine, files, &states, &layout, |_, x, _| {
         out.push(x.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>())
@@ -128,15 +129,7 @@ fn covariance(
                 .collect(),
         );
     }
-    engine
-        .set_nonlinear(values)
-        .map_err(|source| design::DesignError::Eval {
-            path: String::new(),
-            line: 0,
-            source,
-        })?;
-    let states = design::states_with(m, files, values)?;
-    let layout = Layout::new(m, files);
+    let (states, layout) = at_values(compiled, engine, files, values)?;
     let p = layout.columns();
     let mut acc = StreamingQr::new(p + k, options.block);
     let mut row = vec![0.0; p + k];
@@ -169,7 +162,11 @@ fn covariance(
     for (c, &i) in fitted.iter().enumerate() {
         let var: f64 = sigma2 * (c..k).map(|j| inv[(c, j)].powi(2)).sum::<f64>();
         // A parameter with no effect on the residuals leaves a zero pivot: unbounded.
-        se[i] = Some(if var.is_finite() { var.sqrt() } else { f64::INFINITY });
+        se[i] = Some(if var.is_finite() {
+            var.sqrt()
+        } else {
+            f64::INFINITY
+        });
     }
     Ok(se)
 }

@@ -54,7 +54,10 @@ fn at_values(
             line: 0,
             source,
         })?;
-    Ok((design::states_with(m, files, values)?, Layout::new(m, files)))
+    Ok((
+        design::states_with(m, files, values)?,
+        Layout::new(m, files),
+    ))
 }
 
 /// The linear fit at `values`: residuals, rank and β̂.

@@ -7,62 +7,30 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use kin_compiler::ir::{
-    Axis, DisplayUnits, Element, FrameKind, JointKind, Machine, Shape, Task, Tool,
-};
-use kin_compiler::units::Unit;
+use kin_compiler::ir::Machine;
 use kin_runtime::data::{read_file, Observations, ReadOptions};
 
 const ROWS: usize = 1_000_000;
 
-fn unit(text: &str) -> Unit {
-    Unit::parse(text).unwrap_or_else(|e| panic!("{text}: {e}"))
-}
-
+/// A 3-axis CMM: the reader only needs the axis names and the default units.
 fn machine() -> Machine {
-    let axis = |name: &str, direction| Axis {
-        name: name.into(),
-        kind: JointKind::Prismatic,
-        direction,
-        range: [0.0, 1.0],
-        continuous: false,
-    };
-    let element = |axis| Element {
-        axis,
-        frame: FrameKind::Moving,
-        shape: Shape::default(),
-    };
-    Machine {
-        name: "bench".into(),
-        task: Task::Measure,
-        axes: vec![
-            axis("X", [1.0, 0.0, 0.0]),
-            axis("Y", [0.0, 1.0, 0.0]),
-            axis("Z", [0.0, 0.0, 1.0]),
-        ],
-        inputs: vec![],
-        lags: vec![],
-        nonlinear: vec![],
-        tool_chain: vec![element(1), element(0), element(2)],
-        workpiece_chain: vec![],
-        tools: vec![Tool {
-            name: "probe".into(),
-            offset: Shape::default(),
-        }],
-        workpiece: Shape::default(),
-        errors: vec![],
-        coefficients: vec![],
-        beta: vec![],
-        units: DisplayUnits {
-            length: unit("mm"),
-            angle: unit("deg"),
-            error: unit("um"),
-            tilt: unit("urad"),
-            time: unit("s"),
-            temperature: unit("degC"),
-            force: unit("N"),
-        },
-    }
+    let src = "machine bench {
+        task measure
+        units { length mm, error um }
+        axis Y prismatic along y range 0 mm .. 1000 mm
+        axis X prismatic along x range 0 mm .. 1000 mm
+        axis Z prismatic along z range 0 mm .. 1000 mm
+        tool chain {
+            Y moving
+            X moving
+            Z moving
+            tool probe
+        }
+    }";
+    kin_compiler::compile(src)
+        .compiled
+        .expect("the bench machine compiles")
+        .machine
 }
 
 /// Positions on a grid with sub-micrometre digits and errors of a few micrometres, written the

@@ -71,6 +71,9 @@ pub struct Figures {
     /// `libm` harmonics (the interpreter's numbers) and with harmonic recurrences; `None` when the
     /// machine is not the 5-axis example, with the reason.
     pub baseline: Result<BaselineRates, String>,
+    /// Writing the 6 × n Jacobian into the reused buffer and nothing else, per pose: the
+    /// ceiling of any evaluator that hands out the full Jacobian on this computer.
+    pub write_only: f64,
     /// Source text to callable functions: parse, check, lower and JIT-compile.
     pub compile: Duration,
     /// The front end alone (source to IR).
@@ -206,6 +209,13 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
     };
 
     let baseline = baseline_rates(m, options, &rows, &beta, &nonlinear);
+    let write_only = rate(options, || {
+        for r in 0..count {
+            jac.fill(black_box(r as f64));
+            black_box(&mut jac);
+        }
+        Ok::<(), BatchError>(())
+    })?;
     Ok(Figures {
         machine: m.name.clone(),
         coefficients: n,
@@ -215,6 +225,7 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
         jit: jit_rates,
         jit_batch,
         baseline,
+        write_only,
         compile,
         front_end,
         jit_compile,
@@ -334,6 +345,13 @@ impl fmt::Display for Figures {
         )?;
         writeln!(
             f,
+            "writing the 6 × {} Jacobian alone, no arithmetic: {} poses/s; the JIT runs at {:.0} % of that ceiling",
+            self.coefficients,
+            grouped(self.write_only),
+            100.0 * self.jit.jacobian / self.write_only
+        )?;
+        writeln!(
+            f,
             "compile, source to callable functions: {} (front end {}, JIT {})",
             ms(self.compile),
             ms(self.front_end),
@@ -368,6 +386,7 @@ mod tests {
         for r in [figures.interp, figures.jit, figures.jit_batch] {
             assert!(r.jacobian > 0.0 && r.error > 0.0, "{figures:?}");
         }
+        assert!(figures.write_only > 0.0, "{figures:?}");
         assert!(figures.baseline.is_err());
         let text = figures.to_string();
         assert!(

@@ -274,6 +274,7 @@ fn emit_function(
         bases: Default::default(),
         tool: None,
         args,
+        splat_area: None,
         splats: Default::default(),
         slots: Default::default(),
         lanes: Default::default(),
@@ -281,6 +282,20 @@ fn emit_function(
         imports,
     };
     let flags = MemFlagsData::trusted();
+    let columns: std::collections::HashSet<Id> = graph
+        .effects()
+        .iter()
+        .filter_map(|effect| match *effect {
+            Effect::Pair(_, _, col, ..) => Some(col),
+            _ => None,
+        })
+        .collect();
+    if !columns.is_empty() {
+        let bytes = u32::try_from(16 * columns.len()).unwrap_or(u32::MAX);
+        let area =
+            b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, bytes, 4));
+        e.splat_area = Some((b.ins().stack_addr(ptr, area, 0), columns.len()));
+    }
     // Calls first: the C calling convention saves no float register across a call, so every
     // value live at a call is spilled. At the top only the calls' own inputs and results are.
     let live = graph.live();
@@ -301,6 +316,15 @@ fn emit_function(
                 let base = e.base_ptr(&mut b, dst_field(dst));
                 if let (Some(v), Some(base)) = (v, base) {
                     b.ins().store(flags, v, base, elem(index));
+                }
+            }
+            Effect::AddTo(dst, index, value) => {
+                let v = e.value(&mut b, value);
+                let base = e.base_ptr(&mut b, dst_field(dst));
+                if let (Some(v), Some(base)) = (v, base) {
+                    let old = b.ins().load(types::F64, flags, base, elem(index));
+                    let sum = b.ins().fadd(old, v);
+                    b.ins().store(flags, sum, base, elem(index));
                 }
             }
             Effect::Pair(dst, index, col, x, y) => {
@@ -326,7 +350,10 @@ struct Emitter<'g> {
     bases: std::collections::HashMap<i32, Value>,
     tool: Option<Value>,
     args: Option<Value>,
-    splats: std::collections::HashMap<Id, Value>,
+    /// The address of the splat area and how many 16-byte entries it holds.
+    splat_area: Option<(Value, usize)>,
+    /// Each column entry's two-lane splat, by its offset from the splat area's address.
+    splats: std::collections::HashMap<Id, i32>,
     /// Results of `sincos` calls: the slot and offset each is read from.
     slots: std::collections::HashMap<Id, (cranelift_codegen::ir::StackSlot, i32)>,
     lanes: std::collections::HashMap<(Id, Id), Value>,
@@ -389,20 +416,36 @@ impl Emitter<'_> {
                 .insert(ConstantData::from(&[0u8; 16][..]));
             return Some(b.ins().vconst(types::F64X2, zero));
         }
-        let splat = match self.splats.get(&col) {
-            Some(v) => *v,
+        // Each splat is written once to its 16 bytes of the aligned splat area, and each use
+        // reads it as the memory operand of the multiply (an aligned load folds into it): a
+        // column serves a component's every coefficient pair, and held in registers the six
+        // of a rotation component pushed the basis values out to the stack instead.
+        let (area, capacity) = self.splat_area?;
+        let offset = match self.splats.get(&col) {
+            Some(&o) => o,
             None => {
+                // The area has an entry for every column a pair names; never write past it.
+                if self.splats.len() >= capacity {
+                    return None;
+                }
                 let c = self.value(b, col)?;
                 let v = b.ins().splat(types::F64X2, c);
-                self.splats.insert(col, v);
-                v
+                let o = 16 * i32::try_from(self.splats.len()).ok()?;
+                b.ins().store(MemFlagsData::trusted(), v, area, o);
+                self.splats.insert(col, o);
+                o
             }
         };
+        let splat = b
+            .ins()
+            .load(types::F64X2, MemFlagsData::trusted(), area, offset);
         let lanes = match self.lanes.get(&(x, y)) {
             Some(v) => *v,
             None => {
                 let (xv, yv) = (self.value(b, x)?, self.value(b, y)?);
-                let v = b.ins().scalar_to_vector(types::F64X2, xv);
+                // `splat` then `insertlane`: two instructions, where `scalar_to_vector` first
+                // clears the upper lane that `insertlane` overwrites anyway.
+                let v = b.ins().splat(types::F64X2, xv);
                 let v = b.ins().insertlane(v, yv, 1);
                 self.lanes.insert((x, y), v);
                 v
@@ -456,16 +499,12 @@ impl Emitter<'_> {
             Node::Sub(..) => b.ins().fsub(p?, q?),
             Node::Mul(..) => b.ins().fmul(p?, q?),
             Node::Div(..) => b.ins().fdiv(p?, q?),
-            Node::Max(..) => {
-                // `maxpd` on lane 0: no branch and no NaN fix-up sequence (the scalar `fmax`
-                // lowers to a compare-and-jump). `x > y ? x : y`, the second operand when
-                // unordered — which the graph's uses (`max(u − t, 0)`) never are.
-                let xv = b.ins().scalar_to_vector(types::F64X2, p?);
-                let yv = b.ins().scalar_to_vector(types::F64X2, q?);
-                let lt = b.ins().fcmp(FloatCC::LessThan, yv, xv);
-                let mask = b.ins().bitcast(types::F64X2, MemFlagsData::new(), lt);
-                let m = b.ins().bitselect(mask, xv, yv);
-                b.ins().extractlane(m, 0)
+            Node::PosPart(_) => {
+                let a = p?;
+                let abs = b.ins().fabs(a);
+                let twice = b.ins().fadd(a, abs);
+                let half = b.ins().f64const(0.5);
+                b.ins().fmul(twice, half)
             }
             Node::Neg(_) => b.ins().fneg(p?),
             Node::Floor(_) => b.ins().floor(p?),

@@ -83,8 +83,9 @@ pub(super) enum Node {
     Floor(Id),
     Sin(Id),
     Cos(Id),
-    /// `max(a, b)`; NaN if either is NaN (both operands are never NaN where it is used).
-    Max(Id, Id),
+    /// `max(a, 0)`, computed as `(a + |a|)·0.5`: exact for every finite `a` (`a + |a|` is `2a`
+    /// or `+0`), so it is the positive part bit for bit, without a branch or a compare.
+    PosPart(Id),
     /// `a % b` as Rust (and C's `fmod`) define it: exact, so any implementation agrees.
     Fmod(Id, Id),
     /// `if a CMP b { then } else { otherwise }`; false when either side is NaN, as in Rust.
@@ -102,6 +103,8 @@ pub(super) enum Effect {
     /// Stores `col·a` at `index` and `col·b` at `index + 1`: two Jacobian entries of one
     /// column, as one two-lane multiply and one 16-byte store.
     Pair(Dst, u32, Id, Id, Id),
+    /// `dst[index] += value`, a running sum kept in memory.
+    AddTo(Dst, u32, Id),
     Eval(Id),
 }
 
@@ -149,6 +152,11 @@ impl Graph {
     pub(super) fn store(&mut self, dst: Dst, index: usize, value: Id) {
         let index = u32::try_from(index).unwrap_or(u32::MAX);
         self.effects.push(Effect::Store(dst, index, value));
+    }
+
+    pub(super) fn add_to(&mut self, dst: Dst, index: usize, value: Id) {
+        let index = u32::try_from(index).unwrap_or(u32::MAX);
+        self.effects.push(Effect::AddTo(dst, index, value));
     }
 
     pub(super) fn store_pair(&mut self, dst: Dst, index: usize, col: Id, a: Id, b: Id) {
@@ -267,10 +275,10 @@ impl Graph {
         }
     }
 
-    pub(super) fn max(&mut self, a: Id, b: Id) -> Id {
-        match (self.value(a), self.value(b)) {
-            (Some(x), Some(y)) => self.konst(x.max(y)),
-            _ => self.intern(Node::Max(a, b)),
+    pub(super) fn pos_part(&mut self, a: Id) -> Id {
+        match self.value(a) {
+            Some(x) => self.konst((x + x.abs()) * 0.5),
+            None => self.intern(Node::PosPart(a)),
         }
     }
 
@@ -321,7 +329,9 @@ impl Graph {
         let mut live = vec![false; self.nodes.len()];
         for e in &self.effects {
             let roots = match *e {
-                Effect::Store(_, _, v) | Effect::Eval(v) => [Some(v), None, None],
+                Effect::Store(_, _, v) | Effect::AddTo(_, _, v) | Effect::Eval(v) => {
+                    [Some(v), None, None]
+                }
                 Effect::Pair(_, _, c, a, b) => [Some(c), Some(a), Some(b)],
             };
             for v in roots.into_iter().flatten() {
@@ -349,14 +359,16 @@ impl Graph {
 pub(super) fn operands(node: Node) -> impl Iterator<Item = Id> {
     let list: [Option<Id>; 4] = match node {
         Node::Const(_) | Node::Load(..) => [None; 4],
-        Node::Neg(a) | Node::Floor(a) | Node::Sin(a) | Node::Cos(a) | Node::IfTool(_, a) => {
-            [Some(a), None, None, None]
-        }
+        Node::Neg(a)
+        | Node::Floor(a)
+        | Node::Sin(a)
+        | Node::Cos(a)
+        | Node::PosPart(a)
+        | Node::IfTool(_, a) => [Some(a), None, None, None],
         Node::Add(a, b)
         | Node::Sub(a, b)
         | Node::Mul(a, b)
         | Node::Div(a, b)
-        | Node::Max(a, b)
         | Node::Fmod(a, b) => [Some(a), Some(b), None, None],
         Node::Select(_, a, b, t, e) => [Some(a), Some(b), Some(t), Some(e)],
     };

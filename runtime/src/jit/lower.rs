@@ -485,19 +485,18 @@ impl Builder<'_> {
     /// `Power::value` selects (`if u > t { (u − t)^l } else { 0 }`). For `l ≥ 1` this computes
     /// `max(u − t, 0)^l` instead, the same number (`u > t` exactly when `u − t > 0`, and `0^l`
     /// is 0) without a branch on the data, which random states mispredict half the time. Only a
-    /// NaN `u` differs (NaN here, 0 there), and then the other functions are NaN in both.
+    /// NaN `u` differs, and then the other functions are NaN in both.
     fn power(&mut self, p: Power, u: Id) -> Id {
         match p.knot {
             None => self.ipow(u, p.power),
             Some(t) => {
                 let t = self.c(t);
                 let d = self.g.sub(u, t);
-                let zero = self.c(0.0);
                 if p.power == 0 {
-                    let one = self.c(1.0);
+                    let (one, zero) = (self.c(1.0), self.c(0.0));
                     return self.g.select(Cmp::Gt, u, t, one, zero);
                 }
-                let clamped = self.g.max(d, zero);
+                let clamped = self.g.pos_part(d);
                 self.ipow(clamped, p.power)
             }
         }
@@ -658,9 +657,13 @@ impl Builder<'_> {
         models.sort_by_key(|e| frame_order(e.frame));
         let mut written = vec![false; n];
         // Running sums, brought up to date after every component so that no component's
-        // column outlives it.
+        // column outlives it. With the Jacobian they live in `out` rather than in registers:
+        // six sums held across the whole function left too few registers for the columns and
+        // basis values, and the spills cost more than a load and a store per component. The
+        // error alone has registers to spare, and there the chain through memory was slower.
         let zero = self.c(0.0);
         let mut error = [zero; 6];
+        let mut started = [false; 6];
         for model in models {
             let Some(f) = Self::frame(kin, model.frame) else {
                 continue;
@@ -731,11 +734,24 @@ impl Builder<'_> {
                 self.jac_single(&col, only, n, i, u);
             }
             let value = value.unwrap_or(zero);
-            for (e, &c) in error.iter_mut().zip(&col) {
+            for (r, &c) in col.iter().enumerate() {
                 let p = self.g.mul(c, value);
                 let p = gate(&mut self.g, p);
-                *e = self.g.add(*e, p);
-                self.g.eval(*e);
+                if self.g.value(p) == Some(0.0) {
+                    continue;
+                }
+                match (jacobian, started.get_mut(r), error.get_mut(r)) {
+                    (true, Some(s @ false), _) => {
+                        *s = true;
+                        self.g.store(Dst::Out, r, p);
+                    }
+                    (true, ..) => self.g.add_to(Dst::Out, r, p),
+                    (false, _, Some(e)) => {
+                        *e = self.g.add(*e, p);
+                        self.g.eval(*e);
+                    }
+                    (false, _, None) => {}
+                }
             }
         }
         if jacobian {
@@ -747,7 +763,9 @@ impl Builder<'_> {
             }
         }
         for (r, e) in error.into_iter().enumerate() {
-            self.g.store(Dst::Out, r, e);
+            if !started.get(r).copied().unwrap_or(false) {
+                self.g.store(Dst::Out, r, e);
+            }
         }
         for (i, &p) in kin.position.iter().enumerate() {
             self.g.store(Dst::Out, 6 + i, p);

@@ -40,11 +40,11 @@ pub struct Output {
 
 /// Parses, resolves, checks and lowers a `.kin` source.
 pub fn compile(source: &str) -> Output {
-    match syntax::parse_file(source) {
+    match syntax::parse_file_all(source) {
         Ok(file) => lower(&file),
-        Err(d) => Output {
+        Err(diagnostics) => Output {
             compiled: None,
-            diagnostics: vec![d],
+            diagnostics,
         },
     }
 }

@@ -1,8 +1,10 @@
 //! Syntax: source text to a typed tree. Knows nothing of later stages.
 pub mod ast;
 mod parse;
+mod recover;
 
-pub use parse::{parse_file, parse_params};
+pub use parse::{parse_file, parse_file_all, parse_params};
+pub use recover::MAX_SYNTAX_ERRORS;
 
 #[cfg(test)]
 mod tests {

@@ -1,8 +1,9 @@
 //! From source text to the typed AST. pest recognises the text (grammar in `grammar/kin.pest`);
 //! this module walks its pairs into `ast` nodes, keeping every span.
 //!
-//! pest stops at the first syntax error, so a file with a syntax error yields exactly one
-//! diagnostic; semantic checks, which run on a complete tree, report all they find.
+//! pest stops at the first syntax error; [`parse_file_all`] looks for the next ones by blanking
+//! out the bad statement and parsing again (`recover`). Semantic checks, which run on a
+//! complete tree, report all they find.
 
 use pest::error::{ErrorVariant, InputLocation};
 use pest::iterators::Pair;
@@ -13,7 +14,7 @@ use crate::diagnostic::{Diagnostic, Span};
 
 #[derive(pest_derive::Parser)]
 #[grammar = "../grammar/kin.pest"]
-struct KinParser;
+pub(super) struct KinParser;
 
 type P<'i> = Pair<'i, Rule>;
 type Result<T> = std::result::Result<T, Diagnostic>;
@@ -34,6 +35,18 @@ pub fn parse_file(source: &str) -> Result<File> {
     }
     let machine = machine.ok_or_else(|| internal(Span::default(), "machine"))?;
     Ok(File { machine, params })
+}
+
+/// As [`parse_file`], but a file with syntax errors gives every one that
+/// [`recover`](super::recover) finds, not only the first.
+pub fn parse_file_all(source: &str) -> std::result::Result<File, Vec<Diagnostic>> {
+    parse_file(source).map_err(|first| {
+        if first.code == "E0001" && check_nesting(source).is_ok() {
+            super::recover::syntax_errors(source, first)
+        } else {
+            vec![first]
+        }
+    })
 }
 
 /// Parse a parameter file: one `params { … }` block.
@@ -757,7 +770,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
     })
 }
 
-fn syntax_error(source: &str, err: pest::error::Error<Rule>) -> Diagnostic {
+pub(super) fn syntax_error(source: &str, err: pest::error::Error<Rule>) -> Diagnostic {
     let (start, end) = match err.location {
         InputLocation::Pos(p) => (p, p),
         InputLocation::Span((s, e)) => (s, e),

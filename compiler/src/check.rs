@@ -291,8 +291,8 @@ impl Checker<'_> {
     fn target(&self, t: &ast::Target, sink: &mut Sink) -> Option<(FrameRef, Component, String)> {
         let (frame_name, comp_name, comp_span) = match &t.component {
             Some(c) => (t.frame.node.clone(), c.node.clone(), c.span),
-            None => match alias(&t.frame.node, self.st) {
-                Some((axis, comp)) => (axis, comp.name().to_string(), t.frame.span),
+            None => match ir::alias(&t.frame.node, &self.st.axes) {
+                Some((axis, comp)) => (axis.to_string(), comp.name().to_string(), t.frame.span),
                 None => {
                     let mut d = Diagnostic::error("E0101", format!("`{}` is not an error component", t.frame.node), t.span)
                         .with_label("expected `FRAME.COMPONENT`")
@@ -1627,47 +1627,6 @@ pub(crate) fn display_unit(dim: Dim, units: &ir::DisplayUnits) -> Unit {
         }
     }
     out
-}
-
-/// ISO 230-1 (`EXX`, `EBZ`: E, error direction, axis) and VDI 2617 (`xtx`, `yrz`: axis,
-/// translation/rotation, direction) names of axis errors.
-fn alias(name: &str, st: &Structure) -> Option<(String, Component)> {
-    let comp = |kind: char, dir: char| -> Option<Component> {
-        Some(match (kind, dir) {
-            ('t', 'x') => Component::Tx,
-            ('t', 'y') => Component::Ty,
-            ('t', 'z') => Component::Tz,
-            ('r', 'x') => Component::Rx,
-            ('r', 'y') => Component::Ry,
-            ('r', 'z') => Component::Rz,
-            _ => return None,
-        })
-    };
-    let mut chars = name.chars();
-    if let (Some('E'), Some(d)) = (chars.next(), chars.next()) {
-        let axis: String = chars.collect();
-        if st.axis_index(&axis).is_some() {
-            let c = match d {
-                'X' => comp('t', 'x'),
-                'Y' => comp('t', 'y'),
-                'Z' => comp('t', 'z'),
-                'A' => comp('r', 'x'),
-                'B' => comp('r', 'y'),
-                'C' => comp('r', 'z'),
-                _ => None,
-            }?;
-            return Some((axis, c));
-        }
-    }
-    let chars: Vec<char> = name.chars().collect();
-    if let [a, k, d] = chars.as_slice() {
-        let axis = st
-            .axes
-            .iter()
-            .find(|ax| ax.name.to_lowercase() == a.to_string())?;
-        return Some((axis.name.clone(), comp(*k, *d)?));
-    }
-    None
 }
 
 fn fmt_num(v: f64) -> String {

@@ -116,6 +116,47 @@ impl Component {
     }
 }
 
+/// The axis and component an ISO 230-1 name (`EXX`, `EBZ`: E, error direction, axis) or a
+/// VDI 2617 name (`xtx`, `yrz`: axis, translation/rotation, direction) of an axis error stands
+/// for; `None` when `name` is neither, for these `axes`.
+pub fn alias<'a>(name: &str, axes: &'a [Axis]) -> Option<(&'a str, Component)> {
+    let component = |kind: char, dir: char| -> Option<Component> {
+        Some(match (kind, dir) {
+            ('t', 'x') => Component::Tx,
+            ('t', 'y') => Component::Ty,
+            ('t', 'z') => Component::Tz,
+            ('r', 'x') => Component::Rx,
+            ('r', 'y') => Component::Ry,
+            ('r', 'z') => Component::Rz,
+            _ => return None,
+        })
+    };
+    let mut chars = name.chars();
+    if let (Some('E'), Some(d)) = (chars.next(), chars.next()) {
+        let rest = chars.as_str();
+        if let Some(axis) = axes.iter().find(|a| a.name == rest) {
+            let c = match d {
+                'X' => component('t', 'x'),
+                'Y' => component('t', 'y'),
+                'Z' => component('t', 'z'),
+                'A' => component('r', 'x'),
+                'B' => component('r', 'y'),
+                'C' => component('r', 'z'),
+                _ => None,
+            }?;
+            return Some((axis.name.as_str(), c));
+        }
+    }
+    let chars: Vec<char> = name.chars().collect();
+    if let [a, k, d] = chars.as_slice() {
+        let axis = axes
+            .iter()
+            .find(|ax| ax.name.to_lowercase() == a.to_string())?;
+        return Some((axis.name.as_str(), component(*k, *d)?));
+    }
+    None
+}
+
 /// The frame a parametric error belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum FrameRef {

@@ -61,7 +61,7 @@ impl Bound {
 
 fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, sink: &mut Sink) {
     let path: Vec<&str> = def.path.iter().map(|n| n.node.as_str()).collect();
-    let full = path.join(".");
+    let full = canonical(machine, &path);
     let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
     let last = def.path.last().map(|n| n.span).unwrap_or(def.span);
     let path_span = first.to(last);
@@ -239,6 +239,37 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
     }
 }
 
+/// The name `path` stands for: itself when the machine has parameters of that name, else with
+/// an ISO 230-1 or VDI 2617 alias in front expanded (`EAX[0]` is `X.rx[0]`, `xtx.wavelength`
+/// is `X.tx.wavelength`), as the `errors` block accepts them.
+fn canonical(machine: &ir::Machine, path: &[&str]) -> String {
+    let given = path.join(".");
+    let known = |name: &str| {
+        machine.nonlinear.iter().any(|p| {
+            p.name == name
+                || p.name
+                    .strip_prefix(name)
+                    .is_some_and(|rest| rest.starts_with('['))
+        }) || machine
+            .coefficients
+            .iter()
+            .any(|c| c.name.rsplit_once('[').map(|(base, _)| base) == Some(name))
+    };
+    if known(&given) {
+        return given;
+    }
+    match path.split_first() {
+        Some((first, rest)) => match ir::alias(first, &machine.axes) {
+            Some((axis, component)) => std::iter::once(format!("{axis}.{}", component.name()))
+                .chain(rest.iter().map(|s| s.to_string()))
+                .collect::<Vec<_>>()
+                .join("."),
+            None => given,
+        },
+        None => given,
+    }
+}
+
 fn unit_mismatch(name: &str, expected: &Unit, given: &Unit, span: Span) -> Diagnostic {
     Diagnostic::error(
         "E0501",
@@ -287,5 +318,58 @@ fn scalar_value(value: &ParamValue, unit: &Unit, sink: &mut Sink) -> Option<f64>
             );
             None
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    const MACHINE: &str = "machine m {
+        task position
+        units { length mm, error um, tilt urad }
+        axis X prismatic along x range 0 mm .. 500 mm
+        tool chain { X moving  tool t at (0, 0, -100) mm }
+        errors {
+            X.rx = spline(X, knots 2)
+            X.tx = periodic(X, wavelength fit 10 mm, knots 2)
+        }
+    }";
+
+    fn bound(params: &str) -> (crate::ir::Machine, Vec<String>) {
+        let mut m = crate::compile(MACHINE)
+            .compiled
+            .expect("the machine compiles")
+            .machine;
+        let diagnostics = crate::bind_params(&mut m, params);
+        (m, diagnostics.into_iter().map(|d| d.message).collect())
+    }
+
+    #[test]
+    fn iso_and_vdi_names_bind_like_canonical_ones() {
+        let (m, errors) = bound(
+            "params { EAX[0] = 1.5 urad  xrx[1] = -2 urad  xtx.wavelength = 12.5 mm  EXX = [0.5, 0.25] um }",
+        );
+        assert_eq!(errors, Vec::<String>::new());
+        let value = |name: &str| {
+            m.coefficients
+                .iter()
+                .position(|c| c.name == name)
+                .and_then(|j| m.beta.get(j).copied())
+                .unwrap_or(f64::NAN)
+        };
+        assert!((value("X.rx[0]") - 1.5e-6).abs() < 1e-18);
+        assert!((value("X.rx[1]") + 2e-6).abs() < 1e-18);
+        assert!((value("X.tx[1]") - 0.25e-6).abs() < 1e-18);
+        let tau = m.nonlinear.iter().find(|p| p.name == "X.tx.wavelength");
+        assert!(
+            tau.is_some_and(|p| (p.value - 0.0125).abs() < 1e-15),
+            "{tau:?}"
+        );
+    }
+
+    #[test]
+    fn an_unknown_alias_is_still_an_error() {
+        let (_, errors) = bound("params { EAY[0] = 1 urad }");
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(errors[0].contains("EAY"), "{errors:?}");
     }
 }

@@ -872,9 +872,9 @@ impl Checker<'_> {
             "fourier" => {
                 if !revolute {
                     wrong_kind("a revolute axis", sink);
-                    sink.diagnostics.last_mut().map(|d| {
+                    if let Some(d) = sink.diagnostics.last_mut() {
                         d.help = Some(format!("for a periodic error along a prismatic axis use `periodic({var_name}, wavelength …)`"));
-                    });
+                    }
                     return None;
                 }
                 let h = opts.harmonics(sink)?;
@@ -1441,7 +1441,7 @@ impl<'a> Options<'a> {
         };
         let mut out = Vec::with_capacity(list.len());
         for h in list {
-            if h < 1 || h > 1000 {
+            if !(1..=1000).contains(&h) {
                 sink.push(
                     Diagnostic::error(
                         "E0306",

@@ -320,26 +320,22 @@ pub(crate) fn resolve(machine: &ast::Machine, sink: &mut Sink) -> Structure {
     };
     for item in &machine.items {
         match item {
-            ast::Item::Axis(a) => {
-                if claim(&a.name, "an axis", sink) {
-                    if let Some(axis) = resolve_axis(a, &st.units, sink) {
-                        st.axes.push(axis);
-                        st.axis_spans.push(a.name.span);
-                        st.axis_frame.push(None);
-                    } else {
-                        st.broken.push(a.name.node.clone());
-                    }
+            ast::Item::Axis(a) if claim(&a.name, "an axis", sink) => {
+                if let Some(axis) = resolve_axis(a, &st.units, sink) {
+                    st.axes.push(axis);
+                    st.axis_spans.push(a.name.span);
+                    st.axis_frame.push(None);
+                } else {
+                    st.broken.push(a.name.node.clone());
                 }
             }
-            ast::Item::Input(i) => {
-                if claim(&i.name, "an input", sink) {
-                    if let Some((input, range)) = resolve_input(i, &st.units, sink) {
-                        st.inputs.push(input);
-                        st.input_spans.push(i.name.span);
-                        st.input_ranges.push(range);
-                    } else {
-                        st.broken.push(i.name.node.clone());
-                    }
+            ast::Item::Input(i) if claim(&i.name, "an input", sink) => {
+                if let Some((input, range)) = resolve_input(i, &st.units, sink) {
+                    st.inputs.push(input);
+                    st.input_spans.push(i.name.span);
+                    st.input_ranges.push(range);
+                } else {
+                    st.broken.push(i.name.node.clone());
                 }
             }
             ast::Item::Chain(c) => {

@@ -27,9 +27,13 @@ fn every_example_checks_clean() {
         let mut covered = vec![0; m.coefficients.len()];
         for (e, model) in m.errors.iter().enumerate() {
             for t in &model.terms {
-                for k in t.first..t.first + t.coefficients {
-                    covered[k] += 1;
-                    assert_eq!(m.coefficients[k].error, e);
+                let range = t.first..t.first + t.coefficients;
+                for (count, c) in covered[range.clone()]
+                    .iter_mut()
+                    .zip(&m.coefficients[range])
+                {
+                    *count += 1;
+                    assert_eq!(c.error, e);
                 }
                 let size: usize = t.factors.iter().map(|f| f.basis.size()).product();
                 assert!(t.coefficients == 0 || t.coefficients == size);

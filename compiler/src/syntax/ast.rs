@@ -28,7 +28,7 @@ pub struct Machine {
 pub enum Item {
     Task(Spanned<TaskKind>),
     Units(UnitsDecl),
-    Axis(AxisDecl),
+    Axis(Box<AxisDecl>),
     Input(InputDecl),
     Chain(ChainDecl),
     Errors(ErrorsDecl),
@@ -75,7 +75,7 @@ pub enum Direction {
         negative: bool,
         index: usize,
     },
-    Vector(Vector),
+    Vector(Box<Vector>),
 }
 
 #[derive(Debug, Clone, PartialEq)]

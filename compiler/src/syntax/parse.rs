@@ -151,7 +151,7 @@ fn build_machine(pair: P) -> Result<Machine> {
         let item = match p.as_rule() {
             Rule::task_decl => Item::Task(build_task(p)?),
             Rule::units_decl => Item::Units(build_units(p)?),
-            Rule::axis_decl => Item::Axis(build_axis(p)?),
+            Rule::axis_decl => Item::Axis(Box::new(build_axis(p)?)),
             Rule::input_decl => Item::Input(build_input(p)?),
             Rule::chain_decl => Item::Chain(build_chain(p)?),
             Rule::errors_decl => Item::Errors(build_errors(p)?),
@@ -242,7 +242,7 @@ fn build_direction(pair: P) -> Result<Spanned<Direction>> {
             };
             Direction::Coordinate { negative, index }
         }
-        _ => Direction::Vector(build_vector(target, None)?),
+        _ => Direction::Vector(Box::new(build_vector(target, None)?)),
     };
     Ok(Spanned { node, span: sp })
 }

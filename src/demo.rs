@@ -52,6 +52,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         holdout: None,
         seed: 0,
         engine: kin_runtime::engine::Engine::default(),
+        ignore: Vec::new(),
         color,
     };
     for round in 1..=rounds + 1 {

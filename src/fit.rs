@@ -28,6 +28,8 @@ pub struct FitArgs {
     pub holdout: Option<f64>,
     pub seed: u64,
     pub engine: kin_runtime::engine::Engine,
+    /// Columns of the data files to skip unread.
+    pub ignore: Vec<String>,
     pub color: bool,
 }
 
@@ -35,13 +37,17 @@ pub fn run(a: FitArgs) -> ExitCode {
     Failed::exit(fit_command(&a).map(|_| ()))
 }
 
-fn read_all(paths: &[PathBuf], compiled: &kin_compiler::Compiled) -> Result<Vec<DataSet>, Failed> {
+fn read_all(
+    paths: &[PathBuf],
+    compiled: &kin_compiler::Compiled,
+    ignore: &[String],
+) -> Result<Vec<DataSet>, Failed> {
     paths
         .iter()
         .map(|p| {
             Ok(DataSet {
                 path: p.clone(),
-                observations: load::observations(p, compiled, false)?,
+                observations: load::observations(p, compiled, false, ignore)?,
             })
         })
         .collect()
@@ -77,8 +83,8 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     })?;
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
-    let files = read_all(&a.data, &compiled)?;
-    let mut validate = read_all(&a.validate, &compiled)?;
+    let files = read_all(&a.data, &compiled, &a.ignore)?;
+    let mut validate = read_all(&a.validate, &compiled, &a.ignore)?;
     let files = match a.holdout {
         Some(f) => {
             let (fitted, held) = fit::holdout(&files, f, a.seed);

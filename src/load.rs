@@ -84,17 +84,37 @@ pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compil
 }
 
 /// Reads a measurement file (or, with `poses`, a file of poses whose observed columns may be
-/// absent).
-pub fn observations(path: &Path, compiled: &Compiled, poses: bool) -> Result<Observations, Failed> {
+/// absent), skipping the columns named in `ignore`.
+pub fn observations(
+    path: &Path,
+    compiled: &Compiled,
+    poses: bool,
+    ignore: &[String],
+) -> Result<Observations, Failed> {
     let options = ReadOptions {
         poses,
-        ..ReadOptions::default()
+        ignore: ignore.to_vec(),
     };
     data::read_file(path, &compiled.machine, &options).map_err(|e| {
         eprintln!("error: {e}");
         match e {
             data::ReadError::Io { .. } => Failed::USAGE,
-            _ => Failed::INPUT,
+            data::ReadError::Invalid { problems, .. } => {
+                let unknown: Vec<&str> = problems
+                    .iter()
+                    .filter_map(|p| match p {
+                        data::Problem::UnknownColumn { name, .. } => Some(name.as_str()),
+                        _ => None,
+                    })
+                    .collect();
+                if !unknown.is_empty() {
+                    eprintln!(
+                        "help: a column kin should not read can be skipped: --ignore {}",
+                        unknown.join(",")
+                    );
+                }
+                Failed::INPUT
+            }
         }
     })
 }

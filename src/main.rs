@@ -93,6 +93,10 @@ enum Command {
         /// Which error components a point file holds.
         #[arg(long, value_enum, default_value_t = simulate::Components::Position)]
         components: simulate::Components,
+        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
+        /// column is an error otherwise).
+        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
+        ignore: Vec<String>,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -132,6 +136,10 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
+        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
+        /// column is an error otherwise).
+        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
+        ignore: Vec<String>,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -164,6 +172,10 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
+        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
+        /// column is an error otherwise).
+        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
+        ignore: Vec<String>,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -180,6 +192,10 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
+        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
+        /// column is an error otherwise).
+        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
+        ignore: Vec<String>,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -254,6 +270,7 @@ fn main() -> ExitCode {
             artifact_rotation,
             artifact_length,
             components,
+            ignore,
             color,
         } => simulate::simulate(simulate::SimulateArgs {
             machine,
@@ -268,6 +285,7 @@ fn main() -> ExitCode {
             artifact_rotation,
             artifact_length,
             components,
+            ignore,
             color: use_color(&color),
         }),
         Command::Fit {
@@ -283,6 +301,7 @@ fn main() -> ExitCode {
             holdout,
             seed,
             engine,
+            ignore,
             color,
         } => fit::run(fit::FitArgs {
             machine,
@@ -297,6 +316,7 @@ fn main() -> ExitCode {
             holdout,
             seed,
             engine,
+            ignore,
             color: use_color(&color),
         }),
         Command::Demo { dir, rounds, color } => demo::run(dir, rounds, use_color(&color)),
@@ -307,6 +327,7 @@ fn main() -> ExitCode {
             output,
             apply,
             engine,
+            ignore,
             color,
         } => diagnose::run(diagnose::DiagnoseArgs {
             fit: fit::FitArgs {
@@ -322,6 +343,7 @@ fn main() -> ExitCode {
                 holdout: None,
                 seed: 0,
                 engine,
+                ignore,
                 color: use_color(&color),
             },
             alpha,
@@ -335,16 +357,18 @@ fn main() -> ExitCode {
             output,
             components,
             engine,
+            ignore,
             color,
-        } => simulate::eval(
-            &machine,
-            params.as_deref(),
-            &poses,
-            output.as_deref(),
+        } => simulate::eval(simulate::EvalArgs {
+            machine: &machine,
+            params: params.as_deref(),
+            poses: &poses,
+            output: output.as_deref(),
             components,
             engine,
-            use_color(&color),
-        ),
+            ignore: &ignore,
+            color: use_color(&color),
+        }),
         Command::Report {
             machine,
             fit,

@@ -41,6 +41,21 @@ pub struct SimulateArgs {
     pub artifact_rotation: Option<String>,
     pub artifact_length: Option<String>,
     pub components: Components,
+    /// Columns of the poses file to skip unread.
+    pub ignore: Vec<String>,
+    pub color: bool,
+}
+
+/// What `kin eval` was asked.
+pub struct EvalArgs<'a> {
+    pub machine: &'a Path,
+    pub params: Option<&'a Path>,
+    pub poses: &'a Path,
+    pub output: Option<&'a Path>,
+    pub components: Components,
+    pub engine: kin_runtime::engine::Engine,
+    /// Columns of the poses file to skip unread.
+    pub ignore: &'a [String],
     pub color: bool,
 }
 
@@ -56,7 +71,7 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
     let compiled = load::machine(&a.machine, a.params.as_deref(), a.color)?;
     let m = &compiled.machine;
     let poses = match (&a.poses, a.sample) {
-        (Some(p), None) => load::observations(p, &compiled, true)?,
+        (Some(p), None) => load::observations(p, &compiled, true, &a.ignore)?,
         (None, Some(n)) => Observations::Points(simulate::sample_points(m, n, a.seed)),
         _ => {
             eprintln!("error: give either a poses file (--poses FILE) or --sample N");
@@ -125,19 +140,21 @@ fn write(
     })
 }
 
-pub fn eval(
-    machine: &Path,
-    params: Option<&Path>,
-    poses: &Path,
-    output: Option<&Path>,
-    components: Components,
-    engine: kin_runtime::engine::Engine,
-    color: bool,
-) -> ExitCode {
+pub fn eval(a: EvalArgs) -> ExitCode {
+    let EvalArgs {
+        machine,
+        params,
+        poses,
+        output,
+        components,
+        engine,
+        ignore,
+        color,
+    } = a;
     finish((|| {
         let compiled = load::machine(machine, params, color)?;
         let m = &compiled.machine;
-        let poses = load::observations(poses, &compiled, true)?;
+        let poses = load::observations(poses, &compiled, true, ignore)?;
         let out =
             simulate::predict_with(m, &m.beta, &poses, components.mask(), engine).map_err(|e| {
                 eprintln!("error: {e}");

@@ -1,6 +1,7 @@
 //! `kin report`: one self-contained HTML page about a fit — the summary, the residuals along
-//! every axis, the residual spectrum and candidate effects from `kin diagnose`, the history of
-//! the model's revisions, and the fitted parametric errors with their confidence bands.
+//! every axis, input and time, the residual spectrum and candidate effects from `kin diagnose`,
+//! the history of the model's revisions, and the fitted parametric errors with their confidence
+//! bands.
 //!
 //! Self-contained means a file a user can mail or archive: inline CSS, inline SVG (plotters),
 //! no scripts, no fonts or images fetched from anywhere.
@@ -14,6 +15,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use kin_compiler::ir::{Machine, Var};
+use kin_compiler::units::Unit;
 use kin_runtime::data::{self, Observations, ReadOptions};
 use kin_runtime::diagnose::{Diagnosis, Family};
 use kin_runtime::fit::report::{model_hash, FitReport, Residual};
@@ -492,37 +494,78 @@ const COMPONENTS: [&str; 7] = ["ex", "ey", "ez", "erx", "ery", "erz", "dL"];
 /// picture does not change, the page stays small enough to open.
 const MAX_MARKERS: usize = 5000;
 
-/// A residual's axis positions in SI: the row's pose for a point, the midpoint of the two
-/// ends for a length (its residual belongs to the whole segment).
-fn positions(obs: &Observations, row: usize, axes: usize) -> Vec<f64> {
-    (0..axes)
-        .map(|a| match obs {
-            Observations::Points(p) => p
-                .pose
-                .axes
-                .get(a)
-                .and_then(|c| c.get(row))
-                .copied()
-                .unwrap_or(f64::NAN),
-            Observations::Lengths(l) => {
-                let end = |e: usize| {
-                    l.poses
-                        .get(e)
-                        .and_then(|p| p.axes.get(a))
-                        .and_then(|c| c.get(row))
-                        .copied()
-                        .unwrap_or(f64::NAN)
-                };
-                0.5 * (end(0) + end(1))
-            }
-        })
+/// A residual with the state it was observed at.
+struct Placed {
+    /// The value of every variable of [`along`], in its order and display unit; NaN where the
+    /// data do not say.
+    values: Vec<f64>,
+    residual: f64,
+    outlier: bool,
+}
+
+/// The variables residuals are plotted along: the axes, the inputs, then time. Named as
+/// `kin diagnose` names them, since its bins are matched to the plots by name.
+fn along(m: &Machine) -> Vec<(String, Var)> {
+    let axes = m
+        .axes
+        .iter()
+        .enumerate()
+        .map(|(a, x)| (x.name.clone(), Var::Axis(a)));
+    let inputs = m
+        .inputs
+        .iter()
+        .enumerate()
+        .map(|(i, x)| (x.name.clone(), Var::Input(i)));
+    axes.chain(inputs)
+        .chain(std::iter::once(("time".to_string(), Var::Time)))
         .collect()
+}
+
+/// A variable's value at a residual's row in SI, NaN when the file has no such column. A
+/// length's residual belongs to the whole segment, so it is placed at the midpoint of its two
+/// ends; inputs and time are shared by both ends, so their midpoint is the row's own value.
+fn value(obs: &Observations, row: usize, v: Var) -> f64 {
+    let x = match obs {
+        Observations::Points(p) => p.value(v, row),
+        Observations::Lengths(l) => match (l.value(v, 0, row), l.value(v, 1, row)) {
+            (Some(a), Some(b)) => Some(0.5 * (a + b)),
+            _ => None,
+        },
+    };
+    x.unwrap_or(f64::NAN)
+}
+
+/// What a variable's values over the placed residuals allow to be shown.
+enum Spread {
+    /// No row has a value: the data have no such column.
+    Absent,
+    /// Every row has the same value, in the display unit: a plot would be one vertical line.
+    Constant(f64),
+    Varies,
+}
+
+fn spread(points: &BTreeMap<usize, Vec<Placed>>, v: usize) -> Spread {
+    let (lo, hi) = points
+        .values()
+        .flatten()
+        .filter_map(|p| p.values.get(v).copied())
+        .filter(|x| x.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+            (lo.min(x), hi.max(x))
+        });
+    if lo > hi {
+        Spread::Absent
+    } else if lo == hi {
+        Spread::Constant(lo)
+    } else {
+        Spread::Varies
+    }
 }
 
 fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     let m = inp.machine;
     let f = inp.fit;
-    s.push_str("<section id=\"residuals\">\n<h2>Residuals along each axis</h2>\n");
+    s.push_str("<section id=\"residuals\">\n<h2>Residuals along each axis, input and time</h2>\n");
     if f.residuals.is_empty() {
         let _ = writeln!(
             s,
@@ -546,7 +589,9 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
             })
         })
         .collect();
-    let mut by_component: BTreeMap<usize, Vec<(Vec<f64>, f64, bool)>> = BTreeMap::new();
+    let vars = along(m);
+    let units: Vec<Unit> = vars.iter().map(|(_, v)| curves::var_unit(m, *v)).collect();
+    let mut by_component: BTreeMap<usize, Vec<Placed>> = BTreeMap::new();
     let mut unplaced = 0usize;
     for r in &f.residuals {
         let Some(c) = COMPONENTS.iter().position(|c| *c == r.component) else {
@@ -561,17 +606,21 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
             unplaced += 1;
             continue;
         };
-        let outlier = r.studentized.abs() > f.outlier_threshold || r.cook > f.cook_threshold;
-        by_component.entry(c).or_default().push((
-            positions(obs, row, m.axes.len()),
-            r.residual,
-            outlier,
-        ));
+        let values = vars
+            .iter()
+            .zip(&units)
+            .map(|((_, v), u)| u.from_si(value(obs, row, *v)))
+            .collect();
+        by_component.entry(c).or_default().push(Placed {
+            values,
+            residual: r.residual,
+            outlier: r.studentized.abs() > f.outlier_threshold || r.cook > f.cook_threshold,
+        });
     }
     let band = 3.0 * f.sigma;
     let _ = writeln!(
         s,
-        "<p>Each residual (measured − fitted) against the position of every axis. The green band is ±3σ̂ = ±{} {}: about 997 in 1000 residuals fall inside it when the model is complete. A pattern along an axis is an effect the model lacks.{}</p>",
+        "<p>Each residual (measured − fitted) against the position of every axis, every input the model declares and time. The green band is ±3σ̂ = ±{} {}: about 997 in 1000 residuals fall inside it when the model is complete. A pattern along an axis is a geometric effect the model lacks; a pattern along an input or in time is a thermal drift, a load or a lag it lacks.{}</p>",
         num(band, 3),
         esc(&f.error_unit),
         if f.files.iter().any(|x| x.kind == "lengths") { " A length's residual is placed at the midpoint of its two ends." } else { "" }
@@ -592,6 +641,34 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     if unplaced > 0 {
         let _ = writeln!(s, "<p class=\"note\">{unplaced} residuals are not shown: their data file was not available (see the notes above).</p>");
     }
+    // Decided once over every component, so each component's grid has the same plots in the
+    // same places and can be compared at a glance.
+    let mut shown_vars = Vec::new();
+    if !by_component.is_empty() {
+        for (v, ((name, var), unit)) in vars.iter().zip(&units).enumerate() {
+            match spread(&by_component, v) {
+                Spread::Varies => shown_vars.push(v),
+                // Most data have no time column; that needs no remark.
+                Spread::Absent if matches!(var, Var::Time) => {}
+                Spread::Absent => {
+                    let _ = writeln!(
+                        s,
+                        "<p class=\"note\"><code>{}</code>: not in the data, so there is no plot along it.</p>",
+                        esc(name)
+                    );
+                }
+                Spread::Constant(x) => {
+                    let _ = writeln!(
+                        s,
+                        "<p class=\"note\"><code>{}</code>: all values are equal ({} {} in every row), so there is no plot along it.</p>",
+                        esc(name),
+                        trimmed(x),
+                        esc(&unit.name)
+                    );
+                }
+            }
+        }
+    }
     for (c, points) in &by_component {
         let name = COMPONENTS.get(*c).copied().unwrap_or("?");
         let unit = if (3..6).contains(c) {
@@ -611,49 +688,29 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
                 String::new()
             }
         );
-        for (a, axis) in m.axes.iter().enumerate() {
-            let xu = curves::var_unit(m, Var::Axis(a));
-            let mut chart = Chart::new(
-                format!("{name} along {}", axis.name),
-                format!("{} [{}]", axis.name, xu.name),
-                format!("{name} residual [{unit}]"),
-                (420, 290),
-            );
-            chart.y_symmetric = true;
-            chart.series.push(Series::HBand {
-                lo: -band,
-                hi: band,
-                color: plot::GREEN,
-                opacity: 0.13,
-            });
-            let to_x =
-                |p: &(Vec<f64>, f64, bool)| xu.from_si(p.0.get(a).copied().unwrap_or(f64::NAN));
-            let normal: Vec<(f64, f64)> = shown
+        let panel = Panel {
+            component: name,
+            unit,
+            band,
+            diagnosis: inp.diagnosis,
+            shown: &shown,
+        };
+        for &v in &shown_vars {
+            let (Some((var_name, _)), Some(xu)) = (vars.get(v), units.get(v)) else {
+                continue;
+            };
+            let x: Vec<f64> = shown
                 .iter()
-                .filter(|p| !p.2)
-                .map(|p| (to_x(p), p.1))
+                .map(|p| p.values.get(v).copied().unwrap_or(f64::NAN))
                 .collect();
-            let outliers: Vec<(f64, f64)> = shown
-                .iter()
-                .filter(|p| p.2)
-                .map(|p| (to_x(p), p.1))
-                .collect();
-            chart.series.push(Series::Points {
-                points: normal,
-                color: plot::BLUE,
-                radius: 2,
-                opacity: 0.5,
-            });
-            chart.series.push(Series::Points {
-                points: outliers,
-                color: plot::RED,
-                radius: 3,
-                opacity: 0.95,
-            });
-            if let Some(d) = inp.diagnosis {
-                bins_overlay(&mut chart, d, name, &axis.name);
-            }
-            let _ = writeln!(s, "<figure>{}</figure>", chart.svg()?);
+            let svg = residual_plot(
+                &panel,
+                &x,
+                format!("{name} along {var_name}"),
+                format!("{var_name} [{}]", xu.name),
+                var_name,
+            )?;
+            let _ = writeln!(s, "<figure>{svg}</figure>");
         }
         s.push_str("</div>\n");
     }
@@ -661,13 +718,73 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     Ok(())
 }
 
+/// What the residual plots of one component share.
+struct Panel<'a> {
+    component: &'a str,
+    /// The residuals' unit.
+    unit: &'a str,
+    /// Half-width of the ±3σ̂ band, in the error unit.
+    band: f64,
+    diagnosis: Option<&'a Diagnosis>,
+    /// The residuals drawn, after thinning.
+    shown: &'a [&'a Placed],
+}
+
+/// One plot of a component's residuals against `x` (one value per shown residual, in the unit
+/// `x_label` names), with the ±3σ̂ band and the diagnosis's bins along `variable`.
+fn residual_plot(
+    p: &Panel,
+    x: &[f64],
+    title: String,
+    x_label: String,
+    variable: &str,
+) -> Result<String, ReportError> {
+    let mut chart = Chart::new(
+        title,
+        x_label,
+        format!("{} residual [{}]", p.component, p.unit),
+        (420, 290),
+    );
+    chart.y_symmetric = true;
+    chart.series.push(Series::HBand {
+        lo: -p.band,
+        hi: p.band,
+        color: plot::GREEN,
+        opacity: 0.13,
+    });
+    let pick = |outlier: bool| -> Vec<(f64, f64)> {
+        p.shown
+            .iter()
+            .zip(x)
+            .filter(|(r, _)| r.outlier == outlier)
+            .map(|(r, &x)| (x, r.residual))
+            .collect()
+    };
+    chart.series.push(Series::Points {
+        points: pick(false),
+        color: plot::BLUE,
+        radius: 2,
+        opacity: 0.5,
+    });
+    chart.series.push(Series::Points {
+        points: pick(true),
+        color: plot::RED,
+        radius: 3,
+        opacity: 0.95,
+    });
+    if let Some(d) = p.diagnosis {
+        bins_overlay(&mut chart, d, p.component, variable);
+    }
+    Ok(chart.svg()?)
+}
+
 /// Every k-th point so at most [`MAX_MARKERS`] remain, plus every outlier.
-fn thin(points: &[(Vec<f64>, f64, bool)]) -> Vec<&(Vec<f64>, f64, bool)> {
+fn thin(points: &[Placed]) -> Vec<&Placed> {
     let step = points.len().div_ceil(MAX_MARKERS).max(1);
     points
         .iter()
         .enumerate()
-        .filter(|(i, p)| p.2 || i % step == 0)
+        .filter(|(i, p)| p.outlier || i % step == 0)
         .map(|(_, p)| p)
         .collect()
 }
@@ -1224,6 +1341,24 @@ pub fn num(v: f64, digits: usize) -> String {
     format!("{v:.decimals$}")
 }
 
+/// `v` to six significant digits without trailing zeros: a value read from a file, where
+/// `20.0000` would claim a precision nobody wrote.
+fn trimmed(v: f64) -> String {
+    let s = num(v, 6);
+    let (mantissa, exponent) = s
+        .split_once('e')
+        .map_or((s.as_str(), None), |(m, e)| (m, Some(e)));
+    let mantissa = if mantissa.contains('.') {
+        mantissa.trim_end_matches('0').trim_end_matches('.')
+    } else {
+        mantissa
+    };
+    match exponent {
+        Some(e) => format!("{mantissa}e{e}"),
+        None => mantissa.to_string(),
+    }
+}
+
 fn pval(p: f64) -> String {
     if !p.is_finite() {
         "—".into()
@@ -1277,6 +1412,11 @@ mod tests {
         assert_eq!(num(f64::NAN, 4), "—");
         assert_eq!(num(279.96, 3), "280");
         assert_eq!(num(2.5e-6, 3), "2.50e-6");
+        assert_eq!(trimmed(19.999_999_999_999_98), "20");
+        assert_eq!(trimmed(0.25), "0.25");
+        assert_eq!(trimmed(1500.0), "1500");
+        assert_eq!(trimmed(2.5e-6), "2.5e-6");
+        assert_eq!(trimmed(f64::NAN), "—");
         assert_eq!(pval(3e-7), "3.0e-7");
         assert_eq!(utc(0), "1970-01-01 00:00");
         assert_eq!(utc(1_767_225_600 + 3_723), "2026-01-01 01:02");

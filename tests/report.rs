@@ -96,19 +96,28 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
             p: 1e-9,
             text: "ex residuals exceed 3σ for X > 420 mm".into(),
         }],
-        bins: (0..6)
-            .map(|k| Bin {
+        // ex binned along an axis, an input and time, and nothing else: the overlay must land
+        // on exactly those three plots.
+        bins: [
+            ("X", "mm", 100.0),
+            ("T_room", "degC", 0.7),
+            ("time", "min", 170.0),
+        ]
+        .iter()
+        .flat_map(|&(variable, unit, width)| {
+            (0..6).map(move |k| Bin {
                 component: "ex".into(),
-                variable: "X".into(),
-                unit: "mm".into(),
-                lo: 100.0 * k as f64,
-                hi: 100.0 * (k + 1) as f64,
+                variable: variable.into(),
+                unit: unit.into(),
+                lo: width * k as f64,
+                hi: width * (k + 1) as f64,
                 rows: 160,
                 mean: 0.0,
                 rms: 0.18 + 0.01 * k as f64,
                 allowed: 0.2,
             })
-            .collect(),
+        })
+        .collect(),
         spectra: vec![Spectrum {
             component: "ex".into(),
             variable: "X".into(),
@@ -147,6 +156,20 @@ fn svgs(html: &str) -> Vec<&str> {
         })
         .collect()
 }
+
+/// The `<svg>` whose title (or any other text) reads exactly `title`.
+fn plot<'a>(html: &'a str, title: &str) -> Option<&'a str> {
+    svgs(html).into_iter().find(|svg| {
+        svg.split("<text").skip(1).any(|t| {
+            t.split_once('>')
+                .and_then(|(_, rest)| rest.split_once("</text>"))
+                .is_some_and(|(text, _)| text.trim() == title)
+        })
+    })
+}
+
+/// The overlay of the diagnosis's binned RMS, in the report's orange.
+const BINNED: &str = "stroke=\"#E69F00\"";
 
 fn section<'a>(html: &'a str, id: &str) -> &'a str {
     let start = html
@@ -220,8 +243,10 @@ fn the_report_of_the_bundled_example_has_every_section_and_renders() {
     let summary = section(&html, "summary");
     assert!(summary.contains("σ̂") && summary.contains("points.csv") && summary.contains("3000"));
     let residuals = section(&html, "residuals");
-    // 3 components (ex ey ez) × 3 axes (Y X Z), titled and labelled with units.
-    assert_eq!(residuals.matches("<svg").count(), 9);
+    assert!(residuals.contains("<h2>Residuals along each axis, input and time</h2>"));
+    // 3 components (ex ey ez) × (3 axes Y X Z, 2 inputs T_scale T_room, time), titled and
+    // labelled with units.
+    assert_eq!(residuals.matches("<svg").count(), 18);
     for label in [
         "ex along Y",
         "ez along Z",
@@ -231,10 +256,38 @@ fn the_report_of_the_bundled_example_has_every_section_and_renders() {
     ] {
         assert!(residuals.contains(label), "residuals lack `{label}`");
     }
+    for (title, x_label) in [
+        ("ex along T_room", "T_room [degC]"),
+        ("ey along T_scale", "T_scale [degC]"),
+        ("ez along time", "time [min]"),
+    ] {
+        let svg = plot(residuals, title).unwrap_or_else(|| panic!("no plot `{title}`"));
+        assert!(
+            svg.contains(x_label),
+            "`{title}` is not labelled `{x_label}`"
+        );
+    }
+    assert!(
+        !residuals.contains("all values are equal") && !residuals.contains("not in the data"),
+        "every input and time vary in the bundled data"
+    );
     assert!(
         residuals.contains("binned RMS"),
         "the diagnosis's bins are overlaid"
     );
+    // The bins go exactly where the diagnosis put them: ex along X, T_room and time.
+    for (title, binned) in [
+        ("ex along X", true),
+        ("ex along T_room", true),
+        ("ex along time", true),
+        ("ex along Y", false),
+        ("ex along T_scale", false),
+        ("ey along T_room", false),
+        ("ez along time", false),
+    ] {
+        let svg = plot(residuals, title).unwrap_or_else(|| panic!("no plot `{title}`"));
+        assert_eq!(svg.contains(BINNED), binned, "bins on `{title}`");
+    }
     let spectrum = section(&html, "spectrum");
     assert_eq!(spectrum.matches("<svg").count(), 1);
     assert!(
@@ -301,7 +354,7 @@ fn without_a_diagnosis_the_optional_sections_are_left_out() {
     assert!(out.status.success(), "kin report: {}", text(&out.stderr));
     let html = std::fs::read_to_string(dir.join("plain.html")).expect("report written");
     assert!(!html.contains("id=\"spectrum\"") && !html.contains("id=\"candidates\""));
-    assert_eq!(section(&html, "residuals").matches("<svg").count(), 9);
+    assert_eq!(section(&html, "residuals").matches("<svg").count(), 18);
     assert_eq!(html.matches("<svg").count(), html.matches("</svg>").count());
 
     // Without any data file the residual plots give way to a note; the page is still written.
@@ -326,6 +379,67 @@ fn without_a_diagnosis_the_optional_sections_are_left_out() {
             && section(&html, "residuals").matches("<svg").count() == 0
     );
     assert!(section(&html, "curves").contains("<svg"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The data with every cell of the column named `header` replaced by `value`.
+fn set_column(csv: &str, header: &str, value: &str) -> String {
+    let mut column = None;
+    let mut out = String::new();
+    for line in csv.lines() {
+        let mut cells: Vec<&str> = line.split(',').collect();
+        if line.starts_with('#') {
+        } else if let Some(c) = column {
+            cells[c] = value;
+        } else {
+            column = Some(cells.iter().position(|h| *h == header).expect("the column"));
+        }
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    out
+}
+
+#[test]
+fn an_input_that_never_changes_gets_a_line_instead_of_plots() {
+    let dir = scratch("constant");
+    let data = std::fs::read_to_string(dir.join("points.csv")).expect("data");
+    std::fs::write(
+        dir.join("points.csv"),
+        set_column(&data, "T_scale[degC]", "20"),
+    )
+    .expect("write data");
+    fit(&dir);
+    let out = kin(
+        &dir,
+        &[
+            "report",
+            "bridge_cmm.kin",
+            "--fit",
+            "fit.json",
+            "-o",
+            "constant.html",
+            "--color",
+            "never",
+        ],
+    );
+    assert!(out.status.success(), "kin report: {}", text(&out.stderr));
+    let html = std::fs::read_to_string(dir.join("constant.html")).expect("report written");
+    let residuals = section(&html, "residuals");
+    assert_eq!(
+        residuals
+            .matches("<code>T_scale</code>: all values are equal (20 degC in every row)")
+            .count(),
+        1,
+        "one line for the constant input, not one per component"
+    );
+    for c in ["ex", "ey", "ez"] {
+        assert!(plot(residuals, &format!("{c} along T_scale")).is_none());
+        assert!(plot(residuals, &format!("{c} along T_room")).is_some());
+        assert!(plot(residuals, &format!("{c} along time")).is_some());
+    }
+    // 3 components × (3 axes, T_room, time).
+    assert_eq!(residuals.matches("<svg").count(), 15);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

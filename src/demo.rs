@@ -104,6 +104,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
                 diagnose: Some(diagnosis),
                 data: args.data.clone(),
                 output: html.clone(),
+                ignore: Vec::new(),
                 color,
             })?;
             println!("open {} in a browser: residuals, spectra, candidates, the error history and the fitted error curves", html.display());

@@ -83,6 +83,18 @@ pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compil
     Ok(compiled)
 }
 
+/// Reads a fit report (`FIT.json`, written by `kin fit -o`).
+pub fn fit_report(path: &Path) -> Result<kin_runtime::fit::report::FitReport, Failed> {
+    let text = read_text(path)?;
+    serde_json::from_str(&text).map_err(|e| {
+        eprintln!(
+            "error: `{}` is not a fit report written by `kin fit -o`: {e}",
+            path.display()
+        );
+        Failed::INPUT
+    })
+}
+
 /// Reads a measurement file (or, with `poses`, a file of poses whose observed columns may be
 /// absent), skipping the columns named in `ignore`.
 pub fn observations(

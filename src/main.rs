@@ -189,6 +189,10 @@ enum Command {
         output: Option<PathBuf>,
         #[arg(long, value_enum, default_value_t = simulate::Components::Pose)]
         components: simulate::Components,
+        /// Add each prediction's standard uncertainty (k = 1, eq. 4.12) as columns `u_ex` …
+        /// (`u_dL` for a length file), from the covariance of the fit given as --params FIT.json.
+        #[arg(long, requires = "params")]
+        uncertainty: bool,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -199,7 +203,7 @@ enum Command {
         #[arg(long, default_value = "auto")]
         color: String,
     },
-    /// A self-contained HTML page about a fit: residuals along every axis, the residual
+    /// A self-contained HTML page about a fit: residuals along every axis, input and time, the residual
     /// spectrum and candidate effects (from `kin diagnose -o`), the history of the model's
     /// revisions, and the fitted parametric errors with their confidence bands.
     Report {
@@ -214,6 +218,9 @@ enum Command {
         data: Vec<PathBuf>,
         #[arg(short, long)]
         output: PathBuf,
+        /// Columns of the data files to skip unread, as given to `kin fit`.
+        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
+        ignore: Vec<String>,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -358,6 +365,7 @@ fn main() -> ExitCode {
             components,
             engine,
             ignore,
+            uncertainty,
             color,
         } => simulate::eval(simulate::EvalArgs {
             machine: &machine,
@@ -367,6 +375,7 @@ fn main() -> ExitCode {
             components,
             engine,
             ignore: &ignore,
+            uncertainty,
             color: use_color(&color),
         }),
         Command::Report {
@@ -375,6 +384,7 @@ fn main() -> ExitCode {
             diagnose,
             data,
             output,
+            ignore,
             color,
         } => report::run(report::ReportArgs {
             machine,
@@ -382,6 +392,7 @@ fn main() -> ExitCode {
             diagnose,
             data,
             output,
+            ignore,
             color: use_color(&color),
         }),
         Command::Bench {

@@ -64,6 +64,8 @@ pub struct ReportArgs {
     /// The fitted files, in the order they were fitted; FIT.json's own paths when empty.
     pub data: Vec<PathBuf>,
     pub output: PathBuf,
+    /// Columns of the data files to skip unread.
+    pub ignore: Vec<String>,
     pub color: bool,
 }
 
@@ -91,88 +93,17 @@ fn read_json<T: serde::de::DeserializeOwned>(
     })
 }
 
-/// Stands in for a number JSON could not hold; no fitted quantity comes near it.
-const MISSING: f64 = f64::MAX;
-
-/// Reads FIT.json. serde_json writes a NaN (an unknown standard error, say) as `null` but will
-/// not read `null` back as an `f64`, so such nulls are read as [`MISSING`] and turned back into
-/// NaN, which the page shows as a dash.
+/// Reads FIT.json (its NaNs, written as `null`, read back as NaN: see `FitReport`).
 fn read_fit(path: &Path) -> Result<FitReport, ReportError> {
     let text = std::fs::read_to_string(path).map_err(|source| ReportError::Read {
         path: path.to_path_buf(),
         source,
     })?;
-    let json = |source| ReportError::Json {
+    serde_json::from_str(&text).map_err(|source| ReportError::Json {
         path: path.to_path_buf(),
         what: "fit report (FIT.json)",
         source,
-    };
-    match serde_json::from_str(&text) {
-        Ok(r) => Ok(r),
-        Err(first) => {
-            let mut v: serde_json::Value = serde_json::from_str(&text).map_err(json)?;
-            fill_nulls(&mut v, None);
-            let mut r: FitReport = serde_json::from_value(v).map_err(|_| json(first))?;
-            let nan = |x: &mut f64| {
-                if *x == MISSING {
-                    *x = f64::NAN;
-                }
-            };
-            for e in r
-                .coefficients
-                .iter_mut()
-                .chain(r.nonlinear.iter_mut())
-                .chain(r.nuisance.iter_mut())
-            {
-                nan(&mut e.value);
-                nan(&mut e.se);
-            }
-            for x in [
-                &mut r.sigma,
-                &mut r.rms,
-                &mut r.max,
-                &mut r.r2,
-                &mut r.condition,
-                &mut r.tolerance,
-                &mut r.outlier_threshold,
-                &mut r.cook_threshold,
-            ] {
-                nan(x);
-            }
-            r.covariance.iter_mut().for_each(nan);
-            for res in r
-                .residuals
-                .iter_mut()
-                .chain(r.outliers.iter_mut())
-                .chain(r.validation_residuals.iter_mut())
-            {
-                for x in [
-                    &mut res.observed,
-                    &mut res.residual,
-                    &mut res.studentized,
-                    &mut res.leverage,
-                    &mut res.cook,
-                ] {
-                    nan(x);
-                }
-            }
-            Ok(r)
-        }
-    }
-}
-
-/// Replaces nulls by [`MISSING`], except where null means "absent" (`stepwise`, `alpha_enter`).
-fn fill_nulls(v: &mut serde_json::Value, key: Option<&str>) {
-    match v {
-        serde_json::Value::Null if !matches!(key, Some("stepwise" | "alpha_enter")) => {
-            if let Some(n) = serde_json::Number::from_f64(MISSING) {
-                *v = serde_json::Value::Number(n);
-            }
-        }
-        serde_json::Value::Array(a) => a.iter_mut().for_each(|x| fill_nulls(x, key)),
-        serde_json::Value::Object(o) => o.iter_mut().for_each(|(k, x)| fill_nulls(x, Some(k))),
-        _ => {}
-    }
+    })
 }
 
 pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
@@ -203,7 +134,7 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
             notes.push(format!("the diagnosis was made for another revision of the model (hash {}) than the fit ({}).", d.model_hash, fit.model_hash));
         }
     }
-    let data = load_data(m, &fit, &a.fit, &a.data, &mut notes);
+    let data = load_data(m, &fit, &a.fit, &a.data, &a.ignore, &mut notes);
     let history = match history::read(&a.machine) {
         Ok(h) => h,
         Err(e) => {
@@ -240,8 +171,13 @@ fn load_data(
     fit: &FitReport,
     fit_path: &Path,
     given: &[PathBuf],
+    ignore: &[String],
     notes: &mut Vec<String>,
 ) -> Vec<Option<Observations>> {
+    let options = ReadOptions {
+        ignore: ignore.to_vec(),
+        ..ReadOptions::default()
+    };
     if !given.is_empty() && given.len() != fit.files.len() {
         notes.push(format!(
             "{} data files were given but the fit used {}; they are matched in order.",
@@ -261,7 +197,7 @@ fn load_data(
             };
             let mut last = None;
             for p in &candidates {
-                match data::read_file(p, m, &ReadOptions::default()) {
+                match data::read_file(p, m, &options) {
                     Ok(o) => return Some(o),
                     Err(e) => last = Some(e.to_string()),
                 }

@@ -56,6 +56,8 @@ pub struct EvalArgs<'a> {
     pub engine: kin_runtime::engine::Engine,
     /// Columns of the poses file to skip unread.
     pub ignore: &'a [String],
+    /// Add each prediction's standard uncertainty from the fit given as `params`.
+    pub uncertainty: bool,
     pub color: bool,
 }
 
@@ -112,7 +114,7 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
             a.seed
         ),
     ];
-    write(&out, m, a.output.as_deref(), comments)
+    write(&out, m, a.output.as_deref(), comments, Vec::new())
 }
 
 fn write(
@@ -120,9 +122,11 @@ fn write(
     m: &kin_compiler::ir::Machine,
     path: Option<&Path>,
     comments: Vec<String>,
+    extra: Vec<data::ExtraColumn>,
 ) -> Result<(), Failed> {
     let options = WriteOptions {
         comments,
+        extra,
         ..WriteOptions::default()
     };
     let result = match (path, out) {
@@ -149,25 +153,67 @@ pub fn eval(a: EvalArgs) -> ExitCode {
         components,
         engine,
         ignore,
+        uncertainty,
         color,
     } = a;
     finish((|| {
         let compiled = load::machine(machine, params, color)?;
         let m = &compiled.machine;
         let poses = load::observations(poses, &compiled, true, ignore)?;
+        let fail = |e: simulate::SimulateError| {
+            eprintln!("error: {e}");
+            Failed::INPUT
+        };
         let out =
-            simulate::predict_with(m, &m.beta, &poses, components.mask(), engine).map_err(|e| {
-                eprintln!("error: {e}");
-                Failed::INPUT
-            })?;
-        write(
-            &out,
-            m,
-            output,
-            vec![format!(
-                "predicted by kin from `{}` (first-order model, eq. 2.24)",
-                machine.display()
-            )],
-        )
+            simulate::predict_with(m, &m.beta, &poses, components.mask(), engine).map_err(fail)?;
+        let mut comments = vec![format!(
+            "predicted by kin from `{}` (first-order model, eq. 2.24)",
+            machine.display()
+        )];
+        let mut extra = Vec::new();
+        if uncertainty {
+            // `--uncertainty` requires `--params`; clap enforces it.
+            let Some(path) = params else {
+                return Err(Failed::USAGE);
+            };
+            let fit = load::fit_report(path)?;
+            let u =
+                simulate::uncertainty(m, &fit, &poses, components.mask(), engine).map_err(fail)?;
+            extra = uncertainty_columns(u);
+            comments.push(format!(
+                "u_… : standard uncertainty (k = 1) of each prediction from the covariance of `{}` (eq. 4.12); σ̂ = {:.4} {}",
+                path.display(),
+                fit.sigma,
+                fit.error_unit
+            ));
+        }
+        write(&out, m, output, comments, extra)
     })())
+}
+
+/// `u_ex` … `u_erz` (or `u_dL`) for the writer.
+fn uncertainty_columns(u: simulate::Uncertainty) -> Vec<data::ExtraColumn> {
+    match u {
+        simulate::Uncertainty::Points(columns) => data::OBSERVED
+            .iter()
+            .zip(columns)
+            .enumerate()
+            .filter_map(|(k, (name, values))| {
+                Some(data::ExtraColumn {
+                    name: format!("u_{name}"),
+                    quantity: if k < 3 {
+                        data::ExtraQuantity::Error
+                    } else {
+                        data::ExtraQuantity::Tilt
+                    },
+                    values: values?,
+                })
+            })
+            .collect(),
+        simulate::Uncertainty::Lengths(values) => vec![data::ExtraColumn {
+            name: "u_dL".into(),
+            quantity: data::ExtraQuantity::Error,
+            values,
+        }],
+    }
 }

@@ -348,3 +348,82 @@ fn the_readme_demo_finds_both_hidden_effects() {
         .contains("added by"));
     assert!(dir.join("bridge_cmm.kin.history.jsonl").exists());
 }
+
+/// `kin eval --uncertainty` at the fitted poses: the prediction variances (eq. 4.12) summed over
+/// every observed row are σ̂² times the trace of the hat matrix, the fit's rank — an identity, so
+/// the check is tight. The file it writes reads back only with its extra columns ignored.
+#[test]
+fn eval_uncertainties_sum_to_the_rank_and_read_back_with_ignore() {
+    let data = "examples/data/bridge_cmm_points.csv";
+    let fit = tmp("uncertainty_fit.json");
+    let fit_s = fit.to_str().expect("utf-8 path");
+    let out = kin(&["fit", "examples/bridge_cmm.kin", data, "-o", fit_s]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fit).expect("fit.json")).expect("json");
+    let sigma = report["sigma"].as_f64().expect("sigma");
+    let rank = report["rank"].as_f64().expect("rank");
+    assert!(report["nuisance"].as_array().is_some_and(Vec::is_empty));
+
+    let pred = tmp("uncertainty_pred.csv");
+    let pred_s = pred.to_str().expect("utf-8 path");
+    let args = [
+        "eval",
+        "examples/bridge_cmm.kin",
+        data,
+        "--params",
+        fit_s,
+        "--uncertainty",
+        "--components",
+        "position",
+        "-o",
+        pred_s,
+    ];
+    let out = kin(&args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let mut total = 0.0;
+    for name in ["u_ex", "u_ey", "u_ez"] {
+        let u = column(&pred, name);
+        assert!(u.iter().all(|x| x.is_finite() && *x > 0.0), "{name}");
+        total += u.iter().map(|x| (x / sigma).powi(2)).sum::<f64>();
+    }
+    assert!(
+        (total - rank).abs() < 1e-6 * rank,
+        "Σ u²/σ̂² = {total}, rank {rank}"
+    );
+
+    let refit = kin(&["fit", "examples/bridge_cmm.kin", pred_s]);
+    assert_eq!(refit.status.code(), Some(1));
+    let stderr = text(&refit.stderr);
+    assert!(
+        stderr.contains("unknown column `u_ex`") && stderr.contains("--ignore u_ex,u_ey,u_ez"),
+        "{stderr}"
+    );
+    let refit = kin(&[
+        "fit",
+        "examples/bridge_cmm.kin",
+        pred_s,
+        "--ignore",
+        "u_ex,u_ey,u_ez",
+    ]);
+    assert!(refit.status.success(), "{}", text(&refit.stderr));
+
+    // A fit made before the model changed cannot give its uncertainties: here the report
+    // lists one coefficient fewer than the model has.
+    let mut stale = report.clone();
+    stale["coefficients"]
+        .as_array_mut()
+        .expect("coefficients")
+        .pop();
+    let stale_path = tmp("uncertainty_stale.json");
+    std::fs::write(&stale_path, stale.to_string()).expect("write");
+    let mut args = args;
+    args[4] = stale_path.to_str().expect("utf-8 path");
+    let out = kin(&args);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("refit the model"),
+        "{}",
+        text(&out.stderr)
+    );
+}

@@ -444,6 +444,27 @@ pub struct WriteOptions {
     /// Units for positions, errors, time and tool offsets; `None` takes the machine's own.
     /// Inputs are always written in their declared unit.
     pub units: Option<kin_compiler::ir::DisplayUnits>,
+    /// Written after the observed columns: values that are not observations, such as the
+    /// standard uncertainties `kin eval` adds. Reading such a file back needs them ignored.
+    pub extra: Vec<ExtraColumn>,
+}
+
+/// A column of [`WriteOptions::extra`]: one value per row, SI, written in the unit of the
+/// quantity it is (empty cells for NaN).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtraColumn {
+    pub name: String,
+    pub quantity: ExtraQuantity,
+    pub values: Vec<f64>,
+}
+
+/// What an [`ExtraColumn`] holds, for its unit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExtraQuantity {
+    /// A position or length error (the error unit).
+    Error,
+    /// A rotation error (the tilt unit).
+    Tilt,
 }
 
 #[derive(Debug, Error)]

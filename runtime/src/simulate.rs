@@ -12,6 +12,7 @@ use thiserror::Error;
 
 use crate::data::{LengthData, Observations, PointData, Pose as DataPose, Rows};
 use crate::exact;
+use crate::fit::report::FitReport;
 use crate::interp::{EvalError, Interpreter, State};
 use crate::kinematics::{FrameErrors, KinematicsError, Pose};
 use crate::states::{StateError, States};
@@ -36,6 +37,8 @@ pub enum SimulateError {
     Noise,
     #[error("{0}")]
     Engine(String),
+    #[error("the fit's covariance does not fit this model: {0}")]
+    Covariance(String),
 }
 
 /// Which error components a simulated point file holds, and the measurement noise.
@@ -141,6 +144,71 @@ pub fn predict_with(
                 poses: l.poses.clone(),
                 dl,
             }))
+        }
+    }
+}
+
+/// Standard uncertainties (k = 1) of predicted errors, in SI: per observed component of a
+/// point file, or of `dL` per row of a length file.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Uncertainty {
+    Points([Option<Vec<f64>>; 6]),
+    Lengths(Vec<f64>),
+}
+
+/// The standard uncertainty of the first-order model's prediction at each pose of `poses`
+/// (the square root of eq. 4.12) from the coefficients' covariance in `fit`, for the
+/// components `observe` (point files) or `dL` (length files). The fit must belong to `m`'s
+/// coefficients ([`FitReport::covariance_mismatch`]).
+pub fn uncertainty(
+    m: &Machine,
+    fit: &FitReport,
+    poses: &Observations,
+    observe: [bool; 6],
+    engine: crate::engine::Engine,
+) -> Result<Uncertainty, SimulateError> {
+    if let Some(why) = fit.covariance_mismatch(m) {
+        return Err(SimulateError::Covariance(why));
+    }
+    let mut ev =
+        crate::engine::make(m, engine).map_err(|e| SimulateError::Engine(e.to_string()))?;
+    let n = m.coefficients.len();
+    let beta = vec![0.0; n];
+    match poses {
+        Observations::Points(p) => {
+            let states = States::new(m, &p.rows, &p.pose, "")?;
+            let mut out: [Option<Vec<f64>>; 6] = Default::default();
+            for (slot, wanted) in out.iter_mut().zip(observe) {
+                if wanted {
+                    *slot = Some(Vec::with_capacity(states.len()));
+                }
+            }
+            for r in 0..states.len() {
+                let line = states.line.get(r).copied().unwrap_or(0);
+                let var = fit
+                    .prediction_variance(ev.as_mut(), &states.get(r))
+                    .map_err(|source| SimulateError::Eval { line, source })?;
+                for (col, v) in out.iter_mut().zip(var) {
+                    if let Some(col) = col {
+                        col.push(v.max(0.0).sqrt());
+                    }
+                }
+            }
+            Ok(Uncertainty::Points(out))
+        }
+        Observations::Lengths(l) => {
+            let [p1, p2] = &l.poses;
+            let s1 = States::new(m, &l.rows, p1, "_1")?;
+            let s2 = States::new(m, &l.rows, p2, "_2")?;
+            let mut row = vec![0.0; n];
+            let mut u = Vec::with_capacity(s1.len());
+            for r in 0..s1.len() {
+                let line = s1.line.get(r).copied().unwrap_or(0);
+                ev.length_and_row(&s1.get(r), &s2.get(r), &beta, &mut row)
+                    .map_err(|source| SimulateError::Eval { line, source })?;
+                u.push(fit.variance_of(&row).max(0.0).sqrt());
+            }
+            Ok(Uncertainty::Lengths(u))
         }
     }
 }

@@ -689,9 +689,16 @@ fn a_fit_report_with_undetermined_values_reads_back() {
     );
     rep.coefficients[0].se = f64::INFINITY;
     rep.r2 = f64::NAN;
+    rep.covariance[0] = f64::NAN;
+    if let Some(r) = rep.residuals.first_mut() {
+        r.cook = f64::NAN;
+    }
     let json = serde_json::to_string(&rep).unwrap();
     let back: kin_runtime::fit::report::FitReport =
         serde_json::from_str(&json).expect("reads back");
     assert!(back.coefficients[0].se.is_nan() && back.r2.is_nan());
+    assert!(back.covariance[0].is_nan());
+    assert_eq!(back.covariance[1..], rep.covariance[1..]);
+    assert!(back.residuals.first().is_some_and(|r| r.cook.is_nan()));
     assert_eq!(back.coefficients[1].value, rep.coefficients[1].value);
 }

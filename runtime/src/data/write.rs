@@ -10,8 +10,8 @@ use kin_compiler::ir::{DisplayUnits, JointKind, Machine};
 use kin_compiler::units::{Dim, Unit};
 
 use super::{
-    LengthData, Observations, PointData, Pose, Rows, WriteError, WriteOptions, OBSERVED,
-    TOOL_OFFSET,
+    ExtraQuantity, LengthData, Observations, PointData, Pose, Rows, WriteError, WriteOptions,
+    OBSERVED, TOOL_OFFSET,
 };
 
 /// Writes a point file (contract §3a).
@@ -35,6 +35,7 @@ pub fn write_points<W: Write>(
     if !any_observed {
         return Err(WriteError::NoObservedColumn);
     }
+    columns.extend(extra_columns(&units, options));
     check(&columns, n)?;
     for row in 0..n {
         let nothing = data
@@ -63,8 +64,23 @@ pub fn write_lengths<W: Write>(
     columns.extend(pose_columns(machine, &units, second, Kind::End(2))?);
     columns.extend(row_columns(machine, &units, &data.rows)?);
     columns.push(Column::number("dL", &units.error, &data.dl, true));
+    columns.extend(extra_columns(&units, options));
     check(&columns, n)?;
     emit(out, &columns, n, options)
+}
+
+fn extra_columns<'a>(
+    units: &DisplayUnits,
+    options: &'a WriteOptions,
+) -> impl Iterator<Item = Column<'a>> + 'a {
+    let (error, tilt) = (units.error.clone(), units.tilt.clone());
+    options.extra.iter().map(move |c| {
+        let unit = match c.quantity {
+            ExtraQuantity::Error => &error,
+            ExtraQuantity::Tilt => &tilt,
+        };
+        Column::number(&c.name, unit, &c.values, false)
+    })
 }
 
 /// Writes either kind of file to `path`, replacing it.

@@ -16,6 +16,14 @@ fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> 
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
+/// As [`nan_if_null`], for every element of an array.
+fn nans_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+    Ok(Vec::<Option<f64>>::deserialize(d)?
+        .into_iter()
+        .map(|x| x.unwrap_or(f64::NAN))
+        .collect())
+}
+
 /// Format version of `FIT.json`.
 pub const VERSION: u32 = 1;
 
@@ -52,6 +60,7 @@ pub struct FitReport {
     pub nonlinear: Vec<Estimate>,
     pub nuisance: Vec<Estimate>,
     /// Covariance of the coefficients (eq. 4.11), SI, row-major `n × n`.
+    #[serde(deserialize_with = "nans_if_null")]
     pub covariance: Vec<f64>,
     #[serde(deserialize_with = "nan_if_null")]
     pub outlier_threshold: f64,
@@ -73,6 +82,7 @@ pub struct FitReport {
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StepwiseReport {
+    #[serde(deserialize_with = "nan_if_null")]
     pub alpha_remove: f64,
     pub alpha_enter: Option<f64>,
     pub steps: Vec<StepReport>,
@@ -477,6 +487,48 @@ pub fn params_text(m: &Machine, beta: &[f64], nonlinear: &[Estimate]) -> String 
 }
 
 impl FitReport {
+    /// Why this report's covariance cannot serve `m`'s predictions: it was fitted to a model
+    /// with other coefficients (the file changed since), or carries no covariance.
+    pub fn covariance_mismatch(&self, m: &kin_compiler::ir::Machine) -> Option<String> {
+        let n = m.coefficients.len();
+        if self.coefficients.len() != n
+            || self
+                .coefficients
+                .iter()
+                .zip(&m.coefficients)
+                .any(|(e, c)| e.name != c.name)
+        {
+            return Some(format!(
+                "the fit was made with {} coefficients, the model now has {n} (or they are named differently): refit the model",
+                self.coefficients.len()
+            ));
+        }
+        if self.covariance.len() != n * n {
+            return Some(format!(
+                "the fit report holds {} covariance entries, {} are needed",
+                self.covariance.len(),
+                n * n
+            ));
+        }
+        None
+    }
+
+    /// `gᵀ Cov(β̂) g`: the variance of the linear function `g·β̂` of the coefficients (eq. 4.12
+    /// for one predicted quantity). SI². A `g` of the wrong length counts its missing entries as 0.
+    pub fn variance_of(&self, g: &[f64]) -> f64 {
+        let n = self.coefficients.len();
+        let mut v = 0.0;
+        for (a, ga) in g.iter().enumerate().take(n) {
+            // Most of a Jacobian row is structurally zero.
+            if *ga == 0.0 {
+                continue;
+            }
+            let row = self.covariance.get(a * n..(a + 1) * n).unwrap_or(&[]);
+            v += ga * row.iter().zip(g).map(|(c, gb)| c * gb).sum::<f64>();
+        }
+        v
+    }
+
     /// The variance of the model's predicted error at `state` (eq. 4.12):
     /// `Var(ê_c) = g_cᵀ Cov(β̂) g_c` for each component c, with `g_c` row c of the β-Jacobian.
     /// SI² (m², rad²). The nuisance parameters do not enter: a prediction is of the machine.
@@ -492,16 +544,7 @@ impl FitReport {
         engine.error_and_jacobian(state, &beta, &mut err, &mut jac)?;
         let mut out = [0.0; 6];
         for (c, slot) in out.iter_mut().enumerate() {
-            let g = jac.get(c * n..(c + 1) * n).unwrap_or(&[]);
-            let mut v = 0.0;
-            for (a, ga) in g.iter().enumerate() {
-                if *ga == 0.0 {
-                    continue;
-                }
-                let row = self.covariance.get(a * n..(a + 1) * n).unwrap_or(&[]);
-                v += ga * row.iter().zip(g).map(|(c, gb)| c * gb).sum::<f64>();
-            }
-            *slot = v;
+            *slot = self.variance_of(jac.get(c * n..(c + 1) * n).unwrap_or(&[]));
         }
         Ok(out)
     }

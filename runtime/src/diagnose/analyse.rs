@@ -334,13 +334,16 @@ fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
     out
 }
 
+/// Per proposal (its index), the super-model's coefficient columns of each of its terms.
+type TermColumns = Vec<(usize, Vec<Vec<usize>>)>;
+
 /// Compiles the model with every candidate appended, dropping candidates that do not compile.
-/// Returns the super-model and, per kept proposal, its coefficient columns.
+/// Returns the super-model and the columns of the kept proposals.
 fn super_model(
     compiled: &Compiled,
     source: &str,
     proposals: &[Proposal],
-) -> Result<(Compiled, Vec<(usize, Vec<usize>)>), DiagnoseError> {
+) -> Result<(Compiled, TermColumns), DiagnoseError> {
     let file = kin_compiler::syntax::parse_file(source)
         .map_err(|d| DiagnoseError::Candidates(d.message))?;
     let end = file
@@ -362,16 +365,28 @@ fn super_model(
             "}\n".to_string(),
         ),
     };
-    let build = |chosen: &[usize]| -> (String, Vec<(usize, std::ops::Range<usize>)>) {
+    // Each term written on its own (harmonics unmerged), so that its coefficients can be told
+    // from its neighbours' by their spans.
+    type Ranges = Vec<(usize, Vec<std::ops::Range<usize>>)>;
+    let build = |chosen: &[usize]| -> (String, Ranges) {
         let mut text = String::from(source.get(..at).unwrap_or(""));
         text.push('\n');
         text.push_str(&open);
         let mut ranges = Vec::new();
         for &k in chosen {
-            let line = &proposals[k].test_text;
-            let start = text.len();
-            text.push_str(line);
-            ranges.push((k, start..text.len()));
+            let p = &proposals[k];
+            text.push_str(&p.candidate.target);
+            text.push_str(" += ");
+            let mut terms = Vec::new();
+            for (i, t) in p.terms.iter().enumerate() {
+                if i > 0 {
+                    text.push_str(" + ");
+                }
+                let start = text.len();
+                text.push_str(&t.test);
+                terms.push(start..text.len());
+            }
+            ranges.push((k, terms));
             text.push('\n');
         }
         text.push_str(&close);
@@ -408,14 +423,18 @@ fn super_model(
     }
     let columns = ranges
         .into_iter()
-        .map(|(k, range)| {
-            let cols: Vec<usize> = sup
-                .map
-                .coefficients
+        .map(|(k, terms)| {
+            let cols = terms
                 .iter()
-                .enumerate()
-                .filter(|(_, s)| s.start >= range.start && s.end <= range.end)
-                .map(|(j, _)| j)
+                .map(|range| {
+                    sup.map
+                        .coefficients
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, s)| s.start >= range.start && s.end <= range.end)
+                        .map(|(j, _)| j)
+                        .collect()
+                })
                 .collect();
             (k, cols)
         })
@@ -423,9 +442,11 @@ fn super_model(
     Ok((sup, columns))
 }
 
-/// A column that keeps less than this fraction of its norm once the columns before it are
-/// projected out adds no direction (the rank threshold).
-const DEPENDENT: f64 = 1e-9;
+/// A column that keeps no more than this fraction of its norm once the columns before it are
+/// projected out adds no direction: the threshold at which the identifiability analysis names
+/// a dependent column (E0601, spec/semantics.md), so that a term kept in a candidate's line is
+/// one `kin check` and `kin fit` will also see as new.
+const DEPENDENT: f64 = 1e-6;
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
@@ -521,26 +542,38 @@ fn test_candidates(
     let s = m.units.error.scale;
 
     let mut tested: Vec<(usize, Finding)> = Vec::new();
-    for (k, cols) in &columns {
-        if cols.is_empty() {
-            continue;
-        }
+    for (k, terms) in &columns {
         let mut own: Vec<Vec<f64>> = Vec::new();
-        for &j in cols {
-            let mut v = outside
-                .entry(j)
-                .or_insert_with(|| {
-                    let mut v = column(j);
-                    project_out(&mut v, &base_basis);
-                    v
-                })
-                .clone();
-            project_out(&mut v, &own);
-            extend(&mut own, v, red.norms[j]);
+        let mut kept = Vec::with_capacity(terms.len());
+        // Whether the line can be written to add exactly what is new (see below).
+        let mut appliable = true;
+        for cols in terms {
+            let before = own.len();
+            for &j in cols {
+                let mut v = outside
+                    .entry(j)
+                    .or_insert_with(|| {
+                        let mut v = column(j);
+                        project_out(&mut v, &base_basis);
+                        v
+                    })
+                    .clone();
+                project_out(&mut v, &own);
+                extend(&mut own, v, red.norms[j]);
+            }
+            let new = own.len() - before;
+            kept.push(new > 0);
+            appliable &= !cols.is_empty() && (new == 0 || new == cols.len());
         }
         let added = own.len();
         // A candidate the model already contains, or one the data cannot see, adds nothing.
-        if added == 0 {
+        // Terms the model wholly spans are left out of the line (`restate`), so that what is
+        // applied adds exactly `added` coefficients and the refit stays identifiable. A term
+        // the model spans in part (the `s` of an Abbe spline that a constant and a coupling
+        // elsewhere already make) cannot be: a line adds all of a term's functions or none,
+        // and with all of them the refit would be rank-deficient (E0601). Such a candidate is
+        // not proposed, nor one whose terms could not be told apart in the super-model.
+        if added == 0 || !appliable {
             continue;
         }
         let mut e = y.clone();
@@ -557,7 +590,7 @@ fn test_candidates(
         tested.push((
             *k,
             Finding {
-                candidate: proposals[*k].candidate.clone(),
+                candidate: library::restate(&proposals[*k], &kept),
                 columns: added,
                 explained: ((rss_base - rss) / rss_base).max(0.0),
                 f,

@@ -27,6 +27,138 @@ pub struct Proposal {
     /// Candidates of one group (e.g. a lag at several time constants) compete: only the best of
     /// a group is reported, but every member counts in the multiple-testing correction.
     pub group: String,
+    /// The terms of the line, in order: `candidate.text` is `target += ` and their sum.
+    pub terms: Vec<Term>,
+}
+
+/// One term of a candidate's line. Whether a term adds anything is decided on the data, not
+/// here: the library sees the model's text, but a term can repeat what the model has on
+/// another frame (`linear(Z)` on `Y.tz` is the `s` of `Z.tz` when both translate alike), and
+/// only the design shows it. A line with such a term would make the refit rank-deficient
+/// (E0601), so the line given to the user keeps only the terms that add ([`restate`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Term {
+    /// As suggested (`wavelength fit …`).
+    pub text: String,
+    /// As tested (non-linear parameters fixed at the scanned value).
+    pub test: String,
+    /// `fourier(V, harmonics h)` as `(V, h)`: one harmonic per term, so that a harmonic the
+    /// model has can be left out; adjacent ones on one axis are written as one `fourier`.
+    pub harmonic: Option<(String, u32)>,
+}
+
+impl Term {
+    fn new(text: String) -> Term {
+        Term {
+            test: text.clone(),
+            text,
+            harmonic: None,
+        }
+    }
+
+    fn harmonic(axis: &str, h: u32) -> Term {
+        Term {
+            harmonic: Some((axis.to_string(), h)),
+            ..Term::new(format!("fourier({axis}, harmonics {h})"))
+        }
+    }
+}
+
+/// `target += ` the terms, as suggested or as tested; runs of harmonics of one axis as one
+/// `fourier` (`harmonics 2..4`, `harmonics (2, 4)`, `harmonics 3`).
+pub fn line(target: &str, terms: &[&Term], test: bool) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    let mut i = 0;
+    while let Some(t) = terms.get(i) {
+        let Some((axis, _)) = &t.harmonic else {
+            parts.push(if test { t.test.clone() } else { t.text.clone() });
+            i += 1;
+            continue;
+        };
+        let run: Vec<u32> = terms[i..]
+            .iter()
+            .map_while(|u| match &u.harmonic {
+                Some((a, h)) if a == axis => Some(*h),
+                _ => None,
+            })
+            .collect();
+        i += run.len().max(1);
+        parts.push(format!("fourier({axis}, harmonics {})", harmonics(&run)));
+    }
+    format!("{target} += {}", parts.join(" + "))
+}
+
+/// A harmonics option: `h`, `a..b` when consecutive, else a list.
+fn harmonics(hs: &[u32]) -> String {
+    match hs {
+        [h] => h.to_string(),
+        [first, .., last] if hs.windows(2).all(|w| w[1] == w[0] + 1) => {
+            format!("{first}..{last}")
+        }
+        _ => format!(
+            "({})",
+            hs.iter()
+                .map(|h| h.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+fn harmonics_explanation(axis: &str, hs: &[u32], rotation: bool) -> String {
+    let at = match hs {
+        [h] => format!("{h}"),
+        [first, .., last] if hs.windows(2).all(|w| w[1] == w[0] + 1) => {
+            format!("{first} to {last}")
+        }
+        [init @ .., last] => format!(
+            "{} and {last}",
+            init.iter()
+                .map(|h| h.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        [] => String::new(),
+    };
+    format!(
+        "an error motion of the {axis} axis at {at} per revolution ({} of its bearing or drive)",
+        if rotation { "tilt" } else { "runout" }
+    )
+}
+
+/// The candidate with only the terms marked `kept` (those that add to the model on the data).
+pub fn restate(p: &Proposal, kept: &[bool]) -> Candidate {
+    let terms: Vec<&Term> = p
+        .terms
+        .iter()
+        .zip(kept)
+        .filter(|(_, k)| **k)
+        .map(|(t, _)| t)
+        .collect();
+    if terms.len() == p.terms.len() {
+        return p.candidate.clone();
+    }
+    let hs: Vec<u32> = terms
+        .iter()
+        .filter_map(|t| t.harmonic.as_ref().map(|(_, h)| *h))
+        .collect();
+    let explanation = match terms.first().and_then(|t| t.harmonic.as_ref()) {
+        Some((axis, _)) if p.candidate.family == Family::RevoluteHarmonics => {
+            let rotation = p
+                .candidate
+                .target
+                .rsplit('.')
+                .next()
+                .is_some_and(|c| c.starts_with('r'));
+            harmonics_explanation(axis, &hs, rotation)
+        }
+        _ => p.candidate.explanation.clone(),
+    };
+    Candidate {
+        text: line(&p.candidate.target, &terms, false),
+        explanation,
+        ..p.candidate.clone()
+    }
 }
 
 fn frame_name(m: &Machine, f: FrameRef) -> Option<String> {
@@ -112,11 +244,12 @@ pub fn propose(
     let mut out = Vec::new();
     let mut push = |family: Family,
                     target: String,
-                    text: String,
-                    test_text: Option<String>,
+                    terms: Vec<Term>,
                     explanation: String,
                     group: Option<String>| {
-        let test_text = test_text.unwrap_or_else(|| text.clone());
+        let all: Vec<&Term> = terms.iter().collect();
+        let text = line(&target, &all, false);
+        let test_text = line(&target, &all, true);
         let group = group.unwrap_or_else(|| test_text.clone());
         out.push(Proposal {
             candidate: Candidate {
@@ -127,6 +260,7 @@ pub fn propose(
             },
             test_text,
             group,
+            terms,
         });
     };
     let length = &m.units.length;
@@ -153,8 +287,7 @@ pub fn propose(
                 push(
                     Family::Constant,
                     target.clone(),
-                    format!("{target} += const"),
-                    None,
+                    vec![Term::new("const".into())],
                     what,
                     None,
                 );
@@ -169,8 +302,7 @@ pub fn propose(
                     push(
                         Family::AbbeAngular,
                         target.clone(),
-                        format!("{target} += spline({}, knots 2)", axis.name),
-                        None,
+                        vec![Term::new(format!("spline({}, knots 2)", axis.name))],
                         format!("the {} carriage tilts about {} as it travels; the tool sees the tilt times its Abbe offset", axis.name, &comp.name()[1..]),
                         None,
                     );
@@ -192,8 +324,7 @@ pub fn propose(
                     push(
                         Family::Backlash,
                         target.clone(),
-                        format!("{target} += backlash({})", axis.name),
-                        None,
+                        vec![Term::new(format!("backlash({})", axis.name))],
                         format!("{target} steps with the direction of motion of {}: backlash or hysteresis in its drive or guideways", axis.name),
                         None,
                     );
@@ -211,8 +342,11 @@ pub fn propose(
                         push(
                             Family::Periodic,
                             target.clone(),
-                            format!("{target} += periodic({}, wavelength fit {}, knots 2)", axis.name, fmt_len(lambda)),
-                            Some(format!("{target} += periodic({}, wavelength {}, knots 2)", axis.name, fmt_len(lambda))),
+                            vec![Term {
+                                text: format!("periodic({}, wavelength fit {}, knots 2)", axis.name, fmt_len(lambda)),
+                                test: format!("periodic({}, wavelength {}, knots 2)", axis.name, fmt_len(lambda)),
+                                harmonic: None,
+                            }],
                             format!("a periodic error of wavelength ≈ {} along {}: a leadscrew pitch, a scale or encoder period", fmt_len(lambda), axis.name),
                             None,
                         );
@@ -229,9 +363,8 @@ pub fn propose(
                     push(
                         Family::RevoluteHarmonics,
                         target.clone(),
-                        format!("{target} += fourier({}, harmonics 2..4)", axis.name),
-                        None,
-                        format!("an error motion of the {} axis at 2 to 4 per revolution ({} of its bearing or drive)", axis.name, if comp.is_rotation() { "tilt" } else { "runout" }),
+                        (2..=4).map(|h| Term::harmonic(&axis.name, h)).collect(),
+                        harmonics_explanation(&axis.name, &[2, 3, 4], comp.is_rotation()),
                         None,
                     );
                 }
@@ -292,8 +425,7 @@ pub fn propose(
                 push(
                     Family::MoreKnots,
                     target.clone(),
-                    format!("{target} += periodic({}, wavelength {}, knots {knots}{phase})", axis.name, exact(range)),
-                    None,
+                    vec![Term::new(format!("periodic({}, wavelength {}, knots {knots}{phase})", axis.name, exact(range)))],
                     format!(
                         "{target} varies along {} faster than its model's knots allow: {knots} more knots, evenly spaced (one period over the whole range adds only the new knot functions)",
                         axis.name
@@ -311,18 +443,19 @@ pub fn propose(
                     continue;
                 }
                 let target = format!("{name}.{}", comp.name());
-                let (text, what) = if revolute {
+                let linear = Term::new(format!("linear({})", other.name));
+                let (terms, what) = if revolute {
                     (
-                        format!("{target} += linear({})", other.name),
+                        vec![linear],
                         format!("{target} changes with the position of {}", other.name),
                     )
                 } else {
                     (
-                        format!("{target} += linear({}) + linear({}) * linear({})", other.name, other.name, axis.name),
+                        vec![linear, Term::new(format!("linear({}) * linear({})", other.name, axis.name))],
                         format!("{target} changes with the position of {} (its weight or moment on {}'s guideways)", other.name, axis.name),
                     )
                 };
-                push(Family::CrossCoupling, target, text, None, what, None);
+                push(Family::CrossCoupling, target, terms, what, None);
             }
             for (i, input) in m.inputs.iter().enumerate() {
                 if !available.inputs.get(i).copied().unwrap_or(false)
@@ -338,11 +471,10 @@ pub fn propose(
                 push(
                     Family::CrossCoupling,
                     target.clone(),
-                    format!(
-                        "{target} += linear({}) + linear({}) * linear({})",
-                        input.name, input.name, axis.name
-                    ),
-                    None,
+                    vec![
+                        Term::new(format!("linear({})", input.name)),
+                        Term::new(format!("linear({}) * linear({})", input.name, axis.name)),
+                    ],
                     format!(
                         "{target} changes with {} (a load deflecting the structure)",
                         input.name
@@ -388,11 +520,11 @@ pub fn propose(
                     push(
                         Family::Thermal,
                         target.clone(),
-                        format!("{target} += lag({}, tau fit {t}) * {factor}", input.name),
-                        Some(format!(
-                            "{target} += lag({}, tau {t}) * {factor}",
-                            input.name
-                        )),
+                        vec![Term {
+                            text: format!("lag({}, tau fit {t}) * {factor}", input.name),
+                            test: format!("lag({}, tau {t}) * {factor}", input.name),
+                            harmonic: None,
+                        }],
                         format!(
                             "{target} follows {} with a thermal lag (time constant ≈ {t})",
                             input.name
@@ -404,8 +536,7 @@ pub fn propose(
             push(
                 Family::Thermal,
                 target.clone(),
-                format!("{target} += {value} * {factor}"),
-                None,
+                vec![Term::new(format!("{value} * {factor}"))],
                 format!(
                     "{target} follows {} directly (thermal expansion)",
                     input.name
@@ -422,8 +553,7 @@ pub fn propose(
             push(
                 Family::Drift,
                 target.clone(),
-                format!("{target} += time * const"),
-                None,
+                vec![Term::new("time * const".into())],
                 format!(
                     "the tool drifts along {} over time (an unmeasured warm-up)",
                     &comp.name()[1..]
@@ -438,4 +568,89 @@ pub fn propose(
 fn round(v: f64) -> f64 {
     let p = 10f64.powi(4 - v.abs().log10().ceil().max(0.0) as i32);
     (v * p).round() / p
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn proposal(family: Family, target: &str, terms: Vec<Term>, explanation: String) -> Proposal {
+        let all: Vec<&Term> = terms.iter().collect();
+        Proposal {
+            candidate: Candidate {
+                family,
+                target: target.into(),
+                text: line(target, &all, false),
+                explanation,
+            },
+            test_text: line(target, &all, true),
+            group: String::new(),
+            terms,
+        }
+    }
+
+    #[test]
+    fn harmonics_are_written_as_one_fourier() {
+        let terms: Vec<Term> = (2..=4).map(|h| Term::harmonic("C", h)).collect();
+        let p = proposal(
+            Family::RevoluteHarmonics,
+            "C.tx",
+            terms,
+            harmonics_explanation("C", &[2, 3, 4], false),
+        );
+        assert_eq!(p.candidate.text, "C.tx += fourier(C, harmonics 2..4)");
+        assert_eq!(restate(&p, &[true, true, true]), p.candidate);
+        let gap = restate(&p, &[true, false, true]);
+        assert_eq!(gap.text, "C.tx += fourier(C, harmonics (2, 4))");
+        assert!(gap
+            .explanation
+            .contains("at 2 and 4 per revolution (runout"));
+        assert_eq!(
+            restate(&p, &[false, true, true]).text,
+            "C.tx += fourier(C, harmonics 3..4)"
+        );
+        let one = restate(&p, &[false, false, true]);
+        assert_eq!(one.text, "C.tx += fourier(C, harmonics 4)");
+        assert!(one.explanation.contains("at 4 per revolution"));
+    }
+
+    #[test]
+    fn a_coupling_keeps_the_terms_that_add() {
+        let p = proposal(
+            Family::CrossCoupling,
+            "Y.tz",
+            vec![
+                Term::new("linear(X)".into()),
+                Term::new("linear(X) * linear(Y)".into()),
+            ],
+            "Y.tz changes with the position of X".into(),
+        );
+        assert_eq!(
+            p.candidate.text,
+            "Y.tz += linear(X) + linear(X) * linear(Y)"
+        );
+        let product = restate(&p, &[false, true]);
+        assert_eq!(product.text, "Y.tz += linear(X) * linear(Y)");
+        assert_eq!(product.explanation, p.candidate.explanation);
+        assert_eq!(restate(&p, &[true, false]).text, "Y.tz += linear(X)");
+    }
+
+    #[test]
+    fn fitted_parameters_are_suggested_as_fit_and_tested_fixed() {
+        let p = proposal(
+            Family::Thermal,
+            "tool.tz",
+            vec![Term {
+                text: "lag(T, tau fit 30 min) * const".into(),
+                test: "lag(T, tau 30 min) * const".into(),
+                harmonic: None,
+            }],
+            String::new(),
+        );
+        assert_eq!(
+            p.candidate.text,
+            "tool.tz += lag(T, tau fit 30 min) * const"
+        );
+        assert_eq!(p.test_text, "tool.tz += lag(T, tau 30 min) * const");
+    }
 }

@@ -427,3 +427,94 @@ fn eval_uncertainties_sum_to_the_rank_and_read_back_with_ignore() {
         text(&out.stderr)
     );
 }
+
+/// `kin diagnose --apply N` and its refit, on a candidate whose plain form the model partly has:
+/// the coupling of Y.tz with Z, whose `linear(Z)` is the model's own `Z.tz = linear(Z)` (both
+/// translate along z alike). The line applied leaves it out, so the refit is not rank-deficient
+/// (E0601) and ends at the noise.
+#[test]
+fn diagnose_apply_refits_a_candidate_the_model_partly_has() {
+    let model = "machine cmm3 {
+    task measure
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 800 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 500) mm
+        tool probe at (0, 0, -100) mm
+        tool side at (60, 40, -100) mm
+    }
+    errors {
+        X.tx = spline(X, knots 2)
+        X.rz = const
+        Y.ty = linear(Y) + backlash(Y)
+        Z.tz = linear(Z)
+    }
+}
+";
+    let truth = model.replace(
+        "        Z.tz = linear(Z)\n",
+        "        Z.tz = linear(Z)\n        Y.tz = linear(Z) * linear(Y)\n",
+    );
+    let dir = tmp("apply");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (model_path, truth_path) = (dir.join("cmm3.kin"), dir.join("truth.kin"));
+    std::fs::write(&model_path, model).unwrap();
+    std::fs::write(&truth_path, truth).unwrap();
+    let params = dir.join("truth.params");
+    std::fs::write(
+        &params,
+        "params {\n    X.tx = [3, -2, 1, 0.5] um\n    X.rz[0] = 4 urad\n    Y.ty = [1.5, 0.5] um\n    Z.tz[0] = 2 um\n    Y.tz[0] = 1.5 um\n}\n",
+    )
+    .unwrap();
+    let data = dir.join("points.csv");
+    let out = kin(&[
+        "simulate",
+        truth_path.to_str().unwrap(),
+        "--params",
+        params.to_str().unwrap(),
+        "--sample",
+        "600",
+        "--noise",
+        "0.2um",
+        "--seed",
+        "3",
+        "-o",
+        data.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let (model_arg, data_arg) = (model_path.to_str().unwrap(), data.to_str().unwrap());
+    let out = kin(&["diagnose", model_arg, data_arg]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    // The candidate's number in the ranked list: its rank among equals is not the point.
+    let lines: Vec<&str> = s.lines().collect();
+    let at = lines
+        .iter()
+        .position(|l| l.trim() == "add: Y.tz += linear(Z) * linear(Y)")
+        .unwrap_or_else(|| panic!("the coupling without its linear part: {s}"));
+    let n: String = lines[..at]
+        .iter()
+        .rev()
+        .find_map(|l| l.trim().split_once(". ").map(|(n, _)| n.to_string()))
+        .expect("numbered candidate");
+    let out = kin(&["diagnose", model_arg, data_arg, "--apply", &n]);
+    let s = text(&out.stdout);
+    assert!(out.status.success(), "{s}\n{}", text(&out.stderr));
+    assert!(s.contains("added to") && s.contains("model revised"), "{s}");
+    let sigma: f64 = s
+        .rsplit("σ̂ = ")
+        .next()
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("σ̂ of the refit");
+    assert!(sigma < 1.2 * 0.2, "σ̂ {sigma} after the refit: {s}");
+    let revised = std::fs::read_to_string(&model_path).unwrap();
+    assert!(
+        revised.contains("        Y.tz += linear(Z) * linear(Y)\n"),
+        "{revised}"
+    );
+}

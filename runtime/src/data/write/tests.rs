@@ -3,7 +3,7 @@ use std::path::Path;
 use proptest::prelude::*;
 
 use super::super::testing::machine;
-use super::super::{read, Groups, ReadOptions};
+use super::super::{read, ExtraColumn, ExtraQuantity, Groups, ReadOptions};
 use super::*;
 
 const NAN: f64 = f64::NAN;
@@ -116,6 +116,7 @@ fn points_round_trip() {
     let options = WriteOptions {
         comments: vec!["simulated\nsecond line".into()],
         units: None,
+        ..WriteOptions::default()
     };
     let text = write_to_string(&data, &options);
     let lines: Vec<&str> = text.lines().collect();
@@ -150,6 +151,70 @@ fn points_round_trip() {
 }
 
 #[test]
+fn extra_columns_follow_the_observations_and_read_back_only_when_ignored() {
+    let data = sample_points();
+    let options = WriteOptions {
+        extra: vec![
+            ExtraColumn {
+                name: "u_ex".into(),
+                quantity: ExtraQuantity::Error,
+                values: vec![2e-8, NAN, 3e-8],
+            },
+            ExtraColumn {
+                name: "u_erz".into(),
+                quantity: ExtraQuantity::Tilt,
+                values: vec![1e-7, 1e-7, 1e-7],
+            },
+        ],
+        ..WriteOptions::default()
+    };
+    let text = write_to_string(&data, &options);
+    let header = text.lines().next().unwrap_or("");
+    assert!(
+        header.ends_with(",ex[um],ez[um],erz[urad],u_ex[um],u_erz[urad]"),
+        "{header}"
+    );
+    assert!(
+        text.lines()
+            .nth(1)
+            .is_some_and(|l| l.ends_with(",0.02,0.1")),
+        "{text}"
+    );
+    assert!(
+        text.lines().nth(2).is_some_and(|l| l.ends_with(",,0.1")),
+        "{text}"
+    );
+    let plain = read(
+        text.as_bytes(),
+        Path::new("w"),
+        &machine(),
+        &ReadOptions::default(),
+    );
+    assert!(plain.is_err(), "unknown columns must not read silently");
+    let ignoring = ReadOptions {
+        ignore: vec!["u_ex".into(), "u_erz".into()],
+        ..ReadOptions::default()
+    };
+    match read(text.as_bytes(), Path::new("w"), &machine(), &ignoring) {
+        Ok(Observations::Points(p)) => {
+            for (a, b) in p.observed.iter().zip(&data.observed) {
+                assert!(same_opt(a, b), "{a:?} {b:?}");
+            }
+        }
+        other => panic!("{other:?}\n{text}"),
+    }
+    let short = WriteOptions {
+        extra: vec![ExtraColumn {
+            name: "u_ex".into(),
+            quantity: ExtraQuantity::Error,
+            values: vec![1e-8],
+        }],
+        ..WriteOptions::default()
+    };
+    assert!(write_points(&mut Vec::new(), &machine(), &data, &short).is_err());
+}
+
+#[test]
 fn lengths_round_trip_in_other_units() {
     let m = machine();
     let pose = |x: f64| Pose {
@@ -172,6 +237,7 @@ fn lengths_round_trip_in_other_units() {
     let options = WriteOptions {
         comments: vec![],
         units: Some(units),
+        ..WriteOptions::default()
     };
     let mut out = Vec::new();
     if let Err(e) = write_lengths(&mut out, &m, &data, &options) {
@@ -349,6 +415,7 @@ fn unwritable_data_is_refused() {
         &WriteOptions {
             comments: vec![],
             units: Some(units),
+            ..WriteOptions::default()
         },
     );
     assert!(matches!(

@@ -169,7 +169,7 @@ pub fn design_with(
 /// Analyses a row-major `rows × columns.len()` design matrix.
 pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
     let n = columns.len();
-    let rows = if n == 0 { 0 } else { x.len() / n };
+    let rows = x.len().checked_div(n).unwrap_or(0);
     if rows == 0 {
         return Err(IdentifyError::Empty);
     }

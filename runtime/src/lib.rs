@@ -1,6 +1,10 @@
 //! The `.kin` runtime.
 //!
 //! To embed a model in a program, start at [`Model`] (the [`embed`] module).
+
+// `!(x > 0.0)` is written on purpose: it is also true for NaN, which must fail the same checks
+// as a non-positive number.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 pub mod bench;
 pub mod data;
 pub mod diagnose;

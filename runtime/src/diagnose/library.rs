@@ -337,7 +337,8 @@ pub fn propose(
             for &(pa, lambda) in wavelengths.iter().filter(|(pa, _)| *pa == a) {
                 let _ = pa;
                 if lambda > 0.0 && lambda < axis.range[1] - axis.range[0] {
-                    for comp in [motion] {
+                    {
+                        let comp = motion;
                         let target = format!("{name}.{}", comp.name());
                         push(
                             Family::Periodic,

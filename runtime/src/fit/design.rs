@@ -120,6 +120,8 @@ pub struct RowMeta {
 pub const LENGTH: u8 = 6;
 
 /// The evaluation states of one file (two for a length file: its ends).
+// One per data file: the size difference costs nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum FileStates {
     Points(States),

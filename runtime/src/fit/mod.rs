@@ -145,7 +145,7 @@ pub fn fit(
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
         acc.push(x, y);
         done += 1;
-        if done % 8192 == 0 {
+        if done.is_multiple_of(8192) {
             progress("factorising", done);
         }
     })?;
@@ -225,7 +225,7 @@ pub fn fit(
             block.drain(&solution, &mut residuals);
         }
         done += 1;
-        if done % 8192 == 0 {
+        if done.is_multiple_of(8192) {
             progress("residuals", done);
         }
     })?;

@@ -61,6 +61,8 @@ pub fn scaled_triangle(red: &Reduced) -> (Vec<f64>, Vec<f64>) {
     (rs, scale)
 }
 
+// Both outcomes carry a whole solution, once per fit: boxing it would buy nothing.
+#[allow(clippy::result_large_err)]
 /// Solves with the rank decided at relative tolerance `tol`. `min_norm` gives the minimum-norm
 /// solution of a rank-deficient problem (on the unit-scaled columns); without it a deficient
 /// problem returns `Err(solution-with-null-space)` so the caller can name what is invisible.

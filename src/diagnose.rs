@@ -86,11 +86,7 @@ pub fn apply(path: &Path, source: &str, line: &str, why: &str) -> Result<(), Fai
         eprintln!("error: {}", d.message);
         Failed::INPUT
     })?;
-    let end = file.machine.items.iter().filter_map(|i| match i {
-        kin_compiler::syntax::ast::Item::Errors(e) => Some(e.span.end),
-        _ => None,
-    });
-    let Some(at) = end.max().and_then(|e| e.checked_sub(1)) else {
+    let Some(at) = file.machine.errors_close() else {
         eprintln!("error: the model has no `errors` block to add to");
         return Err(Failed::INPUT);
     };

@@ -237,17 +237,7 @@ const MODELS: &[(&str, &str, Observe)] = &[
 /// adds it.
 fn appended(src: &str, line: &str) -> String {
     let file = kin_compiler::syntax::parse_file(src).expect("model parses");
-    let end = file
-        .machine
-        .items
-        .iter()
-        .filter_map(|i| match i {
-            kin_compiler::syntax::ast::Item::Errors(e) => Some(e.span.end),
-            _ => None,
-        })
-        .max()
-        .expect("an errors block");
-    let at = end - 1;
+    let at = file.machine.errors_close().expect("an errors block");
     format!(
         "{}\n        {line}\n    {}",
         src[..at].trim_end(),

@@ -24,6 +24,20 @@ pub struct Machine {
     pub span: Span,
 }
 
+impl Machine {
+    /// The byte offset of the closing brace of the last `errors` block: where a line that adds
+    /// to the model goes (`kin diagnose`).
+    pub fn errors_close(&self) -> Option<usize> {
+        self.items
+            .iter()
+            .filter_map(|i| match i {
+                Item::Errors(e) => e.span.end.checked_sub(1),
+                _ => None,
+            })
+            .max()
+    }
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub enum Item {
     Task(Spanned<TaskKind>),

@@ -346,19 +346,10 @@ fn super_model(
 ) -> Result<(Compiled, TermColumns), DiagnoseError> {
     let file = kin_compiler::syntax::parse_file(source)
         .map_err(|d| DiagnoseError::Candidates(d.message))?;
-    let end = file
-        .machine
-        .items
-        .iter()
-        .filter_map(|i| match i {
-            kin_compiler::syntax::ast::Item::Errors(e) => Some(e.span.end),
-            _ => None,
-        })
-        .max();
     // Candidate lines go just before the closing brace of the last `errors` block, or into a
     // new block before the machine's closing brace.
-    let (at, open, close) = match end {
-        Some(e) => (e.saturating_sub(1), String::new(), String::new()),
+    let (at, open, close) = match file.machine.errors_close() {
+        Some(at) => (at, String::new(), String::new()),
         None => (
             file.machine.span.end.saturating_sub(1),
             "errors {\n".to_string(),

@@ -27,6 +27,15 @@ struct Cli {
     command: Command,
 }
 
+/// `--ignore`, shared by every command that reads measurement files.
+#[derive(clap::Args)]
+struct Ignore {
+    /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
+    /// column is an error otherwise).
+    #[arg(long = "ignore", value_delimiter = ',', value_name = "COLUMN")]
+    columns: Vec<String>,
+}
+
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 pub enum Format {
     Human,
@@ -93,10 +102,8 @@ enum Command {
         /// Which error components a point file holds.
         #[arg(long, value_enum, default_value_t = simulate::Components::Position)]
         components: simulate::Components,
-        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
-        /// column is an error otherwise).
-        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
-        ignore: Vec<String>,
+        #[command(flatten)]
+        ignore: Ignore,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -136,10 +143,8 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
-        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
-        /// column is an error otherwise).
-        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
-        ignore: Vec<String>,
+        #[command(flatten)]
+        ignore: Ignore,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -172,10 +177,8 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
-        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
-        /// column is an error otherwise).
-        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
-        ignore: Vec<String>,
+        #[command(flatten)]
+        ignore: Ignore,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -196,10 +199,8 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
-        /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
-        /// column is an error otherwise).
-        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
-        ignore: Vec<String>,
+        #[command(flatten)]
+        ignore: Ignore,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -218,9 +219,8 @@ enum Command {
         data: Vec<PathBuf>,
         #[arg(short, long)]
         output: PathBuf,
-        /// Columns of the data files to skip unread, as given to `kin fit`.
-        #[arg(long, value_delimiter = ',', value_name = "COLUMN")]
-        ignore: Vec<String>,
+        #[command(flatten)]
+        ignore: Ignore,
         #[arg(long, default_value = "auto")]
         color: String,
     },
@@ -292,7 +292,7 @@ fn main() -> ExitCode {
             artifact_rotation,
             artifact_length,
             components,
-            ignore,
+            ignore: ignore.columns,
             color: use_color(&color),
         }),
         Command::Fit {
@@ -323,7 +323,7 @@ fn main() -> ExitCode {
             holdout,
             seed,
             engine,
-            ignore,
+            ignore: ignore.columns,
             color: use_color(&color),
         }),
         Command::Demo { dir, rounds, color } => demo::run(dir, rounds, use_color(&color)),
@@ -350,7 +350,7 @@ fn main() -> ExitCode {
                 holdout: None,
                 seed: 0,
                 engine,
-                ignore,
+                ignore: ignore.columns,
                 color: use_color(&color),
             },
             alpha,
@@ -374,7 +374,7 @@ fn main() -> ExitCode {
             output: output.as_deref(),
             components,
             engine,
-            ignore: &ignore,
+            ignore: &ignore.columns,
             uncertainty,
             color: use_color(&color),
         }),
@@ -392,7 +392,7 @@ fn main() -> ExitCode {
             diagnose,
             data,
             output,
-            ignore,
+            ignore: ignore.columns,
             color: use_color(&color),
         }),
         Command::Bench {

@@ -4,6 +4,7 @@ mod bench;
 mod check;
 mod demo;
 mod diagnose;
+mod files;
 mod fit;
 mod load;
 mod render;
@@ -171,9 +172,16 @@ enum Command {
         /// Write DIAGNOSE.json here.
         #[arg(short, long)]
         output: Option<PathBuf>,
-        /// Add candidate N (as numbered in the list) to the model file and refit.
+        /// Add candidate N (as numbered in the list) to the model file and refit. The model's
+        /// text before the change is kept in MACHINE.previous and in its history record.
         #[arg(long, value_name = "N")]
         apply: Option<usize>,
+        /// With --apply: add a candidate that is not significant (refused otherwise).
+        #[arg(long, requires = "apply")]
+        force: bool,
+        /// With --apply: print the lines that would be added, change nothing.
+        #[arg(long, requires = "apply")]
+        dry_run: bool,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -333,6 +341,8 @@ fn main() -> ExitCode {
             alpha,
             output,
             apply,
+            force,
+            dry_run,
             engine,
             ignore,
             color,
@@ -356,6 +366,8 @@ fn main() -> ExitCode {
             alpha,
             output,
             apply,
+            force,
+            dry_run,
         }),
         Command::Eval {
             machine,

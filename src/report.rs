@@ -107,6 +107,11 @@ fn read_fit(path: &Path) -> Result<FitReport, ReportError> {
 }
 
 pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
+    let history_path = history::path_for(&a.machine);
+    let mut inputs: Vec<&Path> = vec![&a.machine, &a.fit, &history_path];
+    inputs.extend(a.diagnose.as_deref());
+    inputs.extend(a.data.iter().map(PathBuf::as_path));
+    crate::files::check(&a.output, &inputs)?;
     let source = std::fs::read_to_string(&a.machine).map_err(|source| {
         fail(ReportError::Read {
             path: a.machine.clone(),
@@ -136,7 +141,10 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
     }
     let data = load_data(m, &fit, &a.fit, &a.data, &a.ignore, &mut notes);
     let history = match history::read(&a.machine) {
-        Ok(h) => h,
+        Ok(h) => {
+            notes.extend(h.damage());
+            h.entries
+        }
         Err(e) => {
             notes.push(e.to_string());
             Vec::new()
@@ -153,7 +161,7 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
         notes,
     };
     let page = html(&inputs).map_err(fail)?;
-    std::fs::write(&a.output, page).map_err(|source| {
+    kin_runtime::output::replace(&a.output, page.as_bytes()).map_err(|source| {
         fail(ReportError::Write {
             path: a.output.clone(),
             source,

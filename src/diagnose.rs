@@ -234,3 +234,37 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     s.push_str("\n  add one with `kin diagnose … --apply N` (or paste its line into the errors block), then refit\n");
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_changed_since_it_was_read_is_not_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = dir.path().join("m.kin");
+        std::fs::write(&model, "base\n// edited meanwhile\n").unwrap();
+        assert_eq!(
+            replace_model(&model, "base\n", "base\nadded\n"),
+            Err(Failed::USAGE)
+        );
+        assert_eq!(
+            std::fs::read_to_string(&model).unwrap(),
+            "base\n// edited meanwhile\n"
+        );
+        assert!(!previous_path(&model).exists());
+    }
+
+    #[test]
+    fn an_unchanged_model_is_replaced_and_its_text_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = dir.path().join("m.kin");
+        std::fs::write(&model, "base\n").unwrap();
+        replace_model(&model, "base\n", "base\nadded\n").unwrap();
+        assert_eq!(std::fs::read_to_string(&model).unwrap(), "base\nadded\n");
+        assert_eq!(
+            std::fs::read_to_string(previous_path(&model)).unwrap(),
+            "base\n"
+        );
+    }
+}

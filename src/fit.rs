@@ -109,7 +109,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         eprintln!("error: cannot read `{}`: {e}", a.machine.display());
         Failed::USAGE
     })?;
-    let compiled = load::machine(&a.machine, None, a.color)?;
+    let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
     let m = &compiled.machine;
     let files = read_all(&a.data, &compiled, &a.ignore)?;
     let mut validate = read_all(&a.validate, &compiled, &a.ignore)?;

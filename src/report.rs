@@ -1377,6 +1377,7 @@ mod tests {
             rms,
             error_unit: "um".into(),
             files: Vec::new(),
+            source: None,
         };
         let h = vec![e("a", 3.0), e("a", 2.5), e("b", 1.0), e("a", 2.0)];
         let r: Vec<f64> = revisions(&h).iter().map(|e| e.rms).collect();

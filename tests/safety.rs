@@ -228,6 +228,10 @@ fn a_fit_killed_while_writing_leaves_old_or_new_files() {
 fn an_apply_killed_while_writing_leaves_the_old_or_the_new_model() {
     let dir = tempfile::tempdir().unwrap();
     let (model, data) = cmm3(dir.path(), 600);
+    // A long model (comments) makes the write long enough to be hit.
+    let padding = "// a model with a long history of notes ............................\n";
+    let start = format!("{}{MODEL}", padding.repeat(40_000));
+    std::fs::write(&model, &start).unwrap();
     let reference = dir.path().join("reference");
     std::fs::create_dir(&reference).unwrap();
     let copy = reference.join("cmm3.kin");
@@ -241,28 +245,37 @@ fn an_apply_killed_while_writing_leaves_the_old_or_the_new_model() {
 
     let mut delays: Vec<Option<Duration>> = vec![None; 4];
     delays.extend((0..8).map(|k| Some(full.mul_f64(0.15 * k as f64))));
+    let (mut killed, mut cut_short) = (0, 0);
     for delay in delays {
-        std::fs::write(&model, MODEL).unwrap();
+        std::fs::write(&model, &start).unwrap();
         let before = std::fs::metadata(&model).unwrap().modified().unwrap();
         let child = spawn(&["diagnose", s(&model), s(&data), "--apply", "1"]);
         let at_first_change = delay.is_none();
-        kill_when(child, delay.unwrap_or(full * 4), || {
-            at_first_change
-                && (std::fs::metadata(&model)
-                    .ok()
-                    .and_then(|m| m.modified().ok())
-                    != Some(before)
-                    || snapshot(dir.path())
-                        .keys()
-                        .any(|n| n.starts_with(".cmm3.kin.") && n.ends_with(".tmp")))
-        });
+        // The model itself changes, or a temporary file for it (not for `.previous`) appears.
+        let writing = || {
+            std::fs::metadata(&model)
+                .ok()
+                .and_then(|m| m.modified().ok())
+                != Some(before)
+                || snapshot(dir.path()).keys().any(|n| {
+                    n.starts_with(".cmm3.kin.") && !n.contains("previous") && n.ends_with(".tmp")
+                })
+        };
+        if kill_when(child, delay.unwrap_or(full * 4), || {
+            at_first_change && writing()
+        }) {
+            killed += 1;
+        }
         let now = std::fs::read_to_string(&model).unwrap();
         assert!(
-            now == MODEL || now == new,
-            "model cut after a kill at {delay:?}:\n{now}"
+            now == start || now == new,
+            "model cut ({} bytes) after a kill at {delay:?}",
+            now.len()
         );
-        sweep_temporaries(dir.path());
+        cut_short += sweep_temporaries(dir.path());
     }
+    println!("{killed} runs killed while running, {cut_short} in the middle of a write");
+    assert!(killed > 0, "no run was killed before it finished");
 }
 
 /// Two `--apply` runs on one model at once, several times: every run that says "added" has its

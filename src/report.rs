@@ -121,6 +121,17 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
     let fit: FitReport = read_fit(&a.fit).map_err(fail)?;
+    if a.data.is_empty() {
+        // The data files FIT.json names are read too (as given, and relative to FIT.json).
+        let base = a.fit.parent().unwrap_or(Path::new("."));
+        let recorded: Vec<PathBuf> = fit
+            .files
+            .iter()
+            .flat_map(|f| [PathBuf::from(&f.path), base.join(&f.path)])
+            .collect();
+        let recorded: Vec<&Path> = recorded.iter().map(PathBuf::as_path).collect();
+        crate::files::check(&a.output, &recorded)?;
+    }
     let diagnosis: Option<Diagnosis> = match &a.diagnose {
         Some(p) => Some(read_json(p, "diagnosis (DIAGNOSE.json)").map_err(fail)?),
         None => None,

@@ -642,6 +642,15 @@ fn an_output_naming_an_input_is_refused() {
             "-o".into(),
             s(&json).into(),
         ],
+        // The data FIT.json names, read when none are given.
+        vec![
+            "report".into(),
+            s(&model).into(),
+            "--fit".into(),
+            s(&json).into(),
+            "-o".into(),
+            s(&data).into(),
+        ],
         vec![
             "simulate".into(),
             s(&model).into(),

@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use kin_runtime::fit::{self, report, DataSet, FitError, Options, Solver};
@@ -236,8 +237,12 @@ pub fn record(model: &Path, r: &report::FitReport, replaced: Option<&str>) {
     };
     let entries = match history::read(model) {
         Ok(h) => {
+            // Once per command: `--apply` and the demo record several fits.
+            static WARNED: AtomicBool = AtomicBool::new(false);
             if let Some(damage) = h.damage() {
-                eprintln!("warning: {damage}");
+                if !WARNED.swap(true, Ordering::Relaxed) {
+                    eprintln!("warning: {damage}");
+                }
             }
             h.entries
         }

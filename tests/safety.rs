@@ -581,6 +581,15 @@ fn a_damaged_history_is_read_around() {
         page.contains("line 2 is not"),
         "the report says which line was skipped"
     );
+    // `--apply` reads the history twice (before and after the change): one warning.
+    let out = kin(&["diagnose", s(&model), s(&data), "--apply", "1"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        text(&out.stderr).matches("warning").count(),
+        1,
+        "{}",
+        text(&out.stderr)
+    );
 }
 
 /// `-o` naming an input (under another spelling too) or a folder that does not exist is

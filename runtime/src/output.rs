@@ -80,8 +80,9 @@ fn directory_of(path: &Path) -> PathBuf {
 /// (`.NAME.XXXXXX.tmp`), which is flushed to disk and renamed over `path`; then the folder is
 /// flushed so the rename itself survives a power cut. On any error `path` is untouched and the
 /// temporary file removed (a process killed mid-write can leave the temporary file, never a cut
-/// `path`). A replaced file keeps its permissions; a symbolic link is followed, so the file it
-/// points to is replaced and the link stays.
+/// `path`). A replaced file keeps its permissions (and its owner, where the system allows); one
+/// the user may not write is refused as an in-place write would be; a symbolic link is
+/// followed, so the file it points to is replaced and the link stays.
 pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
     let target = match std::fs::symlink_metadata(path) {
         Ok(m) if m.file_type().is_symlink() => path.canonicalize()?,
@@ -92,7 +93,12 @@ pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let existing = std::fs::metadata(&target).ok().map(|m| m.permissions());
+    let existing = std::fs::metadata(&target).ok();
+    if existing.is_some() {
+        // Renaming would replace a file the user may not write (read-only): ask the system, as
+        // an in-place write would, by opening it for writing without truncating it.
+        std::fs::OpenOptions::new().write(true).open(&target)?;
+    }
     let prefix = format!(".{name}.");
     let mut builder = tempfile::Builder::new();
     builder.prefix(&prefix).suffix(".tmp");
@@ -104,14 +110,28 @@ pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
         builder.permissions(std::fs::Permissions::from_mode(0o666));
     }
     let mut temp = builder.tempfile_in(&dir)?;
-    if let Some(p) = existing {
-        temp.as_file().set_permissions(p)?;
+    if let Some(m) = &existing {
+        temp.as_file().set_permissions(m.permissions())?;
+        keep_owner(temp.as_file(), m);
     }
     temp.write_all(contents)?;
     temp.as_file().sync_all()?;
     temp.persist(&target).map_err(|e| e.error)?;
     sync_directory(&dir)
 }
+
+/// Gives the new file the replaced file's owner and group where the system allows it (root
+/// replacing a user's file); elsewhere the new file is the writer's, as any file it creates.
+#[cfg(unix)]
+fn keep_owner(file: &File, was: &std::fs::Metadata) {
+    use std::os::unix::fs::MetadataExt;
+    // Best effort by design: an ordinary user cannot give a file away, and that is no reason
+    // to fail the write.
+    let _ = std::os::unix::fs::fchown(file, Some(was.uid()), Some(was.gid()));
+}
+
+#[cfg(not(unix))]
+fn keep_owner(_: &File, _: &std::fs::Metadata) {}
 
 #[cfg(unix)]
 fn sync_directory(dir: &Path) -> io::Result<()> {
@@ -187,6 +207,22 @@ mod tests {
             .is_symlink());
         let mode = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
         assert_eq!(mode, 0o640);
+    }
+
+    #[test]
+    fn a_file_that_cannot_be_written_is_not_replaced() {
+        let d = dir();
+        let p = d.path().join("locked.json");
+        std::fs::write(&p, "old").unwrap();
+        let mut perms = std::fs::metadata(&p).unwrap().permissions();
+        perms.set_readonly(true);
+        std::fs::set_permissions(&p, perms).unwrap();
+        // Root may write anything: then the file is replaced, as an in-place write would be.
+        let writable = std::fs::OpenOptions::new().write(true).open(&p).is_ok();
+        assert_eq!(replace(&p, b"new").is_ok(), writable);
+        let expected = if writable { "new" } else { "old" };
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), expected);
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
     }
 
     #[test]

@@ -2,12 +2,13 @@
 //! model lacks — fit, where it fails, the top candidate, adding it, the error falling — until
 //! the model explains the data down to the noise.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use kin_runtime::diagnose::{self, Settings};
 
-use crate::diagnose::{apply, text};
+use crate::diagnose::{replace_model, text, with_line};
+use crate::files;
 use crate::fit::{self as fitcmd, FitArgs, SolverArg};
 use crate::load::Failed;
 
@@ -20,23 +21,65 @@ pub fn run(dir: Option<PathBuf>, rounds: usize, color: bool) -> ExitCode {
     Failed::exit(demo(dir, rounds, color))
 }
 
+/// The files a demo writes in its folder: it writes over them only where it wrote them before.
+const MODEL: &str = "bridge_cmm.kin";
+const DATA: &str = "points.csv";
+const OUTPUTS: [&str; 5] = [
+    "fit.json",
+    "fit.params",
+    "diagnose.json",
+    "report.html",
+    "bridge_cmm.kin.previous",
+];
+/// Marks a folder as the demo's own: created with the working copy, checked before a second
+/// run writes over it.
+const MARKER: &str = ".kin-demo";
+
+/// Prepares DIR for the demo: refuses (exit 2) a folder that holds a file of the demo's names
+/// the demo did not write, else marks it as the demo's.
+fn claim(dir: &Path) -> Result<(), Failed> {
+    let marker = dir.join(MARKER);
+    if !marker.exists() {
+        let history = kin_runtime::history::path_for(&dir.join(MODEL));
+        let mut names = vec![dir.join(MODEL), dir.join(DATA), history];
+        names.extend(OUTPUTS.iter().map(|n| dir.join(n)));
+        if let Some(foreign) = names.iter().find(|p| p.exists()) {
+            eprintln!(
+                "error: `{}` was not written by `kin demo` (no {MARKER} in `{}`); the demo does not write over it. \
+                 Choose an empty or new folder with --dir.",
+                foreign.display(),
+                dir.display()
+            );
+            return Err(Failed::USAGE);
+        }
+    }
+    std::fs::create_dir_all(dir).map_err(|e| {
+        eprintln!("error: cannot create `{}`: {e}", dir.display());
+        Failed::USAGE
+    })?;
+    files::write(
+        &marker,
+        b"This folder is a working copy of `kin demo`; a later `kin demo --dir` here may replace its files.\n",
+    )
+}
+
 fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> {
     let dir = dir.unwrap_or_else(|| std::env::temp_dir().join("kin-demo"));
+    claim(&dir)?;
     let write = |name: &str, text: &str| -> Result<PathBuf, Failed> {
-        std::fs::create_dir_all(&dir).map_err(|e| {
-            eprintln!("error: cannot create `{}`: {e}", dir.display());
-            Failed::USAGE
-        })?;
         let path = dir.join(name);
-        std::fs::write(&path, text).map_err(|e| {
-            eprintln!("error: cannot write `{}`: {e}", path.display());
-            Failed::USAGE
-        })?;
+        files::write(&path, text.as_bytes())?;
         Ok(path)
     };
-    let model = write("bridge_cmm.kin", START)?;
-    let data = write("points.csv", POINTS)?;
-    let _ = std::fs::remove_file(kin_runtime::history::path_for(&model));
+    let model = write(MODEL, START)?;
+    let data = write(DATA, POINTS)?;
+    let history = kin_runtime::history::path_for(&model);
+    if let Err(e) = std::fs::remove_file(&history) {
+        if e.kind() != std::io::ErrorKind::NotFound {
+            eprintln!("error: cannot remove `{}`: {e}", history.display());
+            return Err(Failed::USAGE);
+        }
+    }
     println!("kin demo — a bridge CMM measured at 2500 points (simulated, {NOISE_UM} µm noise, two effects hidden)");
     println!("working copy: {}\n", dir.display());
     let args = FitArgs {
@@ -67,7 +110,6 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
             r.rms,
             u = r.error_unit
         );
-        fitcmd::record(&model, r);
         let settings = Settings::default();
         let d = diagnose::diagnose(
             &fitted.compiled,
@@ -81,10 +123,14 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
             eprintln!("error: {e}");
             Failed::INPUT
         })?;
+        let top = d.findings.iter().find(|f| f.significant);
+        // A revision about to be replaced keeps its text in its history record.
+        let replaced = (top.is_some() && round <= rounds).then_some(fitted.source.as_str());
+        fitcmd::record(&model, r, replaced);
         let report = text(&d, r.sigma, r.rms);
         // The diagnosis text without its own header line.
         println!("{}", report.lines().skip(1).collect::<Vec<_>>().join("\n"));
-        let Some(top) = d.findings.iter().find(|f| f.significant) else {
+        let Some(top) = top else {
             println!("\n━━ done: the model explains the data down to the noise: σ̂ = {:.4} µm for {NOISE_UM} µm simulated ━━", r.sigma);
             let fit_json = dir.join("fit.json");
             fitcmd::write_report_files(&fit_json, r)?;
@@ -93,10 +139,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
                 eprintln!("error: {e}");
                 Failed::USAGE
             })?;
-            std::fs::write(&diagnosis, json).map_err(|e| {
-                eprintln!("error: cannot write `{}`: {e}", diagnosis.display());
-                Failed::USAGE
-            })?;
+            files::write(&diagnosis, json.as_bytes())?;
             let html = dir.join("report.html");
             crate::report::report_command(&crate::report::ReportArgs {
                 machine: model.clone(),
@@ -118,12 +161,12 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
             "\n  → adding candidate 1 to the model: {}\n",
             top.candidate.text
         );
-        apply(
-            &model,
+        let revision = with_line(
             &fitted.source,
             &top.candidate.text,
             &top.candidate.explanation,
         )?;
+        replace_model(&model, &fitted.source, &revision.text)?;
     }
     Ok(())
 }

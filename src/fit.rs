@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use kin_runtime::fit::{self, report, DataSet, FitError, Options, Solver};
@@ -66,13 +67,41 @@ pub struct Fitted {
 /// Fits, prints the summary, records the history (with a before/after comparison when the
 /// model changed) and writes the report files.
 pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
+    if let Some(out) = &a.output {
+        check_outputs(out, a)?;
+    }
     let fitted = fit_quietly(a)?;
     print!("{}", summary(&fitted.report));
-    record(&a.machine, &fitted.report);
+    record(&a.machine, &fitted.report, None);
     if let Some(out) = &a.output {
         write_report(out, &fitted.report)?;
     }
     Ok(fitted)
+}
+
+/// Every file a fit reads or keeps up to date next to the model: what an output must not be.
+pub fn inputs(a: &FitArgs) -> Vec<PathBuf> {
+    let mut v = vec![a.machine.clone(), history::path_for(&a.machine)];
+    v.extend(a.data.iter().cloned());
+    v.extend(a.validate.iter().cloned());
+    v
+}
+
+/// Refuses, before the fit, a FIT.json (or the FIT.params beside it) that would replace an input
+/// or cannot be written.
+fn check_outputs(out: &Path, a: &FitArgs) -> Result<(), Failed> {
+    let inputs = inputs(a);
+    let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    let params = out.with_extension("params");
+    if params == out {
+        eprintln!(
+            "error: `{}` would be both FIT.json and FIT.params; name the output `….json`",
+            out.display()
+        );
+        return Err(Failed::USAGE);
+    }
+    crate::files::check(out, &inputs)?;
+    crate::files::check(&params, &inputs)
 }
 
 /// The fit alone: diagnostics of the inputs are printed, results are returned.
@@ -81,7 +110,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         eprintln!("error: cannot read `{}`: {e}", a.machine.display());
         Failed::USAGE
     })?;
-    let compiled = load::machine(&a.machine, None, a.color)?;
+    let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
     let m = &compiled.machine;
     let files = read_all(&a.data, &compiled, &a.ignore)?;
     let mut validate = read_all(&a.validate, &compiled, &a.ignore)?;
@@ -181,9 +210,10 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
 }
 
 /// Appends this fit to the model's history and prints how it compares with the previous
-/// revision of the model, if there was one. A history that cannot be read or written is
-/// reported but does not fail the fit.
-pub fn record(model: &Path, r: &report::FitReport) {
+/// revision of the model, if there was one. `replaced` is the model's text when this revision
+/// is being replaced (`--apply`), kept in the record. A history that cannot be read or written
+/// is reported but does not fail the fit; damaged lines in it are skipped with a warning.
+pub fn record(model: &Path, r: &report::FitReport, replaced: Option<&str>) {
     let entry = history::Entry {
         time: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -203,9 +233,19 @@ pub fn record(model: &Path, r: &report::FitReport) {
                 rms: f.rms,
             })
             .collect(),
+        source: replaced.map(str::to_string),
     };
     let entries = match history::read(model) {
-        Ok(e) => e,
+        Ok(h) => {
+            // Once per command: `--apply` and the demo record several fits.
+            static WARNED: AtomicBool = AtomicBool::new(false);
+            if let Some(damage) = h.damage() {
+                if !WARNED.swap(true, Ordering::Relaxed) {
+                    eprintln!("warning: {damage}");
+                }
+            }
+            h.entries
+        }
         Err(e) => {
             eprintln!("warning: {e}");
             Vec::new()
@@ -255,15 +295,9 @@ fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
         eprintln!("error: {e}");
         Failed::USAGE
     })?;
-    std::fs::write(path, json).map_err(|e| {
-        eprintln!("error: cannot write `{}`: {e}", path.display());
-        Failed::USAGE
-    })?;
+    crate::files::write(path, json.as_bytes())?;
     let params = path.with_extension("params");
-    std::fs::write(&params, &rep.params).map_err(|e| {
-        eprintln!("error: cannot write `{}`: {e}", params.display());
-        Failed::USAGE
-    })?;
+    crate::files::write(&params, rep.params.as_bytes())?;
     println!("wrote {} and {}", path.display(), params.display());
     Ok(())
 }

@@ -47,8 +47,19 @@ fn report(path: &Path, source: &str, diagnostics: &[Diagnostic], color: bool) {
 /// Compiles a machine and binds `params` (a `params { … }` file) if given.
 pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compiled, Failed> {
     let source = read_text(path)?;
-    let out = compile(&source);
-    report(path, &source, &out.diagnostics, color);
+    machine_source(path, &source, params, color)
+}
+
+/// As [`machine`], from the text of `path` already read: what was compiled is exactly the text
+/// the caller holds (`--apply` compares it with the file before writing).
+pub fn machine_source(
+    path: &Path,
+    source: &str,
+    params: Option<&Path>,
+    color: bool,
+) -> Result<Compiled, Failed> {
+    let out = compile(source);
+    report(path, source, &out.diagnostics, color);
     let Some(mut compiled) = out.compiled else {
         eprintln!("{}: the machine has errors", path.display());
         return Err(Failed::INPUT);

@@ -4,6 +4,7 @@ mod bench;
 mod check;
 mod demo;
 mod diagnose;
+mod files;
 mod fit;
 mod load;
 mod render;
@@ -79,7 +80,7 @@ enum Command {
         /// Instead of a poses file, sample N poses over the axis ranges.
         #[arg(long)]
         sample: Option<usize>,
-        /// Output file (standard output when absent).
+        /// Output file (standard output when absent); never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
         /// Standard deviation of the measurement noise on positions and lengths, e.g. `0.3um`.
@@ -116,7 +117,8 @@ enum Command {
         /// Files to check the fitted model against, not fitted to.
         #[arg(long)]
         validate: Vec<PathBuf>,
-        /// Write FIT.json here (and the fitted `params { … }` next to it, as FIT.params).
+        /// Write FIT.json here (and the fitted `params { … }` next to it, as FIT.params); never
+        /// one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
         #[arg(long, value_enum, default_value_t = fit::SolverArg::Qr)]
@@ -151,7 +153,8 @@ enum Command {
     /// The whole loop on a bundled example: fit, where it fails, the missing effect, add it,
     /// watch the error fall.
     Demo {
-        /// Where to put the working copy of the model and data (a temporary folder otherwise).
+        /// Where to put the working copy of the model and data (a temporary folder otherwise): a
+        /// new or empty folder, or one an earlier `kin demo` wrote (marked by `.kin-demo`).
         #[arg(long)]
         dir: Option<PathBuf>,
         /// At most this many effects added.
@@ -168,12 +171,20 @@ enum Command {
         /// Family-wise significance level of the candidate tests.
         #[arg(long, default_value_t = 0.01)]
         alpha: f64,
-        /// Write DIAGNOSE.json here.
+        /// Write DIAGNOSE.json here; never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
-        /// Add candidate N (as numbered in the list) to the model file and refit.
+        /// Add candidate N (as numbered in the list) to the model file and refit; refused if the
+        /// file changed since it was read. The text before the change is kept in
+        /// MACHINE.previous and in its history record.
         #[arg(long, value_name = "N")]
         apply: Option<usize>,
+        /// With --apply: add a candidate that is not significant (refused otherwise).
+        #[arg(long, requires = "apply")]
+        force: bool,
+        /// With --apply: print the lines that would be added, change nothing.
+        #[arg(long, requires = "apply")]
+        dry_run: bool,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -188,6 +199,7 @@ enum Command {
         poses: PathBuf,
         #[arg(long)]
         params: Option<PathBuf>,
+        /// Output file (standard output when absent); never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
         #[arg(long, value_enum, default_value_t = simulate::Components::Pose)]
@@ -217,6 +229,7 @@ enum Command {
         diagnose: Option<PathBuf>,
         /// The fitted data files, in the fit's order (default: the paths FIT.json records).
         data: Vec<PathBuf>,
+        /// The HTML page to write; never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
@@ -333,6 +346,8 @@ fn main() -> ExitCode {
             alpha,
             output,
             apply,
+            force,
+            dry_run,
             engine,
             ignore,
             color,
@@ -356,6 +371,8 @@ fn main() -> ExitCode {
             alpha,
             output,
             apply,
+            force,
+            dry_run,
         }),
         Command::Eval {
             machine,

@@ -107,6 +107,11 @@ fn read_fit(path: &Path) -> Result<FitReport, ReportError> {
 }
 
 pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
+    let history_path = history::path_for(&a.machine);
+    let mut inputs: Vec<&Path> = vec![&a.machine, &a.fit, &history_path];
+    inputs.extend(a.diagnose.as_deref());
+    inputs.extend(a.data.iter().map(PathBuf::as_path));
+    crate::files::check(&a.output, &inputs)?;
     let source = std::fs::read_to_string(&a.machine).map_err(|source| {
         fail(ReportError::Read {
             path: a.machine.clone(),
@@ -116,6 +121,17 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
     let fit: FitReport = read_fit(&a.fit).map_err(fail)?;
+    if a.data.is_empty() {
+        // The data files FIT.json names are read too (as given, and relative to FIT.json).
+        let base = a.fit.parent().unwrap_or(Path::new("."));
+        let recorded: Vec<PathBuf> = fit
+            .files
+            .iter()
+            .flat_map(|f| [PathBuf::from(&f.path), base.join(&f.path)])
+            .collect();
+        let recorded: Vec<&Path> = recorded.iter().map(PathBuf::as_path).collect();
+        crate::files::check(&a.output, &recorded)?;
+    }
     let diagnosis: Option<Diagnosis> = match &a.diagnose {
         Some(p) => Some(read_json(p, "diagnosis (DIAGNOSE.json)").map_err(fail)?),
         None => None,
@@ -136,7 +152,10 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
     }
     let data = load_data(m, &fit, &a.fit, &a.data, &a.ignore, &mut notes);
     let history = match history::read(&a.machine) {
-        Ok(h) => h,
+        Ok(h) => {
+            notes.extend(h.damage());
+            h.entries
+        }
         Err(e) => {
             notes.push(e.to_string());
             Vec::new()
@@ -153,7 +172,7 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
         notes,
     };
     let page = html(&inputs).map_err(fail)?;
-    std::fs::write(&a.output, page).map_err(|source| {
+    kin_runtime::output::replace(&a.output, page.as_bytes()).map_err(|source| {
         fail(ReportError::Write {
             path: a.output.clone(),
             source,
@@ -1369,6 +1388,7 @@ mod tests {
             rms,
             error_unit: "um".into(),
             files: Vec::new(),
+            source: None,
         };
         let h = vec![e("a", 3.0), e("a", 2.5), e("b", 1.0), e("a", 2.0)];
         let r: Vec<f64> = revisions(&h).iter().map(|e| e.rms).collect();

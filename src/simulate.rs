@@ -70,6 +70,17 @@ pub fn simulate(a: SimulateArgs) -> ExitCode {
 }
 
 fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
+    if let Some(out) = &a.output {
+        let inputs: Vec<&Path> = [
+            Some(a.machine.as_path()),
+            a.params.as_deref(),
+            a.poses.as_deref(),
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        crate::files::check(out, &inputs)?;
+    }
     let compiled = load::machine(&a.machine, a.params.as_deref(), a.color)?;
     let m = &compiled.machine;
     let poses = match (&a.poses, a.sample) {
@@ -157,6 +168,13 @@ pub fn eval(a: EvalArgs) -> ExitCode {
         color,
     } = a;
     finish((|| {
+        if let Some(out) = output {
+            let inputs: Vec<&Path> = [Some(machine), params, Some(poses)]
+                .into_iter()
+                .flatten()
+                .collect();
+            crate::files::check(out, &inputs)?;
+        }
         let compiled = load::machine(machine, params, color)?;
         let m = &compiled.machine;
         let poses = load::observations(poses, &compiled, true, ignore)?;

@@ -97,7 +97,8 @@ int kin_model_compile(const char *src, size_t len, kin_model **out, char *err, s
  * the model is unchanged. */
 int kin_model_bind_params(kin_model *model, const char *src, size_t len, char *err, size_t err_len);
 
-/* Saves the model (source, bound parameter texts, exact values) as JSON to path. */
+/* Saves the model (source, bound parameter texts, exact values) as JSON to path, atomically: a
+ * temporary file in the same folder renamed over path, so a crash leaves the old file whole. */
 int kin_model_save(const kin_model *model, const char *path);
 
 /* Loads a saved model: the source is compiled again and the values restored exactly. */

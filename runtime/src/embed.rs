@@ -458,10 +458,11 @@ impl Model {
         Ok(model)
     }
 
-    /// Saves the model (see [`Model::to_json`]) to `path`.
+    /// Saves the model (see [`Model::to_json`]) to `path`, replacing it atomically: an
+    /// interrupted save leaves the previous file whole ([`crate::output::replace`]).
     pub fn save(&self, path: &Path) -> Result<(), Error> {
         let text = self.to_json()?;
-        std::fs::write(path, text + "\n").map_err(|source| Error::Io {
+        crate::output::replace(path, (text + "\n").as_bytes()).map_err(|source| Error::Io {
             path: path.to_path_buf(),
             source,
         })

@@ -18,6 +18,7 @@ pub mod interp;
 pub mod jit;
 pub mod kinematics;
 pub mod lag;
+pub mod output;
 pub mod simulate;
 pub mod states;
 

@@ -83,7 +83,7 @@ fn extra_columns<'a>(
     })
 }
 
-/// Writes either kind of file to `path`, replacing it.
+/// Writes either kind of file to `path`, replacing it atomically ([`crate::output::replace`]).
 pub fn write_file(
     path: &Path,
     machine: &Machine,
@@ -96,7 +96,7 @@ pub fn write_file(
         Observations::Points(p) => write_points(&mut buffer, machine, p, options)?,
         Observations::Lengths(l) => write_lengths(&mut buffer, machine, l, options)?,
     }
-    std::fs::write(path, buffer).map_err(|source| WriteError::Create {
+    crate::output::replace(path, &buffer).map_err(|source| WriteError::Create {
         path: path.to_path_buf(),
         source,
     })

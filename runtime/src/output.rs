@@ -1,0 +1,262 @@
+//! Files kin writes, written so that a user's work is never lost: a crash, a kill, a full disk
+//! or a concurrent writer leaves either the old complete file or the new complete file.
+//!
+//! [`replace`] writes a temporary file in the target's directory and renames it over the target
+//! (a rename within one file system is atomic); [`check_target`] refuses, before any work is
+//! done, an output that is one of the command's inputs or whose directory does not exist;
+//! [`lock_beside`] takes an advisory lock on a small lock file next to a file that several
+//! processes may rewrite.
+
+use std::fs::File;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+/// Why an output path cannot be used.
+#[derive(Debug, Error)]
+pub enum TargetError {
+    #[error("`{}` cannot be written: the folder `{}` does not exist", output.display(), dir.display())]
+    NoDirectory { output: PathBuf, dir: PathBuf },
+    #[error("`{}` cannot be written: it is a folder", output.display())]
+    IsDirectory { output: PathBuf },
+    #[error("`{}` is also an input of this command (`{}`); writing it would destroy the input, choose another output", output.display(), input.display())]
+    IsInput { output: PathBuf, input: PathBuf },
+}
+
+/// Checks, before any expensive work, that `output` can be created or replaced without
+/// touching `inputs`: its folder exists, it is not a folder, and it is not the same file as
+/// any input (by device and inode on Unix, so another spelling or a hard link is caught too).
+pub fn check_target(output: &Path, inputs: &[&Path]) -> Result<(), TargetError> {
+    let dir = directory_of(output);
+    if !dir.is_dir() {
+        return Err(TargetError::NoDirectory {
+            output: output.to_path_buf(),
+            dir,
+        });
+    }
+    if output.is_dir() {
+        return Err(TargetError::IsDirectory {
+            output: output.to_path_buf(),
+        });
+    }
+    match inputs.iter().find(|i| same_file(output, i)) {
+        Some(input) => Err(TargetError::IsInput {
+            output: output.to_path_buf(),
+            input: input.to_path_buf(),
+        }),
+        None => Ok(()),
+    }
+}
+
+/// Whether two paths name the same existing file. A path that does not exist is no file.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(ma), Ok(mb)) => same_identity(a, &ma, b, &mb),
+        _ => false,
+    }
+}
+
+#[cfg(unix)]
+fn same_identity(_: &Path, a: &std::fs::Metadata, _: &Path, b: &std::fs::Metadata) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    a.dev() == b.dev() && a.ino() == b.ino()
+}
+
+#[cfg(not(unix))]
+fn same_identity(a: &Path, _: &std::fs::Metadata, b: &Path, _: &std::fs::Metadata) -> bool {
+    matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
+}
+
+/// The folder a file is in (`.` for a bare file name).
+fn directory_of(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Replaces `path` with `contents`, atomically: the bytes go to a temporary file next to it
+/// (`.NAME.XXXXXX.tmp`), which is flushed to disk and renamed over `path`; then the folder is
+/// flushed so the rename itself survives a power cut. On any error `path` is untouched and the
+/// temporary file removed (a process killed mid-write can leave the temporary file, never a cut
+/// `path`). A replaced file keeps its permissions (and its owner, where the system allows); one
+/// the user may not write is refused as an in-place write would be; a symbolic link is
+/// followed, so the file it points to is replaced and the link stays.
+pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
+    let target = match std::fs::symlink_metadata(path) {
+        Ok(m) if m.file_type().is_symlink() => path.canonicalize()?,
+        _ => path.to_path_buf(),
+    };
+    let dir = directory_of(&target);
+    let name = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let existing = std::fs::metadata(&target).ok();
+    if existing.is_some() {
+        // Renaming would replace a file the user may not write (read-only): ask the system, as
+        // an in-place write would, by opening it for writing without truncating it.
+        std::fs::OpenOptions::new().write(true).open(&target)?;
+    }
+    let prefix = format!(".{name}.");
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(&prefix).suffix(".tmp");
+    #[cfg(unix)]
+    if existing.is_none() {
+        // A new file gets what any new file would (0666 less the umask), not the 0600 of a
+        // temporary file.
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut temp = builder.tempfile_in(&dir)?;
+    if let Some(m) = &existing {
+        temp.as_file().set_permissions(m.permissions())?;
+        keep_owner(temp.as_file(), m);
+    }
+    temp.write_all(contents)?;
+    temp.as_file().sync_all()?;
+    temp.persist(&target).map_err(|e| e.error)?;
+    sync_directory(&dir)
+}
+
+/// Gives the new file the replaced file's owner and group where the system allows it (root
+/// replacing a user's file); elsewhere the new file is the writer's, as any file it creates.
+#[cfg(unix)]
+fn keep_owner(file: &File, was: &std::fs::Metadata) {
+    use std::os::unix::fs::MetadataExt;
+    // Best effort by design: an ordinary user cannot give a file away, and that is no reason
+    // to fail the write.
+    let _ = std::os::unix::fs::fchown(file, Some(was.uid()), Some(was.gid()));
+}
+
+#[cfg(not(unix))]
+fn keep_owner(_: &File, _: &std::fs::Metadata) {}
+
+#[cfg(unix)]
+fn sync_directory(dir: &Path) -> io::Result<()> {
+    File::open(dir)?.sync_all()
+}
+
+#[cfg(not(unix))]
+fn sync_directory(_: &Path) -> io::Result<()> {
+    // Directories cannot be opened as files here; the rename is as durable as the system makes it.
+    Ok(())
+}
+
+/// `path` with `suffix` appended to its file name: `model.kin` + `.lock` → `model.kin.lock`.
+pub fn beside(path: &Path, suffix: &str) -> PathBuf {
+    let mut p = path.as_os_str().to_owned();
+    p.push(suffix);
+    PathBuf::from(p)
+}
+
+/// An exclusive advisory lock, held until dropped.
+#[derive(Debug)]
+pub struct Lock {
+    _file: File,
+}
+
+/// Takes an exclusive advisory lock on `PATH.lock` (created if missing), waiting for another
+/// holder to release it. The lock file is left in place: removing it would let two processes
+/// lock two different files of the same name.
+pub fn lock_beside(path: &Path) -> io::Result<Lock> {
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(beside(path, ".lock"))?;
+    file.lock()?;
+    Ok(Lock { _file: file })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dir() -> tempfile::TempDir {
+        tempfile::tempdir().expect("temp dir")
+    }
+
+    #[test]
+    fn replace_creates_and_replaces_leaving_no_temporary_file() {
+        let d = dir();
+        let p = d.path().join("out.json");
+        replace(&p, b"first").unwrap();
+        replace(&p, b"second, longer").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"second, longer");
+        let names: Vec<_> = std::fs::read_dir(d.path()).unwrap().collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn replace_keeps_permissions_and_follows_a_link() {
+        use std::os::unix::fs::PermissionsExt;
+        let d = dir();
+        let p = d.path().join("model.kin");
+        std::fs::write(&p, "old").unwrap();
+        std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o640)).unwrap();
+        let link = d.path().join("link.kin");
+        std::os::unix::fs::symlink(&p, &link).unwrap();
+        replace(&link, b"new").unwrap();
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), "new");
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        let mode = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o640);
+    }
+
+    #[test]
+    fn a_file_that_cannot_be_written_is_not_replaced() {
+        let d = dir();
+        let p = d.path().join("locked.json");
+        std::fs::write(&p, "old").unwrap();
+        let mut perms = std::fs::metadata(&p).unwrap().permissions();
+        perms.set_readonly(true);
+        std::fs::set_permissions(&p, perms).unwrap();
+        // Root may write anything: then the file is replaced, as an in-place write would be.
+        let writable = std::fs::OpenOptions::new().write(true).open(&p).is_ok();
+        assert_eq!(replace(&p, b"new").is_ok(), writable);
+        let expected = if writable { "new" } else { "old" };
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), expected);
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn replace_into_a_missing_folder_fails_and_creates_nothing() {
+        let d = dir();
+        let p = d.path().join("missing").join("out.json");
+        assert!(replace(&p, b"x").is_err());
+        assert!(!d.path().join("missing").exists());
+    }
+
+    #[test]
+    fn a_target_that_is_an_input_is_refused_under_another_spelling() {
+        let d = dir();
+        let input = d.path().join("data.csv");
+        std::fs::write(&input, "x").unwrap();
+        let other = d.path().join(".").join("data.csv");
+        assert!(matches!(
+            check_target(&other, &[&input]),
+            Err(TargetError::IsInput { .. })
+        ));
+        #[cfg(unix)]
+        {
+            let hard = d.path().join("hard.csv");
+            std::fs::hard_link(&input, &hard).unwrap();
+            assert!(check_target(&hard, &[&input]).is_err());
+        }
+        assert!(check_target(&d.path().join("new.csv"), &[&input]).is_ok());
+        assert!(matches!(
+            check_target(&d.path().join("no/such.csv"), &[&input]),
+            Err(TargetError::NoDirectory { .. })
+        ));
+        assert!(matches!(
+            check_target(d.path(), &[&input]),
+            Err(TargetError::IsDirectory { .. })
+        ));
+    }
+}

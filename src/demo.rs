@@ -35,11 +35,13 @@ const OUTPUTS: [&str; 5] = [
 /// run writes over it.
 const MARKER: &str = ".kin-demo";
 
-/// Prepares DIR for the demo: refuses (exit 2) a folder that holds a file of the demo's names
-/// the demo did not write, else marks it as the demo's.
-fn claim(dir: &Path) -> Result<(), Failed> {
+/// Prepares DIR for the demo: refuses (exit 2) a folder the user chose that holds a file of the
+/// demo's names the demo did not write, else marks it as the demo's. The default folder
+/// (`kin-demo` in the temporary folder) is the demo's own by its name: an older kin wrote it
+/// without a marker, and refusing it would break `kin demo` for no user's benefit.
+fn claim(dir: &Path, chosen: bool) -> Result<(), Failed> {
     let marker = dir.join(MARKER);
-    if !marker.exists() {
+    if chosen && !marker.exists() {
         let history = kin_runtime::history::path_for(&dir.join(MODEL));
         let mut names = vec![dir.join(MODEL), dir.join(DATA), history];
         names.extend(OUTPUTS.iter().map(|n| dir.join(n)));
@@ -64,8 +66,9 @@ fn claim(dir: &Path) -> Result<(), Failed> {
 }
 
 fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> {
+    let chosen = dir.is_some();
     let dir = dir.unwrap_or_else(|| std::env::temp_dir().join("kin-demo"));
-    claim(&dir)?;
+    claim(&dir, chosen)?;
     let write = |name: &str, text: &str| -> Result<PathBuf, Failed> {
         let path = dir.join(name);
         files::write(&path, text.as_bytes())?;

@@ -77,11 +77,8 @@ pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
 
 /// The fit alone: diagnostics of the inputs are printed, results are returned.
 pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
-    let source = std::fs::read_to_string(&a.machine).map_err(|e| {
-        eprintln!("error: cannot read `{}`: {e}", a.machine.display());
-        Failed::USAGE
-    })?;
     let compiled = load::machine(&a.machine, None, a.color)?;
+    let source = load::read_text(&a.machine)?;
     let m = &compiled.machine;
     let files = read_all(&a.data, &compiled, &a.ignore)?;
     let mut validate = read_all(&a.validate, &compiled, &a.ignore)?;

@@ -508,3 +508,43 @@ fn absurd_numbers_in_a_model_are_blamed_on_the_number() {
         "{stderr}"
     );
 }
+
+/// An absurd offset once made the identifiability analysis report an innocent term (`X.tx`, line
+/// 6) as having no effect; the number itself is reported now.
+#[test]
+fn an_absurd_offset_or_range_is_blamed_on_the_number() {
+    let model = tmp("offset.kin");
+    let source = "machine m {
+    task position
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 500 mm
+    tool chain { X moving Y moving tool t at (0, 0, -1e100) mm }
+    errors { X.tx = spline(X, knots 2)  X.ry = const  Y.rz = linear(X) }
+}
+";
+    std::fs::write(&model, source).expect("write");
+    let out = kin(&["check", path(&model), "--color", "never"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(code(&out), 1, "{stderr}");
+    assert!(
+        stderr.contains("E0003") && stderr.contains("beyond any machine"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("offset.kin:5:53"), "{stderr}");
+    assert!(!stderr.contains("E0601"), "{stderr}");
+
+    std::fs::write(
+        &model,
+        source
+            .replace("500 mm\n    axis Y", "1e308 m\n    axis Y")
+            .replace("-1e100", "-100"),
+    )
+    .expect("write");
+    let out = kin(&["check", path(&model), "--color", "never"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(code(&out), 1, "{stderr}");
+    assert!(
+        stderr.contains("E0003") && stderr.contains("offset.kin:3:44"),
+        "{stderr}"
+    );
+}

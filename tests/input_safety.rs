@@ -401,6 +401,32 @@ fn a_path_that_never_ends_is_read_up_to_a_limit() {
     ]);
     assert_eq!(code(&out), 2, "{}", text(&out.stderr));
     assert!(text(&out.stderr).contains("larger than 64 MiB"));
+
+    // A FIFO fed without end (a writer that keeps writing until kin stops reading).
+    let fifo = tmp("endless.kin");
+    let _ = std::fs::remove_file(&fifo);
+    let made = Command::new("mkfifo").arg(&fifo).status();
+    if !made.is_ok_and(|s| s.success()) {
+        return;
+    }
+    let writer_path = fifo.clone();
+    let writer = std::thread::spawn(move || {
+        use std::io::Write;
+        let Ok(mut f) = std::fs::OpenOptions::new().write(true).open(&writer_path) else {
+            return;
+        };
+        let block = vec![b'/'; 1 << 16];
+        // Ends when kin closes its end (EPIPE; the test process ignores SIGPIPE).
+        while f.write_all(&block).is_ok() {}
+    });
+    let out = kin(&["check", path(&fifo)]);
+    assert_eq!(code(&out), 2, "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("larger than 64 MiB"),
+        "{}",
+        text(&out.stderr)
+    );
+    writer.join().expect("writer ends");
 }
 
 #[test]

@@ -67,11 +67,13 @@ pub struct Fitted {
 /// model changed) and writes the report files.
 pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
     let fitted = fit_quietly(a)?;
-    print!("{}", summary(&fitted.report));
-    record(&a.machine, &fitted.report);
+    // Files first: when the reader of standard output has gone (`kin fit … | head -c1`), the
+    // next print ends kin (SIGPIPE, see `main`), and the fit must already be on disk by then.
     if let Some(out) = &a.output {
         write_report(out, &fitted.report)?;
     }
+    print!("{}", summary(&fitted.report));
+    record(&a.machine, &fitted.report);
     Ok(fitted)
 }
 
@@ -208,11 +210,14 @@ pub fn record(model: &Path, r: &report::FitReport) {
             Vec::new()
         }
     };
-    if let Some(before) = history::previous_revision(&entries, &r.model_hash) {
-        print!("{}", comparison(before, &entry));
-    }
+    let compared = history::previous_revision(&entries, &r.model_hash)
+        .map(|before| comparison(before, &entry));
+    // Recorded before anything is printed, for the reason given in `fit_command`.
     if let Err(e) = history::append(model, &entry) {
         eprintln!("warning: {e}");
+    }
+    if let Some(text) = compared {
+        print!("{text}");
     }
 }
 

@@ -311,10 +311,12 @@ fn a_closed_stdout_pipe_ends_quietly() {
     );
     assert!(out.stderr.is_empty(), "quietly: {}", text(&out.stderr));
 
-    // `kin fit … | head -c1`: the reader closed before the summary is printed.
-    for _ in 0..3 {
+    // `kin fit … -o FIT.json | head -c1`: the reader closed before the summary is printed. The
+    // fit is written all the same.
+    for round in 0..3 {
+        let fit = tmp(&format!("pipe_fit_{round}.json"));
         let mut child = Command::new(env!("CARGO_BIN_EXE_kin"))
-            .args(["fit", path(&model), path(&data)])
+            .args(["fit", path(&model), path(&data), "-o", path(&fit)])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
@@ -332,6 +334,9 @@ fn a_closed_stdout_pipe_ends_quietly() {
             "{}",
             text(&out.stderr)
         );
+        let written: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&fit).expect("FIT.json written")).expect("json");
+        assert_eq!(written["machine"], "m");
     }
 }
 

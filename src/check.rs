@@ -62,14 +62,22 @@ pub fn run(
     engine: kin_runtime::engine::Engine,
 ) -> ExitCode {
     let name = path.display().to_string();
-    let source = match std::fs::read_to_string(path) {
-        Ok(s) => s,
-        Err(e) => {
-            eprintln!("error: cannot read `{name}`: {e}");
-            return ExitCode::from(2);
+    let Ok(crate::load::Source {
+        text: source,
+        diagnostics,
+    }) = crate::load::source(path)
+    else {
+        return ExitCode::from(2);
+    };
+    // Text that is not UTF-8 is reported as it is, not compiled.
+    let mut out = if diagnostics.is_empty() {
+        compile(&source)
+    } else {
+        kin_compiler::Output {
+            compiled: None,
+            diagnostics,
         }
     };
-    let mut out = compile(&source);
     if let (Some(c), Some((observe, aligned))) = (&out.compiled, identifiability) {
         let found = identify(c, observe.into(), aligned, engine);
         if !found.is_empty() {

@@ -71,11 +71,14 @@ pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
         check_outputs(out, a)?;
     }
     let fitted = fit_quietly(a)?;
-    print!("{}", summary(&fitted.report));
-    record(&a.machine, &fitted.report, None);
+    // Files first: when the reader of standard output has gone (`kin fit … | head -c1`), the
+    // next print ends kin (SIGPIPE, see `main`), and the fit must already be on disk by then.
     if let Some(out) = &a.output {
         write_report(out, &fitted.report)?;
     }
+    let compared = record_quietly(&a.machine, &fitted.report, None);
+    print!("{}", summary(&fitted.report));
+    print!("{}", compared.unwrap_or_default());
     Ok(fitted)
 }
 
@@ -106,10 +109,7 @@ fn check_outputs(out: &Path, a: &FitArgs) -> Result<(), Failed> {
 
 /// The fit alone: diagnostics of the inputs are printed, results are returned.
 pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
-    let source = std::fs::read_to_string(&a.machine).map_err(|e| {
-        eprintln!("error: cannot read `{}`: {e}", a.machine.display());
-        Failed::USAGE
-    })?;
+    let source = load::model_text(&a.machine, a.color)?;
     let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
     let m = &compiled.machine;
     let files = read_all(&a.data, &compiled, &a.ignore)?;
@@ -214,6 +214,13 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
 /// is being replaced (`--apply`), kept in the record. A history that cannot be read or written
 /// is reported but does not fail the fit; damaged lines in it are skipped with a warning.
 pub fn record(model: &Path, r: &report::FitReport, replaced: Option<&str>) {
+    if let Some(text) = record_quietly(model, r, replaced) {
+        print!("{text}");
+    }
+}
+
+/// As [`record`], returning the before/after comparison instead of printing it.
+fn record_quietly(model: &Path, r: &report::FitReport, replaced: Option<&str>) -> Option<String> {
     let entry = history::Entry {
         time: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -251,12 +258,13 @@ pub fn record(model: &Path, r: &report::FitReport, replaced: Option<&str>) {
             Vec::new()
         }
     };
-    if let Some(before) = history::previous_revision(&entries, &r.model_hash) {
-        print!("{}", comparison(before, &entry));
-    }
+    let compared = history::previous_revision(&entries, &r.model_hash)
+        .map(|before| comparison(before, &entry));
+    // Recorded before anything is printed, for the reason given in `fit_command`.
     if let Err(e) = history::append(model, &entry) {
         eprintln!("warning: {e}");
     }
+    compared
 }
 
 /// "Before → after" of two revisions of a model.

@@ -1,9 +1,10 @@
 //! Loading what every command needs: a compiled machine with its bound parameters, and
 //! measurement files. Problems are printed here, located in the user's file.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use kin_compiler::{bind_params, compile, Compiled, Diagnostic};
+use kin_compiler::{bind_params, compile, Compiled, Diagnostic, Span};
+use kin_runtime::bounded_read;
 use kin_runtime::data::{self, Observations, ReadOptions};
 
 use crate::render;
@@ -26,10 +27,73 @@ impl Failed {
     }
 }
 
-fn read_text(path: &Path) -> Result<String, Failed> {
-    std::fs::read_to_string(path).map_err(|e| {
+/// The bytes of a model, parameter file or fit report, at most
+/// [`bounded_read::MAX_TEXT_BYTES`]: a device or a FIFO that never ends stops there.
+fn read_bytes(path: &Path) -> Result<Vec<u8>, Failed> {
+    bounded_read::read(path, bounded_read::MAX_TEXT_BYTES).map_err(|e| {
         eprintln!("error: cannot read `{}`: {e}", path.display());
         Failed::USAGE
+    })
+}
+
+/// A `.kin` file's text and what is wrong with it before it is even compiled.
+pub struct Source {
+    pub text: String,
+    /// A located `E0001` when the file is not UTF-8; empty otherwise.
+    pub diagnostics: Vec<Diagnostic>,
+}
+
+/// Reads a `.kin` file. Bytes that are not UTF-8 become a located diagnostic on the text decoded
+/// with replacement characters, so they are reported (and `kin check --format json` prints them)
+/// like any other error in the file.
+pub fn source(path: &Path) -> Result<Source, Failed> {
+    Ok(match String::from_utf8(read_bytes(path)?) {
+        Ok(text) => Source {
+            text,
+            diagnostics: Vec::new(),
+        },
+        Err(e) => {
+            let start = e.utf8_error().valid_up_to();
+            let byte = e.as_bytes().get(start).copied().unwrap_or(0);
+            // The decoded text is the same up to `start`, where U+FFFD (3 bytes) replaces the
+            // first bad sequence: the span covers it.
+            let text = String::from_utf8_lossy(e.as_bytes()).into_owned();
+            let span = Span::new(start, start + char::REPLACEMENT_CHARACTER.len_utf8());
+            let d = Diagnostic::error(
+                "E0001",
+                format!(
+                    "syntax error: the file is not valid UTF-8 (byte 0x{byte:02x} at byte offset {start})"
+                ),
+                span,
+            )
+            .with_label("not UTF-8")
+            .with_help("save the file as UTF-8");
+            Source {
+                text,
+                diagnostics: vec![d],
+            }
+        }
+    })
+}
+
+/// Reads a text file (a parameter file, a fit report); not UTF-8 is an error located by line
+/// and column.
+pub fn read_text(path: &Path) -> Result<String, Failed> {
+    String::from_utf8(read_bytes(path)?).map_err(|e| {
+        let start = e.utf8_error().valid_up_to();
+        let before = e.as_bytes().get(..start).unwrap_or_default();
+        let line_start = before
+            .iter()
+            .rposition(|&b| b == b'\n')
+            .map_or(0, |i| i + 1);
+        let line = 1 + before.iter().filter(|&&b| b == b'\n').count();
+        let column = 1 + std::str::from_utf8(before.get(line_start..).unwrap_or_default())
+            .map_or(0, |s| s.chars().count());
+        eprintln!(
+            "error: `{}`, line {line}, column {column}: not valid UTF-8",
+            path.display()
+        );
+        Failed::INPUT
     })
 }
 
@@ -46,8 +110,22 @@ fn report(path: &Path, source: &str, diagnostics: &[Diagnostic], color: bool) {
 
 /// Compiles a machine and binds `params` (a `params { … }` file) if given.
 pub fn machine(path: &Path, params: Option<&Path>, color: bool) -> Result<Compiled, Failed> {
-    let source = read_text(path)?;
+    let source = model_text(path, color)?;
     machine_source(path, &source, params, color)
+}
+
+/// The text of a `.kin` file, or its diagnostics printed (a file that is not UTF-8).
+pub fn model_text(path: &Path, color: bool) -> Result<String, Failed> {
+    let Source {
+        text: source,
+        diagnostics,
+    } = self::source(path)?;
+    if !diagnostics.is_empty() {
+        report(path, &source, &diagnostics, color);
+        eprintln!("{}: the machine has errors", path.display());
+        return Err(Failed::INPUT);
+    }
+    Ok(source)
 }
 
 /// As [`machine`], from the text of `path` already read: what was compiled is exactly the text
@@ -65,26 +143,45 @@ pub fn machine_source(
         return Err(Failed::INPUT);
     };
     if let Some(p) = params {
-        let mut text = read_text(p)?;
-        // A FIT.json carries its fitted values as a `params` block.
-        if text.trim_start().starts_with('{') {
-            match serde_json::from_str::<serde_json::Value>(&text)
-                .ok()
-                .and_then(|v| v.get("params")?.as_str().map(str::to_string))
-            {
-                Some(params) => text = params,
-                None => {
+        let text = read_text(p)?;
+        // A FIT.json carries its fitted values as a `params` block, and names the machine and
+        // the revision of its source it was fitted to.
+        let (text, fit) = if text.trim_start().starts_with('{') {
+            let fit = FitOrigin::of(p, &text)?;
+            if fit.machine != compiled.machine.name {
+                eprintln!(
+                    "error: `{}` is a fit of machine `{}`, but `{}` is machine `{}`",
+                    p.display(),
+                    fit.machine,
+                    path.display(),
+                    compiled.machine.name
+                );
+                return Err(Failed::INPUT);
+            }
+            (fit.params.clone(), Some(fit))
+        } else {
+            (text, None)
+        };
+        let diagnostics = bind_params(&mut compiled.machine, &text);
+        // In a fit report the lines are those of its `params` text, not of the JSON file.
+        let name = match &fit {
+            Some(_) => PathBuf::from(format!("{} (its `params` text)", p.display())),
+            None => p.to_path_buf(),
+        };
+        report(&name, &text, &diagnostics, color);
+        if diagnostics.iter().any(Diagnostic::is_error) {
+            if let Some(fit) = fit {
+                let now = kin_runtime::fit::report::model_hash(&source);
+                if fit.model_hash != now {
                     eprintln!(
-                        "error: `{}` is JSON but not a fit report with `params`",
-                        p.display()
+                        "note: `{}` was fitted to another revision of `{}` (model hash {}; the \
+                         file is now {now}): fit the model as it is now",
+                        p.display(),
+                        compiled.machine.name,
+                        fit.model_hash
                     );
-                    return Err(Failed::INPUT);
                 }
             }
-        }
-        let diagnostics = bind_params(&mut compiled.machine, &text);
-        report(p, &text, &diagnostics, color);
-        if diagnostics.iter().any(Diagnostic::is_error) {
             return Err(Failed::INPUT);
         }
     }
@@ -92,6 +189,39 @@ pub fn machine_source(
         compiled.machine.beta = vec![0.0; compiled.machine.coefficients.len()];
     }
     Ok(compiled)
+}
+
+/// What a `FIT.json` given as `--params` says about where its values come from.
+struct FitOrigin {
+    machine: String,
+    model_hash: String,
+    params: String,
+}
+
+impl FitOrigin {
+    fn of(path: &Path, text: &str) -> Result<FitOrigin, Failed> {
+        let value: Option<serde_json::Value> = serde_json::from_str(text).ok();
+        let field = |name: &str| {
+            value
+                .as_ref()
+                .and_then(|v| v.get(name)?.as_str().map(str::to_string))
+        };
+        match (field("params"), field("machine"), field("model_hash")) {
+            (Some(params), Some(machine), Some(model_hash)) => Ok(FitOrigin {
+                machine,
+                model_hash,
+                params,
+            }),
+            _ => {
+                eprintln!(
+                    "error: `{}` is JSON but not a fit report written by `kin fit -o` (with \
+                     `machine`, `model_hash` and `params`)",
+                    path.display()
+                );
+                Err(Failed::INPUT)
+            }
+        }
+    }
 }
 
 /// Reads a fit report (`FIT.json`, written by `kin fit -o`).
@@ -121,7 +251,7 @@ pub fn observations(
     data::read_file(path, &compiled.machine, &options).map_err(|e| {
         eprintln!("error: {e}");
         match e {
-            data::ReadError::Io { .. } => Failed::USAGE,
+            data::ReadError::Io { .. } | data::ReadError::TooLarge { .. } => Failed::USAGE,
             data::ReadError::Invalid { problems, .. } => {
                 let unknown: Vec<&str> = problems
                     .iter()
@@ -142,8 +272,9 @@ pub fn observations(
     })
 }
 
-/// Parses `0.3um`, `0.3 um` or `2urad` into SI, checking the dimension.
-pub fn quantity(text: &str, dim: kin_compiler::units::Dim, what: &str) -> Result<f64, String> {
+/// Parses `0.3um`, `0.3 um` or `2urad` into SI, checking the dimension (the option's name is
+/// added by the command-line parser).
+pub fn quantity(text: &str, dim: kin_compiler::units::Dim) -> Result<f64, String> {
     let text = text.trim();
     let split = text
         .find(|c: char| {
@@ -153,12 +284,12 @@ pub fn quantity(text: &str, dim: kin_compiler::units::Dim, what: &str) -> Result
     let (num, unit) = text.split_at(split);
     let value: f64 = num
         .parse()
-        .map_err(|_| format!("{what}: `{text}` does not start with a number"))?;
-    let unit = kin_compiler::units::Unit::parse(unit.trim())
-        .map_err(|e| format!("{what}: {e} in `{text}`"))?;
+        .map_err(|_| format!("`{text}` does not start with a number"))?;
+    let unit =
+        kin_compiler::units::Unit::parse(unit.trim()).map_err(|e| format!("{e} in `{text}`"))?;
     if unit.dim != dim {
         return Err(format!(
-            "{what}: `{text}` is {}, expected {}",
+            "`{text}` is {}, expected {}",
             unit.dim.describe(),
             dim.describe()
         ));

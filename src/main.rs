@@ -1,5 +1,6 @@
 //! `kin`: check, simulate, evaluate and fit models of multi-axis machines.
 
+mod args;
 mod bench;
 mod check;
 mod demo;
@@ -11,10 +12,10 @@ mod render;
 mod report;
 mod simulate;
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use args::{Color, Spread};
 use clap::{Parser, Subcommand, ValueEnum};
 
 #[derive(Parser)]
@@ -51,8 +52,8 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Format::Human)]
         format: Format,
         /// Colour in diagnostics: auto (on a terminal), always or never.
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
         /// What the identifiability analysis assumes is observed at poses sampled over the ranges:
         /// the full tool location by default (what the model describes), or less.
         #[arg(long, value_enum, default_value_t = check::ObserveArg::Pose)]
@@ -77,36 +78,36 @@ enum Command {
         /// Poses to simulate: a point or length file (observed columns are not needed).
         #[arg(long, conflicts_with = "sample")]
         poses: Option<PathBuf>,
-        /// Instead of a poses file, sample N poses over the axis ranges.
-        #[arg(long)]
+        /// Instead of a poses file, sample N poses over the axis ranges (1 to 10⁸).
+        #[arg(long, value_parser = args::poses)]
         sample: Option<usize>,
         /// Output file (standard output when absent); never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
         /// Standard deviation of the measurement noise on positions and lengths, e.g. `0.3um`.
-        #[arg(long)]
-        noise: Option<String>,
+        #[arg(long, value_parser = args::length_spread, allow_hyphen_values = true)]
+        noise: Option<Spread>,
         /// Standard deviation of the noise on rotations, e.g. `1urad`.
-        #[arg(long)]
-        noise_tilt: Option<String>,
+        #[arg(long, value_parser = args::angle_spread, allow_hyphen_values = true)]
+        noise_tilt: Option<Spread>,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Standard deviation of each artifact's unknown placement: shift (e.g. `50um`) …
-        #[arg(long)]
-        artifact_shift: Option<String>,
+        #[arg(long, value_parser = args::length_spread, allow_hyphen_values = true)]
+        artifact_shift: Option<Spread>,
         /// … and rotation (e.g. `20urad`), drawn once per `artifact` label of a point file.
-        #[arg(long)]
-        artifact_rotation: Option<String>,
+        #[arg(long, value_parser = args::angle_spread, allow_hyphen_values = true)]
+        artifact_rotation: Option<Spread>,
         /// Standard deviation of the unknown length error of each artifact of a length file.
-        #[arg(long)]
-        artifact_length: Option<String>,
+        #[arg(long, value_parser = args::length_spread, allow_hyphen_values = true)]
+        artifact_length: Option<Spread>,
         /// Which error components a point file holds.
         #[arg(long, value_enum, default_value_t = simulate::Components::Position)]
         components: simulate::Components,
         #[command(flatten)]
         ignore: Ignore,
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
     /// Fit the model's coefficients to measurement files by least squares.
     Fit {
@@ -123,21 +124,29 @@ enum Command {
         output: Option<PathBuf>,
         #[arg(long, value_enum, default_value_t = fit::SolverArg::Qr)]
         solver: fit::SolverArg,
-        /// Relative tolerance of the rank decision on the unit-scaled design.
-        #[arg(long, default_value_t = 1e-10)]
+        /// Relative tolerance of the rank decision on the unit-scaled design (finite, > 0).
+        #[arg(long, default_value_t = 1e-10, value_parser = args::positive, allow_hyphen_values = true)]
         tolerance: f64,
         /// Fit only what the data can see (minimum norm) when the design is rank-deficient.
         #[arg(long)]
         min_norm: bool,
         /// Stepwise selection: remove regressors whose partial F-test p-value exceeds this
-        /// level (the thesis used 1e-4, i.e. 99.99 % significance).
-        #[arg(long, value_name = "ALPHA")]
+        /// level (the thesis used 1e-4, i.e. 99.99 % significance); 0 < ALPHA < 1.
+        #[arg(long, value_name = "ALPHA", value_parser = args::level, allow_hyphen_values = true)]
         stepwise: Option<f64>,
-        /// With --stepwise: re-admit removed regressors whose p-value falls below this level.
-        #[arg(long, value_name = "ALPHA", requires = "stepwise")]
+        /// With --stepwise: re-admit removed regressors whose p-value falls below this level
+        /// (0 < ALPHA < 1).
+        #[arg(
+            long,
+            value_name = "ALPHA",
+            requires = "stepwise",
+            value_parser = args::level,
+            allow_hyphen_values = true
+        )]
         enter: Option<f64>,
-        /// Hold out this fraction of the rows (whole runs where lags need them) as validation.
-        #[arg(long, value_name = "FRACTION")]
+        /// Hold out this fraction of the rows (whole runs where lags need them) as validation
+        /// (0 < FRACTION < 1).
+        #[arg(long, value_name = "FRACTION", value_parser = args::fraction, allow_hyphen_values = true)]
         holdout: Option<f64>,
         /// Seed of the held-out draw.
         #[arg(long, default_value_t = 0)]
@@ -147,8 +156,8 @@ enum Command {
         engine: kin_runtime::engine::Engine,
         #[command(flatten)]
         ignore: Ignore,
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
     /// The whole loop on a bundled example: fit, where it fails, the missing effect, add it,
     /// watch the error fall.
@@ -157,19 +166,19 @@ enum Command {
         /// new or empty folder, or one an earlier `kin demo` wrote (marked by `.kin-demo`).
         #[arg(long)]
         dir: Option<PathBuf>,
-        /// At most this many effects added.
-        #[arg(long, default_value_t = 3)]
+        /// At most this many effects added (0 to 100).
+        #[arg(long, default_value_t = 3, value_parser = args::rounds)]
         rounds: usize,
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
     /// Where the fitted model fails, and which physical effect is missing from it.
     Diagnose {
         machine: PathBuf,
         #[arg(required = true)]
         data: Vec<PathBuf>,
-        /// Family-wise significance level of the candidate tests.
-        #[arg(long, default_value_t = 0.01)]
+        /// Family-wise significance level of the candidate tests (0 < A < 1).
+        #[arg(long, default_value_t = 0.01, value_parser = args::level, allow_hyphen_values = true)]
         alpha: f64,
         /// Write DIAGNOSE.json here; never one of the inputs, replaced atomically.
         #[arg(short, long)]
@@ -190,8 +199,8 @@ enum Command {
         engine: kin_runtime::engine::Engine,
         #[command(flatten)]
         ignore: Ignore,
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     Eval {
@@ -213,8 +222,8 @@ enum Command {
         engine: kin_runtime::engine::Engine,
         #[command(flatten)]
         ignore: Ignore,
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
     /// A self-contained HTML page about a fit: residuals along every axis, input and time, the residual
     /// spectrum and candidate effects (from `kin diagnose -o`), the history of the model's
@@ -234,34 +243,43 @@ enum Command {
         output: PathBuf,
         #[command(flatten)]
         ignore: Ignore,
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
     /// A measurement on this computer, not a test.
     Bench {
         machine: PathBuf,
-        /// Poses sampled over the axis ranges, evaluated in turn.
-        #[arg(long, default_value_t = 1000)]
+        /// Poses sampled over the axis ranges, evaluated in turn (1 to 10⁸).
+        #[arg(long, default_value_t = 1000, value_parser = args::poses)]
         poses: usize,
-        /// Seconds spent on each figure (best of 5 rounds).
-        #[arg(long, default_value_t = 0.6)]
+        /// Seconds spent on each figure (best of 5 rounds), 0 < S ≤ 86400.
+        #[arg(long, default_value_t = 0.6, value_parser = args::seconds, allow_hyphen_values = true)]
         seconds: f64,
-        #[arg(long, default_value = "auto")]
-        color: String,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
 }
 
-fn use_color(choice: &str) -> bool {
-    match choice {
-        "always" => true,
-        "never" => false,
-        _ => std::io::stderr().is_terminal(),
+/// Rust starts programs with SIGPIPE ignored, so writing to a pipe whose reader has gone
+/// (`kin fit … | head -c1`) fails with EPIPE and `print!` panics (exit 101). The default
+/// disposition ends the process quietly, as every other command-line tool does, with the
+/// conventional status (killed by SIGPIPE; 141 in a shell).
+#[cfg(unix)]
+fn restore_default_sigpipe() {
+    // SAFETY: called first in `main`, before any thread is started; `SIG_DFL` is a valid
+    // disposition for SIGPIPE and the previous handler returned is not needed.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
 
+#[cfg(not(unix))]
+fn restore_default_sigpipe() {}
+
 fn main() -> ExitCode {
+    restore_default_sigpipe();
     let cli = Cli::parse();
     match cli.command {
         Command::Check {
@@ -273,7 +291,7 @@ fn main() -> ExitCode {
             no_identify,
             engine,
         } => {
-            let color = use_color(&color);
+            let color = color.enabled();
             let identify = (!no_identify).then_some((observe, aligned));
             check::run(&file, format, color, identify, engine)
         }
@@ -306,7 +324,7 @@ fn main() -> ExitCode {
             artifact_length,
             components,
             ignore: ignore.columns,
-            color: use_color(&color),
+            color: color.enabled(),
         }),
         Command::Fit {
             machine,
@@ -337,9 +355,9 @@ fn main() -> ExitCode {
             seed,
             engine,
             ignore: ignore.columns,
-            color: use_color(&color),
+            color: color.enabled(),
         }),
-        Command::Demo { dir, rounds, color } => demo::run(dir, rounds, use_color(&color)),
+        Command::Demo { dir, rounds, color } => demo::run(dir, rounds, color.enabled()),
         Command::Diagnose {
             machine,
             data,
@@ -366,7 +384,7 @@ fn main() -> ExitCode {
                 seed: 0,
                 engine,
                 ignore: ignore.columns,
-                color: use_color(&color),
+                color: color.enabled(),
             },
             alpha,
             output,
@@ -393,7 +411,7 @@ fn main() -> ExitCode {
             engine,
             ignore: &ignore.columns,
             uncertainty,
-            color: use_color(&color),
+            color: color.enabled(),
         }),
         Command::Report {
             machine,
@@ -410,13 +428,13 @@ fn main() -> ExitCode {
             data,
             output,
             ignore: ignore.columns,
-            color: use_color(&color),
+            color: color.enabled(),
         }),
         Command::Bench {
             machine,
             poses,
             seconds,
             color,
-        } => bench::run(&machine, poses, seconds, use_color(&color)),
+        } => bench::run(&machine, poses, seconds, color.enabled()),
     }
 }

@@ -78,11 +78,22 @@ fn fail(e: ReportError) -> Failed {
     e.exit_code()
 }
 
+/// A text input read with the size limit of every model and report (a device or a FIFO that
+/// never ends stops there).
+fn read_limited(path: &Path) -> std::io::Result<String> {
+    use kin_runtime::bounded_read::{read, BoundedReadError, MAX_TEXT_BYTES};
+    let bytes = read(path, MAX_TEXT_BYTES).map_err(|e| match e {
+        BoundedReadError::Io(e) => e,
+        other => std::io::Error::other(other),
+    })?;
+    String::from_utf8(bytes).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
+}
+
 fn read_json<T: serde::de::DeserializeOwned>(
     path: &Path,
     what: &'static str,
 ) -> Result<T, ReportError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ReportError::Read {
+    let text = read_limited(path).map_err(|source| ReportError::Read {
         path: path.to_path_buf(),
         source,
     })?;
@@ -95,7 +106,7 @@ fn read_json<T: serde::de::DeserializeOwned>(
 
 /// Reads FIT.json (its NaNs, written as `null`, read back as NaN: see `FitReport`).
 fn read_fit(path: &Path) -> Result<FitReport, ReportError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ReportError::Read {
+    let text = read_limited(path).map_err(|source| ReportError::Read {
         path: path.to_path_buf(),
         source,
     })?;
@@ -112,7 +123,7 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
     inputs.extend(a.diagnose.as_deref());
     inputs.extend(a.data.iter().map(PathBuf::as_path));
     crate::files::check(&a.output, &inputs)?;
-    let source = std::fs::read_to_string(&a.machine).map_err(|source| {
+    let source = read_limited(&a.machine).map_err(|source| {
         fail(ReportError::Read {
             path: a.machine.clone(),
             source,

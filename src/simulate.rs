@@ -4,10 +4,10 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use kin_compiler::units::Dim;
 use kin_runtime::data::{self, Observations, WriteOptions};
 use kin_runtime::simulate::{self, Options};
 
+use crate::args::Spread;
 use crate::load::{self, Failed};
 
 /// Which error components a point file holds.
@@ -34,12 +34,12 @@ pub struct SimulateArgs {
     pub poses: Option<PathBuf>,
     pub sample: Option<usize>,
     pub output: Option<PathBuf>,
-    pub noise: Option<String>,
-    pub noise_tilt: Option<String>,
+    pub noise: Option<Spread>,
+    pub noise_tilt: Option<Spread>,
     pub seed: u64,
-    pub artifact_shift: Option<String>,
-    pub artifact_rotation: Option<String>,
-    pub artifact_length: Option<String>,
+    pub artifact_shift: Option<Spread>,
+    pub artifact_rotation: Option<Spread>,
+    pub artifact_length: Option<Spread>,
     pub components: Components,
     /// Columns of the poses file to skip unread.
     pub ignore: Vec<String>,
@@ -91,23 +91,16 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
             return Err(Failed::USAGE);
         }
     };
-    let parse = |text: &Option<String>, dim, what| -> Result<f64, Failed> {
-        match text {
-            None => Ok(0.0),
-            Some(t) => load::quantity(t, dim, what).map_err(|e| {
-                eprintln!("error: {e}");
-                Failed::USAGE
-            }),
-        }
-    };
+    // Validated (finite, ≥ 0, of the right dimension) as the command line was parsed.
+    let si = |s: &Option<Spread>| s.as_ref().map_or(0.0, |s| s.si);
     let options = Options {
         observe: a.components.mask(),
-        noise: parse(&a.noise, Dim::LENGTH, "--noise")?,
-        noise_tilt: parse(&a.noise_tilt, Dim::ANGLE, "--noise-tilt")?,
+        noise: si(&a.noise),
+        noise_tilt: si(&a.noise_tilt),
         seed: a.seed,
-        artifact_shift: parse(&a.artifact_shift, Dim::LENGTH, "--artifact-shift")?,
-        artifact_rotation: parse(&a.artifact_rotation, Dim::ANGLE, "--artifact-rotation")?,
-        artifact_length: parse(&a.artifact_length, Dim::LENGTH, "--artifact-length")?,
+        artifact_shift: si(&a.artifact_shift),
+        artifact_rotation: si(&a.artifact_rotation),
+        artifact_length: si(&a.artifact_length),
     };
     let out = simulate::simulate(m, &m.beta, &poses, &options).map_err(|e| {
         eprintln!("error: {e}");
@@ -120,8 +113,8 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
         ),
         format!(
             "noise {} (positions), {} (rotations), seed {}",
-            a.noise.as_deref().unwrap_or("0"),
-            a.noise_tilt.as_deref().unwrap_or("0"),
+            a.noise.as_ref().map_or("0", |s| s.text.as_str()),
+            a.noise_tilt.as_ref().map_or("0", |s| s.text.as_str()),
             a.seed
         ),
     ];

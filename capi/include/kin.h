@@ -16,6 +16,12 @@
  *    buffers. kin_model_bind_params, kin_model_set_beta and kin_model_free must not run while
  *    another thread uses the model.
  *  - No panic of the Rust code crosses this boundary (KIN_ERR_PANIC instead).
+ *  - Values are checked before evaluation (KIN_ERR_VALUE): joint positions, lag states and beta
+ *    finite; inputs and time finite or NaN (not given); directions -1, 0, +1 or NaN (not given).
+ *    A result that is not finite (values so large that it overflows) is KIN_ERR_VALUE too, never
+ *    KIN_OK. On any failure the output buffers' contents are unspecified.
+ *  - Output buffers may not overlap each other, an input array, the state or the rows struct
+ *    (KIN_ERR_OVERLAP, checked by address before anything is written).
  *
  * Example: capi/examples/eval.c. Keep this file in step with capi/src/lib.rs (a test checks
  * that every function and status is declared here).
@@ -40,6 +46,8 @@ extern "C" {
 #define KIN_ERR_IO 7      /* a file cannot be read or written, or is not a saved model */
 #define KIN_ERR_INDEX 8   /* an index (axis, name) is out of range */
 #define KIN_ERR_PANIC 9   /* a bug in kin: please report the message */
+#define KIN_ERR_VALUE 10  /* a value is not allowed (not finite, a direction not -1/0/+1), or the result overflows */
+#define KIN_ERR_OVERLAP 11 /* output buffers overlap each other or an input */
 
 /* Which name kin_model_name() returns. */
 #define KIN_NAME_AXIS 0
@@ -58,9 +66,9 @@ typedef struct kin_state {
     size_t n_inputs;
     const double *lags;   /* lag states, n_lags = lags */
     size_t n_lags;
-    const double *dirs;   /* direction of motion per axis: +1, -1 or NaN, n_dirs = axes */
+    const double *dirs;   /* direction of motion per axis: +1, 0, -1 or NaN, n_dirs = axes */
     size_t n_dirs;
-    double time;          /* s */
+    double time;          /* s, NaN where not given */
     size_t tool;          /* tool index, in declaration order */
 } kin_state;
 

@@ -45,6 +45,13 @@ pub const KIN_ERR_IO: c_int = 7;
 pub const KIN_ERR_INDEX: c_int = 8;
 /// A bug: the library panicked. The model is still usable; please report the message.
 pub const KIN_ERR_PANIC: c_int = 9;
+/// A value is not allowed: a joint position, time, lag state or β that is not finite, an input
+/// that is infinite, a direction other than −1, 0, +1 (or NaN, not given); or a result that is
+/// not finite (values so large that the error overflows).
+pub const KIN_ERR_VALUE: c_int = 10;
+/// Output buffers overlap each other or an input: results would overwrite values still to be
+/// read (or each other).
+pub const KIN_ERR_OVERLAP: c_int = 11;
 
 /// A compiled model (opaque to C).
 pub struct kin_model {
@@ -65,10 +72,10 @@ pub struct kin_state {
     /// Lag states.
     pub lags: *const f64,
     pub n_lags: usize,
-    /// Direction of motion per axis: +1, -1, or NaN where not given.
+    /// Direction of motion per axis: +1, 0, -1, or NaN where not given.
     pub dirs: *const f64,
     pub n_dirs: usize,
-    /// Time (s).
+    /// Time (s); NaN where not given.
     pub time: f64,
     /// Tool index, in declaration order.
     pub tool: usize,
@@ -200,6 +207,171 @@ fn check_pointer<T>(p: *const T, n: usize, what: &str) -> Result<(), Fail> {
         ));
     }
     Ok(())
+}
+
+/// The bytes a buffer covers, for the overlap checks: computed from the address alone, nothing
+/// is read.
+#[derive(Clone, Copy)]
+struct Region {
+    start: usize,
+    end: usize,
+    what: &'static str,
+}
+
+fn region<T>(p: *const T, n: usize, what: &'static str) -> Region {
+    let start = p as usize;
+    let bytes = n.saturating_mul(std::mem::size_of::<T>());
+    Region {
+        start,
+        end: start.saturating_add(bytes),
+        what,
+    }
+}
+
+/// The regions of a state's arrays (and of the state itself), the inputs an output must not
+/// overlap.
+fn state_regions(state: *const kin_state, s: &kin_state) -> [Region; 5] {
+    [
+        region(state, 1, "state"),
+        region(s.q, s.n_q, "q"),
+        region(s.inputs, s.n_inputs, "inputs"),
+        region(s.lags, s.n_lags, "lags"),
+        region(s.dirs, s.n_dirs, "dirs"),
+    ]
+}
+
+/// Outputs must not share a byte with each other or with an input: written while inputs are
+/// still read, they would give wrong results (an `err` inside `jac` is overwritten by the
+/// Jacobian).
+fn disjoint(outputs: &[Region], inputs: &[Region]) -> Result<(), Fail> {
+    let meet = |a: &Region, b: &Region| {
+        a.start < a.end && b.start < b.end && a.start < b.end && b.start < a.end
+    };
+    for (i, out) in outputs.iter().enumerate() {
+        let others = outputs.iter().skip(i + 1).chain(inputs);
+        if let Some(other) = others.into_iter().find(|o| meet(out, o)) {
+            return Err(Fail(
+                KIN_ERR_OVERLAP,
+                format!(
+                    "`{}` and `{}` overlap: an output may share memory with no other buffer",
+                    out.what, other.what
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The values the state may hold: finite joint positions, lag states and time; inputs finite or
+/// NaN (not given); directions −1, 0, +1 or NaN (not given). `row` names a batch row.
+fn check_values(
+    q: &[f64],
+    inputs: &[f64],
+    lags: &[f64],
+    dirs: &[f64],
+    time: &[f64],
+    widths: [usize; 4],
+) -> Result<(), Fail> {
+    let row = |k: usize, width: usize| {
+        if widths.iter().all(|&w| w == 0) || width == 0 {
+            String::new()
+        } else {
+            format!("row {}: ", k / width)
+        }
+    };
+    let bad = |what: &str, k: usize, width: usize, v: f64, allowed: &str| {
+        Fail(
+            KIN_ERR_VALUE,
+            format!("{}`{what}[{k}]` is {v}: {allowed}", row(k, width)),
+        )
+    };
+    let [wq, wi, wl, wd] = widths;
+    if let Some((k, &v)) = q.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        return Err(bad("q", k, wq, v, "joint positions must be finite"));
+    }
+    if let Some((k, &v)) = inputs.iter().enumerate().find(|(_, v)| v.is_infinite()) {
+        return Err(bad(
+            "inputs",
+            k,
+            wi,
+            v,
+            "an input is finite, or NaN when not given",
+        ));
+    }
+    if let Some((k, &v)) = lags.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        return Err(bad("lags", k, wl, v, "lag states must be finite"));
+    }
+    if let Some((k, &v)) = dirs
+        .iter()
+        .enumerate()
+        .find(|(_, &v)| !(v.is_nan() || v == 1.0 || v == -1.0 || v == 0.0))
+    {
+        return Err(bad(
+            "dirs",
+            k,
+            wd,
+            v,
+            "a direction of motion is -1, 0 or +1 (NaN when not given)",
+        ));
+    }
+    if let Some((k, &v)) = time.iter().enumerate().find(|(_, v)| v.is_infinite()) {
+        return Err(Fail(
+            KIN_ERR_VALUE,
+            format!("`time[{k}]` is {v}: time is finite, or NaN when not given"),
+        ));
+    }
+    Ok(())
+}
+
+fn check_state(s: &State) -> Result<(), Fail> {
+    check_values(
+        s.q,
+        s.inputs,
+        s.lags,
+        s.dirs,
+        std::slice::from_ref(&s.time),
+        [0; 4],
+    )
+}
+
+fn check_beta(b: &[f64]) -> Result<(), Fail> {
+    match b.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        Some((k, v)) => Err(Fail(
+            KIN_ERR_VALUE,
+            format!("`beta[{k}]` is {v}: coefficients must be finite"),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// A result that overflowed is not handed out as if it were one.
+fn check_results(what: &str, values: &[f64]) -> Result<(), Fail> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(k) => Err(Fail(
+            KIN_ERR_VALUE,
+            format!(
+                "`{what}[{k}]` came out as {}: the state or β is too large for double precision",
+                values[k]
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// The `kin_state` behind a pointer, copied, for the overlap checks before any slice exists.
+///
+/// # Safety
+///
+/// `state` is NULL or points to a `kin_state`.
+unsafe fn read_state(state: *const kin_state) -> Result<kin_state, Fail> {
+    if state.is_null() {
+        return Err(Fail(KIN_ERR_POINTER, "the state is NULL".into()));
+    }
+    if !state.is_aligned() {
+        return Err(Fail(KIN_ERR_POINTER, "the state is not aligned".into()));
+    }
+    // SAFETY: non-NULL, aligned and valid (caller's contract); `kin_state` is `Copy`.
+    Ok(unsafe { *state })
 }
 
 /// The model behind a pointer.
@@ -759,6 +931,11 @@ pub unsafe extern "C" fn kin_eval(
 ) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
+        let st = unsafe { read_state(state)? };
+        let mut inputs = state_regions(state, &st).to_vec();
+        inputs.push(region(beta, n_beta, "beta"));
+        disjoint(&[region(err.cast_const(), n_err, "err")], &inputs)?;
+        // SAFETY: caller's contract; `err` overlaps no input (checked above).
         let (m, s, out) = unsafe {
             (
                 self::model(model)?,
@@ -774,7 +951,10 @@ pub unsafe extern "C" fn kin_eval(
                 format!("`err` has length {n_err}, 6 are needed"),
             )
         })?;
-        m.eval(&s, b, out).map_err(eval_error)
+        check_state(&s)?;
+        check_beta(b)?;
+        m.eval(&s, b, out).map_err(eval_error)?;
+        check_results("err", out)
     })
 }
 
@@ -797,6 +977,17 @@ pub unsafe extern "C" fn kin_eval_jacobian(
 ) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
+        let st = unsafe { read_state(state)? };
+        let mut inputs = state_regions(state, &st).to_vec();
+        inputs.push(region(beta, n_beta, "beta"));
+        disjoint(
+            &[
+                region(err.cast_const(), n_err, "err"),
+                region(jac.cast_const(), n_jac, "jac"),
+            ],
+            &inputs,
+        )?;
+        // SAFETY: caller's contract; the outputs overlap nothing (checked above).
         let (m, s, out, jac) = unsafe {
             (
                 self::model(model)?,
@@ -814,7 +1005,11 @@ pub unsafe extern "C" fn kin_eval_jacobian(
             )
         })?;
         check("jac", 6 * m.coefficients(), jac.len())?;
-        m.eval_jacobian(&s, b, out, jac).map_err(eval_error)
+        check_state(&s)?;
+        check_beta(b)?;
+        m.eval_jacobian(&s, b, out, jac).map_err(eval_error)?;
+        check_results("err", out)?;
+        check_results("jac", jac)
     })
 }
 
@@ -838,6 +1033,15 @@ pub unsafe extern "C" fn kin_nominal_jacobian(
 ) -> c_int {
     guard(|| {
         // SAFETY: caller's contract.
+        let st = unsafe { read_state(state)? };
+        disjoint(
+            &[
+                region(location.cast_const(), n_location, "location"),
+                region(jac.cast_const(), n_jac, "jac"),
+            ],
+            &state_regions(state, &st),
+        )?;
+        // SAFETY: caller's contract; the outputs overlap nothing (checked above).
         let (m, s, loc, jac) = unsafe {
             (
                 self::model(model)?,
@@ -848,7 +1052,9 @@ pub unsafe extern "C" fn kin_nominal_jacobian(
         };
         check("location", 12, loc.len())?;
         check("jac", 6 * m.axes(), jac.len())?;
+        check_state(&s)?;
         let l = m.nominal_jacobian(&s, jac).map_err(eval_error)?;
+        check_results("jac", jac)?;
         let r = &l.rotation;
         let values = [
             l.position.x,
@@ -864,6 +1070,7 @@ pub unsafe extern "C" fn kin_nominal_jacobian(
             r.m32,
             r.m33,
         ];
+        check_results("location", &values)?;
         loc.copy_from_slice(&values);
         Ok(())
     })
@@ -895,7 +1102,23 @@ pub unsafe extern "C" fn kin_eval_batch(
         }
         // SAFETY: non-NULL and aligned, valid (caller's contract); `kin_rows` is `Copy`.
         let r = unsafe { *rows };
-        // SAFETY: caller's contract.
+        disjoint(
+            &[
+                region(err.cast_const(), n_err, "err"),
+                region(jac.cast_const(), n_jac, "jac"),
+            ],
+            &[
+                region(rows, 1, "rows"),
+                region(r.q, r.n_q, "q"),
+                region(r.inputs, r.n_inputs, "inputs"),
+                region(r.lags, r.n_lags, "lags"),
+                region(r.dirs, r.n_dirs, "dirs"),
+                region(r.time, r.n_time, "time"),
+                region(r.tool, r.n_tool, "tool"),
+                region(beta, n_beta, "beta"),
+            ],
+        )?;
+        // SAFETY: caller's contract; the outputs overlap nothing (checked above).
         let (m, out, jac) = unsafe {
             (
                 self::model(model)?,
@@ -918,12 +1141,23 @@ pub unsafe extern "C" fn kin_eval_batch(
                 tool_offset: &[],
             }
         };
+        check_values(
+            state_rows.q,
+            state_rows.inputs,
+            state_rows.lags,
+            state_rows.dirs,
+            state_rows.time,
+            [m.axes(), m.inputs(), m.lags(), m.axes()],
+        )?;
+        check_beta(b)?;
         if jac.is_empty() && m.coefficients() > 0 && r.n_rows > 0 {
-            m.eval_rows(&state_rows, b, out).map_err(batch_error)
+            m.eval_rows(&state_rows, b, out).map_err(batch_error)?;
         } else {
             m.eval_jacobian_rows(&state_rows, b, out, jac)
-                .map_err(batch_error)
+                .map_err(batch_error)?;
         }
+        check_results("err", out)?;
+        check_results("jac", jac)
     })
 }
 
@@ -972,6 +1206,222 @@ mod tests {
         unsafe { CStr::from_ptr(buf.as_ptr()) }
             .to_string_lossy()
             .into_owned()
+    }
+
+    /// Inputs that are not finite (or a direction of 0.5) and overlapping buffers are refused
+    /// with their own codes, never KIN_OK with inf or NaN in the outputs.
+    #[test]
+    fn bad_values_and_overlapping_buffers_are_refused() {
+        let model = compile(SRC).expect("compiles");
+        let state = |q: &[f64; 1], dirs: &[f64; 1]| kin_state {
+            q: q.as_ptr(),
+            n_q: 1,
+            inputs: null(),
+            n_inputs: 0,
+            lags: null(),
+            n_lags: 0,
+            dirs: dirs.as_ptr(),
+            n_dirs: 1,
+            time: 0.0,
+            tool: 0,
+        };
+        let beta = [1e-6, 2e-6, 0.0, 0.0, 3e-6];
+        let mut err = [0.0; 6];
+        let mut jac = [0.0; 30];
+        // SAFETY: a live model; every buffer is valid for the length given with it.
+        unsafe {
+            let (q, dirs) = ([0.2], [1.0]);
+            let good = state(&q, &dirs);
+            let eval = |s: &kin_state, b: &[f64], err: *mut f64, jac: *mut f64| {
+                kin_eval_jacobian(model, s, b.as_ptr(), b.len(), err, 6, jac, 30)
+            };
+            assert_eq!(
+                eval(&good, &beta, err.as_mut_ptr(), jac.as_mut_ptr()),
+                KIN_OK
+            );
+            let (inf, half) = ([f64::INFINITY], [0.5]);
+            assert_eq!(
+                eval(
+                    &state(&inf, &dirs),
+                    &beta,
+                    err.as_mut_ptr(),
+                    jac.as_mut_ptr()
+                ),
+                KIN_ERR_VALUE
+            );
+            assert!(last_error().contains("`q[0]` is inf"), "{}", last_error());
+            assert_eq!(
+                kin_eval(model, &state(&inf, &dirs), null(), 0, err.as_mut_ptr(), 6),
+                KIN_ERR_VALUE
+            );
+            assert_eq!(
+                eval(&state(&q, &half), &beta, err.as_mut_ptr(), jac.as_mut_ptr()),
+                KIN_ERR_VALUE
+            );
+            assert!(
+                last_error().contains("`dirs[0]` is 0.5"),
+                "{}",
+                last_error()
+            );
+            for d in [0.0, -1.0, f64::NAN] {
+                assert_eq!(
+                    eval(&state(&q, &[d]), &beta, err.as_mut_ptr(), jac.as_mut_ptr()),
+                    KIN_OK,
+                    "direction {d}"
+                );
+            }
+            let nan_beta = [1e-6, f64::NAN, 0.0, 0.0, 3e-6];
+            assert_eq!(
+                eval(&good, &nan_beta, err.as_mut_ptr(), jac.as_mut_ptr()),
+                KIN_ERR_VALUE
+            );
+            assert!(
+                last_error().contains("`beta[1]` is NaN"),
+                "{}",
+                last_error()
+            );
+            // Finite but absurd: the result would overflow.
+            let huge = [1e300];
+            let big_beta = [1e300, 1e300, 1e300, 1e300, 1e300];
+            assert_eq!(
+                eval(
+                    &state(&huge, &dirs),
+                    &big_beta,
+                    err.as_mut_ptr(),
+                    jac.as_mut_ptr()
+                ),
+                KIN_ERR_VALUE
+            );
+
+            // `err` inside `jac`: the Jacobian would overwrite the error (or the reverse).
+            let mut both = [0.0; 36];
+            let base = both.as_mut_ptr();
+            assert_eq!(eval(&good, &beta, base, base), KIN_ERR_OVERLAP);
+            assert!(
+                last_error().contains("`err` and `jac` overlap"),
+                "{}",
+                last_error()
+            );
+            assert_eq!(eval(&good, &beta, base.add(29), base), KIN_ERR_OVERLAP);
+            // Side by side in one array is fine.
+            assert_eq!(eval(&good, &beta, base.add(30), base), KIN_OK);
+            // An output over an input.
+            let mut qbuf = [0.2, 0.0, 0.0, 0.0, 0.0, 0.0];
+            let over = kin_state {
+                q: qbuf.as_ptr(),
+                ..good
+            };
+            assert_eq!(
+                kin_eval(model, &over, null(), 0, qbuf.as_mut_ptr(), 6),
+                KIN_ERR_OVERLAP
+            );
+            let mut beta_out = beta;
+            assert_eq!(
+                kin_eval(model, &good, beta_out.as_ptr(), 5, beta_out.as_mut_ptr(), 5),
+                KIN_ERR_OVERLAP
+            );
+            let mut loc = [0.0; 12];
+            let mut njac = [0.0; 6];
+            assert_eq!(
+                kin_nominal_jacobian(model, &good, loc.as_mut_ptr(), 12, njac.as_mut_ptr(), 6),
+                KIN_OK
+            );
+            assert_eq!(
+                kin_nominal_jacobian(
+                    model,
+                    &good,
+                    loc.as_mut_ptr(),
+                    12,
+                    loc.as_mut_ptr().add(6),
+                    6
+                ),
+                KIN_ERR_OVERLAP
+            );
+            assert_eq!(
+                kin_nominal_jacobian(
+                    model,
+                    &state(&inf, &dirs),
+                    loc.as_mut_ptr(),
+                    12,
+                    njac.as_mut_ptr(),
+                    6
+                ),
+                KIN_ERR_VALUE
+            );
+
+            // Batches: the row is named.
+            let qs = [0.1, 0.2, f64::NEG_INFINITY];
+            let ds = [1.0, 1.0, 1.0];
+            let ts = [0.0; 3];
+            let tools = [0usize; 3];
+            let rows = kin_rows {
+                n_rows: 3,
+                q: qs.as_ptr(),
+                n_q: 3,
+                inputs: null(),
+                n_inputs: 0,
+                lags: null(),
+                n_lags: 0,
+                dirs: ds.as_ptr(),
+                n_dirs: 3,
+                time: ts.as_ptr(),
+                n_time: 3,
+                tool: tools.as_ptr(),
+                n_tool: 3,
+            };
+            let mut errs = [0.0; 18];
+            let mut jacs = [0.0; 90];
+            assert_eq!(
+                kin_eval_batch(
+                    model,
+                    &rows,
+                    null(),
+                    0,
+                    errs.as_mut_ptr(),
+                    18,
+                    jacs.as_mut_ptr(),
+                    90
+                ),
+                KIN_ERR_VALUE
+            );
+            assert!(
+                last_error().contains("row 2: `q[2]` is -inf"),
+                "{}",
+                last_error()
+            );
+            let ok_q = [0.1, 0.2, 0.3];
+            let ok_rows = kin_rows {
+                q: ok_q.as_ptr(),
+                ..rows
+            };
+            assert_eq!(
+                kin_eval_batch(
+                    model,
+                    &ok_rows,
+                    null(),
+                    0,
+                    errs.as_mut_ptr(),
+                    18,
+                    jacs.as_mut_ptr(),
+                    90
+                ),
+                KIN_OK
+            );
+            assert_eq!(
+                kin_eval_batch(
+                    model,
+                    &ok_rows,
+                    null(),
+                    0,
+                    jacs.as_mut_ptr().add(80),
+                    18,
+                    jacs.as_mut_ptr(),
+                    90
+                ),
+                KIN_ERR_OVERLAP
+            );
+            kin_model_free(model);
+        }
     }
 
     #[test]
@@ -1244,6 +1694,17 @@ mod tests {
                 .expect("path");
             assert_eq!(kin_model_load(missing.as_ptr(), &mut loaded), KIN_ERR_IO);
             assert!(loaded.is_null());
+            // A path that never ends is read up to a limit, not into all of memory.
+            if Path::new("/dev/zero").exists() {
+                let zero = std::ffi::CString::new("/dev/zero").expect("path");
+                assert_eq!(kin_model_load(zero.as_ptr(), &mut loaded), KIN_ERR_IO);
+                assert!(
+                    last_error().contains("larger than 64 MiB"),
+                    "{}",
+                    last_error()
+                );
+                assert!(loaded.is_null());
+            }
             let _ = std::fs::remove_dir_all(&dir);
             kin_model_free(model);
         }

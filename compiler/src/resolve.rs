@@ -275,6 +275,39 @@ pub(crate) fn quantity_of(
     Some(c.value)
 }
 
+/// The largest length a machine's geometry (an offset, an axis range) may state: 10 km, beyond
+/// any machine. A larger one is a typo (`1e100 mm`) and, left alone, swamps every other column
+/// of the identifiability analysis and the fit, whose complaints then land on innocent terms.
+const MAX_GEOMETRY_LENGTH: f64 = 1e4;
+/// The same for angles (rotations of frames, revolute ranges): 10⁶ rad, some 160 000 turns.
+const MAX_GEOMETRY_ANGLE: f64 = 1e6;
+
+/// `value` (SI) when it is within the bound of its dimension, else an `E0003` at `span`.
+fn within_machine(value: f64, dim: Dim, span: Span, what: &str, sink: &mut Sink) -> Option<f64> {
+    let (bound, text, unit) = if dim == Dim::LENGTH {
+        (MAX_GEOMETRY_LENGTH, "10 km", "m")
+    } else if dim == Dim::ANGLE {
+        (MAX_GEOMETRY_ANGLE, "10⁶ rad", "rad")
+    } else {
+        return Some(value);
+    };
+    if value.abs() <= bound {
+        return Some(value);
+    }
+    sink.push(
+        Diagnostic::error(
+            "E0003",
+            format!("{what}: {value:e} {unit} is beyond any machine"),
+            span,
+        )
+        .with_label(format!("larger than {text}"))
+        .with_help(format!(
+            "a machine's offsets and ranges are at most {text}; check the number and its unit"
+        )),
+    );
+    None
+}
+
 pub(crate) fn resolve(machine: &ast::Machine, sink: &mut Sink) -> Structure {
     let units = resolve_units(machine, sink);
     let task = resolve_task(machine, sink);
@@ -556,8 +589,10 @@ fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) ->
                     },
                     a.name.node
                 );
-                let l = quantity_of(lo, dim, default, false, &what, sink);
-                let h = quantity_of(hi, dim, default, false, &what, sink);
+                let l = quantity_of(lo, dim, default, false, &what, sink)
+                    .and_then(|v| within_machine(v, dim, lo.span, &what, sink));
+                let h = quantity_of(hi, dim, default, false, &what, sink)
+                    .and_then(|v| within_machine(v, dim, hi.span, &what, sink));
                 let (l, h) = (l?, h?);
                 if !(l < h) {
                     sink.push(
@@ -930,7 +965,9 @@ fn vector_of(v: &ast::Vector, dim: Dim, default: &Unit, what: &str, sink: &mut S
     };
     let mut out = [0.0; 3];
     for (slot, e) in out.iter_mut().zip(&v.elems) {
-        *slot = quantity_of(e, dim, &unit, false, what, sink).unwrap_or(0.0);
+        *slot = quantity_of(e, dim, &unit, false, what, sink)
+            .and_then(|x| within_machine(x, dim, e.span, what, sink))
+            .unwrap_or(0.0);
     }
     out
 }

@@ -342,6 +342,19 @@ pub enum Problem {
         expected: String,
     },
     #[error(
+        "line {line}, column {column} (`{name}`): `{text}` is beyond the largest plausible \
+         {what}, ±{limit}"
+    )]
+    Implausible {
+        line: usize,
+        column: usize,
+        name: String,
+        text: String,
+        what: &'static str,
+        /// The bound in the column's unit.
+        limit: String,
+    },
+    #[error(
         "line {line}, column {column} (`{name}`): unknown tool `{text}`; declared tools: {}",
         declared.join(", ")
     )]
@@ -402,6 +415,13 @@ pub enum ReadError {
         #[source]
         source: io::Error,
     },
+    #[error(
+        "cannot read `{}`: it is not a regular file and holds more than {} MiB, the most kin \
+         reads from a pipe or a device",
+        path.display(),
+        limit >> 20
+    )]
+    TooLarge { path: PathBuf, limit: u64 },
     #[error("{}", Listing { path, problems, omitted: *omitted })]
     Invalid {
         path: PathBuf,

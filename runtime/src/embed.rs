@@ -468,12 +468,21 @@ impl Model {
         })
     }
 
-    /// Loads a model saved with [`Model::save`].
+    /// Loads a model saved with [`Model::save`]. At most
+    /// [`MAX_TEXT_BYTES`](crate::bounded_read::MAX_TEXT_BYTES) are read, so a path that never
+    /// ends (`/dev/zero`) is an error, not unbounded memory.
     pub fn load(path: &Path) -> Result<Model, Error> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+        use crate::bounded_read::{read, BoundedReadError, MAX_TEXT_BYTES};
+        let io = |source| Error::Io {
             path: path.to_path_buf(),
             source,
+        };
+        let bytes = read(path, MAX_TEXT_BYTES).map_err(|e| match e {
+            BoundedReadError::Io(e) => io(e),
+            other => io(std::io::Error::other(other)),
         })?;
+        let text = String::from_utf8(bytes)
+            .map_err(|e| io(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
         Model::from_json(&text)
     }
 }

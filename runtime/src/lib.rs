@@ -6,6 +6,7 @@
 // as a non-positive number.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 pub mod bench;
+pub mod bounded_read;
 pub mod data;
 pub mod diagnose;
 pub mod embed;

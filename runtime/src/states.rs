@@ -239,15 +239,18 @@ impl States {
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
         let axes = m.axes.len();
         let inputs = m.inputs.len();
+        // Capacity hints only: a product that overflows (an absurd `n` from a caller) reserves
+        // nothing up front instead of panicking; the vectors still grow as rows are drawn.
+        let hint = |width: usize| n.checked_mul(width).unwrap_or(0);
         let mut s = States {
             axes,
             inputs,
             lags: m.lags.len(),
-            q: Vec::with_capacity(n * axes),
-            input: Vec::with_capacity(n * inputs),
-            lag: Vec::with_capacity(n * m.lags.len()),
+            q: Vec::with_capacity(hint(axes)),
+            input: Vec::with_capacity(hint(inputs)),
+            lag: Vec::with_capacity(hint(m.lags.len())),
             time: (0..n).map(|r| r as f64).collect(),
-            dirs: Vec::with_capacity(n * axes),
+            dirs: Vec::with_capacity(hint(axes)),
             tool: Vec::with_capacity(n),
             tool_offset: vec![None; n],
             line: (1..=n).collect(),

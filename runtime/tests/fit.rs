@@ -702,3 +702,32 @@ fn a_fit_report_with_undetermined_values_reads_back() {
     assert!(back.residuals.first().is_some_and(|r| r.cook.is_nan()));
     assert_eq!(back.coefficients[1].value, rep.coefficients[1].value);
 }
+
+/// Values that no reader lets through (an axis at 1e157 m, an error of 1e305 m), handed to the
+/// fit directly: it stops with an error naming the row, or the overflow, instead of panicking
+/// in the solver (once `fit/solve.rs`) or returning ±inf coefficients.
+#[test]
+fn absurd_values_stop_the_fit_instead_of_overflowing_it() {
+    let c = machine(CMM);
+    let beta = truth(&c, 3);
+    for (axis_value, observed_value) in [(Some(1e157), None), (None, Some(1e305))] {
+        let mut set = simulated(&c, &beta, 60, 1e-7, 5, 0);
+        let Observations::Points(p) = &mut set.observations else {
+            panic!("points");
+        };
+        if let Some(v) = axis_value {
+            p.pose.axes[0][7] = v;
+        }
+        if let Some(v) = observed_value {
+            p.observed[0].as_mut().expect("ex")[7] = v;
+        }
+        match run(&c, &[set], &Options::default()) {
+            Err(FitError::Design(fit::DesignError::NotFinite { line, .. })) => {
+                assert_eq!(line, 8, "the row's line")
+            }
+            Err(FitError::Overflow) => {}
+            Err(e) => panic!("unexpected error: {e}"),
+            Ok(r) => panic!("fitted absurd data: σ̂ = {}", r.sigma),
+        }
+    }
+}

@@ -101,7 +101,16 @@ pub enum BenchError {
     Batch(#[from] BatchError),
     #[error("--poses must be at least 1")]
     NoPoses,
+    #[error(
+        "the batched Jacobian of {poses} poses × {coefficients} coefficients needs more than \
+         {MAX_BATCH_VALUES} values (2 GiB); measure with fewer --poses"
+    )]
+    TooLarge { poses: usize, coefficients: usize },
 }
+
+/// The largest batch buffer the bench allocates, in values (2 GiB of f64): a rate measured on
+/// more poses than this would only measure the memory system.
+const MAX_BATCH_VALUES: usize = 1 << 28;
 
 /// Poses per second of `f`, which evaluates `poses` poses: the best of `rounds` rounds sharing
 /// `time`, after one untimed call (code and data in cache).
@@ -148,6 +157,15 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
     let jit_compile = fastest(5, || crate::jit::compile(model.machine())).map_err(Error::from)?;
     let m: &Machine = model.machine();
     let n = m.coefficients.len();
+    // Checked before anything is sampled: the batch buffer below is poses × 6 × coefficients.
+    let values = 6usize
+        .checked_mul(n)
+        .and_then(|v| v.checked_mul(options.poses))
+        .filter(|&v| v <= MAX_BATCH_VALUES)
+        .ok_or(BenchError::TooLarge {
+            poses: options.poses,
+            coefficients: n,
+        })?;
     let states = States::sample(m, options.poses, options.seed);
     let poses = RowsBuf::from_states(&states);
     let rows = poses.rows();
@@ -194,7 +212,7 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
         })?,
     };
     let mut errs = vec![0.0; 6 * count];
-    let mut jacs = vec![0.0; 6 * n * count];
+    let mut jacs = vec![0.0; values];
     let jit_batch = Rates {
         jacobian: rate(options, || {
             jit.error_and_jacobian_rows(&rows, &beta, &nonlinear, &mut errs, &mut jacs)?;

@@ -22,9 +22,16 @@ pub fn read_file(
     machine: &Machine,
     options: &ReadOptions,
 ) -> Result<Observations, ReadError> {
-    let bytes = std::fs::read(path).map_err(|source| ReadError::Io {
-        path: path.to_path_buf(),
-        source,
+    use crate::bounded_read::{read_unless_regular, BoundedReadError, MAX_STREAM_BYTES};
+    let bytes = read_unless_regular(path, MAX_STREAM_BYTES).map_err(|e| match e {
+        BoundedReadError::Io(source) => ReadError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
+        BoundedReadError::TooLarge { limit } => ReadError::TooLarge {
+            path: path.to_path_buf(),
+            limit,
+        },
     })?;
     read(&bytes, path, machine, options)
 }
@@ -500,13 +507,36 @@ impl<'m> Reader<'m> {
                         _ => false,
                     };
                     let v = match parsed {
-                        Ok(Some(v)) if v.is_finite() => v,
+                        Ok(Some(v)) if v.is_finite() => match plausible(machine, role) {
+                            // The margin lets the bound itself, written in the column's
+                            // unit, read despite the rounding of the conversion to SI.
+                            Some((bound, what)) if v.abs() > bound * (1.0 + 1e-12) => {
+                                let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                                problems.push(Problem::Implausible {
+                                    line: line_no,
+                                    column: char_column(line, cell.start),
+                                    name: col.name.clone(),
+                                    text: excerpt(text),
+                                    what,
+                                    limit: limit_text(bound, col.scale, &col.unit),
+                                });
+                                f64::NAN
+                            }
+                            _ => v,
+                        },
                         Ok(None) if !required => f64::NAN,
                         _ => {
-                            let expected = if col.unit.is_empty() || col.unit == "1" {
-                                "a number".to_string()
+                            // `nan`, `inf` and `1e400` are numbers to Rust but not measurements.
+                            let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                            let what = if text.parse::<f64>().is_ok() {
+                                "a finite number"
                             } else {
-                                format!("a number in {}", col.unit)
+                                "a number"
+                            };
+                            let expected = if col.unit.is_empty() || col.unit == "1" {
+                                what.to_string()
+                            } else {
+                                format!("{what} in {}", col.unit)
                             };
                             bad(problems, &col.name, cell, expected);
                             f64::NAN
@@ -743,6 +773,56 @@ fn number(line: &str, cell: &Cell) -> Result<Option<f64>, ()> {
     match text.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(Some(v)),
         _ => Err(()),
+    }
+}
+
+/// The largest magnitude (SI) a cell of this role may hold, and what the value is, for the
+/// message. The bounds are far beyond any machine (spec/cli.md, "Measurement files") yet small
+/// enough that the powers of them a model's columns take (polynomials, products of axes) and
+/// their sums of squares over 10⁸ rows stay far from overflow, so an absurd cell is reported
+/// where it is instead of turning the fit's σ̂ and coefficients into inf or NaN.
+fn plausible(machine: &Machine, role: Role) -> Option<(f64, &'static str)> {
+    Some(match role {
+        Role::Axis { axis, .. } => match machine.axes.get(axis).map(|a| a.kind) {
+            Some(JointKind::Revolute) => (MAX_ANGLE, "axis angle"),
+            _ => (MAX_POSITION, "axis position"),
+        },
+        Role::ToolOffset(_) => (MAX_POSITION, "tool offset"),
+        Role::Observed(k) if k >= 3 => (MAX_TILT, "rotation error"),
+        Role::Observed(_) | Role::Dl => (MAX_ERROR, "error"),
+        Role::Time => (MAX_TIME, "time"),
+        Role::Input(_) => (MAX_INPUT, "input value"),
+        Role::Dir { .. } | Role::Run | Role::Tool | Role::Artifact => return None,
+    })
+}
+
+/// Axis positions and tool offsets: 10 km.
+pub const MAX_POSITION: f64 = 1e4;
+/// Revolute axis angles: 10⁶ rad, some 160 000 turns of a continuous axis.
+pub const MAX_ANGLE: f64 = 1e6;
+/// Observed position and length errors: 1 m.
+pub const MAX_ERROR: f64 = 1.0;
+/// Observed rotation errors: 1 rad.
+pub const MAX_TILT: f64 = 1.0;
+/// Time: 10¹⁰ s, about 300 years (a Unix time stamp fits).
+pub const MAX_TIME: f64 = 1e10;
+/// Inputs (temperatures, forces, …), in their SI unit: 10⁹.
+pub const MAX_INPUT: f64 = 1e9;
+
+/// A bound in the column's own unit, as the user would write it.
+fn limit_text(bound: f64, scale: f64, unit: &str) -> String {
+    // Rounded to 12 digits: `1 / 1e-6` is not exactly 10⁶ in binary.
+    let v = bound / scale;
+    let v = format!("{v:.12e}").parse::<f64>().unwrap_or(v);
+    let number = if v.abs() >= 1e6 || v.abs() < 1e-3 {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    };
+    if unit.is_empty() || unit == "1" {
+        number
+    } else {
+        format!("{number} {unit}")
     }
 }
 

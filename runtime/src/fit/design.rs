@@ -143,6 +143,91 @@ pub enum DesignError {
         #[source]
         source: EvalError,
     },
+    #[error(
+        "{path}, line {line}: the model's prediction or its derivatives at this row overflow \
+         double precision (a value in the row or in the model is far too large to fit)"
+    )]
+    NotFinite { path: String, line: usize },
+    #[error(
+        "{path}, line{} {}: artifact `{label}` is observed at {rows} row{} ({values} value{}), too \
+         few for its placement (3 shifts, 3 rotations): that needs at least 6 observed values, \
+         and at least 3 points when its rotations are not observed. Measure it at more points, \
+         or leave its `artifact` cells empty to take its placement as nominal",
+        if lines.len() == 1 { "" } else { "s" },
+        lines.iter().map(usize::to_string).collect::<Vec<_>>().join(", "),
+        if *rows == 1 { "" } else { "s" },
+        if *values == 1 { "" } else { "s" }
+    )]
+    ThinArtifact {
+        path: String,
+        label: String,
+        /// The artifact's rows (at most the first 10).
+        lines: Vec<usize>,
+        rows: usize,
+        values: usize,
+    },
+}
+
+/// An artifact of a point file observed at too few rows to fix its placement would make the
+/// design rank-deficient, and the deficiency would be named at the model's terms. It is
+/// reported at its rows instead, before anything expensive runs.
+pub fn check_artifacts(files: &[DataSet]) -> Result<(), DesignError> {
+    for file in files {
+        let Observations::Points(p) = &file.observations else {
+            continue;
+        };
+        let Some(groups) = &p.rows.artifact else {
+            continue;
+        };
+        for (id, label) in groups.labels.iter().enumerate() {
+            let mut lines = Vec::new();
+            let (mut rows, mut values, mut rotations) = (0usize, 0usize, false);
+            for (r, a) in groups.of_row.iter().enumerate() {
+                if a.map(|a| a as usize) != Some(id) {
+                    continue;
+                }
+                rows += 1;
+                if lines.len() < 10 {
+                    lines.push(p.rows.line.get(r).copied().unwrap_or(0));
+                }
+                for (c, column) in p.observed.iter().enumerate() {
+                    if column
+                        .as_ref()
+                        .and_then(|v| v.get(r))
+                        .is_some_and(|v| !v.is_nan())
+                    {
+                        values += 1;
+                        rotations |= c >= 3;
+                    }
+                }
+            }
+            if values < 6 || (!rotations && rows < 3) {
+                return Err(DesignError::ThinArtifact {
+                    path: file.path.display().to_string(),
+                    label: label.clone(),
+                    lines,
+                    rows,
+                    values,
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A row with an infinite or NaN entry would turn every sum it enters (the triangle, σ̂, the
+/// coefficients) into inf or NaN: it is stopped here, where its file and line are known.
+fn finite_row(
+    x: &[f64],
+    y: f64,
+    path: impl Fn() -> String,
+    line: usize,
+) -> Result<(), DesignError> {
+    if y.is_finite() && x.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(DesignError::NotFinite { path: path(), line })
+    }
 }
 
 /// Builds the states of every file once (they change only when a time constant does), with
@@ -266,6 +351,7 @@ pub fn for_each_row(
                             }
                         }
                         let y = (obs - err[c]) * w;
+                        finite_row(&x, y, path, line)?;
                         row(
                             RowMeta {
                                 file: f as u32,
@@ -296,6 +382,7 @@ pub fn for_each_row(
                     if let Some(first) = layout.first_of(f, rows.artifact_of(r)) {
                         set(&mut x, first, 1.0);
                     }
+                    finite_row(&x, obs - fixed, path, line)?;
                     row(
                         RowMeta {
                             file: f as u32,

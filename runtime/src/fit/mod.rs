@@ -37,6 +37,11 @@ pub enum FitError {
         "{rows} observed values cannot determine {rank} parameters with a noise estimate left over"
     )]
     TooFewRows { rows: usize, rank: usize },
+    #[error(
+        "the sums of squares of the data overflow double precision: values in the data or the \
+         model are too large to fit"
+    )]
+    Overflow,
     #[error("the design is rank-deficient: rank {rank} of {columns} columns")]
     RankDeficient {
         rank: usize,
@@ -128,6 +133,7 @@ pub fn fit(
     progress: Progress,
 ) -> Result<FitResult, FitError> {
     let m = &compiled.machine;
+    design::check_artifacts(files)?;
     let layout = Layout::new(m, files);
     let p = layout.columns();
     // Fitted wavelengths and time constants first: the linear problem below is the one at
@@ -153,6 +159,9 @@ pub fn fit(
     let red = acc.finish();
     if red.rows == 0 {
         return Err(FitError::NoRows);
+    }
+    if !red.is_finite() {
+        return Err(FitError::Overflow);
     }
 
     // Selection reads sub-models off the triangle, which needs independent columns: a

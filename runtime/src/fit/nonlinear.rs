@@ -72,6 +72,9 @@ fn linear_fit(
     let mut acc = StreamingQr::new(layout.columns(), options.block);
     design::for_each_row(engine, files, &states, &layout, |_, x, y| acc.push(x, y))?;
     let red = acc.finish();
+    if !red.is_finite() {
+        return Err(FitError::Overflow);
+    }
     // Minimum norm: a deficiency is reported by the linear fit that follows, not here.
     let sol = match solve::solve(&red, Solver::Svd, options.tolerance, true) {
         Ok(s) | Err(s) => s,

@@ -29,6 +29,21 @@ pub struct Reduced {
     pub y_sumsq: f64,
 }
 
+impl Reduced {
+    /// The statistics square and sum the triangle (RᵀR = [X y]ᵀ[X y], the residual sum of
+    /// squares, σ̂): finite rows can still overflow there. True when every column's sum of
+    /// squares is finite.
+    pub fn is_finite(&self) -> bool {
+        self.norms.iter().all(|v| v.is_finite())
+            && (0..self.r.ncols()).all(|j| {
+                (0..self.r.nrows())
+                    .map(|i| self.r[(i, j)].powi(2))
+                    .sum::<f64>()
+                    .is_finite()
+            })
+    }
+}
+
 impl StreamingQr {
     /// `columns` unknowns; rows are buffered `block` at a time.
     pub fn new(columns: usize, block: usize) -> Self {

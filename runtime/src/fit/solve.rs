@@ -132,7 +132,15 @@ pub fn solve(
         .map(|k| (0..p).map(|i| u[(i, k)] * z[i]).sum::<f64>().powi(2))
         .sum();
     let g = Mat::from_fn(keep, p, |k, j| g_scaled[(k, j)] * scale[j]);
-    let null = Mat::from_fn(p, p - keep, |j, k| v[(j, keep + k)]);
+    // A failed SVD (only possible on non-finite input, which the callers stop before) leaves
+    // `v` without columns: the null space is then left empty rather than indexed out of bounds.
+    let null = Mat::from_fn(p, p - keep, |j, k| {
+        if keep + k < v.ncols() && j < v.nrows() {
+            v[(j, keep + k)]
+        } else {
+            0.0
+        }
+    });
     let solution = Solution {
         beta: b.iter().zip(&scale).map(|(b, s)| b * s).collect(),
         rank,

@@ -142,7 +142,7 @@ fn fixture_with_many_problems_reports_each_located() {
         expected: expected.into(),
     };
     let expected = vec![
-        bad(4, 1, "X", "nan", "a number in mm"),
+        bad(4, 1, "X", "nan", "a finite number in mm"),
         bad(5, 9, "dir_X", "2", "+1 or -1"),
         Problem::UnknownTool {
             line: 6,
@@ -184,7 +184,7 @@ fn fixture_with_many_problems_reports_each_located() {
         "{text}"
     );
     assert!(
-        text.contains("line 4, column 1 (`X`): `nan`: expected a number in mm"),
+        text.contains("line 4, column 1 (`X`): `nan`: expected a finite number in mm"),
         "{text}"
     );
     assert!(
@@ -289,6 +289,10 @@ fn non_numbers_are_refused() {
         let ps = problems(&text);
         assert_eq!(ps.len(), 1, "{bad}: {ps:?}");
         let ok = match &ps[0] {
+            // What Rust reads as a number but is not finite is named as such.
+            Problem::BadCell { name, expected, .. } if bad.parse::<f64>().is_ok() => {
+                name == "X" && expected == "a finite number in mm"
+            }
             Problem::BadCell { name, expected, .. } => name == "X" && expected == "a number in mm",
             Problem::CellCount { .. } => bad.contains(','),
             _ => false,
@@ -678,4 +682,54 @@ fn the_mutation_base_is_valid() {
     let p = points(VALID);
     assert_eq!(p.len(), 3);
     assert_eq!(p.rows.line, vec![3, 4, 6]);
+}
+
+/// Non-finite cells and magnitudes that would overflow a fit are stopped at the cell, with the
+/// bound in the column's unit; the largest plausible values still read.
+#[test]
+fn absurd_magnitudes_are_rejected_at_the_cell() {
+    let found = problems("X,Y,Z,C,ex\n1e160,0,0,0,1\n0,0,0,0,1e308\n0,0,0,0,inf\n0,0,0,0,1e400\n");
+    assert_eq!(
+        found,
+        vec![
+            Problem::Implausible {
+                line: 2,
+                column: 1,
+                name: "X".into(),
+                text: "1e160".into(),
+                what: "axis position",
+                limit: "1e7 mm".into(),
+            },
+            Problem::Implausible {
+                line: 3,
+                column: 9,
+                name: "ex".into(),
+                text: "1e308".into(),
+                what: "error",
+                limit: "1e6 um".into(),
+            },
+            Problem::BadCell {
+                line: 4,
+                column: 9,
+                name: "ex".into(),
+                text: "inf".into(),
+                expected: "a finite number in um".into(),
+            },
+            Problem::BadCell {
+                line: 5,
+                column: 9,
+                name: "ex".into(),
+                text: "1e400".into(),
+                expected: "a finite number in um".into(),
+            },
+        ]
+    );
+    assert!(found[1].to_string().contains(
+        "line 3, column 9 (`ex`): `1e308` is beyond the largest plausible error, ±1e6 um"
+    ));
+    let p = points("X,Y,Z,C,ex\n1e7,0,0,0,1e6\n");
+    assert_column(&p.pose.axes[0], &[MAX_POSITION]);
+    // An empty observed cell still means "not observed".
+    let p = points("X,Y,Z,C,ex,ey\n0,0,0,0,,1\n");
+    assert!(p.observed[0].as_ref().is_some_and(|v| v[0].is_nan()));
 }

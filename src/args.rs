@@ -1,0 +1,179 @@
+//! Option values checked as the command line is parsed: every number a command takes is
+//! validated here, once, so a NaN, an infinity, a negative or an out-of-range value stops with a
+//! message naming the option and what it accepts (clap prefixes the option's name; exit 2)
+//! instead of being ignored or reaching code that would misbehave on it.
+
+use kin_compiler::units::Dim;
+
+/// At most this many poses for `kin simulate --sample` and `kin bench --poses`: every pose is
+/// held in memory with its axes, directions and inputs (some 100 bytes for a five-axis machine),
+/// so 10⁸ is already ~10 GB — more than that is a typo, not a measurement plan.
+pub const MAX_POSES: usize = 100_000_000;
+
+/// At most this many seconds per figure of `kin bench` (a day is a generous upper bound; beyond
+/// it the timer's arithmetic would overflow before anything useful was measured).
+pub const MAX_SECONDS: f64 = 86_400.0;
+
+/// At most this many rounds of `kin demo`: each adds one effect, and the bundled data hide two.
+pub const MAX_ROUNDS: usize = 100;
+
+/// A finite number for which `ok` holds; otherwise a message ending with what is `allowed`.
+fn number(text: &str, allowed: &str, ok: impl Fn(f64) -> bool) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && ok(v) => Ok(v),
+        Ok(v) if v.is_finite() => Err(format!("{v} is outside the allowed range: {allowed}")),
+        Ok(_) => Err(format!("`{text}` is not a finite number: {allowed}")),
+        Err(_) => Err(format!("`{text}` is not a number: {allowed}")),
+    }
+}
+
+/// A fraction strictly between 0 and 1 (`--holdout`).
+pub fn fraction(text: &str) -> Result<f64, String> {
+    number(text, "a fraction with 0 < F < 1", |v| v > 0.0 && v < 1.0)
+}
+
+/// A significance level strictly between 0 and 1 (`--stepwise`, `--enter`, `--alpha`).
+pub fn level(text: &str) -> Result<f64, String> {
+    number(text, "a significance level with 0 < α < 1", |v| {
+        v > 0.0 && v < 1.0
+    })
+}
+
+/// A finite number above zero (`--tolerance`).
+pub fn positive(text: &str) -> Result<f64, String> {
+    number(text, "a finite number > 0", |v| v > 0.0)
+}
+
+/// Seconds per figure of `kin bench`: finite, above zero, at most a day.
+pub fn seconds(text: &str) -> Result<f64, String> {
+    number(text, &format!("0 < S ≤ {MAX_SECONDS}"), |v| {
+        v > 0.0 && v <= MAX_SECONDS
+    })
+}
+
+fn count(text: &str, min: usize, max: usize) -> Result<usize, String> {
+    let n: usize = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{text}` is not a whole number from {min} to {max}"))?;
+    if (min..=max).contains(&n) {
+        Ok(n)
+    } else {
+        Err(format!(
+            "{n} is outside the allowed range: {min} ≤ N ≤ {max}"
+        ))
+    }
+}
+
+/// A number of poses (`kin simulate --sample`, `kin bench --poses`): 1 to [`MAX_POSES`].
+pub fn poses(text: &str) -> Result<usize, String> {
+    count(text, 1, MAX_POSES)
+}
+
+/// The number of rounds of `kin demo`: 0 (fit and diagnose only) to [`MAX_ROUNDS`].
+pub fn rounds(text: &str) -> Result<usize, String> {
+    count(text, 0, MAX_ROUNDS)
+}
+
+/// A standard deviation with its unit, as written and in SI.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Spread {
+    pub text: String,
+    pub si: f64,
+}
+
+fn spread(text: &str, dim: Dim) -> Result<Spread, String> {
+    let si = crate::load::quantity(text, dim)?;
+    if !si.is_finite() {
+        return Err(format!("`{text}` is not finite"));
+    }
+    if si < 0.0 {
+        return Err(format!("`{text}` is negative: a standard deviation is ≥ 0"));
+    }
+    Ok(Spread {
+        text: text.to_string(),
+        si,
+    })
+}
+
+/// A length standard deviation, finite and ≥ 0 (`--noise 0.3um`, `--artifact-shift`,
+/// `--artifact-length`).
+pub fn length_spread(text: &str) -> Result<Spread, String> {
+    spread(text, Dim::LENGTH)
+}
+
+/// An angle standard deviation, finite and ≥ 0 (`--noise-tilt 1urad`, `--artifact-rotation`).
+pub fn angle_spread(text: &str) -> Result<Spread, String> {
+    spread(text, Dim::ANGLE)
+}
+
+/// `--color`: whether diagnostics on standard error are coloured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Color {
+    /// Colour only when standard error is a terminal.
+    #[default]
+    Auto,
+    Always,
+    Never,
+}
+
+impl Color {
+    pub fn enabled(self) -> bool {
+        use std::io::IsTerminal;
+        match self {
+            Color::Always => true,
+            Color::Never => false,
+            Color::Auto => std::io::stderr().is_terminal(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fractions_and_levels_exclude_their_ends_and_non_numbers() {
+        for bad in [
+            "NaN", "nan", "inf", "-inf", "-0.5", "0", "1", "1.5", "x", "",
+        ] {
+            assert!(fraction(bad).is_err(), "{bad}");
+            assert!(level(bad).is_err(), "{bad}");
+        }
+        assert_eq!(fraction("0.25"), Ok(0.25));
+        assert_eq!(level("1e-4"), Ok(1e-4));
+    }
+
+    #[test]
+    fn counts_are_bounded() {
+        assert!(poses("18446744073709551615").is_err());
+        assert!(poses("100000001").is_err());
+        assert!(poses("0").is_err());
+        assert!(poses("-3").is_err());
+        assert_eq!(poses("100000000"), Ok(MAX_POSES));
+        assert_eq!(rounds("0"), Ok(0));
+        assert!(rounds("101").is_err());
+    }
+
+    #[test]
+    fn tolerances_and_seconds_are_finite_and_positive() {
+        for bad in ["NaN", "inf", "0", "-1e-10"] {
+            assert!(positive(bad).is_err(), "{bad}");
+            assert!(seconds(bad).is_err(), "{bad}");
+        }
+        assert!(seconds("1e300").is_err());
+        assert_eq!(positive("1e-10"), Ok(1e-10));
+    }
+
+    #[test]
+    fn spreads_are_finite_non_negative_and_of_their_dimension() {
+        assert!(length_spread("-0.3um").is_err());
+        assert!(length_spread("1e400um").is_err());
+        assert!(length_spread("NaN um").is_err());
+        assert!(length_spread("1urad").is_err());
+        assert!(angle_spread("1um").is_err());
+        let s = length_spread("0.3um").map(|s| s.si);
+        assert!(matches!(s, Ok(v) if (v - 3e-7).abs() < 1e-18));
+        assert_eq!(angle_spread("0urad").map(|s| s.si), Ok(0.0));
+    }
+}

@@ -174,6 +174,14 @@ enum Command {
         /// Add candidate N (as numbered in the list) to the model file and refit.
         #[arg(long, value_name = "N")]
         apply: Option<usize>,
+        /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: the
+        /// residuals are then judged against it (χ² test, region tests) instead of against the
+        /// fit's own σ̂, and only then can the verdict be "down to the noise".
+        #[arg(long, value_name = "Q")]
+        noise: Option<String>,
+        /// The instrument's standard deviation on rotations, e.g. `1urad`.
+        #[arg(long, value_name = "Q")]
+        noise_tilt: Option<String>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -333,6 +341,8 @@ fn main() -> ExitCode {
             alpha,
             output,
             apply,
+            noise,
+            noise_tilt,
             engine,
             ignore,
             color,
@@ -356,6 +366,8 @@ fn main() -> ExitCode {
             alpha,
             output,
             apply,
+            noise,
+            noise_tilt,
         }),
         Command::Eval {
             machine,

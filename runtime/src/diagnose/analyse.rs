@@ -175,7 +175,9 @@ fn noise_check(m: &Machine, rows: &[Located], base: &FitResult, settings: &Setti
     // Replicates: one file, one component, the same axis positions, directions and inputs
     // (time is not part of a pose: a drift between repeats counts as pure error, which makes
     // the test conservative, never alarming).
-    let mut groups: BTreeMap<(u32, u8, Vec<u64>), (usize, f64, f64)> = BTreeMap::new();
+    // (file, component, pose bits) → (rows, Σr, Σr²).
+    type Pose = (u32, u8, Vec<u64>);
+    let mut groups: BTreeMap<Pose, (usize, f64, f64)> = BTreeMap::new();
     for r in &used {
         let width = r.values.len().saturating_sub(1);
         let key: Vec<u64> = r.values[..width]
@@ -1334,4 +1336,84 @@ fn nice(v: f64) -> String {
         3
     };
     format!("{:.*}", digits, v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CMM: &str = r#"
+machine cmm3 {
+    task measure
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 800 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 500) mm
+        tool probe at (0, 0, -100) mm
+    }
+    errors {
+        X.tx = const
+        Y.tx = const
+    }
+}
+"#;
+
+    /// Two columns that differ by a millionth: a refit with the second trades one against the
+    /// other (condition ~10⁶) and the data's small share along their difference becomes
+    /// coefficients of metres.
+    #[test]
+    fn a_refit_that_trades_columns_off_is_doubtful() {
+        let c = compile(CMM).compiled.expect("compiles");
+        let m = &c.machine;
+        assert!(m
+            .coefficients
+            .iter()
+            .all(|k| k.unit.dim == kin_compiler::units::Dim::LENGTH));
+        let mut qr = StreamingQr::new(2, 64);
+        for i in 0..200 {
+            let x = 1.0 + i as f64 / 200.0;
+            let wiggle = (i as f64).sin();
+            qr.push(&[x, x + 1e-6 * wiggle], 1e-6 * x + 1e-6 * wiggle);
+        }
+        let red = qr.finish();
+        let size = machine_size(m);
+        // 1.8 m of travel and 0.6 m of offsets.
+        assert!((size - 2.4).abs() < 1e-9, "{size}");
+        let p = plausibility(&red, &[0], &[1], m, size, m.coefficients.len());
+        assert!(p.condition_before < 1.0 + 1e-9, "{p:?}");
+        assert!(p.condition_after > 1e5, "{p:?}");
+        assert_eq!(p.warnings.len(), 2, "{p:?}");
+        assert!(p.warnings[0].contains("ill-conditioned"), "{p:?}");
+        assert!(p.largest_length > 0.1 * p.machine_size, "{p:?}");
+
+        // Independent columns: nothing to say.
+        let mut qr = StreamingQr::new(2, 64);
+        for i in 0..200 {
+            let x = 1.0 + i as f64 / 200.0;
+            qr.push(&[x, (i as f64).sin()], 1e-6 * x);
+        }
+        let p = plausibility(&qr.finish(), &[0], &[1], m, size, m.coefficients.len());
+        assert!(p.warnings.is_empty(), "{p:?}");
+    }
+
+    #[test]
+    fn sampling_rules() {
+        // 5 positions 10 mm apart: nothing below 20 mm, nothing above 40/3 mm.
+        let s = Sampling::of((0..600).map(|r| 0.1 + 0.01 * (r % 5) as f64)).expect("sampled");
+        assert_eq!(s.distinct, 5);
+        assert!((s.shortest() - 0.02).abs() < 1e-12);
+        assert!(!s.resolves(0.0045) && !s.resolves(0.025) && !s.resolves(0.013));
+        // ±30°: no harmonic at 2, 3, 4 per revolution; the full circle: all of them; 120°: 3, 4.
+        let deg = std::f64::consts::PI / 180.0;
+        let range = |a: f64, b: f64| {
+            Sampling::of((0..=60).map(|k| (a + (b - a) * k as f64 / 60.0) * deg)).expect("sampled")
+        };
+        assert!(range(-30.0, 30.0).harmonics(2..=4).is_empty());
+        assert_eq!(range(0.0, 360.0).harmonics(2..=4), vec![2, 3, 4]);
+        assert_eq!(range(-60.0, 60.0).harmonics(2..=4), vec![3, 4]);
+    }
 }

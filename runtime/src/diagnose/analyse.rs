@@ -1296,8 +1296,9 @@ fn regions(
     (combine(found), bins)
 }
 
-/// Pairs the strongest one-variable regions of the same component into two-variable
-/// statements where both hold ("ez … for Y > 420 mm and X < 150 mm").
+/// Pairs the strongest one-variable regions of the same component into one statement. Each was
+/// tested along its own variable only, so the words do not claim the two hold together ("ez …
+/// for Y > 420 mm; also, along another variable, for X < 150 mm").
 fn combine(found: Vec<Region>) -> Vec<Region> {
     let mut out: Vec<Region> = Vec::new();
     for r in found {
@@ -1316,7 +1317,11 @@ fn combine(found: Vec<Region>) -> Vec<Region> {
                 })
         }) {
             prev.conditions.extend(r.conditions.clone());
-            prev.text = format!("{} and {}", prev.text, r.conditions.join(" and "));
+            prev.text = format!(
+                "{}; also, along another variable, for {}",
+                prev.text,
+                r.conditions.join(", ")
+            );
             continue;
         }
         out.push(r);

@@ -368,3 +368,65 @@ fn repeated_poses_give_a_lack_of_fit_test() {
     let lof = d.noise.lack_of_fit.as_ref().expect("replicates found");
     assert!(!lof.consistent, "{lof:?}");
 }
+
+#[test]
+fn a_gross_outlier_is_named_not_a_failing_region() {
+    // A complete model; one reading 25 µm off (a probe hit on dirt): an outlier by its file and
+    // line, not a region of the workspace where the model fails.
+    let c = compiled(CMM);
+    let poses = sample_points(&c.machine, 500, 19);
+    let mut obs = simulate::simulate(
+        &c.machine,
+        &beta(&c, &[]),
+        &Observations::Points(poses),
+        &simulate::Options {
+            noise: 0.2e-6,
+            seed: 23,
+            ..simulate::Options::default()
+        },
+    )
+    .expect("simulate");
+    let Observations::Points(p) = &mut obs else {
+        panic!("points")
+    };
+    let ez = p.observed[2].as_mut().expect("ez");
+    ez[123] += 25e-6;
+    let line = p.rows.line[123];
+    let files = vec![DataSet {
+        path: "data.csv".into(),
+        observations: obs,
+    }];
+    let mut it = Interpreter::new(&c.machine).expect("interpreter");
+    let r = fit::fit(
+        &c,
+        &mut it,
+        &files,
+        &[],
+        &Options::default(),
+        &mut |_, _| {},
+    )
+    .expect("fit");
+    let stated = Settings {
+        noise: Some(0.2e-6),
+        ..Settings::default()
+    };
+    let d = diagnosed(&c, CMM, &files, &r, &stated);
+    assert!(
+        d.outliers
+            .iter()
+            .any(|o| o.line == line && o.component == "ez" && o.residual > 20.0),
+        "{:?}",
+        d.outliers
+    );
+    assert!(
+        d.regions.is_empty(),
+        "{:?}",
+        d.regions.iter().map(|r| &r.text).collect::<Vec<_>>()
+    );
+    // Left out of the χ² too: the rest is at the stated noise.
+    assert!(
+        d.noise.chi2.as_ref().is_some_and(|c| c.consistent),
+        "{:?}",
+        d.noise
+    );
+}

@@ -929,7 +929,7 @@ fn separation(head: &Candidate, others: &[Candidate]) -> String {
     if mixed {
         "a rotation seen through an Abbe arm that does not change looks like a translation: measuring with a second tool offset (another Abbe arm), or the rotations erx, ery, erz, would separate them".into()
     } else if same_component {
-        "the elements carrying them moved together in these data: measuring poses where those axes move independently would separate them".into()
+        "the same component on elements that either moved together in these data, or whose frames differ only along the error's own axis (a rotation about the direction a carried slide moves): in the first case poses where those axes move independently would separate them; in the second no measurement can, and either line is the same model".into()
     } else {
         "measuring with another tool offset, at poses or inputs where these lines predict different errors, would separate them".into()
     }

@@ -107,6 +107,25 @@ pub fn angle_spread(text: &str) -> Result<Spread, String> {
     spread(text, Dim::ANGLE)
 }
 
+/// A stated instrument noise must be above zero: the residuals are divided by it.
+fn stated(spread: Spread) -> Result<Spread, String> {
+    if spread.si > 0.0 {
+        Ok(spread)
+    } else {
+        Err(format!("`{}` is zero: a stated noise is > 0", spread.text))
+    }
+}
+
+/// The instrument's noise on positions and lengths, > 0 (`kin diagnose --noise`).
+pub fn stated_length_noise(text: &str) -> Result<Spread, String> {
+    stated(length_spread(text)?)
+}
+
+/// The instrument's noise on rotations, > 0 (`kin diagnose --noise-tilt`).
+pub fn stated_angle_noise(text: &str) -> Result<Spread, String> {
+    stated(angle_spread(text)?)
+}
+
 /// `--color`: whether diagnostics on standard error are coloured.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Color {

@@ -20,6 +20,9 @@ pub struct DiagnoseArgs {
     pub force: bool,
     /// Show what `--apply` would add; change nothing.
     pub dry_run: bool,
+    /// The stated instrument noise on positions and on rotations.
+    pub noise: Option<crate::args::Spread>,
+    pub noise_tilt: Option<crate::args::Spread>,
 }
 
 pub fn run(a: DiagnoseArgs) -> ExitCode {
@@ -36,6 +39,8 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
     let settings = Settings {
         alpha: a.alpha,
         engine: a.fit.engine,
+        noise: a.noise.as_ref().map(|n| n.si),
+        noise_tilt: a.noise_tilt.as_ref().map(|n| n.si),
         ..Settings::default()
     };
     let diagnosis = diagnose::diagnose(
@@ -77,6 +82,19 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
             "error: candidate {n} (`{}`) is not significant (adjusted p = {:.2} at α = {}); the model was not changed. \
              Add it anyway with --apply {n} --force",
             finding.candidate.text, finding.p_adjusted, diagnosis.alpha
+        );
+        return Err(Failed::INPUT);
+    }
+    let doubts = finding
+        .plausibility
+        .as_ref()
+        .map(|p| p.warnings.join("; "))
+        .filter(|w| !w.is_empty());
+    if let (Some(doubts), false) = (&doubts, a.force) {
+        eprintln!(
+            "error: candidate {n} (`{}`) makes the refit doubtful ({doubts}); the model was not changed. \
+             Add it anyway with --apply {n} --force",
+            finding.candidate.text
         );
         return Err(Failed::INPUT);
     }
@@ -177,31 +195,71 @@ pub fn replace_model(path: &Path, base: &str, revised: &str) -> Result<(), Faile
     files::write(path, revised.as_bytes())
 }
 
-/// The terminal report: where, then what.
+/// The terminal report: where, then against the noise, then what.
 pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     let u = &d.error_unit;
     let mut s = format!(
         "diagnosis of `{}`: σ̂ = {:.4} {u}, residual RMS {:.4} {u}\n",
         d.machine, sigma, rms
     );
+    let significant: Vec<_> = d.findings.iter().filter(|f| f.significant).collect();
     s.push_str("\nwhere the model fails\n");
     if d.regions.is_empty() {
-        s.push_str(
-            "  nowhere: along every axis and input the residuals are what the noise allows\n",
-        );
+        let line = if !significant.is_empty() {
+            "no region stands out on its own, but the effects below are significant"
+        } else if d.noise.chi2.as_ref().is_some_and(|c| !c.consistent) {
+            "no region stands out: the excess over the stated noise is spread over the workspace"
+        } else if d.noise.chi2.is_some() {
+            "nowhere: along every axis and input the residuals are what the stated noise allows"
+        } else {
+            "no region stands out against the model's own residual scatter σ̂ (no instrument noise stated)"
+        };
+        s.push_str(&format!("  {line}\n"));
     }
     for r in d.regions.iter().take(8) {
         s.push_str(&format!(
-            "  {} ({} observations, p = {:.1e})\n",
-            r.text, r.rows, r.p
+            "  {} ({} observations, p {})\n",
+            r.text,
+            r.rows,
+            pvalue(r.p)
         ));
     }
-    let significant: Vec<_> = d.findings.iter().filter(|f| f.significant).collect();
-    s.push_str(&format!("\nwhich effect is missing (partial F-tests, Holm–Bonferroni at α = {} over {} candidates)\n", d.alpha, d.findings.len()));
+    if !d.outliers.is_empty() {
+        s.push_str(&format!(
+            "\noutliers ({}: |studentized residual| above the fit's threshold; left out of the region and noise tests)\n",
+            d.outliers.len()
+        ));
+        for o in d.outliers.iter().take(8) {
+            s.push_str(&format!(
+                "  {}:{} {} residual {:.4} (studentized {:.1})\n",
+                o.file, o.line, o.component, o.residual, o.studentized
+            ));
+        }
+        if d.outliers.len() > 8 {
+            s.push_str(&format!(
+                "  … and {} more (see DIAGNOSE.json)\n",
+                d.outliers.len() - 8
+            ));
+        }
+    }
+    s.push_str("\nagainst the noise\n");
+    s.push_str(&format!("  {}\n", noise_line(d)));
+    if let Some(l) = &d.noise.lack_of_fit {
+        s.push_str(&format!(
+            "  {} repeated poses ({} rows): pure-error σ = {:.4} {u}; lack of fit F = {:.2}, p {}{}\n",
+            l.groups,
+            l.rows,
+            l.sigma_pure,
+            l.f,
+            pvalue(l.p),
+            if l.consistent { "" } else { ": the model misses more than the instrument scatters" }
+        ));
+    }
+    s.push_str(&format!("\nwhich effect is missing (partial F-tests, Holm–Bonferroni at α = {} over {} candidates; ranked by BIC)\n", d.alpha, d.findings.len()));
     if significant.is_empty() {
-        s.push_str(
-            "  no candidate is significant: the model explains the data down to the noise\n",
-        );
+        let v = verdict(d);
+        let join = if v.starts_with("but ") { ", " } else { ": " };
+        s.push_str(&format!("  no candidate is significant{join}{v}\n"));
         if let Some(best) = d.findings.first() {
             s.push_str(&format!(
                 "  (the strongest, `{}`, would explain {:.2} % with adjusted p = {:.2})\n",
@@ -214,16 +272,30 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     }
     for (i, f) in significant.iter().enumerate().take(10) {
         s.push_str(&format!(
-            "  {:>2}. {:<19} explains {:>5.1} % of the residual variance (F = {:.1}, p = {:.1e}, RMS → {:.4} {u})\n      {}\n      add: {}\n",
+            "  {:>2}. {:<19} explains {:>5.1} % of the residual variance with {} column{} (F = {:.1}, p {}, ΔBIC = {:.0}, RMS → {:.4} {u})\n      {}\n      add: {}\n",
             i + 1,
             format!("{:?}", f.candidate.family),
             100.0 * f.explained,
+            f.columns,
+            if f.columns == 1 { "" } else { "s" },
             f.f,
-            f.p_adjusted,
+            pvalue(f.p_adjusted),
+            f.bic,
             f.rms_after,
             f.candidate.explanation,
             f.candidate.text
         ));
+        for alt in &f.alternatives {
+            s.push_str(&format!("      or, equally on these data: {}\n", alt.text));
+        }
+        if let Some(sep) = &f.separation {
+            s.push_str(&format!(
+                "      the data cannot decide between these readings: {sep}\n"
+            ));
+        }
+        for w in f.plausibility.iter().flat_map(|p| &p.warnings) {
+            s.push_str(&format!("      doubtful: {w}\n"));
+        }
     }
     if significant.len() > 10 {
         s.push_str(&format!(
@@ -233,6 +305,66 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     }
     s.push_str("\n  add one with `kin diagnose … --apply N` (or paste its line into the errors block), then refit\n");
     s
+}
+
+/// `= 3.2e-5`, or `< 1e-16` where the distribution's tail is below double precision.
+fn pvalue(p: f64) -> String {
+    if p < 1e-16 {
+        "< 1e-16".into()
+    } else {
+        format!("= {p:.1e}")
+    }
+}
+
+/// The residual level against the absolute reference that was actually tested.
+fn noise_line(d: &Diagnosis) -> String {
+    let u = &d.error_unit;
+    match &d.noise.chi2 {
+        Some(c) => format!(
+            "σ̂ is {:.2}× the stated noise (χ² = {:.0} on {:.0} degrees of freedom, p {}): {}",
+            c.ratio,
+            c.statistic,
+            c.dof,
+            pvalue(c.p),
+            if c.consistent {
+                "consistent with it"
+            } else {
+                "more than the instrument explains"
+            }
+        ),
+        None => format!(
+            "no instrument noise stated (--noise, --noise-tilt): the tests are relative to the model's own residual scatter σ̂ = {:.4} {u}",
+            d.sigma
+        ),
+    }
+}
+
+/// What "no candidate is significant" means, in the words of the test that was made.
+pub fn verdict(d: &Diagnosis) -> String {
+    match (&d.noise.chi2, &d.noise.lack_of_fit) {
+        (Some(c), _) if c.consistent => format!(
+            "the model explains the data down to the stated noise (σ̂/σ = {:.2}, χ² p = {:.2})",
+            c.ratio, c.p
+        ),
+        (Some(c), _) => format!(
+            "but σ̂ is {:.1}× the stated noise (χ² p {}): the model leaves more than the instrument's noise unexplained, and no effect of the library accounts for the rest (or the stated noise is too small)",
+            c.ratio,
+            pvalue(c.p)
+        ),
+        (None, Some(l)) if l.consistent => format!(
+            "the residuals are consistent with the scatter of the {} repeated poses (lack of fit p = {:.2})",
+            l.groups, l.p
+        ),
+        (None, Some(l)) => format!(
+            "but the residuals exceed the scatter of the {} repeated poses (lack of fit p {}): something the library does not propose is missing",
+            l.groups,
+            pvalue(l.p)
+        ),
+        (None, None) => format!(
+            "the residuals are consistent with the model's own residual scatter (σ̂ = {:.4} {}); with no instrument noise stated this says nothing of the absolute level (state it with --noise)",
+            d.sigma, d.error_unit
+        ),
+    }
 }
 
 #[cfg(test)]

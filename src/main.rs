@@ -188,12 +188,21 @@ enum Command {
         /// MACHINE.previous and in its history record.
         #[arg(long, value_name = "N")]
         apply: Option<usize>,
-        /// With --apply: add a candidate that is not significant (refused otherwise).
+        /// With --apply: add a candidate that is not significant, or whose refit is doubtful
+        /// (refused otherwise).
         #[arg(long, requires = "apply")]
         force: bool,
         /// With --apply: print the lines that would be added, change nothing.
         #[arg(long, requires = "apply")]
         dry_run: bool,
+        /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: the
+        /// residuals are then judged against it (χ² test, region tests) instead of against the
+        /// fit's own σ̂, and only then can the verdict be "down to the noise".
+        #[arg(long, value_name = "Q", value_parser = args::stated_length_noise, allow_hyphen_values = true)]
+        noise: Option<Spread>,
+        /// The instrument's standard deviation on rotations, e.g. `1urad`.
+        #[arg(long, value_name = "Q", value_parser = args::stated_angle_noise, allow_hyphen_values = true)]
+        noise_tilt: Option<Spread>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -366,6 +375,8 @@ fn main() -> ExitCode {
             apply,
             force,
             dry_run,
+            noise,
+            noise_tilt,
             engine,
             ignore,
             color,
@@ -391,6 +402,8 @@ fn main() -> ExitCode {
             apply,
             force,
             dry_run,
+            noise,
+            noise_tilt,
         }),
         Command::Eval {
             machine,

@@ -518,3 +518,85 @@ fn diagnose_apply_refits_a_candidate_the_model_partly_has() {
         "{revised}"
     );
 }
+
+/// The verdict follows the test that was made: with the instrument's noise stated and σ̂ ≈ 2.7
+/// times it, neither "nowhere" nor "down to the noise" may appear; stated right, the same data
+/// are "down to the stated noise"; with nothing stated the words are relative to σ̂.
+#[test]
+fn diagnose_judges_against_a_stated_noise() {
+    let model = "machine cmm3 {
+    task measure
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 800 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 500) mm
+        tool probe at (0, 0, -100) mm
+    }
+    errors {
+        X.tx = spline(X, knots 2)
+        X.rz = const
+        Y.ty = linear(Y)
+        Z.tz = linear(Z)
+    }
+}
+";
+    let dir = tmp("noise");
+    std::fs::create_dir_all(&dir).unwrap();
+    let model_path = dir.join("cmm3.kin");
+    std::fs::write(&model_path, model).unwrap();
+    let params = dir.join("truth.params");
+    std::fs::write(
+        &params,
+        "params {\n    X.tx = [3, -2, 1, 0.5] um\n    X.rz[0] = 4 urad\n    Y.ty[0] = 1.5 um\n    Z.tz[0] = 2 um\n}\n",
+    )
+    .unwrap();
+    let data = dir.join("points.csv");
+    let (model_arg, data_arg) = (model_path.to_str().unwrap(), data.to_str().unwrap());
+    let out = kin(&[
+        "simulate",
+        model_arg,
+        "--params",
+        params.to_str().unwrap(),
+        "--sample",
+        "500",
+        "--noise",
+        "0.54um",
+        "--seed",
+        "5",
+        "-o",
+        data_arg,
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+
+    let out = kin(&["diagnose", model_arg, data_arg, "--noise", "0.2um"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    assert!(!s.contains("nowhere") && !s.contains("down to the"), "{s}");
+    assert!(s.contains("× the stated noise (χ²"), "{s}");
+    let ratio: f64 = s
+        .split("σ̂ is ")
+        .nth(1)
+        .and_then(|t| t.split('×').next())
+        .and_then(|v| v.parse().ok())
+        .expect("σ̂ over the stated noise");
+    assert!((2.4..3.0).contains(&ratio), "{ratio}: {s}");
+
+    let out = kin(&["diagnose", model_arg, data_arg, "--noise", "0.54 um"]);
+    let s = text(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(s.contains("down to the stated noise"), "{s}");
+
+    let out = kin(&["diagnose", model_arg, data_arg]);
+    let s = text(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(!s.contains("down to the") && !s.contains("nowhere"), "{s}");
+    assert!(s.contains("model's own residual scatter"), "{s}");
+
+    // A noise that is not a length is a usage error.
+    let out = kin(&["diagnose", model_arg, data_arg, "--noise", "2urad"]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+}

@@ -80,6 +80,10 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
         p_adjusted: (p * 30.0).min(1.0),
         significant,
         rms_after: 0.19,
+        alternatives: Vec::new(),
+        separation: None,
+        bic: -100.0,
+        plausibility: None,
     };
     Diagnosis {
         machine: "bridge_cmm".into(),
@@ -144,6 +148,8 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
                 false,
             ),
         ],
+        noise: Default::default(),
+        outliers: Vec::new(),
     }
 }
 

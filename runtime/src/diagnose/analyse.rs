@@ -1,14 +1,17 @@
 //! Testing the candidate library against the data, and locating where the model fails.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 
 use kin_compiler::ir::{JointKind, Machine};
 use kin_compiler::{compile, Compiled, Diagnostic};
 use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 use thiserror::Error;
 
-use super::library::{self, Available, Proposal};
-use super::{Bin, Diagnosis, Finding, Region, Spectrum};
+use super::library::{self, Available, Proposal, Sampling};
+use super::{
+    Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, LackOfFit, NoiseCheck, Outlier,
+    Plausibility, Region, Spectrum,
+};
 use crate::data::Observations;
 use crate::fit::report::{component_name, model_hash};
 use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, LENGTH};
@@ -37,6 +40,10 @@ pub struct Settings {
     pub bins: usize,
     /// What evaluates the model with all its candidates.
     pub engine: crate::engine::Engine,
+    /// The instrument's stated standard deviation on positions and lengths (m) and on
+    /// rotations (rad): the absolute reference of the region tests and of the verdict.
+    pub noise: Option<f64>,
+    pub noise_tilt: Option<f64>,
 }
 
 impl Default for Settings {
@@ -46,6 +53,8 @@ impl Default for Settings {
             taus: vec![600.0, 1800.0, 5400.0],
             bins: 8,
             engine: crate::engine::Engine::default(),
+            noise: None,
+            noise_tilt: None,
         }
     }
 }
@@ -61,8 +70,9 @@ pub fn diagnose(
 ) -> Result<Diagnosis, DiagnoseError> {
     let m = &compiled.machine;
     let s = m.units.error.scale;
+    let available = available(m, files);
     let rows = positions(m, files, base);
-    let spectra = spectra(m, &rows, base.sigma);
+    let spectra = spectra(m, &rows, &available.sampled);
     let peaks: Vec<(usize, f64)> = spectra
         .iter()
         .filter(|sp| sp.peak_false_alarm < 0.01)
@@ -77,7 +87,6 @@ pub fn diagnose(
             Some((a, unit.to_si(*sp.wavelengths.get(k)?) - unit.to_si(0.0)))
         })
         .collect();
-    let available = available(m, files);
     let proposals = library::propose(m, &available, &peaks, &settings.taus);
     let findings = test_candidates(compiled, source, files, base, options, &proposals, settings)?;
     let (regions, bins) = regions(m, &rows, base, settings);
@@ -93,7 +102,126 @@ pub fn diagnose(
         bins,
         spectra,
         findings,
+        noise: noise_check(m, &rows, base, settings),
+        outliers: outliers(m, files, base),
     })
+}
+
+/// The stated σ of a component's rows, in its display unit (error unit; tilt unit for
+/// rotations, which is what a weighted rotation residual over the error scale is).
+fn stated(m: &Machine, settings: &Settings, component: u8) -> Option<f64> {
+    if (3..6).contains(&component) {
+        settings.noise_tilt.map(|t| t / m.units.tilt.scale)
+    } else {
+        settings.noise.map(|n| n / m.units.error.scale)
+    }
+}
+
+/// The display unit of a component's residuals.
+fn unit_of(m: &Machine, component: u8) -> &str {
+    if (3..6).contains(&component) {
+        &m.units.tilt.name
+    } else {
+        &m.units.error.name
+    }
+}
+
+fn outliers(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Outlier> {
+    base.residuals
+        .iter()
+        .filter(|r| r.studentized.abs() > base.outlier_threshold)
+        .map(|r| Outlier {
+            file: files
+                .get(r.meta.file as usize)
+                .map(|f| f.path.display().to_string())
+                .unwrap_or_default(),
+            line: r.meta.line as usize,
+            component: component_name(r.meta.component).to_string(),
+            residual: r.residual / m.units.error.scale,
+            studentized: r.studentized,
+        })
+        .collect()
+}
+
+/// The residuals against the stated noise (χ²) and against the scatter of repeated poses
+/// (lack of fit). Outliers are left out of both: they are named on their own.
+fn noise_check(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings) -> NoiseCheck {
+    let used: Vec<&Located> = rows.iter().filter(|r| !r.outlier).collect();
+    let n = used.len() as f64;
+    // The fit's coefficients take their share of the degrees of freedom from every row alike.
+    let keep = 1.0 - base.solution.rank as f64 / (base.rows.max(1) as f64);
+    let chi2 = {
+        let with: Vec<(f64, f64)> = used
+            .iter()
+            .filter_map(|r| Some((r.residual, stated(m, settings, r.component)?)))
+            .filter(|(_, s)| *s > 0.0)
+            .collect();
+        let dof = with.len() as f64 * keep;
+        (dof >= 1.0).then(|| {
+            let statistic: f64 = with.iter().map(|(r, s)| (r / s).powi(2)).sum();
+            let p = ChiSquared::new(dof)
+                .map(|d| 1.0 - d.cdf(statistic))
+                .unwrap_or(0.0);
+            ChiSquare {
+                rows: with.len(),
+                dof,
+                statistic,
+                ratio: (statistic / dof).sqrt(),
+                p,
+                consistent: p >= settings.alpha,
+            }
+        })
+    };
+    // Replicates: one file, one component, the same axis positions, directions and inputs
+    // (time is not part of a pose: a drift between repeats counts as pure error, which makes
+    // the test conservative, never alarming).
+    // (file, component, pose bits) → (rows, Σr, Σr²).
+    type Pose = (u32, u8, Vec<u64>);
+    let mut groups: BTreeMap<Pose, (usize, f64, f64)> = BTreeMap::new();
+    for r in &used {
+        let width = r.values.len().saturating_sub(1);
+        let key: Vec<u64> = r.values[..width]
+            .iter()
+            .chain(&r.dirs)
+            .map(|v| v.to_bits())
+            .collect();
+        let g = groups
+            .entry((r.file, r.component, key))
+            .or_insert((0, 0.0, 0.0));
+        g.0 += 1;
+        g.1 += r.residual;
+        g.2 += r.residual * r.residual;
+    }
+    let repeated: Vec<&(usize, f64, f64)> = groups.values().filter(|g| g.0 > 1).collect();
+    let dof_pure: f64 = repeated.iter().map(|g| (g.0 - 1) as f64).sum();
+    let ss_pure: f64 = repeated
+        .iter()
+        .map(|g| (g.2 - g.1 * g.1 / g.0 as f64).max(0.0))
+        .sum();
+    let rss: f64 = used.iter().map(|r| r.residual * r.residual).sum();
+    let dof_lack = n * keep - dof_pure;
+    let lack_of_fit = (dof_pure >= 1.0 && dof_lack >= 1.0 && ss_pure > 0.0).then(|| {
+        let f = ((rss - ss_pure).max(0.0) / dof_lack) / (ss_pure / dof_pure);
+        let p = FisherSnedecor::new(dof_lack, dof_pure)
+            .map(|d| 1.0 - d.cdf(f))
+            .unwrap_or(0.0);
+        LackOfFit {
+            groups: repeated.len(),
+            rows: repeated.iter().map(|g| g.0).sum(),
+            dof_pure,
+            dof_lack,
+            sigma_pure: (ss_pure / dof_pure).sqrt(),
+            f,
+            p,
+            consistent: p >= settings.alpha,
+        }
+    });
+    NoiseCheck {
+        stated: settings.noise.map(|v| v / m.units.error.scale),
+        stated_tilt: settings.noise_tilt.map(|v| v / m.units.tilt.scale),
+        chi2,
+        lack_of_fit,
+    }
 }
 
 fn available(m: &Machine, files: &[DataSet]) -> Available {
@@ -122,12 +250,29 @@ fn available(m: &Machine, files: &[DataSet]) -> Available {
             })
             .collect(),
         time: all(&|d: &DataSet| d.observations.rows().time.is_some()),
+        sampled: (0..m.axes.len())
+            .map(|a| {
+                Sampling::of(files.iter().flat_map(|d| -> Vec<f64> {
+                    match &d.observations {
+                        Observations::Points(p) => p.pose.axes.get(a).cloned().unwrap_or_default(),
+                        Observations::Lengths(l) => l
+                            .poses
+                            .iter()
+                            .flat_map(|p| p.axes.get(a).cloned().unwrap_or_default())
+                            .collect(),
+                    }
+                }))
+            })
+            .collect(),
     }
 }
 
 /// One residual with the state variables it was observed at (display units).
 struct Located {
+    file: u32,
     component: u8,
+    /// Flagged by the fit (studentized residual): kept out of the region tests.
+    outlier: bool,
     residual: f64,
     leverage: f64,
     /// Axis positions, then inputs, then time (NaN where unknown).
@@ -246,7 +391,9 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
                 Observations::Lengths(_) => vec![f64::NAN; m.axes.len()],
             };
             Some(Located {
+                file: r.meta.file,
                 component: r.meta.component,
+                outlier: r.studentized.abs() > base.outlier_threshold,
                 residual: r.residual / s,
                 leverage: r.leverage,
                 values,
@@ -258,14 +405,19 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
 
 /// Lomb–Scargle periodogram (Scargle 1982) of the residuals along each prismatic axis, per
 /// translation component: for non-uniform sampling, which is what real measurement plans are.
-fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
+fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<Spectrum> {
     let mut out = Vec::new();
     for (a, axis) in m.axes.iter().enumerate() {
         if axis.kind != JointKind::Prismatic {
             continue;
         }
+        let Some(sampling) = sampled.get(a).copied().flatten() else {
+            continue;
+        };
         let unit = &m.units.length;
-        let range = unit.from_si(axis.range[1]) - unit.from_si(axis.range[0]);
+        let range = unit.from_si(sampling.hi) - unit.from_si(sampling.lo);
+        // Nothing shorter than the sampling resolves (Nyquist on the distinct positions).
+        let nyquist = unit.from_si(sampling.shortest()) - unit.from_si(0.0);
         for c in [0u8, 1, 2, LENGTH] {
             let pts: Vec<(f64, f64)> = rows
                 .iter()
@@ -282,9 +434,14 @@ fn spectra(m: &Machine, rows: &[Located], _sigma: f64) -> Vec<Spectrum> {
             if var <= 0.0 {
                 continue;
             }
-            // Wavelengths from two thirds of the range down to about four samples per period.
-            let longest = range / 1.5;
-            let shortest = (4.0 * range / n).max(range / 2000.0);
+            // Wavelengths that repeat at least three times over the covered range, down to
+            // about four samples per period and never below twice the median spacing of the
+            // distinct positions (`Sampling::resolves`).
+            let longest = range / Sampling::PERIODS;
+            let shortest = (4.0 * range / n).max(range / 2000.0).max(nyquist);
+            if !(shortest < longest) {
+                continue;
+            }
             let count = 600;
             let mut wavelengths = Vec::with_capacity(count);
             let mut trig: Vec<(f64, f64)> = Vec::with_capacity(pts.len());
@@ -519,10 +676,15 @@ fn test_candidates(
     // cannot be used here: after a dependent column its triangle is meaningless.)
     let column = |j: usize| -> Vec<f64> { (0..red.r.nrows()).map(|i| red.r[(i, j)]).collect() };
     let mut base_basis: Vec<Vec<f64>> = Vec::new();
+    // The base columns that keep a direction of their own: the refit's columns for the
+    // plausibility check.
+    let mut base_cols: Vec<usize> = Vec::new();
     for j in (0..width).filter(|&j| base_mask[j]) {
         let mut v = column(j);
         project_out(&mut v, &base_basis);
-        extend(&mut base_basis, v, red.norms[j]);
+        if extend(&mut base_basis, v, red.norms[j]) {
+            base_cols.push(j);
+        }
     }
     let base_rank = base_basis.len();
     let mut y = column(width);
@@ -532,9 +694,10 @@ fn test_candidates(
     let rows = red.rows as f64;
     let s = m.units.error.scale;
 
-    let mut tested: Vec<(usize, Finding)> = Vec::new();
+    let mut tested: Vec<Tested> = Vec::new();
     for (k, terms) in &columns {
         let mut own: Vec<Vec<f64>> = Vec::new();
+        let mut own_cols: Vec<usize> = Vec::new();
         let mut kept = Vec::with_capacity(terms.len());
         // Whether the line can be written to add exactly what is new (see below).
         let mut appliable = true;
@@ -550,7 +713,9 @@ fn test_candidates(
                     })
                     .clone();
                 project_out(&mut v, &own);
-                extend(&mut own, v, red.norms[j]);
+                if extend(&mut own, v, red.norms[j]) {
+                    own_cols.push(j);
+                }
             }
             let new = own.len() - before;
             kept.push(new > 0);
@@ -578,10 +743,12 @@ fn test_candidates(
         let p = FisherSnedecor::new(added as f64, dof)
             .map(|d| 1.0 - d.cdf(f.max(0.0)))
             .unwrap_or(1.0);
-        tested.push((
-            *k,
-            Finding {
+        tested.push(Tested {
+            proposal: *k,
+            finding: Finding {
                 candidate: library::restate(&proposals[*k], &kept),
+                alternatives: Vec::new(),
+                separation: None,
                 columns: added,
                 explained: ((rss_base - rss) / rss_base).max(0.0),
                 f,
@@ -589,38 +756,314 @@ fn test_candidates(
                 p_adjusted: 1.0,
                 significant: false,
                 rms_after: (rss / rows).sqrt() / s,
+                bic: rows * (rss / rss_base).ln() + added as f64 * rows.ln(),
+                plausibility: None,
             },
-        ));
+            basis: own,
+            columns: own_cols,
+            rss,
+        });
     }
-    // Holm–Bonferroni over every candidate tested.
+    // Holm–Bonferroni over every candidate tested (ties by text: the order is the data's).
     let n = tested.len();
     let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| tested[a].1.p.total_cmp(&tested[b].1.p));
+    order.sort_by(|&a, &b| {
+        tested[a]
+            .finding
+            .p
+            .total_cmp(&tested[b].finding.p)
+            .then_with(|| {
+                tested[a]
+                    .finding
+                    .candidate
+                    .text
+                    .cmp(&tested[b].finding.candidate.text)
+            })
+    });
     let mut running: f64 = 0.0;
     for (rank, &i) in order.iter().enumerate() {
-        let adj = ((n - rank) as f64 * tested[i].1.p).min(1.0);
+        let adj = ((n - rank) as f64 * tested[i].finding.p).min(1.0);
         running = running.max(adj);
-        tested[i].1.p_adjusted = running;
-        tested[i].1.significant = running < settings.alpha;
+        tested[i].finding.p_adjusted = running;
+        tested[i].finding.significant = running < settings.alpha;
     }
-    // One finding per group (a lag at its best time constant).
-    let mut best: HashMap<String, Finding> = HashMap::new();
-    for (k, f) in tested {
-        let g = proposals[k].group.clone();
+    // One finding per group (a lag at its best time constant); a BTreeMap and a tie-break on
+    // the text keep the choice independent of any iteration order.
+    let mut best: BTreeMap<String, Tested> = BTreeMap::new();
+    for t in tested {
+        let g = proposals[t.proposal].group.clone();
         match best.get(&g) {
-            Some(b) if b.f >= f.f => {}
+            Some(b)
+                if b.finding.f > t.finding.f
+                    || (b.finding.f == t.finding.f
+                        && b.finding.candidate.text <= t.finding.candidate.text) => {}
             _ => {
-                best.insert(g, f);
+                best.insert(g, t);
             }
         }
     }
-    let mut findings: Vec<Finding> = best.into_values().collect();
-    findings.sort_by(|a, b| {
-        b.significant
-            .cmp(&a.significant)
-            .then(b.explained.total_cmp(&a.explained))
-    });
-    Ok(findings)
+    let mut all: Vec<Tested> = best.into_values().collect();
+    all.sort_by(|a, b| rank_order(&a.finding, &b.finding));
+    let mut findings = equivalent_groups(all, rss_base);
+    // The plausibility of the refit, for what the user may act on.
+    let size = machine_size(m);
+    for f in findings.iter_mut().filter(|f| f.finding.significant) {
+        let p = plausibility(
+            &red,
+            &base_cols,
+            &f.columns,
+            &sup.machine,
+            size,
+            layout.coefficients,
+        );
+        f.finding.plausibility = Some(p);
+    }
+    let mut out: Vec<Finding> = findings.into_iter().map(|t| t.finding).collect();
+    out.sort_by(rank_order);
+    Ok(out)
+}
+
+/// A candidate as tested: its finding, the orthonormal basis of what it adds (base projected
+/// out), the super-model columns behind it, and its refit RSS.
+struct Tested {
+    proposal: usize,
+    finding: Finding,
+    basis: Vec<Vec<f64>>,
+    columns: Vec<usize>,
+    rss: f64,
+}
+
+/// The ranking: significant before not; a significant finding whose refit is implausible after
+/// the plausible ones; then by BIC (a column must pay ln n), the simpler family, the text.
+fn rank_order(a: &Finding, b: &Finding) -> std::cmp::Ordering {
+    let doubtful = |f: &Finding| {
+        f.plausibility
+            .as_ref()
+            .is_some_and(|p| !p.warnings.is_empty())
+    };
+    b.significant
+        .cmp(&a.significant)
+        .then(doubtful(a).cmp(&doubtful(b)))
+        .then(a.bic.total_cmp(&b.bic))
+        .then(simplicity(a.candidate.family).cmp(&simplicity(b.candidate.family)))
+        .then_with(|| a.candidate.text.cmp(&b.candidate.text))
+}
+
+/// Among readings the data cannot tell apart, the simplest physical one is canonical: a
+/// constant before an angular error seen through an arm, before a step, before what varies.
+fn simplicity(f: Family) -> u8 {
+    match f {
+        Family::Constant => 0,
+        Family::AbbeAngular => 1,
+        Family::Backlash => 2,
+        Family::Drift => 3,
+        Family::Thermal => 4,
+        Family::CrossCoupling => 5,
+        Family::Periodic => 6,
+        Family::RevoluteHarmonics => 7,
+        Family::MoreKnots => 8,
+    }
+}
+
+/// Two candidates whose added columns span one space (every principal angle below about a
+/// milliradian: `a − ‖AᵀB‖²_F` below 10⁻⁶ per column) give the same refit on any weighting of
+/// these rows: the data cannot decide between them.
+const SAME_SPACE: f64 = 1e-6;
+
+fn same_space(a: &Tested, b: &Tested) -> bool {
+    if a.basis.len() != b.basis.len() {
+        return false;
+    }
+    let captured: f64 = a
+        .basis
+        .iter()
+        .map(|u| b.basis.iter().map(|v| dot(u, v).powi(2)).sum::<f64>())
+        .sum();
+    a.basis.len() as f64 - captured < SAME_SPACE * a.basis.len() as f64
+}
+
+/// Groups indistinguishable candidates (given in rank order) into one finding each: the
+/// canonical line by [`simplicity`] then text, the others as alternatives.
+fn equivalent_groups(all: Vec<Tested>, rss_base: f64) -> Vec<Tested> {
+    let mut groups: Vec<Vec<Tested>> = Vec::new();
+    for t in all {
+        // Equal RSS (to rounding) first: a cheap necessary condition.
+        let close = |g: &Vec<Tested>| {
+            g.first().is_some_and(|h| {
+                (h.rss - t.rss).abs() <= 1e-9 * rss_base.max(f64::MIN_POSITIVE)
+                    && h.finding.significant == t.finding.significant
+                    && same_space(h, &t)
+            })
+        };
+        match groups.iter_mut().find(|g| close(g)) {
+            Some(g) => g.push(t),
+            None => groups.push(vec![t]),
+        }
+    }
+    groups
+        .into_iter()
+        .filter_map(|mut g| {
+            g.sort_by(|a, b| {
+                simplicity(a.finding.candidate.family)
+                    .cmp(&simplicity(b.finding.candidate.family))
+                    .then_with(|| a.finding.candidate.text.cmp(&b.finding.candidate.text))
+            });
+            let mut it = g.into_iter();
+            let mut head = it.next()?;
+            let alternatives: Vec<Candidate> = it.map(|t| t.finding.candidate).collect();
+            if !alternatives.is_empty() {
+                head.finding.separation = Some(separation(&head.finding.candidate, &alternatives));
+                head.finding.alternatives = alternatives;
+            }
+            Some(head)
+        })
+        .collect()
+}
+
+/// What measurement would tell equivalent readings apart, from how they differ.
+fn separation(head: &Candidate, others: &[Candidate]) -> String {
+    let component = |c: &Candidate| c.target.rsplit('.').next().unwrap_or("").to_string();
+    let rotation = |c: &Candidate| component(c).starts_with('r');
+    let mixed = others.iter().any(|o| rotation(o) != rotation(head));
+    let same_component = others.iter().all(|o| component(o) == component(head));
+    if mixed {
+        "a rotation seen through an Abbe arm that does not change looks like a translation: measuring with a second tool offset (another Abbe arm), or the rotations erx, ery, erz, would separate them".into()
+    } else if same_component {
+        "the same component on elements that either moved together in these data, or whose frames differ only along the error's own axis (a rotation about the direction a carried slide moves): in the first case poses where those axes move independently would separate them; in the second no measurement can, and either line is the same model".into()
+    } else {
+        "measuring with another tool offset, at poses or inputs where these lines predict different errors, would separate them".into()
+    }
+}
+
+/// The machine's size: its prismatic travels and the lengths of its nominal offsets, summed
+/// (m). A fitted geometric error comparable with it is not an error of this machine.
+fn machine_size(m: &Machine) -> f64 {
+    let norm = |t: [f64; 3]| (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
+    let travels: f64 = m
+        .axes
+        .iter()
+        .filter(|a| a.kind == JointKind::Prismatic)
+        .map(|a| (a.range[1] - a.range[0]).abs())
+        .sum();
+    let offsets: f64 = m
+        .tool_chain
+        .iter()
+        .chain(&m.workpiece_chain)
+        .map(|e| norm(e.shape.translation))
+        .chain(m.tools.iter().map(|t| norm(t.offset.translation)))
+        .sum();
+    travels + offsets
+}
+
+/// A condition number that grows by this factor, to at least [`ILL_CONDITIONED`], marks a
+/// refit whose coefficients trade off against each other rather than describe the machine.
+const CONDITION_JUMP: f64 = 1e3;
+const ILL_CONDITIONED: f64 = 1e4;
+/// A fitted length coefficient beyond this fraction of the machine's size is implausible.
+const SIZE_FRACTION: f64 = 0.1;
+
+/// The refit of the base columns with the candidate's, on the unit-scaled triangle: its
+/// condition number against the base's, and its largest length coefficient.
+#[allow(clippy::too_many_arguments)]
+fn plausibility(
+    red: &fit::Reduced,
+    base_cols: &[usize],
+    cand_cols: &[usize],
+    sup: &Machine,
+    size: f64,
+    coefficients: usize,
+) -> Plausibility {
+    let rows = red.r.nrows();
+    let width = red.norms.len();
+    let scaled = |j: usize| -> Vec<f64> {
+        let n = red
+            .norms
+            .get(j)
+            .copied()
+            .unwrap_or(1.0)
+            .max(f64::MIN_POSITIVE);
+        (0..rows).map(|i| red.r[(i, j)] / n).collect()
+    };
+    let y: Vec<f64> = (0..rows).map(|i| red.r[(i, width)]).collect();
+    let solve = |cols: &[usize]| -> (f64, Vec<f64>) {
+        let x: Vec<Vec<f64>> = cols.iter().map(|&j| scaled(j)).collect();
+        let k = cols.len();
+        let gram = nalgebra::DMatrix::from_fn(k, k, |a, b| dot(&x[a], &x[b]));
+        let rhs = nalgebra::DVector::from_fn(k, |a, _| dot(&x[a], &y));
+        let eig = gram.symmetric_eigen();
+        let (lo, hi) = eig
+            .eigenvalues
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |(l, h), &v| (l.min(v), h.max(v)));
+        let condition = if lo > 0.0 {
+            (hi / lo).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        // β = V Λ⁻¹ Vᵀ b, unscaled back to SI.
+        let vt_b = eig.eigenvectors.transpose() * rhs;
+        let w = nalgebra::DVector::from_fn(k, |a, _| {
+            let l = eig.eigenvalues[a];
+            if l > 0.0 {
+                vt_b[a] / l
+            } else {
+                0.0
+            }
+        });
+        let beta = &eig.eigenvectors * w;
+        let si = (0..k)
+            .map(|a| beta[a] / red.norms[cols[a]].max(f64::MIN_POSITIVE))
+            .collect();
+        (condition, si)
+    };
+    let (condition_before, _) = solve(base_cols);
+    let mut cols = base_cols.to_vec();
+    cols.extend_from_slice(cand_cols);
+    let (condition_after, beta) = solve(&cols);
+    let length = &sup.units.length;
+    let largest = cols
+        .iter()
+        .zip(&beta)
+        .filter(|(j, _)| **j < coefficients)
+        .filter(|(j, _)| {
+            sup.coefficients
+                .get(**j)
+                .is_some_and(|c| c.unit.dim == kin_compiler::units::Dim::LENGTH)
+        })
+        .map(|(_, b)| b.abs())
+        .fold(0.0, f64::max);
+    let mut warnings = Vec::new();
+    if condition_after >= CONDITION_JUMP * condition_before && condition_after >= ILL_CONDITIONED {
+        warnings.push(format!(
+            "the refit is ill-conditioned: its condition number goes from {} to {} (its coefficients trade off against each other)",
+            sci(condition_before),
+            sci(condition_after)
+        ));
+    }
+    if largest > SIZE_FRACTION * size {
+        warnings.push(format!(
+            "the refit has a length coefficient of {} {}, against a machine of {} {}",
+            nice(length.from_si(largest)),
+            length.name,
+            nice(length.from_si(size)),
+            length.name
+        ));
+    }
+    Plausibility {
+        condition_before,
+        condition_after,
+        largest_length: length.from_si(largest),
+        machine_size: length.from_si(size),
+        warnings,
+    }
+}
+
+fn sci(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.1e}")
+    } else {
+        "∞".into()
+    }
 }
 
 /// Residuals binned along every variable, and the regions where they exceed what the noise
@@ -632,7 +1075,7 @@ fn regions(
     settings: &Settings,
 ) -> (Vec<Region>, Vec<Bin>) {
     let vars = variables(m);
-    let sigma = base.sigma / m.units.error.scale;
+    let fitted = base.sigma / m.units.error.scale;
     let comps: Vec<u8> = {
         let mut c: Vec<u8> = rows.iter().map(|r| r.component).collect();
         c.sort_unstable();
@@ -641,7 +1084,7 @@ fn regions(
     };
     // The number of tests, for a Bonferroni threshold on the bins.
     let tests = (comps.len() * vars.len() * settings.bins * 2).max(1) as f64;
-    let chi = |r: &[&Located]| -> (f64, f64, f64) {
+    let chi = |r: &[&Located], sigma: f64| -> (f64, f64, f64) {
         let n = r.len() as f64;
         let stat: f64 = r
             .iter()
@@ -660,11 +1103,35 @@ fn regions(
     let mut bins = Vec::new();
     let mut found: Vec<Region> = Vec::new();
     for &c in &comps {
-        let mine: Vec<&Located> = rows.iter().filter(|r| r.component == c).collect();
+        // Outliers are named on their own, not as a region where the model fails.
+        let mine: Vec<&Located> = rows
+            .iter()
+            .filter(|r| r.component == c && !r.outlier)
+            .collect();
         let cname = component_name(c).to_string();
+        // The reference: the stated noise when given, else the fit's own σ̂ (and the words
+        // say which).
+        let (sigma, against) = match stated(m, settings, c) {
+            Some(v) if v > 0.0 => (
+                v,
+                format!(
+                    "what the stated noise allows (σ = {} {})",
+                    nice(v),
+                    unit_of(m, c)
+                ),
+            ),
+            _ => (
+                fitted,
+                format!(
+                    "the model's own residual scatter (σ̂ = {} {})",
+                    nice(fitted),
+                    m.units.error.name
+                ),
+            ),
+        };
         // A component worse than the noise everywhere is one statement, not one per variable;
         // the bins then look for where it is worse than the component's own level.
-        let (p_all, rms_all, allowed_all) = chi(&mine);
+        let (p_all, rms_all, allowed_all) = chi(&mine, sigma);
         let throughout = p_all < settings.alpha / tests && rms_all > 1.2 * allowed_all;
         if throughout {
             found.push(Region {
@@ -674,10 +1141,8 @@ fn regions(
                 rows: mine.len(),
                 p: p_all,
                 text: format!(
-                    "{cname} residuals are {:.1}× what the noise allows (σ̂ = {} {}) throughout the workspace",
+                    "{cname} residuals are {:.1}× {against} throughout the workspace",
                     rms_all / allowed_all.max(f64::MIN_POSITIVE),
-                    nice(sigma),
-                    m.units.error.name
                 ),
             });
         }
@@ -715,9 +1180,9 @@ fn regions(
                     rows: plus.len() + minus.len(),
                     p,
                     text: format!(
-                        "{cname} residuals shift by {} {} between the two directions of motion of {} ({:.1} σ̂)",
+                        "{cname} residuals shift by {} {} between the two directions of motion of {} ({:.1} σ)",
                         nice(shift),
-                        m.units.error.name,
+                        unit_of(m, c),
                         axis.name,
                         shift.abs() / sigma.max(f64::MIN_POSITIVE)
                     ),
@@ -757,7 +1222,7 @@ fn regions(
                 if inside.is_empty() {
                     continue;
                 }
-                let (p, rms, allowed) = chi(&inside);
+                let (p, rms, allowed) = chi(&inside, sigma);
                 let mean = inside.iter().map(|r| r.residual).sum::<f64>() / inside.len() as f64;
                 bins.push(Bin {
                     component: cname.clone(),
@@ -821,12 +1286,7 @@ fn regions(
                     ratio,
                     rows: count,
                     p,
-                    text: format!(
-                        "{cname} residuals are {:.1}× what the noise allows (σ̂ = {} {}) for {cond}",
-                        ratio,
-                        nice(sigma),
-                        m.units.error.name
-                    ),
+                    text: format!("{cname} residuals are {ratio:.1}× {against} for {cond}"),
                 });
                 i = j + 1;
             }
@@ -836,8 +1296,9 @@ fn regions(
     (combine(found), bins)
 }
 
-/// Pairs the strongest one-variable regions of the same component into two-variable
-/// statements where both hold ("ez … for Y > 420 mm and X < 150 mm").
+/// Pairs the strongest one-variable regions of the same component into one statement. Each was
+/// tested along its own variable only, so the words do not claim the two hold together ("ez …
+/// for Y > 420 mm; also, along another variable, for X < 150 mm").
 fn combine(found: Vec<Region>) -> Vec<Region> {
     let mut out: Vec<Region> = Vec::new();
     for r in found {
@@ -856,7 +1317,11 @@ fn combine(found: Vec<Region>) -> Vec<Region> {
                 })
         }) {
             prev.conditions.extend(r.conditions.clone());
-            prev.text = format!("{} and {}", prev.text, r.conditions.join(" and "));
+            prev.text = format!(
+                "{}; also, along another variable, for {}",
+                prev.text,
+                r.conditions.join(", ")
+            );
             continue;
         }
         out.push(r);
@@ -876,4 +1341,84 @@ fn nice(v: f64) -> String {
         3
     };
     format!("{:.*}", digits, v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CMM: &str = r#"
+machine cmm3 {
+    task measure
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 800 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 500) mm
+        tool probe at (0, 0, -100) mm
+    }
+    errors {
+        X.tx = const
+        Y.tx = const
+    }
+}
+"#;
+
+    /// Two columns that differ by a millionth: a refit with the second trades one against the
+    /// other (condition ~10⁶) and the data's small share along their difference becomes
+    /// coefficients of metres.
+    #[test]
+    fn a_refit_that_trades_columns_off_is_doubtful() {
+        let c = compile(CMM).compiled.expect("compiles");
+        let m = &c.machine;
+        assert!(m
+            .coefficients
+            .iter()
+            .all(|k| k.unit.dim == kin_compiler::units::Dim::LENGTH));
+        let mut qr = StreamingQr::new(2, 64);
+        for i in 0..200 {
+            let x = 1.0 + i as f64 / 200.0;
+            let wiggle = (i as f64).sin();
+            qr.push(&[x, x + 1e-6 * wiggle], 1e-6 * x + 1e-6 * wiggle);
+        }
+        let red = qr.finish();
+        let size = machine_size(m);
+        // 1.8 m of travel and 0.6 m of offsets.
+        assert!((size - 2.4).abs() < 1e-9, "{size}");
+        let p = plausibility(&red, &[0], &[1], m, size, m.coefficients.len());
+        assert!(p.condition_before < 1.0 + 1e-9, "{p:?}");
+        assert!(p.condition_after > 1e5, "{p:?}");
+        assert_eq!(p.warnings.len(), 2, "{p:?}");
+        assert!(p.warnings[0].contains("ill-conditioned"), "{p:?}");
+        assert!(p.largest_length > 0.1 * p.machine_size, "{p:?}");
+
+        // Independent columns: nothing to say.
+        let mut qr = StreamingQr::new(2, 64);
+        for i in 0..200 {
+            let x = 1.0 + i as f64 / 200.0;
+            qr.push(&[x, (i as f64).sin()], 1e-6 * x);
+        }
+        let p = plausibility(&qr.finish(), &[0], &[1], m, size, m.coefficients.len());
+        assert!(p.warnings.is_empty(), "{p:?}");
+    }
+
+    #[test]
+    fn sampling_rules() {
+        // 5 positions 10 mm apart: nothing below 20 mm, nothing above 40/3 mm.
+        let s = Sampling::of((0..600).map(|r| 0.1 + 0.01 * (r % 5) as f64)).expect("sampled");
+        assert_eq!(s.distinct, 5);
+        assert!((s.shortest() - 0.02).abs() < 1e-12);
+        assert!(!s.resolves(0.0045) && !s.resolves(0.025) && !s.resolves(0.013));
+        // ±30°: no harmonic at 2, 3, 4 per revolution; the full circle: all of them; 120°: 3, 4.
+        let deg = std::f64::consts::PI / 180.0;
+        let range = |a: f64, b: f64| {
+            Sampling::of((0..=60).map(|k| (a + (b - a) * k as f64 / 60.0) * deg)).expect("sampled")
+        };
+        assert!(range(-30.0, 30.0).harmonics(2..=4).is_empty());
+        assert_eq!(range(0.0, 360.0).harmonics(2..=4), vec![2, 3, 4]);
+        assert_eq!(range(-60.0, 60.0).harmonics(2..=4), vec![3, 4]);
+    }
 }

@@ -16,6 +16,71 @@ pub struct Available {
     /// Inputs given in every file.
     pub inputs: Vec<bool>,
     pub time: bool,
+    /// How the data sample each axis (`None`: no position of it in the data).
+    pub sampled: Vec<Option<Sampling>>,
+}
+
+/// The positions of one axis the data visit (SI): what a candidate along it can resolve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sampling {
+    pub lo: f64,
+    pub hi: f64,
+    /// The median spacing of the distinct positions: for irregular sampling, the spacing the
+    /// Nyquist rule below is stated on (a few close pairs do not resolve short wavelengths).
+    pub step: f64,
+    pub distinct: usize,
+}
+
+impl Sampling {
+    /// Positions closer than this (1 nm, 1 nrad) are one position: set points repeated.
+    const SAME: f64 = 1e-9;
+
+    /// The sampling of the finite values given; `None` without two distinct positions.
+    pub fn of(values: impl Iterator<Item = f64>) -> Option<Sampling> {
+        let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup_by(|b, a| (*b - *a).abs() <= Self::SAME);
+        let (&lo, &hi) = (v.first()?, v.last()?);
+        let mut steps: Vec<f64> = v.windows(2).map(|w| w[1] - w[0]).collect();
+        steps.sort_by(f64::total_cmp);
+        let step = *steps.get(steps.len() / 2)?;
+        Some(Sampling {
+            lo,
+            hi,
+            step,
+            distinct: v.len(),
+        })
+    }
+
+    pub fn span(&self) -> f64 {
+        self.hi - self.lo
+    }
+
+    /// The shortest wavelength the positions resolve: two samples per period (Nyquist).
+    pub fn shortest(&self) -> f64 {
+        2.0 * self.step
+    }
+
+    /// Whether a periodic error of wavelength `lambda` is one the data can tell from others:
+    /// no shorter than [`Sampling::shortest`] (it would alias onto a longer one), and repeating
+    /// at least [`Sampling::PERIODS`] times over the covered span (fewer periods are a shape,
+    /// which more knots describe, not a period the data show).
+    pub fn resolves(&self, lambda: f64) -> bool {
+        lambda >= self.shortest() && lambda * Self::PERIODS <= self.span()
+    }
+
+    /// The periods a wavelength must repeat over the data to be called periodic.
+    pub const PERIODS: f64 = 3.0;
+
+    /// The harmonics (per revolution) among `orders` whose whole period lies inside the
+    /// covered angle: over less than a period a harmonic is a smooth curve the location
+    /// constants and each other absorb, and its fit is ill-conditioned (±30° of data cannot
+    /// tell 2 per revolution from a tilt and an offset).
+    pub fn harmonics(&self, orders: impl Iterator<Item = u32>) -> Vec<u32> {
+        orders
+            .filter(|&h| h > 0 && self.span() >= std::f64::consts::TAU / h as f64 - Self::SAME)
+            .collect()
+    }
 }
 
 /// A candidate and the text actually compiled to test it: non-linear parameters are tested at
@@ -29,6 +94,8 @@ pub struct Proposal {
     pub group: String,
     /// The terms of the line, in order: `candidate.text` is `target += ` and their sum.
     pub terms: Vec<Term>,
+    /// For revolute harmonics, the name of the error motion (for restated explanations).
+    pub motion: String,
 }
 
 /// One term of a candidate's line. Whether a term adds anything is decided on the data, not
@@ -105,7 +172,22 @@ fn harmonics(hs: &[u32]) -> String {
     }
 }
 
-fn harmonics_explanation(axis: &str, hs: &[u32], rotation: bool) -> String {
+/// What an error motion of a revolute axis is called (ISO 230-7): along or about its own
+/// axis it is axial motion or its angular positioning error, across it radial or tilt motion.
+fn motion_name(comp: Component, axis_direction: [f64; 3]) -> &'static str {
+    let own = along(axis_direction);
+    match (
+        comp.is_rotation(),
+        comp == own || comp == rotation_about(axis_direction),
+    ) {
+        (false, true) => "axial error motion",
+        (false, false) => "radial error motion",
+        (true, true) => "angular positioning error",
+        (true, false) => "tilt error motion",
+    }
+}
+
+fn harmonics_explanation(axis: &str, hs: &[u32], motion: &str) -> String {
     let at = match hs {
         [h] => format!("{h}"),
         [first, .., last] if hs.windows(2).all(|w| w[1] == w[0] + 1) => {
@@ -120,10 +202,7 @@ fn harmonics_explanation(axis: &str, hs: &[u32], rotation: bool) -> String {
         ),
         [] => String::new(),
     };
-    format!(
-        "an error motion of the {axis} axis at {at} per revolution ({} of its bearing or drive)",
-        if rotation { "tilt" } else { "runout" }
-    )
+    format!("a {motion} of the {axis} axis at {at} per revolution (its bearing or drive)")
 }
 
 /// The candidate with only the terms marked `kept` (those that add to the model on the data).
@@ -144,13 +223,7 @@ pub fn restate(p: &Proposal, kept: &[bool]) -> Candidate {
         .collect();
     let explanation = match terms.first().and_then(|t| t.harmonic.as_ref()) {
         Some((axis, _)) if p.candidate.family == Family::RevoluteHarmonics => {
-            let rotation = p
-                .candidate
-                .target
-                .rsplit('.')
-                .next()
-                .is_some_and(|c| c.starts_with('r'));
-            harmonics_explanation(axis, &hs, rotation)
+            harmonics_explanation(axis, &hs, &p.motion)
         }
         _ => p.candidate.explanation.clone(),
     };
@@ -232,6 +305,33 @@ fn uses(t: &kin_compiler::ir::Term, v: Var) -> bool {
     t.factors.iter().any(|f| f.var == v)
 }
 
+/// Appends a proposal: `target += ` the terms; alone in its group unless `group` is given.
+fn push(
+    out: &mut Vec<Proposal>,
+    family: Family,
+    target: String,
+    terms: Vec<Term>,
+    explanation: String,
+    group: Option<String>,
+) {
+    let all: Vec<&Term> = terms.iter().collect();
+    let text = line(&target, &all, false);
+    let test_text = line(&target, &all, true);
+    let group = group.unwrap_or_else(|| test_text.clone());
+    out.push(Proposal {
+        candidate: Candidate {
+            family,
+            target,
+            text,
+            explanation,
+        },
+        test_text,
+        group,
+        terms,
+        motion: String::new(),
+    });
+}
+
 /// Every candidate the library proposes for `m` given what the data offer. `wavelengths` are
 /// spectral peaks found along axes (axis index → wavelength in SI), `taus` the time constants
 /// scanned for lags (SI).
@@ -242,27 +342,6 @@ pub fn propose(
     taus: &[f64],
 ) -> Vec<Proposal> {
     let mut out = Vec::new();
-    let mut push = |family: Family,
-                    target: String,
-                    terms: Vec<Term>,
-                    explanation: String,
-                    group: Option<String>| {
-        let all: Vec<&Term> = terms.iter().collect();
-        let text = line(&target, &all, false);
-        let test_text = line(&target, &all, true);
-        let group = group.unwrap_or_else(|| test_text.clone());
-        out.push(Proposal {
-            candidate: Candidate {
-                family,
-                target,
-                text,
-                explanation,
-            },
-            test_text,
-            group,
-            terms,
-        });
-    };
     let length = &m.units.length;
     let angle = &m.units.angle;
     let fmt_len = |v: f64| format!("{} {}", round(length.from_si(v)), length.name);
@@ -285,6 +364,7 @@ pub fn propose(
                     format!("a constant offset of the {name} axis line along {} (an axis-location error)", &comp.name()[1..])
                 };
                 push(
+                    &mut out,
                     Family::Constant,
                     target.clone(),
                     vec![Term::new("const".into())],
@@ -300,6 +380,7 @@ pub fn propose(
                 if !has(m, frame, comp, |t| uses(t, own)) {
                     let target = format!("{name}.{}", comp.name());
                     push(
+&mut out,
                         Family::AbbeAngular,
                         target.clone(),
                         vec![Term::new(format!("spline({}, knots 2)", axis.name))],
@@ -322,6 +403,7 @@ pub fn propose(
                 if !has(m, frame, comp, |t| uses(t, dir)) {
                     let target = format!("{name}.{}", comp.name());
                     push(
+&mut out,
                         Family::Backlash,
                         target.clone(),
                         vec![Term::new(format!("backlash({})", axis.name))],
@@ -334,13 +416,17 @@ pub fn propose(
 
         // Periodic errors along a prismatic axis, at the spectral peak found for it.
         if !revolute {
-            for &(pa, lambda) in wavelengths.iter().filter(|(pa, _)| *pa == a) {
-                let _ = pa;
-                if lambda > 0.0 && lambda < axis.range[1] - axis.range[0] {
+            let sampled = available.sampled.get(a).copied().flatten();
+            for &(_, lambda) in wavelengths.iter().filter(|(pa, _)| *pa == a) {
+                if lambda > 0.0
+                    && lambda < axis.range[1] - axis.range[0]
+                    && sampled.is_some_and(|s| s.resolves(lambda))
+                {
                     {
                         let comp = motion;
                         let target = format!("{name}.{}", comp.name());
                         push(
+&mut out,
                             Family::Periodic,
                             target.clone(),
                             vec![Term {
@@ -356,18 +442,31 @@ pub fn propose(
             }
         }
 
-        // Error motions of a revolute axis at 2, 3, 4 per revolution.
+        // Error motions of a revolute axis at 2, 3, 4 per revolution, those whose period the
+        // data cover (once per revolution is what the location constants are).
         if revolute {
+            let hs = available
+                .sampled
+                .get(a)
+                .copied()
+                .flatten()
+                .map(|s| s.harmonics(2..=4))
+                .unwrap_or_default();
             for comp in Component::ALL {
-                if !has(m, frame, comp, |t| uses(t, own)) {
+                if !hs.is_empty() && !has(m, frame, comp, |t| uses(t, own)) {
                     let target = format!("{name}.{}", comp.name());
+                    let motion = motion_name(comp, axis.direction);
                     push(
+                        &mut out,
                         Family::RevoluteHarmonics,
                         target.clone(),
-                        (2..=4).map(|h| Term::harmonic(&axis.name, h)).collect(),
-                        harmonics_explanation(&axis.name, &[2, 3, 4], comp.is_rotation()),
+                        hs.iter().map(|&h| Term::harmonic(&axis.name, h)).collect(),
+                        harmonics_explanation(&axis.name, &hs, motion),
                         None,
                     );
+                    if let Some(last) = out.last_mut() {
+                        last.motion = motion.to_string();
+                    }
                 }
             }
         }
@@ -424,6 +523,7 @@ pub fn propose(
                     String::new()
                 };
                 push(
+&mut out,
                     Family::MoreKnots,
                     target.clone(),
                     vec![Term::new(format!("periodic({}, wavelength {}, knots {knots}{phase})", axis.name, exact(range)))],
@@ -440,7 +540,10 @@ pub fn propose(
         // carriage, load).
         for comp in Component::ALL {
             for (b, other) in m.axes.iter().enumerate() {
-                if b == a || has(m, frame, comp, |t| uses(t, Var::Axis(b))) {
+                // A continuous rotary axis is a periodic variable: an error linear in its angle
+                // would jump by the slope × 2π where the angle wraps, which no machine does.
+                let periodic = other.kind == JointKind::Revolute && other.continuous;
+                if b == a || periodic || has(m, frame, comp, |t| uses(t, Var::Axis(b))) {
                     continue;
                 }
                 let target = format!("{name}.{}", comp.name());
@@ -456,7 +559,7 @@ pub fn propose(
                         format!("{target} changes with the position of {} (its weight or moment on {}'s guideways)", other.name, axis.name),
                     )
                 };
-                push(Family::CrossCoupling, target, terms, what, None);
+                push(&mut out, Family::CrossCoupling, target, terms, what, None);
             }
             for (i, input) in m.inputs.iter().enumerate() {
                 if !available.inputs.get(i).copied().unwrap_or(false)
@@ -470,6 +573,7 @@ pub fn propose(
                 }
                 let target = format!("{name}.{}", comp.name());
                 push(
+                    &mut out,
                     Family::CrossCoupling,
                     target.clone(),
                     vec![
@@ -519,6 +623,7 @@ pub fn propose(
                 for &tau in taus {
                     let t = format!("{} min", round(tau / 60.0));
                     push(
+                        &mut out,
                         Family::Thermal,
                         target.clone(),
                         vec![Term {
@@ -535,6 +640,7 @@ pub fn propose(
                 }
             }
             push(
+                &mut out,
                 Family::Thermal,
                 target.clone(),
                 vec![Term::new(format!("{value} * {factor}"))],
@@ -552,6 +658,7 @@ pub fn propose(
         for comp in [Component::Tx, Component::Ty, Component::Tz] {
             let target = format!("tool.{}", comp.name());
             push(
+                &mut out,
                 Family::Drift,
                 target.clone(),
                 vec![Term::new("time * const".into())],
@@ -587,6 +694,7 @@ mod tests {
             test_text: line(target, &all, true),
             group: String::new(),
             terms,
+            motion: "radial error motion".into(),
         }
     }
 
@@ -597,7 +705,7 @@ mod tests {
             Family::RevoluteHarmonics,
             "C.tx",
             terms,
-            harmonics_explanation("C", &[2, 3, 4], false),
+            harmonics_explanation("C", &[2, 3, 4], "radial error motion"),
         );
         assert_eq!(p.candidate.text, "C.tx += fourier(C, harmonics 2..4)");
         assert_eq!(restate(&p, &[true, true, true]), p.candidate);
@@ -605,7 +713,7 @@ mod tests {
         assert_eq!(gap.text, "C.tx += fourier(C, harmonics (2, 4))");
         assert!(gap
             .explanation
-            .contains("at 2 and 4 per revolution (runout"));
+            .contains("radial error motion of the C axis at 2 and 4 per revolution"));
         assert_eq!(
             restate(&p, &[false, true, true]).text,
             "C.tx += fourier(C, harmonics 3..4)"

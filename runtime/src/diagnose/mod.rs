@@ -4,7 +4,9 @@
 //! every axis and input, against what the noise estimate and the model's own uncertainty allow
 //! (thesis eq. 4.12, appendix A). *What*: a library of candidate physical effects, each a term
 //! that could be added to the `.kin` model, tested against the residuals with a partial F-test
-//! (Holm–Bonferroni over all candidates) and ranked by the residual variance it would explain.
+//! (Holm–Bonferroni over all candidates) and ranked by an information criterion (BIC), so that
+//! a candidate pays for every column it adds. Candidates the data cannot tell apart are one
+//! finding; the residual level is judged against a stated instrument noise when there is one.
 
 use serde::{Deserialize, Serialize};
 
@@ -44,10 +46,17 @@ pub struct Candidate {
     pub explanation: String,
 }
 
-/// A tested candidate.
+/// A tested candidate: the canonical line of a group of lines the data cannot tell apart.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Finding {
     pub candidate: Candidate,
+    /// Other lines whose added columns span the same space on these data (the same effect
+    /// seen through another element or Abbe arm): the data cannot decide between them.
+    #[serde(default)]
+    pub alternatives: Vec<Candidate>,
+    /// With alternatives: what measurement would tell them apart.
+    #[serde(default)]
+    pub separation: Option<String>,
     /// Independent columns it adds to the design.
     pub columns: usize,
     /// Fraction of the residual sum of squares it explains.
@@ -59,6 +68,83 @@ pub struct Finding {
     pub significant: bool,
     /// Residual RMS (error unit) if it were added.
     pub rms_after: f64,
+    /// Change of the Bayesian information criterion, `n ln(RSS/RSS₀) + k ln n`: the ranking
+    /// (lower first), which charges `ln n` for every column added.
+    #[serde(default)]
+    pub bic: f64,
+    /// How the model looks with the line added (significant findings only).
+    #[serde(default)]
+    pub plausibility: Option<Plausibility>,
+}
+
+/// Whether a refit with the candidate would still be a believable model of the machine.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct Plausibility {
+    /// Condition number of the unit-scaled design without and with the candidate's columns.
+    pub condition_before: f64,
+    pub condition_after: f64,
+    /// The largest fitted length coefficient of the refit (length unit), and the machine's
+    /// size (the sum of its travels and nominal offsets, length unit).
+    pub largest_length: f64,
+    pub machine_size: f64,
+    /// Why the refit is implausible; empty when it is not.
+    pub warnings: Vec<String>,
+}
+
+/// An observation whose studentized residual the fit flags (Bonferroni): named as an outlier,
+/// not counted in the region tests.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Outlier {
+    pub file: String,
+    pub line: usize,
+    pub component: String,
+    /// Residual (error unit; tilt unit for rotations) and studentized residual.
+    pub residual: f64,
+    pub studentized: f64,
+}
+
+/// The residual level against an absolute reference: the stated instrument noise, and the
+/// pure error of repeated poses.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct NoiseCheck {
+    /// Stated standard deviation of positions and lengths (error unit) and of rotations (tilt
+    /// unit), when given.
+    pub stated: Option<f64>,
+    pub stated_tilt: Option<f64>,
+    /// Σ r²/σ² over the rows with a stated σ against χ²(dof): is σ̂ larger than stated?
+    pub chi2: Option<ChiSquare>,
+    /// Lack of fit against the scatter of repeated poses.
+    pub lack_of_fit: Option<LackOfFit>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ChiSquare {
+    pub rows: usize,
+    pub dof: f64,
+    pub statistic: f64,
+    /// σ̂ over the stated σ: √(statistic/dof).
+    pub ratio: f64,
+    /// Upper-tail p-value.
+    pub p: f64,
+    /// p ≥ α: the residuals are what the stated noise gives.
+    pub consistent: bool,
+}
+
+/// The classic lack-of-fit F-test: rows at identical axis positions, directions and inputs
+/// (in one file, one component) scatter by the instrument alone (pure error); the rest of the
+/// residual sum of squares is lack of fit.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LackOfFit {
+    /// Groups of repeated poses and the rows in them.
+    pub groups: usize,
+    pub rows: usize,
+    pub dof_pure: f64,
+    pub dof_lack: f64,
+    /// √(pure-error sum of squares / its dof), error unit: a model-free noise estimate.
+    pub sigma_pure: f64,
+    pub f: f64,
+    pub p: f64,
+    pub consistent: bool,
 }
 
 /// A region of the workspace where residuals exceed what the noise allows.
@@ -68,7 +154,7 @@ pub struct Region {
     pub component: String,
     /// The conditions, e.g. `["Y > 420 mm", "X < 150 mm"]`.
     pub conditions: Vec<String>,
-    /// Residual RMS in the region over σ̂.
+    /// Residual RMS in the region over what the reference σ (stated, else σ̂) allows.
     pub ratio: f64,
     pub rows: usize,
     pub p: f64,
@@ -117,8 +203,12 @@ pub struct Diagnosis {
     pub regions: Vec<Region>,
     pub bins: Vec<Bin>,
     pub spectra: Vec<Spectrum>,
-    /// Ranked: significant first, by explained variance.
+    /// Ranked: significant and plausible first, then by BIC; equal ones by their text.
     pub findings: Vec<Finding>,
+    #[serde(default)]
+    pub noise: NoiseCheck,
+    #[serde(default)]
+    pub outliers: Vec<Outlier>,
 }
 
 mod analyse;

@@ -171,7 +171,16 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
     println!("4 threads on one model agree with the batch: {threads_agree}");
 
     // 8. Save (source, parameter texts, exact values) and reload: the same numbers, bit for bit.
-    let path = std::env::temp_dir().join(format!("kin-embed-example-{}.json", std::process::id()));
+    // One file per process and per machine: two runs in one process (the tests) must not
+    // load each other's model.
+    let stem = machine
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let path = std::env::temp_dir().join(format!(
+        "kin-embed-example-{}-{stem}.json",
+        std::process::id()
+    ));
     model.save(&path)?;
     let reloaded = Model::load(&path)?;
     let _ = std::fs::remove_file(&path);

@@ -2,13 +2,14 @@
 //! observations cannot see.
 //!
 //! A combination λᵀβ is estimable iff λ lies in the row space of the design matrix X (§4.3). We
-//! scale every column of X to unit length (so that units and ranges do not decide), take the
-//! singular values of the scaled matrix for the rank, and name the invisible directions by an
-//! incremental QR in declaration order: a column that the earlier columns already explain is
-//! reported together with the earlier columns it is a combination of. Nuisance columns
+//! scale every column of X to unit length (so that units and ranges do not decide) and name the
+//! invisible directions in declaration order: a column that the earlier columns already explain
+//! is reported together with the earlier columns it is a combination of. The design is streamed
+//! into `XᵀX` (memory: columns², whatever the rows), factored in column order. Nuisance columns
 //! (alignment of an artifact) come first, so a model term they absorb is named as absorbed.
 
-use faer::Mat;
+use faer::linalg::matmul::triangular::BlockStructure;
+use faer::{Accum, Mat, Par};
 use kin_compiler::diagnostic::{Diagnostic, Span};
 use kin_compiler::ir::Machine;
 use kin_compiler::SourceMap;
@@ -23,8 +24,8 @@ pub enum IdentifyError {
     Eval(#[from] EvalError),
     #[error(transparent)]
     Engine(#[from] crate::engine::EngineError),
-    #[error("the singular value decomposition did not converge")]
-    Svd,
+    #[error("the design holds values that are not finite numbers")]
+    Factor,
     #[error("no observations to analyse")]
     Empty,
 }
@@ -80,6 +81,14 @@ pub struct Report {
 /// sit at rounding level (1e-13 and below); anything an experiment can resolve is far above.
 pub const TOLERANCE: f64 = 1e-8;
 
+/// A unit-scaled column whose part not explained by the earlier columns is at most this
+/// fraction of its length is named as a combination of them.
+const DEPENDENT: f64 = 1e-6;
+
+/// Rows of the design held at a time while the Gram matrix is accumulated: the design itself
+/// (up to 12 × coefficients² values, 9.6 GB at 10 000 coefficients) is never held.
+const BLOCK_ROWS: usize = 256;
+
 /// Builds the design matrix of `observe` at `states` (row-major, columns = coefficients, then
 /// six alignment columns when `aligned`).
 /// As [`design_with`], evaluated by the interpreter.
@@ -100,6 +109,22 @@ pub fn design_with(
     aligned: bool,
     engine: crate::engine::Engine,
 ) -> Result<(Vec<f64>, Vec<Column>), IdentifyError> {
+    let mut out = Vec::new();
+    let columns = for_each_row(m, states, observe, aligned, engine, |row| {
+        out.extend_from_slice(row)
+    })?;
+    Ok((out, columns))
+}
+
+/// The columns of the design of `observe` at `states`, each row handed to `sink` in turn.
+fn for_each_row(
+    m: &Machine,
+    states: &States,
+    observe: Observe,
+    aligned: bool,
+    engine: crate::engine::Engine,
+    mut sink: impl FnMut(&[f64]),
+) -> Result<Vec<Column>, IdentifyError> {
     let n = m.coefficients.len();
     let mut columns: Vec<Column> = Vec::new();
     if aligned && observe != Observe::Length {
@@ -116,10 +141,10 @@ pub fn design_with(
     let beta = vec![0.0; n];
     let mut jac = vec![0.0; 6 * n];
     let mut err = [0.0; 6];
-    let mut out = Vec::new();
     match observe {
         Observe::Position | Observe::Pose | Observe::Data => {
             let comps = if observe == Observe::Position { 3 } else { 6 };
+            let mut row = vec![0.0; width];
             for r in 0..states.len() {
                 let s = states.get(r);
                 it.error_and_jacobian(&s, &beta, &mut err, &mut jac)?;
@@ -129,8 +154,8 @@ pub fn design_with(
                     nalgebra::Vector3::zeros()
                 };
                 for c in 0..comps {
-                    let mut row = vec![0.0; width];
                     if aligned {
+                        row[..offset].fill(0.0);
                         // A rigid displacement (t, ω) of the artifact moves a point p by t + ω × p.
                         if c < 3 {
                             row[c] = 1.0;
@@ -142,8 +167,12 @@ pub fn design_with(
                             row[3 + c - 3] = 1.0;
                         }
                     }
-                    row[offset..].copy_from_slice(jac.get(c * n..(c + 1) * n).unwrap_or(&[]));
-                    out.extend(row);
+                    if let (Some(dst), Some(src)) =
+                        (row.get_mut(offset..), jac.get(c * n..(c + 1) * n))
+                    {
+                        dst.copy_from_slice(src);
+                    }
+                    sink(&row);
                 }
             }
         }
@@ -156,27 +185,99 @@ pub fn design_with(
                 b.tool = a.tool;
                 let b: State = b;
                 match it.length_and_row(&a, &b, &beta, &mut row) {
-                    Ok(_) => out.extend_from_slice(&row),
+                    Ok(_) => sink(&row),
                     Err(EvalError::Kinematics(_)) => continue,
                     Err(e) => return Err(e.into()),
                 }
             }
         }
     }
-    Ok((out, columns))
+    Ok(columns)
+}
+
+/// `XᵀX` of a design fed one row at a time (lower triangle only), `BLOCK_ROWS` rows buffered:
+/// memory is `columns²` plus one block, whatever the number of rows.
+struct Gram {
+    g: Mat<f64>,
+    block: Mat<f64>,
+    filled: usize,
+    rows: usize,
+}
+
+impl Gram {
+    fn new(columns: usize) -> Gram {
+        Gram {
+            g: Mat::zeros(columns, columns),
+            block: Mat::zeros(BLOCK_ROWS, columns),
+            filled: 0,
+            rows: 0,
+        }
+    }
+
+    fn push(&mut self, row: &[f64]) {
+        for (j, v) in row.iter().enumerate().take(self.block.ncols()) {
+            self.block[(self.filled, j)] = *v;
+        }
+        self.filled += 1;
+        self.rows += 1;
+        if self.filled == self.block.nrows() {
+            self.flush();
+        }
+    }
+
+    fn flush(&mut self) {
+        if self.filled == 0 {
+            return;
+        }
+        let b = self.block.as_ref().subrows(0, self.filled);
+        faer::linalg::matmul::triangular::matmul(
+            self.g.as_mut(),
+            BlockStructure::TriangularLower,
+            Accum::Add,
+            b.transpose(),
+            BlockStructure::Rectangular,
+            b,
+            BlockStructure::Rectangular,
+            1.0,
+            Par::Seq,
+        );
+        self.filled = 0;
+    }
+
+    fn finish(mut self) -> (Mat<f64>, usize) {
+        self.flush();
+        (self.g, self.rows)
+    }
 }
 
 /// Analyses a row-major `rows × columns.len()` design matrix.
 pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
     let n = columns.len();
-    let rows = x.len().checked_div(n).unwrap_or(0);
-    if rows == 0 {
+    let mut gram = Gram::new(n);
+    if n > 0 {
+        for row in x.chunks_exact(n) {
+            gram.push(row);
+        }
+    }
+    let (g, rows) = gram.finish();
+    analyse_gram(g, rows, columns)
+}
+
+/// The analysis from the lower triangle of `XᵀX` (what [`analyse`] does after accumulating it).
+///
+/// The Gram matrix of the unit-scaled columns is factored `LLᵀ` in declaration order; a pivot at
+/// most `DEPENDENT²` is the squared length of the part of that column the earlier independent
+/// columns do not explain (what Gram–Schmidt in column order measures), so the column is named
+/// as their combination and replaced by a huge pivot, which takes it out of every later column's
+/// elimination. Cost: `rows × columns²` to accumulate, `columns³ / 3` to factor; memory
+/// `columns²`. Forming `XᵀX` squares the condition: a residual is resolved to about
+/// `√(columns · ε)` of the column's length, below `DEPENDENT` up to 10⁴ columns.
+fn analyse_gram(mut g: Mat<f64>, rows: usize, columns: &[Column]) -> Result<Report, IdentifyError> {
+    let n = columns.len();
+    if rows == 0 || n == 0 {
         return Err(IdentifyError::Empty);
     }
-    let at = |i: usize, j: usize| x.get(i * n + j).copied().unwrap_or(0.0);
-    let norms: Vec<f64> = (0..n)
-        .map(|j| (0..rows).map(|i| at(i, j).powi(2)).sum::<f64>().sqrt())
-        .collect();
+    let norms: Vec<f64> = (0..n).map(|j| g[(j, j)].max(0.0).sqrt()).collect();
     let biggest = norms.iter().copied().fold(0.0, f64::max);
     // A column far below the others has no effect worth the name: scale it to zero rather than
     // blow rounding noise up to unit length.
@@ -190,104 +291,234 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
             }
         })
         .collect();
-    let a = Mat::<f64>::from_fn(rows, n, |i, j| {
-        at(i, j) * scale.get(j).copied().unwrap_or(0.0)
-    });
-
-    let sv: Vec<f64> = a.singular_values().map_err(|_| IdentifyError::Svd)?;
-    let top = sv.first().copied().unwrap_or(0.0);
-    let kept: Vec<f64> = sv
-        .iter()
-        .copied()
-        .filter(|s| *s > TOLERANCE * top)
-        .collect();
-    let rank = kept.len();
-    let condition = match kept.last() {
-        Some(s) if *s > 0.0 => top / s,
-        _ => f64::INFINITY,
-    };
-
-    // Incremental QR in column order with one re-orthogonalisation (classical Gram–Schmidt
-    // twice is as stable as Householder for this purpose).
-    let mut q: Vec<Vec<f64>> = Vec::new();
-    let mut r_cols: Vec<Vec<f64>> = Vec::new();
-    let mut independent: Vec<usize> = Vec::new();
-    let mut dependencies = Vec::new();
     for j in 0..n {
-        let col: Vec<f64> = (0..rows).map(|i| a[(i, j)]).collect();
-        let norm = col.iter().map(|v| v * v).sum::<f64>().sqrt();
+        for i in j..n {
+            g[(i, j)] *= scale[i] * scale[j];
+        }
+    }
+    if (0..n).any(|j| !(j..n).all(|i| g[(i, j)].is_finite())) {
+        return Err(IdentifyError::Factor);
+    }
+    let independent = factor_in_order(&mut g, &scale);
+    let l = g;
+    let mut dependencies = Vec::new();
+    let mut w = vec![0.0; n];
+    for j in 0..n {
+        if independent[j] {
+            continue;
+        }
         let column = columns.get(j).cloned().unwrap_or(Column::Coefficient(j));
-        if norm == 0.0 {
+        if scale[j] == 0.0 {
             dependencies.push(Dependency {
                 column,
                 combination: Vec::new(),
             });
             continue;
         }
-        let mut resid = col.clone();
-        let mut coef = vec![0.0; q.len()];
-        for _ in 0..2 {
-            for (k, qk) in q.iter().enumerate() {
-                let c: f64 = qk.iter().zip(&resid).map(|(a, b)| a * b).sum();
-                coef[k] += c;
-                for (v, qv) in resid.iter_mut().zip(qk) {
-                    *v -= c * qv;
-                }
+        // Row j of L holds the column's coordinates on the earlier independent directions;
+        // back-substitute Rw = c over those (R = Lᵀ restricted to independent columns).
+        w[..j].fill(0.0);
+        for i in (0..j).rev() {
+            if !independent[i] {
+                continue;
             }
+            let col = l.col(i);
+            let mut s = l[(j, i)];
+            for k in i + 1..j {
+                s -= col[k] * w[k];
+            }
+            w[i] = s / l[(i, i)];
         }
-        let rn = resid.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if rn <= 1e-6 * norm {
-            // Back-substitute R x = coef for the weights on the independent columns.
-            let k = independent.len();
-            let mut w = vec![0.0; k];
-            for i in (0..k).rev() {
-                let mut s = coef.get(i).copied().unwrap_or(0.0);
-                for (jj, wj) in w.iter().enumerate().skip(i + 1) {
-                    s -= r_cols
-                        .get(jj)
-                        .and_then(|c| c.get(i))
-                        .copied()
-                        .unwrap_or(0.0)
-                        * wj;
-                }
-                let d = r_cols.get(i).and_then(|c| c.get(i)).copied().unwrap_or(1.0);
-                w[i] = s / d;
-            }
-            let mut combination: Vec<(Column, f64)> = independent
-                .iter()
-                .zip(&w)
-                .filter(|(_, wi)| wi.abs() > 1e-6)
-                .map(|(&c, &wi)| {
-                    (
-                        columns.get(c).cloned().unwrap_or(Column::Coefficient(c)),
-                        wi,
-                    )
-                })
-                .collect();
-            combination.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-            dependencies.push(Dependency {
-                column,
-                combination,
-            });
-        } else {
-            for v in &mut resid {
-                *v /= rn;
-            }
-            let mut rc = coef;
-            rc.push(rn);
-            q.push(resid);
-            r_cols.push(rc);
-            independent.push(j);
-        }
+        let mut combination: Vec<(Column, f64)> = (0..j)
+            .filter(|&i| independent[i] && w[i].abs() > 1e-6)
+            .map(|i| {
+                (
+                    columns.get(i).cloned().unwrap_or(Column::Coefficient(i)),
+                    w[i],
+                )
+            })
+            .collect();
+        combination.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+        dependencies.push(Dependency {
+            column,
+            combination,
+        });
     }
+    let rank = independent.iter().filter(|&&b| b).count();
     Ok(Report {
         rows,
         columns: n,
         rank,
         tolerance: TOLERANCE,
-        condition,
+        condition: condition(&l, &independent),
         dependencies,
     })
+}
+
+/// Cholesky factor `L` of the scaled Gram matrix in place (lower triangle), in column order,
+/// blocked so the trailing update is a matrix product. A pivot at most `DEPENDENT²` marks its
+/// column dependent: the column of `L` below it is zeroed, which takes it out of every later
+/// elimination, and its row keeps the coordinates on the earlier independent columns.
+fn factor_in_order(g: &mut Mat<f64>, scale: &[f64]) -> Vec<bool> {
+    const PANEL: usize = 64;
+    let n = g.nrows();
+    let mut independent = vec![false; n];
+    let mut j0 = 0;
+    while j0 < n {
+        let j1 = (j0 + PANEL).min(n);
+        for j in j0..j1 {
+            // Left-looking within the panel: the earlier panels are already applied.
+            for i in j0..j {
+                let lji = g[(j, i)];
+                if lji != 0.0 {
+                    for k in j..n {
+                        let v = g[(k, i)];
+                        g[(k, j)] -= v * lji;
+                    }
+                }
+            }
+            let d = g[(j, j)];
+            if scale.get(j).copied().unwrap_or(0.0) > 0.0 && d > DEPENDENT * DEPENDENT {
+                let root = d.sqrt();
+                g[(j, j)] = root;
+                for k in j + 1..n {
+                    g[(k, j)] /= root;
+                }
+                independent[j] = true;
+            } else {
+                for k in j..n {
+                    g[(k, j)] = 0.0;
+                }
+            }
+        }
+        if j1 < n {
+            let panel = g.as_ref().submatrix(j1, j0, n - j1, j1 - j0).to_owned();
+            faer::linalg::matmul::triangular::matmul(
+                g.as_mut().submatrix_mut(j1, j1, n - j1, n - j1),
+                BlockStructure::TriangularLower,
+                Accum::Add,
+                panel.as_ref(),
+                BlockStructure::Rectangular,
+                panel.as_ref().transpose(),
+                BlockStructure::Rectangular,
+                -1.0,
+                Par::Seq,
+            );
+        }
+        j0 = j1;
+    }
+    independent
+}
+
+/// Largest over smallest singular value of the independent columns (unit-scaled), estimated
+/// from their triangular factor `R = Lᵀ` by power iteration on `RᵀR` and on its inverse: a few
+/// matrix-vector products and triangular solves, `O(columns²)` each, where a singular value
+/// decomposition would cost `O(rows × columns²)`.
+fn condition(l: &Mat<f64>, independent: &[bool]) -> f64 {
+    const ITERATIONS: usize = 30;
+    let n = independent.len();
+    if !independent.iter().any(|&b| b) {
+        return f64::INFINITY;
+    }
+    let normalise = |x: &mut [f64]| {
+        let norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if norm > 0.0 {
+            x.iter_mut().for_each(|v| *v /= norm);
+        }
+        norm
+    };
+    let start = |x: &mut Vec<f64>| {
+        // A fixed, non-special start vector: reproducible and not orthogonal to anything likely.
+        *x = (0..n)
+            .map(|i| {
+                if independent[i] {
+                    1.0 + (i as f64 * 0.618_033_988_75).fract()
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+    };
+    let mut x = Vec::new();
+    let mut y = vec![0.0; n];
+    // λmax(RᵀR): y = Rx (y_i = Σ_{k≥i} L[k,i] x_k), x = Rᵀy.
+    start(&mut x);
+    normalise(&mut x);
+    let mut top = 0.0;
+    for _ in 0..ITERATIONS {
+        for i in 0..n {
+            y[i] = if independent[i] {
+                let col = l.col(i);
+                (i..n).map(|k| col[k] * x[k]).sum()
+            } else {
+                0.0
+            };
+        }
+        x.fill(0.0);
+        for i in 0..n {
+            if independent[i] {
+                let col = l.col(i);
+                for k in i..n {
+                    x[k] += col[k] * y[i];
+                }
+            }
+        }
+        for (k, v) in x.iter_mut().enumerate() {
+            if !independent[k] {
+                *v = 0.0;
+            }
+        }
+        top = normalise(&mut x);
+    }
+    // λmax((RᵀR)⁻¹): solve Rᵀy = x forward, then Rx' = y backward.
+    start(&mut x);
+    normalise(&mut x);
+    let mut inv = 0.0;
+    for _ in 0..ITERATIONS {
+        for i in 0..n {
+            if !independent[i] {
+                y[i] = 0.0;
+                continue;
+            }
+            y[i] = x[i] / l[(i, i)];
+            let col = l.col(i);
+            for k in i + 1..n {
+                x[k] -= col[k] * y[i];
+            }
+        }
+        for i in (0..n).rev() {
+            if !independent[i] {
+                x[i] = 0.0;
+                continue;
+            }
+            let col = l.col(i);
+            let s: f64 = (i + 1..n).map(|k| col[k] * x[k]).sum();
+            x[i] = (y[i] - s) / l[(i, i)];
+        }
+        inv = normalise(&mut x);
+    }
+    if top > 0.0 && inv > 0.0 && (top * inv).is_finite() {
+        (top * inv).sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Poses `kin check` samples for a machine of `coefficients` coefficients observed as
+/// `observe`: enough for about four rows per coefficient (a random design of that shape has
+/// full rank wherever the model is identifiable), at least 200.
+pub fn poses_for(coefficients: usize, observe: Observe) -> usize {
+    let per_pose = match observe {
+        Observe::Position => 3,
+        Observe::Pose | Observe::Data => 6,
+        // One length per pair of consecutive poses.
+        Observe::Length => 1,
+    };
+    coefficients
+        .saturating_mul(4)
+        .div_ceil(per_pose)
+        .saturating_add(1)
+        .max(200)
 }
 
 /// Identifiability of a machine's coefficients from `observe` at `n` states sampled over its
@@ -302,7 +533,8 @@ pub fn sampled(
     sampled_with(m, observe, aligned, n, seed, crate::engine::Engine::Interp)
 }
 
-/// As [`sampled`], with the chosen engine.
+/// As [`sampled`], with the chosen engine. The design is streamed into its Gram matrix, never
+/// held whole.
 pub fn sampled_with(
     m: &Machine,
     observe: Observe,
@@ -312,8 +544,16 @@ pub fn sampled_with(
     engine: crate::engine::Engine,
 ) -> Result<Report, IdentifyError> {
     let states = States::sample(m, n, seed);
-    let (x, columns) = design_with(m, &states, observe, aligned, engine)?;
-    analyse(&x, &columns)
+    let width = m.coefficients.len()
+        + if aligned && observe != Observe::Length {
+            6
+        } else {
+            0
+        };
+    let mut gram = Gram::new(width);
+    let columns = for_each_row(m, &states, observe, aligned, engine, |row| gram.push(row))?;
+    let (g, rows) = gram.finish();
+    analyse_gram(g, rows, &columns)
 }
 
 fn column_name(m: &Machine, c: &Column) -> String {

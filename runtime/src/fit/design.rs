@@ -109,6 +109,46 @@ impl Layout {
     }
 }
 
+/// Point-file rows an artifact label needs: its six placement parameters are fixed by three
+/// points not on one line (one point leaves the rotations free, two the rotation about the line
+/// through them).
+pub const ROWS_PER_ARTIFACT: usize = 3;
+
+/// The artifact labels of point files with fewer than [`ROWS_PER_ARTIFACT`] rows, per file (file
+/// index, then label and row count, in label order). Such a label makes the design
+/// rank-deficient, which the full fit would find only after factoring a matrix with six
+/// columns per label; counting finds it at once.
+pub fn thin_artifacts(files: &[DataSet]) -> Vec<(usize, Vec<(String, usize)>)> {
+    let mut out = Vec::new();
+    for (f, file) in files.iter().enumerate() {
+        let Observations::Points(_) = file.observations else {
+            // A length file's label adds one length error, fixed by any one row.
+            continue;
+        };
+        let rows = file.observations.rows();
+        let Some(groups) = rows.artifact.as_ref() else {
+            continue;
+        };
+        let mut count = vec![0usize; groups.labels.len()];
+        for id in groups.of_row.iter().flatten() {
+            if let Some(c) = count.get_mut(*id as usize) {
+                *c += 1;
+            }
+        }
+        let thin: Vec<(String, usize)> = groups
+            .labels
+            .iter()
+            .zip(count)
+            .filter(|(_, c)| *c < ROWS_PER_ARTIFACT)
+            .map(|(l, c)| (l.clone(), c))
+            .collect();
+        if !thin.is_empty() {
+            out.push((f, thin));
+        }
+    }
+    out
+}
+
 /// Where a row comes from. `component` 0..6 is ex..erz, 6 is a length.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct RowMeta {

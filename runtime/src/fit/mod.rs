@@ -14,7 +14,7 @@ pub mod stepwise;
 
 use faer::Mat;
 use kin_compiler::{Compiled, Diagnostic};
-use statrs::distribution::{ContinuousCDF, FisherSnedecor, Normal};
+use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor, Normal};
 use thiserror::Error;
 
 pub use design::{
@@ -37,6 +37,18 @@ pub enum FitError {
         "{rows} observed values cannot determine {rank} parameters with a noise estimate left over"
     )]
     TooFewRows { rows: usize, rank: usize },
+    #[error(
+        "{path}: {} artifact label{} with fewer than {min} rows, too few to fix the six placement parameters (three shifts, three rotations) each label adds: {}; give each artifact at least {min} points not on one line, or leave its `artifact` cell empty",
+        labels.len(),
+        if labels.len() == 1 { "" } else { "s" },
+        thin_list(labels),
+        min = design::ROWS_PER_ARTIFACT,
+        path = path.display()
+    )]
+    ThinArtifacts {
+        path: std::path::PathBuf,
+        labels: Vec<(String, usize)>,
+    },
     #[error("the design is rank-deficient: rank {rank} of {columns} columns")]
     RankDeficient {
         rank: usize,
@@ -128,6 +140,12 @@ pub fn fit(
     progress: Progress,
 ) -> Result<FitResult, FitError> {
     let m = &compiled.machine;
+    if let Some((f, labels)) = design::thin_artifacts(files).into_iter().next() {
+        return Err(FitError::ThinArtifacts {
+            path: files.get(f).map(|d| d.path.clone()).unwrap_or_default(),
+            labels,
+        });
+    }
     let layout = Layout::new(m, files);
     let p = layout.columns();
     // Fitted wavelengths and time constants first: the linear problem below is the one at
@@ -242,9 +260,7 @@ pub fn fit(
     let outlier_threshold = Normal::new(0.0, 1.0)
         .map(|d| d.inverse_cdf(1.0 - options.outlier_alpha / (2.0 * n)))
         .unwrap_or(4.0);
-    let cook_threshold = FisherSnedecor::new(rank, dof as f64)
-        .map(|d| d.inverse_cdf(0.5))
-        .unwrap_or(1.0);
+    let cook_threshold = f_median(rank, dof as f64);
 
     let validation = if validate.is_empty() {
         Vec::new()
@@ -398,5 +414,57 @@ fn name_invisible(compiled: &Compiled, layout: &Layout, red: &Reduced) -> Vec<Di
             format!("the invisible combinations could not be named: {e}"),
             Default::default(),
         )],
+    }
+}
+
+/// The first few thin labels with their row counts, for the error message.
+fn thin_list(labels: &[(String, usize)]) -> String {
+    const SHOWN: usize = 5;
+    let mut parts: Vec<String> = labels
+        .iter()
+        .take(SHOWN)
+        .map(|(l, c)| format!("`{l}` ({c} row{})", if *c == 1 { "" } else { "s" }))
+        .collect();
+    if labels.len() > SHOWN {
+        parts.push(format!("and {} more", labels.len() - SHOWN));
+    }
+    parts.join(", ")
+}
+
+/// Median of F(d1, d2), the Cook's-distance threshold. statrs inverts the F distribution through
+/// the incomplete beta function, whose work grows with d2: above 2·10⁷ residual degrees of
+/// freedom it ran for many minutes. There F(d1, d2) is χ²(d1)/d1 to within O(1/d2), far below
+/// what a threshold needs, and the χ² quantile costs the same at any size.
+fn f_median(d1: f64, d2: f64) -> f64 {
+    const LARGE: f64 = 1e5;
+    if d2 > LARGE {
+        ChiSquared::new(d1)
+            .map(|d| d.inverse_cdf(0.5) / d1)
+            .unwrap_or(1.0)
+    } else {
+        FisherSnedecor::new(d1, d2)
+            .map(|d| d.inverse_cdf(0.5))
+            .unwrap_or(1.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_f_median_is_continuous_where_it_switches_to_chi_squared() {
+        for d1 in [1.0, 7.0, 200.0] {
+            let exact = FisherSnedecor::new(d1, 1e5).map(|d| d.inverse_cdf(0.5));
+            let exact = exact.unwrap_or(f64::NAN);
+            let limit = f_median(d1, 1e5 + 1.0);
+            assert!(
+                (exact - limit).abs() < 1e-3 * exact,
+                "{d1}: {exact} vs {limit}"
+            );
+        }
+        // 10⁸ observations: answered at once (statrs alone did not finish in 20 minutes).
+        let m = f_median(30.0, 1e8);
+        assert!(m > 0.9 && m < 1.0, "{m}");
     }
 }

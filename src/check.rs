@@ -30,7 +30,7 @@ impl From<ObserveArg> for Observe {
     }
 }
 
-/// Identifiability on states sampled over the ranges: about four rows per coefficient, with a
+/// Identifiability on states sampled over the ranges: about two rows per coefficient, with a
 /// fixed seed so `kin check` is reproducible.
 fn identify(
     c: &Compiled,

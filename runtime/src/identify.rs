@@ -199,6 +199,7 @@ fn for_each_row(
 /// memory is `columns²` plus one block, whatever the number of rows.
 struct Gram {
     g: Mat<f64>,
+    /// `BLOCK_ROWS` design rows as columns (column-major, so each row is copied contiguously).
     block: Mat<f64>,
     filled: usize,
     rows: usize,
@@ -208,19 +209,19 @@ impl Gram {
     fn new(columns: usize) -> Gram {
         Gram {
             g: Mat::zeros(columns, columns),
-            block: Mat::zeros(BLOCK_ROWS, columns),
+            block: Mat::zeros(columns, BLOCK_ROWS),
             filled: 0,
             rows: 0,
         }
     }
 
     fn push(&mut self, row: &[f64]) {
-        for (j, v) in row.iter().enumerate().take(self.block.ncols()) {
-            self.block[(self.filled, j)] = *v;
+        for (j, v) in row.iter().enumerate().take(self.block.nrows()) {
+            self.block[(j, self.filled)] = *v;
         }
         self.filled += 1;
         self.rows += 1;
-        if self.filled == self.block.nrows() {
+        if self.filled == self.block.ncols() {
             self.flush();
         }
     }
@@ -229,14 +230,14 @@ impl Gram {
         if self.filled == 0 {
             return;
         }
-        let b = self.block.as_ref().subrows(0, self.filled);
+        let b = self.block.as_ref().subcols(0, self.filled);
         faer::linalg::matmul::triangular::matmul(
             self.g.as_mut(),
             BlockStructure::TriangularLower,
             Accum::Add,
-            b.transpose(),
-            BlockStructure::Rectangular,
             b,
+            BlockStructure::Rectangular,
+            b.transpose(),
             BlockStructure::Rectangular,
             1.0,
             Par::Seq,
@@ -248,6 +249,215 @@ impl Gram {
         self.flush();
         (self.g, self.rows)
     }
+}
+
+/// Poses buffered by [`PoseGram`] before they are added to the Gram matrix.
+const BLOCK_POSES: usize = 256;
+
+/// `XᵀX` of a design observed pose by pose (`comps` rows per pose), using its structure: every
+/// coefficient belongs to one error model, so at one pose its column is the model's F-matrix
+/// column times a scalar (`F·v_j`, eq. 2.24), and within a term all columns share that
+/// direction. The `comps` rows of a pose then add `(F_a·F_b) v_j v_k` to entry (j, k) — one
+/// product per entry and pose instead of one per entry and row, a sixth of the work of
+/// [`Gram`] for pose observations. The directions and values are read off the design rows
+/// themselves (the largest entry of a group fixes its scale); a pose whose rows do not have
+/// this shape to rounding goes to the plain row-by-row accumulation instead, so the result
+/// is `XᵀX` either way.
+struct PoseGram {
+    comps: usize,
+    width: usize,
+    /// Column ranges (start, length) sharing a direction at every pose, in column order,
+    /// covering every column.
+    groups: Vec<(usize, usize)>,
+    /// The current pose's rows, `comps × width` row-major.
+    pose: Vec<f64>,
+    pose_rows: usize,
+    /// `v_j` of the buffered poses, one column per pose.
+    v: Mat<f64>,
+    /// Each buffered pose's unit-pivot direction per group: `comps` values per (pose, group).
+    dirs: Vec<f64>,
+    poses: usize,
+    /// Scratch: one group's values times the weights of a pair of groups.
+    scaled: Mat<f64>,
+    weights: Vec<f64>,
+    /// Row-by-row fallback; also holds the Gram matrix both add to.
+    rows: Gram,
+}
+
+impl PoseGram {
+    fn new(width: usize, comps: usize, groups: Vec<(usize, usize)>) -> PoseGram {
+        let widest = groups.iter().map(|g| g.1).max().unwrap_or(0);
+        let dirs = vec![0.0; BLOCK_POSES * groups.len() * comps];
+        PoseGram {
+            comps,
+            width,
+            pose: vec![0.0; comps * width],
+            pose_rows: 0,
+            v: Mat::zeros(width, BLOCK_POSES),
+            dirs,
+            poses: 0,
+            scaled: Mat::zeros(widest, BLOCK_POSES),
+            weights: vec![0.0; BLOCK_POSES],
+            rows: Gram::new(width),
+            groups,
+        }
+    }
+
+    fn push(&mut self, row: &[f64]) {
+        let w = self.width;
+        if let Some(dst) = self
+            .pose
+            .get_mut(self.pose_rows * w..(self.pose_rows + 1) * w)
+        {
+            for (d, s) in dst.iter_mut().zip(row) {
+                *d = *s;
+            }
+        }
+        self.pose_rows += 1;
+        if self.pose_rows == self.comps {
+            self.pose_rows = 0;
+            self.end_pose();
+        }
+    }
+
+    /// Splits the pose into directions and values, or hands its rows to the fallback.
+    fn end_pose(&mut self) {
+        let (w, comps, ng, p) = (self.width, self.comps, self.groups.len(), self.poses);
+        let at = |r: usize, j: usize| r * w + j;
+        let mut shaped = self.pose.iter().all(|x| x.is_finite());
+        for (gi, &(start, len)) in self.groups.iter().enumerate() {
+            if !shaped {
+                break;
+            }
+            let mut best = (0, start, 0.0f64);
+            for r in 0..comps {
+                for j in start..start + len {
+                    let a = self.pose[at(r, j)].abs();
+                    if a > best.2 {
+                        best = (r, j, a);
+                    }
+                }
+            }
+            let dir = &mut self.dirs[(p * ng + gi) * comps..(p * ng + gi + 1) * comps];
+            if best.2 == 0.0 {
+                dir.fill(0.0);
+                for j in start..start + len {
+                    self.v[(j, p)] = 0.0;
+                }
+                continue;
+            }
+            let pivot = self.pose[at(best.0, best.1)];
+            for (r, d) in dir.iter_mut().enumerate() {
+                *d = self.pose[at(r, best.1)] / pivot;
+            }
+            // Each entry is one product F[r]·v_j, so the reconstruction is exact to a few
+            // roundings of the group's largest entry.
+            let tolerance = 1e-12 * best.2;
+            for j in start..start + len {
+                let vj = self.pose[at(best.0, j)];
+                self.v[(j, p)] = vj;
+                for (r, d) in dir.iter().enumerate() {
+                    if (self.pose[at(r, j)] - d * vj).abs() > tolerance {
+                        shaped = false;
+                    }
+                }
+            }
+        }
+        if shaped {
+            self.poses += 1;
+            if self.poses == BLOCK_POSES {
+                self.flush();
+            }
+        } else {
+            for r in 0..comps {
+                self.rows.push(&self.pose[r * w..(r + 1) * w]);
+            }
+        }
+    }
+
+    fn flush(&mut self) {
+        let (n, comps, ng) = (self.poses, self.comps, self.groups.len());
+        if n == 0 {
+            return;
+        }
+        for a in 0..ng {
+            let (sa, la) = self.groups[a];
+            for b in 0..=a {
+                let (sb, lb) = self.groups[b];
+                let mut any = false;
+                for (p, wt) in self.weights.iter_mut().enumerate().take(n) {
+                    let da = &self.dirs[(p * ng + a) * comps..(p * ng + a + 1) * comps];
+                    let db = &self.dirs[(p * ng + b) * comps..(p * ng + b + 1) * comps];
+                    *wt = da.iter().zip(db).map(|(x, y)| x * y).sum();
+                    any |= *wt != 0.0;
+                }
+                if !any {
+                    continue;
+                }
+                for p in 0..n {
+                    let wt = self.weights[p];
+                    for j in 0..lb {
+                        self.scaled[(j, p)] = self.v[(sb + j, p)] * wt;
+                    }
+                }
+                let va = self.v.as_ref().submatrix(sa, 0, la, n);
+                let sc = self.scaled.as_ref().submatrix(0, 0, lb, n);
+                let target = self.rows.g.as_mut().submatrix_mut(sa, sb, la, lb);
+                // Groups are in column order, so block (a, b ≤ a) is in the lower triangle;
+                // a diagonal block needs only its own lower triangle.
+                let structure = if a == b {
+                    BlockStructure::TriangularLower
+                } else {
+                    BlockStructure::Rectangular
+                };
+                faer::linalg::matmul::triangular::matmul(
+                    target,
+                    structure,
+                    Accum::Add,
+                    va,
+                    BlockStructure::Rectangular,
+                    sc.transpose(),
+                    BlockStructure::Rectangular,
+                    1.0,
+                    Par::Seq,
+                );
+            }
+        }
+        self.rows.rows += n * comps;
+        self.poses = 0;
+    }
+
+    fn finish(mut self) -> (Mat<f64>, usize) {
+        self.flush();
+        self.rows.finish()
+    }
+}
+
+/// Column groups of the design that share one direction at every pose: each term's
+/// coefficients (shifted past the alignment columns), every other column alone.
+fn groups(m: &Machine, offset: usize, width: usize) -> Vec<(usize, usize)> {
+    let mut group = vec![usize::MAX; width];
+    let mut out = Vec::new();
+    for term in m.errors.iter().flat_map(|e| &e.terms) {
+        let start = offset.saturating_add(term.first);
+        let end = start.saturating_add(term.coefficients);
+        // A term the IR got wrong (overlapping, out of range) is left to the singletons.
+        if term.coefficients == 0
+            || end > width
+            || group[start..end].iter().any(|&g| g != usize::MAX)
+        {
+            continue;
+        }
+        group[start..end].fill(out.len());
+        out.push((start, term.coefficients));
+    }
+    for (j, g) in group.iter().enumerate() {
+        if *g == usize::MAX {
+            out.push((j, 1));
+        }
+    }
+    out.sort_unstable();
+    out
 }
 
 /// Analyses a row-major `rows × columns.len()` design matrix.
@@ -505,8 +715,14 @@ fn condition(l: &Mat<f64>, independent: &[bool]) -> f64 {
 }
 
 /// Poses `kin check` samples for a machine of `coefficients` coefficients observed as
-/// `observe`: enough for about four rows per coefficient (a random design of that shape has
-/// full rank wherever the model is identifiable), at least 200.
+/// `observe`: enough for about two rows per coefficient, at least 200.
+///
+/// Two are enough: a random m × p design with m = 2p has full rank wherever the model is
+/// identifiable, and its smallest singular value is about (√2 − 1)√p (Marchenko–Pastur for
+/// independent rows), so an identifiable column keeps a residual of order 0.1–0.4 of its length
+/// after the earlier ones, five orders of magnitude above the `DEPENDENT` threshold; four rows
+/// per coefficient only doubled the accumulation, which costs rows × coefficients² and is
+/// most of the analysis at 10 000 coefficients.
 pub fn poses_for(coefficients: usize, observe: Observe) -> usize {
     let per_pose = match observe {
         Observe::Position => 3,
@@ -515,7 +731,7 @@ pub fn poses_for(coefficients: usize, observe: Observe) -> usize {
         Observe::Length => 1,
     };
     coefficients
-        .saturating_mul(4)
+        .saturating_mul(2)
         .div_ceil(per_pose)
         .saturating_add(1)
         .max(200)
@@ -550,9 +766,19 @@ pub fn sampled_with(
         } else {
             0
         };
-    let mut gram = Gram::new(width);
-    let columns = for_each_row(m, &states, observe, aligned, engine, |row| gram.push(row))?;
-    let (g, rows) = gram.finish();
+    let (g, rows, columns) = if observe == Observe::Length {
+        let mut gram = Gram::new(width);
+        let columns = for_each_row(m, &states, observe, aligned, engine, |row| gram.push(row))?;
+        let (g, rows) = gram.finish();
+        (g, rows, columns)
+    } else {
+        let offset = width.saturating_sub(m.coefficients.len());
+        let comps = if observe == Observe::Position { 3 } else { 6 };
+        let mut gram = PoseGram::new(width, comps, groups(m, offset, width));
+        let columns = for_each_row(m, &states, observe, aligned, engine, |row| gram.push(row))?;
+        let (g, rows) = gram.finish();
+        (g, rows, columns)
+    };
     analyse_gram(g, rows, &columns)
 }
 

@@ -658,8 +658,7 @@ fn condition(l: &Mat<f64>, independent: &[bool]) -> f64 {
     for _ in 0..ITERATIONS {
         for i in 0..n {
             y[i] = if independent[i] {
-                let col = l.col(i);
-                (i..n).map(|k| col[k] * x[k]).sum()
+                dot(tail(l, i, i), &x[i..])
             } else {
                 0.0
             };
@@ -667,9 +666,9 @@ fn condition(l: &Mat<f64>, independent: &[bool]) -> f64 {
         x.fill(0.0);
         for i in 0..n {
             if independent[i] {
-                let col = l.col(i);
-                for k in i..n {
-                    x[k] += col[k] * y[i];
+                let yi = y[i];
+                for (xk, c) in x[i..].iter_mut().zip(tail(l, i, i)) {
+                    *xk += c * yi;
                 }
             }
         }
@@ -691,9 +690,9 @@ fn condition(l: &Mat<f64>, independent: &[bool]) -> f64 {
                 continue;
             }
             y[i] = x[i] / l[(i, i)];
-            let col = l.col(i);
-            for k in i + 1..n {
-                x[k] -= col[k] * y[i];
+            let yi = y[i];
+            for (xk, c) in x[i + 1..].iter_mut().zip(tail(l, i, i + 1)) {
+                *xk -= c * yi;
             }
         }
         for i in (0..n).rev() {
@@ -701,8 +700,7 @@ fn condition(l: &Mat<f64>, independent: &[bool]) -> f64 {
                 x[i] = 0.0;
                 continue;
             }
-            let col = l.col(i);
-            let s: f64 = (i + 1..n).map(|k| col[k] * x[k]).sum();
+            let s = dot(tail(l, i, i + 1), &x[i + 1..]);
             x[i] = (y[i] - s) / l[(i, i)];
         }
         inv = normalise(&mut x);
@@ -712,6 +710,31 @@ fn condition(l: &Mat<f64>, independent: &[bool]) -> f64 {
     } else {
         f64::INFINITY
     }
+}
+
+/// Entries `from..` of column `j` of `l` as a slice (a `Mat` is column-major and contiguous;
+/// empty otherwise, which no caller meets).
+fn tail(l: &Mat<f64>, j: usize, from: usize) -> &[f64] {
+    l.col(j)
+        .try_as_col_major()
+        .map_or(&[][..], |c| c.as_slice())
+        .get(from..)
+        .unwrap_or(&[])
+}
+
+/// `Σ a_k b_k` in four running sums (the condition estimate's inner product; independent sums
+/// let the compiler keep four multiplications in flight instead of one chain).
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut s = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (p, q) in ca.zip(cb) {
+        for k in 0..4 {
+            s[k] += p[k] * q[k];
+        }
+    }
+    let rest: f64 = ra.iter().zip(rb).map(|(p, q)| p * q).sum();
+    (s[0] + s[1]) + (s[2] + s[3]) + rest
 }
 
 /// Poses `kin check` samples for a machine of `coefficients` coefficients observed as

@@ -19,10 +19,11 @@
 //! |-------------:|---------------------------|----------------------------------------------|
 //! | 1 000        | 0.14 s                    |                                              |
 //! | 5 000        | 1.9 s one function, 0.7 s in pieces | 89 s (4 rows per coefficient, row by row) → 23 s (2 rows) → 16 s / 240 MB (by pose) |
-//! | 10 000       | 9.5 s one function, 1.5 s in pieces | 704 s / 894 MB before (load 8–9) → 89 s / 860 MB |
+//! | 10 000       | 9.5 s one function, 1.5 s in pieces | 704 s / 894 MB before (load 8–9) → 89 s → 56 s / 860 MB |
 //!
-//! At 10 000: JIT 1.5 s, sampling and Gram accumulation 25 s, factorisation 33 s, condition
-//! estimate and dependencies 31 s. Fit, 10⁷ observed values (41 coefficients): 101 s wall,
+//! At 10 000, in the 89 s run: JIT 1.5 s, sampling and Gram accumulation 25 s, factorisation
+//! 33 s, condition estimate and dependencies 31 s; the condition estimate on contiguous slices
+//! then took the total to 56 s. Fit, 10⁷ observed values (41 coefficients): 101 s wall,
 //! 19 s CPU, 1.1 GB peak (about 110 bytes per value held).
 
 use std::fmt::Write as _;

@@ -578,12 +578,28 @@ fn factor_in_order(g: &mut Mat<f64>, scale: &[f64]) -> Vec<bool> {
         let j1 = (j0 + PANEL).min(n);
         for j in j0..j1 {
             // Left-looking within the panel: the earlier panels are already applied.
-            for i in j0..j {
-                let lji = g[(j, i)];
-                if lji != 0.0 {
-                    for k in j..n {
-                        let v = g[(k, i)];
-                        g[(k, j)] -= v * lji;
+            {
+                // Columns j0..j on the left, column j on the right: both as contiguous slices.
+                let (left, right) = g.as_mut().split_at_col_mut(j);
+                let target = right
+                    .col_mut(0)
+                    .try_as_col_major_mut()
+                    .map(|c| c.as_slice_mut());
+                if let Some(target) = target {
+                    let target = target.get_mut(j..).unwrap_or(&mut []);
+                    for i in j0..j {
+                        let source = left
+                            .as_ref()
+                            .col(i)
+                            .try_as_col_major()
+                            .map(|c| c.as_slice());
+                        let Some(source) = source else { continue };
+                        let lji = source.get(j).copied().unwrap_or(0.0);
+                        if lji != 0.0 {
+                            for (t, v) in target.iter_mut().zip(source.get(j..).unwrap_or(&[])) {
+                                *t -= v * lji;
+                            }
+                        }
                     }
                 }
             }

@@ -13,18 +13,18 @@
 //! The fit at 10⁷ observations is measured through the CLI (`kin simulate --sample`, then
 //! `kin fit` under `/usr/bin/time -v`).
 //!
-//! Figures (release, shared 2-core machine at load average 10–11; spec/cli.md, "Limits"):
+//! Figures (release, shared 2-core machine; spec/cli.md, "Limits"). Same-minute pairs:
 //!
-//! | coefficients | JIT compile               | `kin check` (pose), wall / peak RSS          |
-//! |-------------:|---------------------------|----------------------------------------------|
-//! | 1 000        | 0.14 s                    |                                              |
-//! | 5 000        | 1.9 s one function, 0.7 s in pieces | 89 s (4 rows per coefficient, row by row) → 23 s (2 rows) → 16 s / 240 MB (by pose) |
-//! | 10 000       | 9.5 s one function, 1.5 s in pieces | 704 s / 894 MB before (load 8–9) → 89 s → 56 s / 860 MB |
-//!
-//! At 10 000, in the 89 s run: JIT 1.5 s, sampling and Gram accumulation 25 s, factorisation
-//! 33 s, condition estimate and dependencies 31 s; the condition estimate on contiguous slices
-//! then took the total to 56 s. Fit, 10⁷ observed values (41 coefficients): 101 s wall,
-//! 19 s CPU, 1.1 GB peak (about 110 bytes per value held).
+//! - JIT compile, 10 000 coefficients: one function 9.5 s, pieces of 1 024 1.5 s (load 10.8);
+//!   one function 1.4 s, pieces 0.27 s (load 3). 5 000: 1.9 s → 0.7 s (pieces of 512, load 10.8).
+//! - `kin check`, 5 000 coefficients (load 10–11): 89 s with four rows per coefficient added
+//!   row by row (70 s sampling and accumulation, 6 s factorisation), 23 s with two rows, 16 s
+//!   with the rows added by pose; 5 s / 240 MB at load 3 with the later slice loops.
+//! - `kin check`, 10 000 coefficients: 704 s / 894 MB before (previous measurement, load
+//!   8–9); 89 s, then 56 s with the condition estimate on slices (load 10); 26–27 s / 860 MB
+//!   at load 3–4.
+//! - Fit, 10⁷ observed values (41 coefficients): 101 s wall, 19 s CPU at load 11; 20 s at load
+//!   3; 1.1 GB peak (about 110 bytes per value held).
 
 use std::fmt::Write as _;
 use std::time::Instant;

@@ -30,8 +30,8 @@ impl From<ObserveArg> for Observe {
     }
 }
 
-/// Identifiability on states sampled over the ranges: enough rows to see every coefficient
-/// several times over, with a fixed seed so `kin check` is reproducible.
+/// Identifiability on states sampled over the ranges: about two rows per coefficient, with a
+/// fixed seed so `kin check` is reproducible.
 fn identify(
     c: &Compiled,
     observe: Observe,
@@ -41,7 +41,7 @@ fn identify(
     if c.machine.coefficients.is_empty() {
         return Vec::new();
     }
-    let n = (2 * c.machine.coefficients.len()).max(200);
+    let n = kin_runtime::identify::poses_for(c.machine.coefficients.len(), observe);
     match kin_runtime::identify::sampled_with(&c.machine, observe, aligned, n, 0x6b696e, engine) {
         Ok(report) => {
             kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)

@@ -383,10 +383,19 @@ pub fn summary(r: &report::FitReport) -> String {
         s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
     }
     for n in &r.nonlinear {
-        s.push_str(&format!(
-            "  {:<40} {:.4} ± {:.4} {} ({})\n",
-            n.name, n.value, n.se, n.unit, n.label
-        ));
+        match (&n.note, n.label.as_str()) {
+            (Some(note), "undetermined") => {
+                s.push_str(&format!("  {:<40} undetermined: {note}\n", n.name));
+            }
+            (Some(note), _) => s.push_str(&format!(
+                "  {:<40} {:.4} ± {:.4} {} ({}: {note})\n",
+                n.name, n.value, n.se, n.unit, n.label
+            )),
+            (None, _) => s.push_str(&format!(
+                "  {:<40} {:.4} ± {:.4} {} ({})\n",
+                n.name, n.value, n.se, n.unit, n.label
+            )),
+        }
     }
     for n in &r.nuisance {
         s.push_str(&format!(

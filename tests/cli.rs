@@ -600,3 +600,42 @@ fn diagnose_judges_against_a_stated_noise() {
     let out = kin(&["diagnose", model_arg, data_arg, "--noise", "2urad"]);
     assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
 }
+
+/// One artifact label per row: each label adds six placement parameters that one point cannot
+/// fix. The fit says so at once, naming the file and labels, instead of factoring a design of
+/// 6 × 500 nuisance columns to find the rank deficiency.
+#[test]
+fn fit_rejects_artifact_labels_too_thin_to_place_before_fitting() {
+    let src = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/data/bridge_cmm_points.csv"),
+    )
+    .expect("bundled data");
+    let mut out = String::new();
+    let mut row = 0usize;
+    for line in src.lines() {
+        if line.starts_with('#') {
+            out.push_str(line);
+        } else if row == 0 {
+            out.push_str(&format!("{line},artifact"));
+            row += 1;
+        } else if row <= 500 {
+            out.push_str(&format!("{line},a{row}"));
+            row += 1;
+        } else {
+            break;
+        }
+        out.push('\n');
+    }
+    let csv = tmp("thin-artifacts.csv");
+    std::fs::write(&csv, out).unwrap();
+    let run = kin(&["fit", "examples/bridge_cmm.kin", csv.to_str().unwrap()]);
+    let err = text(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(csv.to_str().unwrap())
+            && err.contains("500 artifact labels are observed too thinly to place")
+            && err.contains("`a1` (1 row, line")
+            && err.contains("and 495 more"),
+        "{err}"
+    );
+}

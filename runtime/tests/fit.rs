@@ -580,6 +580,10 @@ machine thermal {
         tau / 60.0
     );
     assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
+    // The lag moved far from its start: fitted. The periodic error here is weak (0.6 µm
+    // against 0.1 µm noise): determined, and its verdict is what the data support.
+    assert!(nl.verdicts[1].expect("fitted").significant());
+    assert!(nl.verdicts[0].expect("fitted").determined);
 
     // Reference: plain Gauss–Newton over all parameters at the optimum. J = [X | ∂(Xβ̂)/∂θ]
     // by central differences; the θ block of σ̂²(JᵀJ)⁻¹ must equal the projected estimate.
@@ -639,6 +643,104 @@ machine thermal {
             names[k]
         );
     }
+}
+
+const THERMAL: &str = r#"
+machine thermal {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 500 mm
+    input T : temperature rise range 0 K .. 5 K
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = linear(X) + periodic(X, wavelength fit 20 mm, knots 2)
+        t.tz = lag(T, tau fit 30 min) * const
+    }
+}
+"#;
+
+/// The thermal model fitted (from λ = 20 mm, τ = 30 min) to data simulated with `beta`, the
+/// wavelength `lambda` and τ = 40 min.
+fn thermal_fit(beta: &[f64], lambda: f64, seed: u64) -> (Compiled, [DataSet; 1], fit::FitResult) {
+    let c = machine(THERMAL);
+    let n = 180;
+    let mut poses = sample_points(&c.machine, n, seed);
+    poses.rows.time = Some((0..n).map(|r| 120.0 * r as f64).collect());
+    poses.rows.inputs = vec![Some(
+        (0..n).map(|r| if r < 30 { 0.0 } else { 4.0 }).collect(),
+    )];
+    let mut truth_machine = c.machine.clone();
+    truth_machine.nonlinear[0].value = lambda;
+    truth_machine.nonlinear[1].value = 40.0 * 60.0;
+    let options = simulate::Options {
+        noise: 0.1e-6,
+        seed: seed + 1,
+        ..simulate::Options::default()
+    };
+    let obs =
+        simulate::simulate(&truth_machine, beta, &Observations::Points(poses), &options).unwrap();
+    let files = [DataSet {
+        path: "thermal.csv".into(),
+        observations: obs,
+    }];
+    let r = run(&c, &files, &Options::default()).expect("fit");
+    (c, files, r)
+}
+
+/// Data without any periodic error: the fitted wavelength shapes nothing but noise. It must be
+/// flagged (undetermined or not significant), never reported as fitted, while the real time
+/// constant stays fitted.
+#[test]
+fn a_wavelength_fitted_to_noise_is_flagged() {
+    let (c, files, r) = thermal_fit(&[3e-6, 0.0, 0.0, 2e-6], 20e-3, 19);
+    let nl = r.nonlinear.as_ref().expect("non-linear fit");
+    let lambda = nl.verdicts[0].expect("fitted");
+    assert!(
+        !lambda.significant(),
+        "λ = {} mm: {lambda:?}",
+        nl.values[0] * 1e3
+    );
+    assert!(lambda.term_p > fit::nonlinear::ALPHA, "{lambda:?}");
+    let tau = nl.verdicts[1].expect("fitted");
+    assert!(
+        tau.significant(),
+        "τ = {} min: {tau:?}",
+        nl.values[1] / 60.0
+    );
+    // The report says so in words.
+    let report = fit::report::build(
+        &c.machine,
+        THERMAL,
+        "interp",
+        &files,
+        &[],
+        &r,
+        &Options::default(),
+    );
+    assert_ne!(report.nonlinear[0].label, "fitted");
+    assert!(report.nonlinear[0].note.is_some());
+    assert_eq!(report.nonlinear[1].label, "fitted");
+    assert!(report.nonlinear[1].note.is_none());
+}
+
+/// A clear periodic error at 20.3 mm, fitted from 20 mm: fitted, not flagged, and its interval
+/// covers the truth.
+#[test]
+fn a_real_wavelength_is_fitted_and_covers_the_truth() {
+    let (_, _, r) = thermal_fit(&[3e-6, 2e-6, -1.5e-6, 2e-6], 20.3e-3, 29);
+    let nl = r.nonlinear.as_ref().expect("non-linear fit");
+    let v = nl.verdicts[0].expect("fitted");
+    assert!(v.significant(), "{v:?}");
+    let (lambda, se) = (nl.values[0], nl.se[0].expect("fitted"));
+    assert!(
+        ((lambda - 20.3e-3) / se).abs() < 3.0,
+        "λ = {} ± {} mm",
+        lambda * 1e3,
+        se * 1e3
+    );
 }
 
 #[test]

@@ -1080,3 +1080,60 @@ fn inconsistent_ir_is_rejected_at_compile_time() {
     m.tool_chain[0].axis = 17;
     assert!(matches!(jit::compile(&m), Err(jit::JitError::Model { .. })));
 }
+
+/// A model of `coefficients` coefficients: X, Y, Z prismatic and C revolute, splines on the
+/// linear axes and long Fourier series on C (the shape of the scale benchmark, smaller).
+fn large_model(coefficients: usize) -> String {
+    use std::fmt::Write as _;
+    let mut errors = String::new();
+    let mut total = 0;
+    for axis in ["X", "Y", "Z"] {
+        for e in ["tx", "ty", "tz", "rx", "ry", "rz"] {
+            if total + 51 <= coefficients {
+                let _ = writeln!(errors, "{axis}.{e} = spline({axis}, knots 50, degree 1)");
+                total += 51;
+            }
+        }
+    }
+    for e in ["tx", "ty", "tz", "rx", "ry", "rz"] {
+        let harmonics = ((coefficients - total) / 2).min(200);
+        if harmonics == 0 {
+            break;
+        }
+        let _ = writeln!(errors, "C.{e} = fourier(C, harmonics 1..{harmonics})");
+        total += 2 * harmonics;
+    }
+    format!(
+        "machine large {{
+    task position
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 800 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    axis C revolute about z continuous
+    workpiece chain {{ Y fixed  C fixed  workpiece }}
+    tool chain {{ X moving  Z moving at (0, 0, 500) mm  tool a at (30, 20, -100) mm }}
+    errors {{
+{errors}    }}
+}}
+"
+    )
+}
+
+/// Past 1 024 coefficients the error and Jacobian are emitted as several functions called in
+/// turn (compile time linear in the model), one component's running sum handed from one to
+/// the next; together they must still compute what the interpreter computes, every entry
+/// written (`compare` poisons the Jacobian first).
+#[test]
+fn a_large_model_compiles_and_agrees_with_the_interpreter() {
+    let m = compile_source(&large_model(2_000));
+    assert!(m.coefficients.len() >= 1_900, "{}", m.coefficients.len());
+    let model = jit::compile(&m).expect("compiles");
+    let mut rng = StdRng::seed_from_u64(7);
+    let states: Vec<OwnedState> = (0..6).map(|_| random_state(&mut rng, &m)).collect();
+    let w = compare(&m, &model, &states, &mut rng, "large");
+    eprintln!(
+        "large ({} coefficients): {w:?}, compiled in {:?}",
+        m.coefficients.len(),
+        model.compile_time()
+    );
+}

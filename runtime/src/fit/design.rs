@@ -148,68 +148,130 @@ pub enum DesignError {
          double precision (a value in the row or in the model is far too large to fit)"
     )]
     NotFinite { path: String, line: usize },
-    #[error(
-        "{path}, line{} {}: artifact `{label}` is observed at {rows} row{} ({values} value{}), too \
-         few for its placement (3 shifts, 3 rotations): that needs at least 6 observed values, \
-         and at least 3 points when its rotations are not observed. Measure it at more points, \
-         or leave its `artifact` cells empty to take its placement as nominal",
-        if lines.len() == 1 { "" } else { "s" },
-        lines.iter().map(usize::to_string).collect::<Vec<_>>().join(", "),
-        if *rows == 1 { "" } else { "s" },
-        if *values == 1 { "" } else { "s" }
-    )]
-    ThinArtifact {
+    #[error("{}", thin_message(path, labels))]
+    ThinArtifacts {
         path: String,
-        label: String,
-        /// The artifact's rows (at most the first 10).
-        lines: Vec<usize>,
-        rows: usize,
-        values: usize,
+        /// Every label too thin to place, in label order.
+        labels: Vec<ThinArtifact>,
     },
 }
 
-/// An artifact of a point file observed at too few rows to fix its placement would make the
-/// design rank-deficient, and the deficiency would be named at the model's terms. It is
-/// reported at its rows instead, before anything expensive runs.
+/// An artifact label of a point file observed too thinly to fix its placement.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ThinArtifact {
+    pub label: String,
+    /// The label's rows (at most the first 10 line numbers).
+    pub lines: Vec<usize>,
+    pub rows: usize,
+    /// Observed values (non-empty cells of `ex` … `erz`) on those rows.
+    pub values: usize,
+}
+
+/// The wording of [`DesignError::ThinArtifacts`]: one label at its lines; many as a count and
+/// the first few.
+fn thin_message(path: &str, labels: &[ThinArtifact]) -> String {
+    const RULE: &str = "too few for its placement (3 shifts, 3 rotations): that needs at least 6 \
+        observed values, and at least 3 points when its rotations are not observed. Measure it at \
+        more points, or leave its `artifact` cells empty to take its placement as nominal";
+    let plural = |n: usize, word: &str| format!("{n} {word}{}", if n == 1 { "" } else { "s" });
+    match labels {
+        [one] => format!(
+            "{path}, {} {}: artifact `{}` is observed at {} ({}), {RULE}",
+            if one.lines.len() == 1 {
+                "line"
+            } else {
+                "lines"
+            },
+            one.lines
+                .iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", "),
+            one.label,
+            plural(one.rows, "row"),
+            plural(one.values, "value"),
+        ),
+        _ => {
+            const SHOWN: usize = 5;
+            let mut list: Vec<String> = labels
+                .iter()
+                .take(SHOWN)
+                .map(|t| {
+                    format!(
+                        "`{}` ({}, line {})",
+                        t.label,
+                        plural(t.rows, "row"),
+                        t.lines.first().copied().unwrap_or(0)
+                    )
+                })
+                .collect();
+            if labels.len() > SHOWN {
+                list.push(format!("and {} more", labels.len() - SHOWN));
+            }
+            format!(
+                "{path}: {} are observed too thinly to place: {}. Each is {RULE}",
+                plural(labels.len(), "artifact label"),
+                list.join(", ")
+            )
+        }
+    }
+}
+
+/// Artifacts of a point file observed at too few rows to fix their placement would make the
+/// design rank-deficient, found only after factoring a design with six columns per label (cubic
+/// in the labels) and then named at the model's terms. They are counted in one pass over the
+/// rows and reported at their rows instead, before anything expensive runs.
 pub fn check_artifacts(files: &[DataSet]) -> Result<(), DesignError> {
     for file in files {
         let Observations::Points(p) = &file.observations else {
+            // A length file's label adds one length error, fixed by any one row.
             continue;
         };
         let Some(groups) = &p.rows.artifact else {
             continue;
         };
-        for (id, label) in groups.labels.iter().enumerate() {
-            let mut lines = Vec::new();
-            let (mut rows, mut values, mut rotations) = (0usize, 0usize, false);
-            for (r, a) in groups.of_row.iter().enumerate() {
-                if a.map(|a| a as usize) != Some(id) {
-                    continue;
-                }
-                rows += 1;
-                if lines.len() < 10 {
-                    lines.push(p.rows.line.get(r).copied().unwrap_or(0));
-                }
-                for (c, column) in p.observed.iter().enumerate() {
-                    if column
-                        .as_ref()
-                        .and_then(|v| v.get(r))
-                        .is_some_and(|v| !v.is_nan())
-                    {
-                        values += 1;
-                        rotations |= c >= 3;
-                    }
-                }
-            }
-            if values < 6 || (!rotations && rows < 3) {
-                return Err(DesignError::ThinArtifact {
-                    path: file.path.display().to_string(),
+        let mut seen: Vec<(ThinArtifact, bool)> = groups
+            .labels
+            .iter()
+            .map(|label| {
+                let t = ThinArtifact {
                     label: label.clone(),
-                    lines,
-                    rows,
-                    values,
-                });
+                    lines: Vec::new(),
+                    rows: 0,
+                    values: 0,
+                };
+                (t, false)
+            })
+            .collect();
+        for (r, a) in groups.of_row.iter().enumerate() {
+            let Some((t, rotations)) = a.and_then(|a| seen.get_mut(a as usize)) else {
+                continue;
+            };
+            t.rows += 1;
+            if t.lines.len() < 10 {
+                t.lines.push(p.rows.line.get(r).copied().unwrap_or(0));
             }
+            for (c, column) in p.observed.iter().enumerate() {
+                if column
+                    .as_ref()
+                    .and_then(|v| v.get(r))
+                    .is_some_and(|v| !v.is_nan())
+                {
+                    t.values += 1;
+                    *rotations |= c >= 3;
+                }
+            }
+        }
+        let thin: Vec<ThinArtifact> = seen
+            .into_iter()
+            .filter(|(t, rotations)| t.values < 6 || (!rotations && t.rows < 3))
+            .map(|(t, _)| t)
+            .collect();
+        if !thin.is_empty() {
+            return Err(DesignError::ThinArtifacts {
+                path: file.path.display().to_string(),
+                labels: thin,
+            });
         }
     }
     Ok(())

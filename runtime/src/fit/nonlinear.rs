@@ -24,6 +24,33 @@ pub struct NonlinearFit {
     pub se: Vec<Option<f64>>,
     pub iterations: usize,
     pub rss: f64,
+    /// For fitted parameters: whether the data determine it at all, and whether it improves
+    /// on its declared start value.
+    pub verdicts: Vec<Option<Verdict>>,
+}
+
+/// Significance level of the tests behind a [`Verdict`].
+pub const ALPHA: f64 = 0.01;
+
+/// What the data say about one fitted non-linear parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Verdict {
+    /// p-value of the term the parameter shapes: the columns that move with it, and the
+    /// parameter itself, against the fit without them (partial F-test). Above [`ALPHA`] the
+    /// data show no effect for the parameter to shape: its value is noise.
+    pub term_p: f64,
+    /// p-value of the fitted value against the declared start value held fixed (partial F-test
+    /// of one parameter). Above [`ALPHA`] the data do not tell the two apart.
+    pub start_p: f64,
+    /// False when the standard error is unbounded or `term_p` is above [`ALPHA`].
+    pub determined: bool,
+}
+
+impl Verdict {
+    /// Determined and a significant improvement on the start value.
+    pub fn significant(&self) -> bool {
+        self.determined && self.start_p <= ALPHA
+    }
 }
 
 /// The weighted residual vector of the linear fit at `values`, and its rank.
@@ -68,9 +95,35 @@ fn linear_fit(
     values: &[f64],
     options: &Options,
 ) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
+    masked_fit(compiled, engine, files, values, options, &[])
+}
+
+/// As [`linear_fit`], with the columns flagged in `without` left out (held at zero).
+fn masked_fit(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    options: &Options,
+    without: &[bool],
+) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
     let (states, layout) = at_values(compiled, engine, files, values)?;
     let mut acc = StreamingQr::new(layout.columns(), options.block);
-    design::for_each_row(engine, files, &states, &layout, |_, x, y| acc.push(x, y))?;
+    let mut row = vec![0.0; layout.columns()];
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        if without.is_empty() {
+            acc.push(x, y)
+        } else {
+            for (j, (dst, v)) in row.iter_mut().zip(x).enumerate() {
+                *dst = if without.get(j).copied().unwrap_or(false) {
+                    0.0
+                } else {
+                    *v
+                };
+            }
+            acc.push(&row, y)
+        }
+    })?;
     let red = acc.finish();
     if !red.is_finite() {
         return Err(FitError::Overflow);
@@ -81,7 +134,14 @@ fn linear_fit(
     };
     let mut r = Vec::with_capacity(red.rows);
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
-        r.push(y - x.iter().zip(&sol.beta).map(|(a, b)| a * b).sum::<f64>());
+        let fit: f64 = x
+            .iter()
+            .zip(&sol.beta)
+            .enumerate()
+            .filter(|(j, _)| !without.get(*j).copied().unwrap_or(false))
+            .map(|(_, (a, b))| a * b)
+            .sum();
+        r.push(y - fit);
     })?;
     Ok((r, sol.rank, sol.beta))
 }
@@ -268,6 +328,30 @@ pub fn optimise(
     let se = covariance(
         compiled, engine, files, &values, &fitted, rss, rank, options,
     )?;
+    let mut verdicts = vec![None; m.nonlinear.len()];
+    let dof = r.len().saturating_sub(rank + k).max(1) as f64;
+    for &i in &fitted {
+        let start = m.nonlinear.get(i).map(|p| p.value).unwrap_or(values[i]);
+        // Held at its start value, the others at their optimum.
+        let mut held = values.clone();
+        held[i] = start;
+        let (rs, _) = residuals(compiled, engine, files, &held, options)?;
+        let moved = moved_columns(compiled, engine, files, &values, i)?;
+        let without = moved.iter().filter(|&&b| b).count();
+        let (rw, _, _) = masked_fit(compiled, engine, files, &values, options, &moved)?;
+        let term_p = f_test_p(sumsq(&rw) - rss, (without + 1) as f64, rss, dof);
+        let start_p = f_test_p(sumsq(&rs) - rss, 1.0, rss, dof);
+        let bounded = se
+            .get(i)
+            .copied()
+            .flatten()
+            .is_some_and(|v| v.is_finite() && v < values[i].abs());
+        verdicts[i] = Some(Verdict {
+            term_p,
+            start_p,
+            determined: bounded && term_p <= ALPHA,
+        });
+    }
     engine
         .set_nonlinear(&values)
         .map_err(|source| design::DesignError::Eval {
@@ -280,6 +364,7 @@ pub fn optimise(
         se,
         iterations,
         rss,
+        verdicts,
     }))
 }
 
@@ -306,4 +391,61 @@ fn solve_small(a: &Mat<f64>, b: &[f64]) -> (Vec<f64>, bool) {
         }
     }
     (x, singular)
+}
+
+/// The columns whose values change when non-linear parameter `i` changes (by 1 %): the
+/// basis functions it shapes. Compared through a fixed pseudo-random projection of each column
+/// over the rows, so no design is held.
+fn moved_columns(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    i: usize,
+) -> Result<Vec<bool>, FitError> {
+    let mut projection = |values: &[f64]| -> Result<Vec<(f64, f64)>, FitError> {
+        let (states, layout) = at_values(compiled, engine, files, values)?;
+        let mut sums = vec![(0.0, 0.0); layout.columns()];
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        design::for_each_row(engine, files, &states, &layout, |_, x, _| {
+            // xorshift: reproducible weights in [-1, 1).
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let w = (seed >> 11) as f64 / (1u64 << 52) as f64 - 1.0;
+            for (s, v) in sums.iter_mut().zip(x) {
+                s.0 += w * v;
+                s.1 += v.abs();
+            }
+        })?;
+        Ok(sums)
+    };
+    let base = projection(values)?;
+    let mut shifted = values.to_vec();
+    if let Some(v) = shifted.get_mut(i) {
+        *v *= 1.01;
+    }
+    let moved = projection(&shifted)?;
+    Ok(base
+        .iter()
+        .zip(&moved)
+        .map(|(a, b)| (a.0 - b.0).abs() > 1e-9 * a.1.max(b.1))
+        .collect())
+}
+
+/// p-value of a partial F-test: `gain` in the residual sum of squares bought by `q` more
+/// parameters, against `rss / dof`. Above 10⁵ degrees of freedom the χ²(q) limit: statrs's F
+/// distribution slows with the degrees of freedom.
+fn f_test_p(gain: f64, q: f64, rss: f64, dof: f64) -> f64 {
+    use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
+    if !(rss > 0.0) || !gain.is_finite() {
+        return if gain > 0.0 { 0.0 } else { 1.0 };
+    }
+    let f = (gain.max(0.0) / q) / (rss / dof);
+    let cdf = if dof > 1e5 {
+        ChiSquared::new(q).map(|d| d.cdf(f * q)).ok()
+    } else {
+        FisherSnedecor::new(q, dof).map(|d| d.cdf(f)).ok()
+    };
+    cdf.map(|c| 1.0 - c).unwrap_or(f64::NAN)
 }

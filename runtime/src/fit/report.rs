@@ -120,6 +120,11 @@ pub struct Estimate {
     /// False for a coefficient stepwise selection removed (its value is 0 by decision).
     #[serde(default = "yes")]
     pub kept: bool,
+    /// For a fitted non-linear parameter the data do not determine, or do not tell apart from
+    /// its start value: why, with the test's p-value (`label` is then `undetermined` or
+    /// `not significant`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
 }
 
 fn yes() -> bool {
@@ -285,24 +290,41 @@ pub fn build(
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let (value, se) = match &result.nonlinear {
+            let (value, se, verdict) = match &result.nonlinear {
                 Some(n) => (
                     n.values.get(i).copied().unwrap_or(p.value),
                     n.se.get(i).copied().flatten().unwrap_or(0.0),
+                    n.verdicts.get(i).copied().flatten(),
                 ),
-                None => (p.value, 0.0),
+                None => (p.value, 0.0, None),
+            };
+            let start = format!("{} {}", p.unit.from_si(p.value), p.unit.name);
+            let (label, note) = match verdict {
+                _ if !p.fitted => ("fixed", None),
+                Some(v) if !v.determined => (
+                    "undetermined",
+                    Some(format!(
+                        "the data do not determine it: the term it shapes explains no more than noise (p = {:.2e}) or its standard error is unbounded; start value {start}",
+                        v.term_p
+                    )),
+                ),
+                Some(v) if !v.significant() => (
+                    "not significant",
+                    Some(format!(
+                        "no better than its start value {start} (p = {:.2e})",
+                        v.start_p
+                    )),
+                ),
+                _ => ("fitted", None),
             };
             Estimate {
                 name: p.name.clone(),
-                label: if p.fitted {
-                    "fitted".into()
-                } else {
-                    "fixed".into()
-                },
+                label: label.into(),
                 unit: p.unit.name.clone(),
                 value: p.unit.from_si(value),
                 se: se / p.unit.scale,
                 kept: true,
+                note,
             }
         })
         .collect();
@@ -324,6 +346,7 @@ pub fn build(
                 .selection
                 .as_ref()
                 .is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
+            note: None,
         })
         .collect();
     let nuisance: Vec<Estimate> = result
@@ -348,6 +371,7 @@ pub fn build(
                 value: sol.beta.get(j).copied().unwrap_or(0.0) / unit.scale,
                 se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / unit.scale,
                 kept: true,
+                note: None,
             }
         })
         .collect();

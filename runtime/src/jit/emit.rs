@@ -87,7 +87,7 @@ pub(super) struct Emitted {
 /// Compiles `graphs` (name, graph) into one module. With `dump`, the Cranelift IR of each
 /// function and the machine code it became are appended to it (the `--dump clif` view).
 pub(super) fn compile(
-    graphs: &[(&str, &Graph)],
+    graphs: &[(String, &Graph)],
     mut dump: Option<&mut String>,
 ) -> Result<Emitted, JitError> {
     let mut flags = settings::builder();
@@ -159,7 +159,7 @@ pub(super) fn compile(
 
 fn define_all(
     module: &mut JITModule,
-    graphs: &[(&str, &Graph)],
+    graphs: &[(String, &Graph)],
     dump: &mut Option<&mut String>,
 ) -> Result<Vec<FuncId>, JitError> {
     let ptr = module.target_config().pointer_type();
@@ -238,6 +238,7 @@ fn field(src: Src) -> i32 {
         Src::Nonlinear => offset_of!(Args, nonlinear),
         Src::ToolTf => offset_of!(Args, tool_tf),
         Src::Time => offset_of!(Args, time),
+        Src::Out => offset_of!(Args, out),
     };
     // The block is a handful of words.
     o as i32

@@ -42,6 +42,8 @@ pub(super) enum Src {
     ToolTf,
     /// The scalar `time` field (index ignored).
     Time,
+    /// `out`, read back where an earlier piece of the same function left a value (`lower`).
+    Out,
 }
 
 /// The output arrays a store writes to.

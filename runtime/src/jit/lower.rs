@@ -170,19 +170,225 @@ struct FrameF {
     arm: Vec3,
 }
 
-/// Builds one graph for `m`. `tool_rotation` is the tools' common rotation when they all share
-/// one (it is then folded in as constants), else `None` and it is loaded with the tool offset.
-pub(super) fn build(m: &Machine, kind: Kind, tool_rotation: Option<[[f64; 3]; 3]>) -> Graph {
-    let mut b = Builder {
-        g: Graph::default(),
-        m,
-    };
-    let kin = b.kinematics(tool_rotation);
+/// Coefficients per generated function at most. Cranelift's register allocator costs more
+/// than linearly in the length of one straight-line function (at 10 000 coefficients one
+/// function took 9.5 s to compile); past this size the error and Jacobian functions are built
+/// as several pieces called in turn, each recomputing the kinematics (a few hundred
+/// instructions), so compile time grows linearly with the model (1.5 s at 10 000). A model of
+/// at most this many coefficients has one function per kind, the same code as without pieces.
+pub(super) const PIECE: usize = 1024;
+
+/// Slot of `out` (past the 9 the functions return) that carries an error model's running sum
+/// from one piece to the next when a piece ends inside the model.
+const CARRY: usize = 9;
+
+/// Builds the graphs of `kind` for `m`: one, or for the error functions of a model of more
+/// than [`PIECE`] coefficients, several to be called in order on the same arguments.
+/// `tool_rotation` is the tools' common rotation when they all share one (it is then folded in
+/// as constants), else `None` and it is loaded with the tool offset.
+pub(super) fn build(m: &Machine, kind: Kind, tool_rotation: Option<[[f64; 3]; 3]>) -> Vec<Graph> {
     match kind {
-        Kind::Error | Kind::Jacobian => b.errors(&kin, kind == Kind::Jacobian),
-        Kind::Nominal => b.nominal(&kin),
+        Kind::Error | Kind::Jacobian => errors(m, kind == Kind::Jacobian, tool_rotation),
+        Kind::Nominal => {
+            let mut b = Builder {
+                g: Graph::default(),
+                m,
+            };
+            let kin = b.kinematics(tool_rotation);
+            b.nominal(&kin);
+            vec![b.g]
+        }
     }
-    b.g
+}
+
+/// One generated function under construction: its graph and the kinematics it starts from.
+struct Piece<'m> {
+    b: Builder<'m>,
+    kin: Kinematics,
+    /// Coefficients whose Jacobian entries or products this piece computes.
+    size: usize,
+}
+
+impl<'m> Piece<'m> {
+    fn new(m: &'m Machine, tool_rotation: Option<[[f64; 3]; 3]>) -> Piece<'m> {
+        let mut b = Builder {
+            g: Graph::default(),
+            m,
+        };
+        let kin = b.kinematics(tool_rotation);
+        Piece { b, kin, size: 0 }
+    }
+
+    /// The F-matrix column of `model`, with the task sign.
+    fn column(&mut self, model: &ErrorModel, sign: f64) -> Option<[Id; 6]> {
+        let f = *Builder::frame(&self.kin, model.frame)?;
+        let col = self.b.column(&f, model.component);
+        Some(if sign < 0.0 {
+            col.map(|v| self.b.g.neg(v))
+        } else {
+            col
+        })
+    }
+}
+
+/// The error (eq. 2.24 with the task sign of eq. 2.31/2.34), optionally the β-Jacobian, as
+/// one graph or (past [`PIECE`] coefficients) several.
+fn errors(m: &Machine, jacobian: bool, tool_rotation: Option<[[f64; 3]; 3]>) -> Vec<Graph> {
+    let n = m.coefficients.len();
+    let sign = m.task.sign();
+    // Several pieces keep the error's running sums in `out` (each piece adds to them); one
+    // piece keeps the error-only function's sums in registers (see below).
+    let pieces = n > PIECE;
+    // Frame by frame, so that a frame's rotation and arm are live only while its components
+    // are being written.
+    let mut models: Vec<&ErrorModel> = m.errors.iter().collect();
+    models.sort_by_key(|e| frame_order(e.frame));
+    let mut written = vec![false; n];
+    // Running sums, brought up to date after every component so that no component's column
+    // outlives it. With the Jacobian they live in `out` rather than in registers: six sums
+    // held across the whole function left too few registers for the columns and basis values,
+    // and the spills cost more than a load and a store per component. The error alone has
+    // registers to spare, and there the chain through memory was slower.
+    let memory = jacobian || pieces;
+    let mut done = Vec::new();
+    let mut piece = Piece::new(m, tool_rotation);
+    // Used only with a single piece, whose graph this is.
+    let zero = piece.b.c(0.0);
+    let mut error = [zero; 6];
+    let mut started = [false; 6];
+    for model in models {
+        let Some(mut col) = piece.column(model, sign) else {
+            continue;
+        };
+        // Another tool's frame contributes nothing; selecting after the product keeps a NaN
+        // in a variable only that tool's model reads from leaking in through 0·NaN.
+        let only = match model.frame {
+            FrameRef::ToolEnd(Some(i)) => Some(i),
+            _ => None,
+        };
+        // The component's value Σ v·β (+ fixed terms), as a running sum kept current after
+        // each coefficient, so each basis value dies right after its six stores.
+        let mut value: Option<Id> = None;
+        let accumulate = |g: &mut Graph, value: &mut Option<Id>, x: Id| {
+            let v = match *value {
+                None => x,
+                Some(a) => g.add(a, x),
+            };
+            g.eval(v);
+            *value = Some(v);
+        };
+        let mut pending: Option<(usize, Id)> = None;
+        for term in &model.terms {
+            let mut values = piece.b.term(term);
+            if term.coefficients == 0 {
+                if let Some(&v) = values.first() {
+                    accumulate(&mut piece.b.g, &mut value, v);
+                }
+                continue;
+            }
+            for k in 0..term.coefficients {
+                if pieces && piece.size >= PIECE {
+                    // Cut here: this piece writes what it has and hands the running sum on
+                    // in `out`; the next recomputes the column and the term's values (the
+                    // same operations, so the same numbers) and goes on adding to it.
+                    if let Some((i, u)) = pending.take() {
+                        piece.b.jac_single(&col, only, n, i, u);
+                    }
+                    if let Some(v) = value {
+                        piece.b.g.store(Dst::Out, CARRY, v);
+                    }
+                    done.push(
+                        std::mem::replace(&mut piece, Piece::new(m, tool_rotation))
+                            .b
+                            .g,
+                    );
+                    let Some(c) = piece.column(model, sign) else {
+                        break;
+                    };
+                    col = c;
+                    values = piece.b.term(term);
+                    if value.is_some() {
+                        value = Some(piece.b.g.load(Src::Out, CARRY));
+                    }
+                }
+                let Some(&v) = values.get(k) else {
+                    break;
+                };
+                piece.size += 1;
+                let j = term.first + k;
+                if jacobian {
+                    if let Some(w) = written.get_mut(j) {
+                        *w = true;
+                    }
+                    // Adjacent coefficients of one component share the column: their entries
+                    // go out in pairs (another tool's gated ones one by one).
+                    match pending.take() {
+                        Some((i, u)) if i + 1 == j && only.is_none() => {
+                            for (r, &c) in col.iter().enumerate() {
+                                piece.b.g.store_pair(Dst::Jac, r * n + i, c, u, v);
+                            }
+                        }
+                        other => {
+                            if let Some((i, u)) = other {
+                                piece.b.jac_single(&col, only, n, i, u);
+                            }
+                            pending = Some((j, v));
+                        }
+                    }
+                }
+                let b = piece.b.g.load(Src::Beta, j);
+                let vb = piece.b.g.mul(v, b);
+                accumulate(&mut piece.b.g, &mut value, vb);
+            }
+        }
+        if let Some((i, u)) = pending.take() {
+            piece.b.jac_single(&col, only, n, i, u);
+        }
+        let g = &mut piece.b.g;
+        let value = value.unwrap_or_else(|| g.konst(0.0));
+        for (r, &c) in col.iter().enumerate() {
+            let p = g.mul(c, value);
+            let p = match only {
+                Some(i) => g.if_tool(i, p),
+                None => p,
+            };
+            if g.value(p) == Some(0.0) {
+                continue;
+            }
+            match (memory, started.get_mut(r), error.get_mut(r)) {
+                (true, Some(s @ false), _) => {
+                    *s = true;
+                    g.store(Dst::Out, r, p);
+                }
+                (true, ..) => g.add_to(Dst::Out, r, p),
+                (false, _, Some(e)) => {
+                    *e = g.add(*e, p);
+                    g.eval(*e);
+                }
+                (false, _, None) => {}
+            }
+        }
+    }
+    let g = &mut piece.b.g;
+    let zero = g.konst(0.0);
+    if jacobian {
+        for (j, _) in written.iter().enumerate().filter(|(_, w)| !**w) {
+            for r in 0..6 {
+                g.store(Dst::Jac, r * n + j, zero);
+            }
+        }
+    }
+    for (r, e) in error.into_iter().enumerate() {
+        if !started.get(r).copied().unwrap_or(false) {
+            // With several pieces `error` was never used (and its zeros belong to the first).
+            g.store(Dst::Out, r, if memory { zero } else { e });
+        }
+    }
+    for (i, &p) in piece.kin.position.iter().enumerate() {
+        g.store(Dst::Out, 6 + i, p);
+    }
+    done.push(piece.b.g);
+    done
 }
 
 /// The per-pose kinematic quantities every function starts from.
@@ -644,132 +850,6 @@ impl Builder<'_> {
             values = next;
         }
         values
-    }
-
-    /// The error (eq. 2.24 with the task sign of eq. 2.31/2.34), optionally the β-Jacobian.
-    fn errors(&mut self, kin: &Kinematics, jacobian: bool) {
-        let m = self.m;
-        let n = m.coefficients.len();
-        let sign = m.task.sign();
-        // Frame by frame, so that a frame's rotation and arm are live only while its
-        // components are being written.
-        let mut models: Vec<&ErrorModel> = m.errors.iter().collect();
-        models.sort_by_key(|e| frame_order(e.frame));
-        let mut written = vec![false; n];
-        // Running sums, brought up to date after every component so that no component's
-        // column outlives it. With the Jacobian they live in `out` rather than in registers:
-        // six sums held across the whole function left too few registers for the columns and
-        // basis values, and the spills cost more than a load and a store per component. The
-        // error alone has registers to spare, and there the chain through memory was slower.
-        let zero = self.c(0.0);
-        let mut error = [zero; 6];
-        let mut started = [false; 6];
-        for model in models {
-            let Some(f) = Self::frame(kin, model.frame) else {
-                continue;
-            };
-            let f = *f;
-            let mut col = self.column(&f, model.component);
-            if sign < 0.0 {
-                col = col.map(|v| self.g.neg(v));
-            }
-            // Another tool's frame contributes nothing; selecting after the product keeps a
-            // NaN in a variable only that tool's model reads from leaking in through 0·NaN.
-            let only = match model.frame {
-                FrameRef::ToolEnd(Some(i)) => Some(i),
-                _ => None,
-            };
-            let gate = |g: &mut Graph, v: Id| match only {
-                Some(i) => g.if_tool(i, v),
-                None => v,
-            };
-            // The component's value Σ v·β (+ fixed terms), as a running sum kept current after
-            // each coefficient, so each basis value dies right after its six stores.
-            let mut value: Option<Id> = None;
-            let mut accumulate = |g: &mut Graph, x: Id| {
-                let v = match value {
-                    None => x,
-                    Some(a) => g.add(a, x),
-                };
-                g.eval(v);
-                value = Some(v);
-            };
-            let mut pending: Option<(usize, Id)> = None;
-            for term in &model.terms {
-                let values = self.term(term);
-                if term.coefficients == 0 {
-                    if let Some(&v) = values.first() {
-                        accumulate(&mut self.g, v);
-                    }
-                    continue;
-                }
-                for (k, &v) in values.iter().enumerate().take(term.coefficients) {
-                    let j = term.first + k;
-                    if jacobian {
-                        if let Some(w) = written.get_mut(j) {
-                            *w = true;
-                        }
-                        // Adjacent coefficients of one component share the column: their
-                        // entries go out in pairs (another tool's gated ones one by one).
-                        match pending.take() {
-                            Some((i, u)) if i + 1 == j && only.is_none() => {
-                                for (r, &c) in col.iter().enumerate() {
-                                    self.g.store_pair(Dst::Jac, r * n + i, c, u, v);
-                                }
-                            }
-                            other => {
-                                if let Some((i, u)) = other {
-                                    self.jac_single(&col, only, n, i, u);
-                                }
-                                pending = Some((j, v));
-                            }
-                        }
-                    }
-                    let b = self.g.load(Src::Beta, j);
-                    let vb = self.g.mul(v, b);
-                    accumulate(&mut self.g, vb);
-                }
-            }
-            if let Some((i, u)) = pending.take() {
-                self.jac_single(&col, only, n, i, u);
-            }
-            let value = value.unwrap_or(zero);
-            for (r, &c) in col.iter().enumerate() {
-                let p = self.g.mul(c, value);
-                let p = gate(&mut self.g, p);
-                if self.g.value(p) == Some(0.0) {
-                    continue;
-                }
-                match (jacobian, started.get_mut(r), error.get_mut(r)) {
-                    (true, Some(s @ false), _) => {
-                        *s = true;
-                        self.g.store(Dst::Out, r, p);
-                    }
-                    (true, ..) => self.g.add_to(Dst::Out, r, p),
-                    (false, _, Some(e)) => {
-                        *e = self.g.add(*e, p);
-                        self.g.eval(*e);
-                    }
-                    (false, _, None) => {}
-                }
-            }
-        }
-        if jacobian {
-            let zero = self.c(0.0);
-            for (j, _) in written.iter().enumerate().filter(|(_, w)| !**w) {
-                for r in 0..6 {
-                    self.g.store(Dst::Jac, r * n + j, zero);
-                }
-            }
-        }
-        for (r, e) in error.into_iter().enumerate() {
-            if !started.get(r).copied().unwrap_or(false) {
-                self.g.store(Dst::Out, r, e);
-            }
-        }
-        for (i, &p) in kin.position.iter().enumerate() {
-            self.g.store(Dst::Out, 6 + i, p);
-        }
     }
 
     /// The six Jacobian entries of coefficient `j` with basis value `v`, one by one.

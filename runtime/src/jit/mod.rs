@@ -10,7 +10,9 @@
 //!    the basis values of `kin_compiler::basis` operation for operation, and per coefficient its
 //!    six Jacobian entries.
 //! 2. `emit`: each graph as one straight-line Cranelift function, `sin`/`cos`/`%` through the
-//!    same `libm` routines the interpreter uses.
+//!    same `libm` routines the interpreter uses. Past `lower::PIECE` coefficients the error
+//!    and Jacobian functions are several such functions called in turn, because the register
+//!    allocator's cost grows faster than the length of one function.
 //!
 //! # Safety and threads
 //!
@@ -134,23 +136,33 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
     let start = Instant::now();
     let tools = tool_transforms(machine);
     let graphs = graphs(machine, &tools)?;
-    let emitted = emit::compile(&named(&graphs), None)?;
-    let [error, jacobian, nominal] = match emitted.functions.as_slice() {
-        [a, b, c] => [*a, *b, *c],
-        _ => {
-            // SAFETY: no pointer into the module survives this branch.
-            unsafe { emitted.module.free_memory() };
-            return Err(JitError::Codegen {
-                message: "missing function".into(),
-            });
-        }
+    let emitted = emit::compile(&graphs.named(), None)?;
+    // The functions come back in the order `named` gives: the error pieces, the Jacobian
+    // pieces, the nominal function.
+    let (e, j) = (graphs.error.len(), graphs.jacobian.len());
+    let pointers = emitted.functions.as_slice();
+    let (Some(error), Some(jacobian), Some(&nominal), true) = (
+        pointers.get(..e),
+        pointers.get(e..e + j),
+        pointers.get(e + j),
+        pointers.len() == e + j + 1,
+    ) else {
+        // SAFETY: no pointer into the module survives this branch.
+        unsafe { emitted.module.free_memory() };
+        return Err(JitError::Codegen {
+            message: "missing function".into(),
+        });
     };
     // SAFETY: each pointer is the entry of a function just compiled with the signature
     // `fn(pointer)` and no result in the host's default (C) calling convention, which is
     // `RawFn`. It stays valid while `module` lives, and `module` lives as long as the `Inner`
     // that holds these pointers (its `Drop` frees the code).
-    let [error, jacobian, nominal] =
-        [error, jacobian, nominal].map(|p| unsafe { std::mem::transmute::<*const u8, RawFn>(p) });
+    let raw = |p: &*const u8| unsafe { std::mem::transmute::<*const u8, RawFn>(*p) };
+    let (error, jacobian, nominal) = (
+        error.iter().map(raw).collect(),
+        jacobian.iter().map(raw).collect(),
+        raw(&nominal),
+    );
     let mut inner = Inner {
         machine: machine.clone(),
         error,
@@ -161,7 +173,7 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
             .map(|t| used_vars(machine, t))
             .collect(),
         nodes: graphs
-            .iter()
+            .all()
             .map(|g| g.live().iter().filter(|l| **l).count())
             .sum(),
         compile_time: Duration::ZERO,
@@ -178,22 +190,57 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
 pub fn dump_clif(machine: &Machine) -> Result<String, JitError> {
     let graphs = graphs(machine, &tool_transforms(machine))?;
     let mut text = String::new();
-    let emitted = emit::compile(&named(&graphs), Some(&mut text))?;
+    let emitted = emit::compile(&graphs.named(), Some(&mut text))?;
     // SAFETY: only the text is kept; no pointer into the module was taken.
     unsafe { emitted.module.free_memory() };
     Ok(text)
 }
 
-/// The graphs of the error, error-and-Jacobian and nominal functions, in that order.
-fn graphs(machine: &Machine, tools: &[[f64; 12]]) -> Result<[graph::Graph; 3], JitError> {
-    lower::validate(machine)?;
-    let rotation = common_rotation(tools);
-    Ok([Kind::Error, Kind::Jacobian, Kind::Nominal].map(|k| lower::build(machine, k, rotation)))
+/// The graphs of the error, error-and-Jacobian and nominal functions; the first two in pieces
+/// past `lower::PIECE` coefficients, to be called in order.
+struct Graphs {
+    error: Vec<graph::Graph>,
+    jacobian: Vec<graph::Graph>,
+    nominal: graph::Graph,
 }
 
-fn named(graphs: &[graph::Graph; 3]) -> [(&'static str, &graph::Graph); 3] {
-    let [a, b, c] = graphs;
-    [("error", a), ("error_jacobian", b), ("nominal", c)]
+impl Graphs {
+    fn all(&self) -> impl Iterator<Item = &graph::Graph> {
+        self.error
+            .iter()
+            .chain(&self.jacobian)
+            .chain(std::iter::once(&self.nominal))
+    }
+
+    /// Each graph with its function's name: `error`, `error_jacobian` and `nominal`, pieces
+    /// numbered from 1 after a dot (`error.2`).
+    fn named(&self) -> Vec<(String, &graph::Graph)> {
+        fn pieces<'g>(name: &str, graphs: &'g [graph::Graph]) -> Vec<(String, &'g graph::Graph)> {
+            if let [one] = graphs {
+                return vec![(name.to_string(), one)];
+            }
+            graphs
+                .iter()
+                .enumerate()
+                .map(|(i, g)| (format!("{name}.{}", i + 1), g))
+                .collect()
+        }
+        let mut out = pieces("error", &self.error);
+        out.extend(pieces("error_jacobian", &self.jacobian));
+        out.push(("nominal".to_string(), &self.nominal));
+        out
+    }
+}
+
+fn graphs(machine: &Machine, tools: &[[f64; 12]]) -> Result<Graphs, JitError> {
+    lower::validate(machine)?;
+    let rotation = common_rotation(tools);
+    let mut nominal = lower::build(machine, Kind::Nominal, rotation);
+    Ok(Graphs {
+        error: lower::build(machine, Kind::Error, rotation),
+        jacobian: lower::build(machine, Kind::Jacobian, rotation),
+        nominal: nominal.pop().unwrap_or_default(),
+    })
 }
 
 /// A compiled machine. Cloning shares the code.
@@ -204,8 +251,9 @@ pub struct JitModel {
 
 struct Inner {
     machine: Machine,
-    error: RawFn,
-    jacobian: RawFn,
+    /// The error and error-and-Jacobian functions, each one or several pieces called in turn.
+    error: Vec<RawFn>,
+    jacobian: Vec<RawFn>,
     nominal: RawFn,
     /// Per tool: offset rotation (row-major) and translation, as the generated code reads them.
     tools: Vec<[f64; 12]>,
@@ -481,10 +529,10 @@ impl JitModel {
                 }
             }
         }
-        let function = match f {
-            Function::Error => inner.error,
-            Function::Jacobian => inner.jacobian,
-            Function::Nominal => inner.nominal,
+        let functions = match f {
+            Function::Error => inner.error.as_slice(),
+            Function::Jacobian => inner.jacobian.as_slice(),
+            Function::Nominal => std::slice::from_ref(&inner.nominal),
         };
         let args = Args {
             q: state.q.as_ptr(),
@@ -499,15 +547,20 @@ impl JitModel {
             time: state.time,
             tool: state.tool as u64,
         };
-        // SAFETY: `function` was compiled from this machine by `compile` and is alive while
+        // SAFETY: each function was compiled from this machine by `compile` and is alive while
         // `self` is. It reads `q`, `dirs` at axis indices, `inputs`, `lags` at their indices,
         // `beta` below n, `nonlinear` below the parameter count and `tool_tf` below 12 — all
         // checked by `lower::validate` against the machine and above against the slices (β and
         // the parameters only for the error functions, which alone read them). It writes `out`
         // below 12 and `jac` below 6·n (error functions) or 6·axes (nominal), the lengths
         // checked above; the error function writes no `jac`. Every slice outlives the call and
-        // the outputs are exclusively borrowed, so nothing else touches them meanwhile.
-        unsafe { function(&args) };
+        // the outputs are exclusively borrowed, so nothing else touches them meanwhile. The
+        // pieces of one function are called in order on the same arguments: a piece reads
+        // `out[9]` only after the piece before it wrote it (`lower::errors`).
+        for function in functions {
+            // SAFETY: as above, for each piece.
+            unsafe { function(&args) };
+        }
         Ok(())
     }
 }

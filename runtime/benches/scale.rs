@@ -1,0 +1,146 @@
+//! Cost at scale (issue 10, "Bounded cost"): the identifiability analysis `kin check` runs and
+//! the JIT compile, on generated models of a given number of coefficients, with wall time and
+//! the process's peak resident memory. One size per run, so the peak belongs to it:
+//!
+//! ```text
+//! cargo bench -p kin-runtime --bench scale -- 1000
+//! cargo bench -p kin-runtime --bench scale -- 10000
+//! ```
+//!
+//! The model: X, Y, Z prismatic and C revolute; every translation and rotation error of X, Y and
+//! Z a 51-coefficient spline (`knots 50, degree 1, smooth 0`), the rest Fourier harmonics of
+//! the six C errors (up to 201 per term, several terms per error).
+//! The fit at 10⁷ observations is measured through the CLI (`kin simulate --sample`, then
+//! `kin fit` under `/usr/bin/time -v`).
+//!
+//! Figures (release, shared 2-core machine; spec/cli.md, "Limits"). Same-minute pairs:
+//!
+//! - JIT compile, 10 000 coefficients: one function 9.5 s, pieces of 1 024 1.5 s (load 10.8);
+//!   one function 1.4 s, pieces 0.27 s (load 3). 5 000: 1.9 s → 0.7 s (pieces of 512, load 10.8).
+//! - `kin check`, 5 000 coefficients (load 10–11): 89 s with four rows per coefficient added
+//!   row by row (70 s sampling and accumulation, 6 s factorisation), 23 s with two rows, 16 s
+//!   with the rows added by pose; 5 s / 240 MB at load 3 with the later slice loops.
+//! - `kin check`, 10 000 coefficients: 704 s / 894 MB before (previous measurement, load
+//!   8–9); 89 s, then 56 s with the condition estimate on slices (load 10); 26–27 s / 860 MB
+//!   at load 3–4.
+//! - Fit, 10⁷ observed values (41 coefficients): 101 s wall, 19 s CPU at load 11; 20 s at load
+//!   3; 1.1 GB peak (about 110 bytes per value held). 10⁸ values (load 3): `kin simulate`
+//!   89 s / 7.4 GB, `kin fit` 206 s / 10.7 GB — linear in time and memory.
+
+use std::fmt::Write as _;
+use std::time::Instant;
+
+use kin_runtime::engine::Engine;
+use kin_runtime::identify::{self, Observe};
+
+fn model(coefficients: usize) -> String {
+    let mut errors = String::new();
+    let mut total = 0usize;
+    for axis in ["X", "Y", "Z"] {
+        for e in ["tx", "ty", "tz", "rx", "ry", "rz"] {
+            if total + 51 > coefficients {
+                break;
+            }
+            let _ = writeln!(
+                errors,
+                "        {axis}.{e} = spline({axis}, knots 50, degree 1, smooth 0)"
+            );
+            total += 51;
+        }
+    }
+    // Harmonics from 2 up, spread over the six C errors, at most 201 per term.
+    let mut next = [2usize; 6];
+    let comps = ["tx", "ty", "tz", "rx", "ry", "rz"];
+    let mut slot = 0;
+    while total + 2 <= coefficients && next.iter().any(|&h| h <= 1000) {
+        let i = slot % 6;
+        slot += 1;
+        let lo = next[i];
+        if lo > 1000 {
+            continue;
+        }
+        let count = ((coefficients - total) / 2).min(201).min(1001 - lo);
+        if count == 0 {
+            break;
+        }
+        let op = if lo == 2 { "=" } else { "+=" };
+        let _ = writeln!(
+            errors,
+            "        C.{} {op} fourier(C, harmonics {lo}..{})",
+            comps[i],
+            lo + count - 1
+        );
+        next[i] = lo + count;
+        total += 2 * count;
+    }
+    format!(
+        "machine scale {{
+    task position
+    units {{ length mm, angle deg, error um, tilt urad }}
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 800 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    axis C revolute about z continuous
+    workpiece chain {{ Y fixed  C fixed  workpiece }}
+    tool chain {{ X moving  Z moving at (0, 0, 500) mm  tool a at (30, 20, -100) mm  tool b at (-40, 60, -150) mm }}
+    errors {{
+{errors}    }}
+}}
+"
+    )
+}
+
+fn peak_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+            line.split_whitespace().nth(1)?.parse::<f64>().ok()
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+fn main() {
+    // `cargo bench` passes `--bench`; the size is the first number.
+    let size = std::env::args()
+        .skip(1)
+        .find_map(|a| a.parse::<usize>().ok())
+        .unwrap_or(1000);
+    let src = model(size);
+    let c = kin_compiler::compile(&src)
+        .compiled
+        .unwrap_or_else(|| panic!("the generated model does not compile:\n{src}"));
+    let p = c.machine.coefficients.len();
+    println!("model: {p} coefficients");
+
+    let t = Instant::now();
+    let jit = kin_runtime::jit::compile(&c.machine).expect("JIT compiles");
+    println!(
+        "jit compile: {:.2} s (its own clock {:.2} s), peak RSS {:.0} MB",
+        t.elapsed().as_secs_f64(),
+        jit.compile_time().as_secs_f64(),
+        peak_mb()
+    );
+    drop(jit);
+
+    let poses = identify::poses_for(p, Observe::Pose);
+    let t = Instant::now();
+    let report = identify::sampled_with(
+        &c.machine,
+        Observe::Pose,
+        false,
+        poses,
+        0x6b696e,
+        Engine::Jit,
+    )
+    .expect("identifiability");
+    println!(
+        "identifiability (pose, {poses} poses, {} rows): {:.2} s, peak RSS {:.0} MB, rank {} of {}, {} dependencies",
+        report.rows,
+        t.elapsed().as_secs_f64(),
+        peak_mb(),
+        report.rank,
+        report.columns,
+        report.dependencies.len()
+    );
+}

@@ -220,7 +220,13 @@ struct Region {
 
 fn region<T>(p: *const T, n: usize, what: &'static str) -> Region {
     let start = p as usize;
-    let bytes = n.saturating_mul(std::mem::size_of::<T>());
+    // A NULL pointer covers no memory: with a non-zero length it is KIN_ERR_POINTER, reported by
+    // the pointer checks, not an overlap with every other buffer.
+    let bytes = if p.is_null() {
+        0
+    } else {
+        n.saturating_mul(std::mem::size_of::<T>())
+    };
     Region {
         start,
         end: start.saturating_add(bytes),

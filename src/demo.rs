@@ -97,6 +97,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         enter: None,
         holdout: None,
         seed: 0,
+        noise: None,
         engine: kin_runtime::engine::Engine::default(),
         ignore: Vec::new(),
         color,

@@ -28,10 +28,23 @@ pub struct FitArgs {
     pub enter: Option<f64>,
     pub holdout: Option<f64>,
     pub seed: u64,
+    /// The instrument's stated noise: rows are weighted by it.
+    pub noise: Option<fit::Noise>,
     pub engine: kin_runtime::engine::Engine,
     /// Columns of the data files to skip unread.
     pub ignore: Vec<String>,
     pub color: bool,
+}
+
+/// The stated noise of `--noise` and `--noise-tilt`, SI, if either was given.
+pub fn stated_noise(
+    position: Option<&crate::args::Spread>,
+    rotation: Option<&crate::args::Spread>,
+) -> Option<fit::Noise> {
+    (position.is_some() || rotation.is_some()).then(|| fit::Noise {
+        position: position.map(|s| s.si),
+        rotation: rotation.map(|s| s.si),
+    })
 }
 
 pub fn run(a: FitArgs) -> ExitCode {
@@ -133,6 +146,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
             remove,
             enter: a.enter,
         }),
+        noise: a.noise,
         ..Options::default()
     };
     let total = fit::count_rows(&files) as u64;
@@ -231,7 +245,7 @@ fn record_quietly(model: &Path, r: &report::FitReport, replaced: Option<&str>) -
         rows: r.rows,
         sigma: r.sigma,
         rms: r.rms,
-        error_unit: r.error_unit.clone(),
+        error_unit: sigma_unit(r),
         files: r
             .files
             .iter()
@@ -313,7 +327,6 @@ fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
 /// The terminal summary: the fit, a table per observation file, a table per error component.
 pub fn summary(r: &report::FitReport) -> String {
     let mut s = String::new();
-    let u = &r.error_unit;
     let _ = &r.tilt_unit;
     let kept = r.coefficients.iter().filter(|c| c.kept).count() + r.nuisance.len();
     let selected = if kept < r.columns {
@@ -325,10 +338,7 @@ pub fn summary(r: &report::FitReport) -> String {
         "fit of `{}`: {} observations, {} parameters{selected} (rank {}, condition {:.3e}), {} degrees of freedom\n",
         r.machine, r.rows, r.columns, r.rank, r.condition, r.dof
     ));
-    s.push_str(&format!(
-        "  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n",
-        r.sigma, r.rms, r.max, r.r2
-    ));
+    s.push_str(&sigma_line(r));
     s.push_str("\n  file                                   rows      RMS      max  outliers\n");
     for f in &r.files {
         s.push_str(&format!(
@@ -453,6 +463,71 @@ pub fn summary(r: &report::FitReport) -> String {
         s.push_str(&format!("  constrained (minimum norm): {c}\n"));
     }
     s
+}
+
+/// The unit σ̂, the RMS and the max are in, as the history and the summary name it: a stated
+/// noise makes them ratios to that noise.
+pub fn sigma_unit(r: &report::FitReport) -> String {
+    if r.weights.is_some() {
+        STATED.to_string()
+    } else {
+        r.error_unit.clone()
+    }
+}
+
+/// The unit of σ̂ of a fit weighted by a stated noise: σ̂ / σ.
+pub const STATED: &str = "σ (stated)";
+
+/// Whether the fit mixed rows of positions (or lengths) with rows of rotations.
+fn mixes_kinds(r: &report::FitReport) -> bool {
+    let rotation = |c: &report::ComponentSummary| c.name.starts_with("er");
+    let comps = || r.files.iter().flat_map(|f| &f.components);
+    comps().any(rotation) && comps().any(|c| !rotation(c))
+}
+
+/// σ̂, RMS and max, saying what they are: ratios to the stated noise, with its χ² test; in the
+/// error unit; or, for mixed rows without a stated noise, in the error unit for positions and
+/// the tilt unit for rotations (one tilt unit weighing as one error unit).
+fn sigma_line(r: &report::FitReport) -> String {
+    let u = &r.error_unit;
+    if let Some(w) = &r.weights {
+        let mut stated = Vec::new();
+        if let Some(p) = w.position {
+            stated.push(format!("{p} {} on positions and lengths", w.error_unit));
+        }
+        if let Some(t) = w.rotation {
+            stated.push(format!("{t} {} on rotations", w.tilt_unit));
+        }
+        let verdict = if w.p < 0.01 {
+            "the residuals exceed the stated noise"
+        } else {
+            "consistent with the stated noise"
+        };
+        return format!(
+            "  σ̂/σ = {:.4}   RMS {:.4} σ   max {:.4} σ   R² = {:.6}   (every row divided by the stated noise: {})\n  \
+             χ² = {:.1} on {} degrees of freedom, p = {:.3}: {verdict}\n",
+            r.sigma,
+            r.rms,
+            r.max,
+            r.r2,
+            stated.join(", "),
+            w.chi2,
+            w.dof,
+            w.p
+        );
+    }
+    if mixes_kinds(r) {
+        let t = &r.tilt_unit;
+        return format!(
+            "  σ̂ = {:.4}   residual RMS {:.4}   max {:.4}   R² = {:.6}   ({u} on positions and lengths, {t} on rotations: \
+             one {t} weighs as one {u}; state the instrument's noise with --noise and --noise-tilt to weigh them by it)\n",
+            r.sigma, r.rms, r.max, r.r2
+        );
+    }
+    format!(
+        "  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n",
+        r.sigma, r.rms, r.max, r.r2
+    )
 }
 
 fn short(p: &str, n: usize) -> String {

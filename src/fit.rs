@@ -84,15 +84,22 @@ pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
         check_outputs(out, a)?;
     }
     let fitted = fit_quietly(a)?;
+    finish(a, &fitted)?;
+    Ok(fitted)
+}
+
+/// What `kin fit` does with a finished fit: writes the report files, records the history,
+/// prints the summary and the comparison.
+pub fn finish(a: &FitArgs, fitted: &Fitted) -> Result<(), Failed> {
     // Files first: when the reader of standard output has gone (`kin fit … | head -c1`), the
     // next print ends kin (SIGPIPE, see `main`), and the fit must already be on disk by then.
     if let Some(out) = &a.output {
         write_report(out, &fitted.report)?;
     }
-    let compared = record_quietly(&a.machine, &fitted.report, None);
+    let compared = record_quietly(&a.machine, fitted, None);
     print!("{}", summary(&fitted.report));
     print!("{}", compared.unwrap_or_default());
-    Ok(fitted)
+    Ok(())
 }
 
 /// Every file a fit reads or keeps up to date next to the model: what an output must not be.
@@ -223,39 +230,22 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     })
 }
 
-/// Appends this fit to the model's history and prints how it compares with the previous
-/// revision of the model, if there was one. `replaced` is the model's text when this revision
-/// is being replaced (`--apply`), kept in the record. A history that cannot be read or written
-/// is reported but does not fail the fit; damaged lines in it are skipped with a warning.
-pub fn record(model: &Path, r: &report::FitReport, replaced: Option<&str>) {
-    if let Some(text) = record_quietly(model, r, replaced) {
+/// Appends this fit to the model's history and prints how it compares with the last fit of
+/// the same data (see [`record_quietly`]). `replaced` is the model's text when this revision is
+/// being replaced (`--apply`), kept in the record. A history that cannot be read or written is
+/// reported but does not fail the fit; damaged lines in it are skipped with a warning.
+pub fn record(model: &Path, fitted: &Fitted, replaced: Option<&str>) {
+    if let Some(text) = record_quietly(model, fitted, replaced) {
         print!("{text}");
     }
 }
 
-/// As [`record`], returning the before/after comparison instead of printing it.
-fn record_quietly(model: &Path, r: &report::FitReport, replaced: Option<&str>) -> Option<String> {
-    let entry = history::Entry {
-        time: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs())
-            .unwrap_or(0),
-        model_hash: r.model_hash.clone(),
-        parameters: r.coefficients.iter().filter(|c| c.kept).count(),
-        rows: r.rows,
-        sigma: r.sigma,
-        rms: r.rms,
-        error_unit: sigma_unit(r),
-        files: r
-            .files
-            .iter()
-            .map(|f| history::FileRms {
-                path: f.path.clone(),
-                rms: f.rms,
-            })
-            .collect(),
-        source: replaced.map(str::to_string),
-    };
+/// As [`record`], returning the comparison instead of printing it: "model revised" with the
+/// before/after when the last fit of the same data (same paths and contents, same weighting)
+/// was of another revision, "unchanged" when it was of this one, "new data" when these data
+/// were never fitted before — fits of different data are never compared.
+pub fn record_quietly(model: &Path, fitted: &Fitted, replaced: Option<&str>) -> Option<String> {
+    let entry = crate::rounds::entry(fitted, replaced);
     let entries = match history::read(model) {
         Ok(h) => {
             // Once per command: `--apply` and the demo record several fits.
@@ -272,8 +262,22 @@ fn record_quietly(model: &Path, r: &report::FitReport, replaced: Option<&str>) -
             Vec::new()
         }
     };
-    let compared = history::previous_revision(&entries, &r.model_hash)
-        .map(|before| comparison(before, &entry));
+    let compared = match history::relation(&entries, &entry.model_hash, entry.data_hash.as_deref()) {
+        history::Relation::First => None,
+        history::Relation::Revised(before) => Some(comparison(before, &entry)),
+        history::Relation::Unchanged(before) => Some(format!(
+            "\n  unchanged: the model and the data are those of the fit of {} (σ̂ {:.4} → {:.4} {})\n",
+            crate::report::utc(before.time),
+            before.sigma,
+            entry.sigma,
+            entry.error_unit
+        )),
+        history::Relation::NewData => Some(
+            "\n  new data: these files (paths and contents) or their weighting were not fitted before; \
+             the history compares fits of the same data only\n"
+                .to_string(),
+        ),
+    };
     // Recorded before anything is printed, for the reason given in `fit_command`.
     if let Err(e) = history::append(model, &entry) {
         eprintln!("warning: {e}");

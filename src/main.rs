@@ -10,7 +10,9 @@ mod fit;
 mod load;
 mod render;
 mod report;
+mod rounds;
 mod simulate;
+mod writeback;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -55,10 +55,13 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
-    print!(
-        "{}",
-        text(&diagnosis, fitted.report.sigma, fitted.report.rms)
-    );
+    let mut said = text(&diagnosis, fitted.report.sigma, fitted.report.rms);
+    if let Some(note) = fitcmd::mixed_units(&fitted.report) {
+        // σ̂ of rows in µm and µrad is in neither unit alone: say so under the header.
+        let at = said.find('\n').map_or(said.len(), |i| i + 1);
+        said.insert_str(at, &format!("  ({note})\n"));
+    }
+    print!("{said}");
     if let Some(out) = &a.output {
         let json = serde_json::to_string_pretty(&diagnosis).map_err(|e| {
             eprintln!("error: {e}");

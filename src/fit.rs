@@ -489,6 +489,18 @@ fn mixes_kinds(r: &report::FitReport) -> bool {
     comps().any(rotation) && comps().any(|c| !rotation(c))
 }
 
+/// What σ̂ of an unweighted fit of rows in both kinds of unit is, when it is that.
+pub fn mixed_units(r: &report::FitReport) -> Option<String> {
+    if r.weights.is_some() || !mixes_kinds(r) {
+        return None;
+    }
+    let (u, t) = (&r.error_unit, &r.tilt_unit);
+    Some(format!(
+        "σ̂ mixes {u} on positions and lengths with {t} on rotations, one {t} weighing as one {u}; \
+         state the instrument's noise with --noise and --noise-tilt to weigh them by it"
+    ))
+}
+
 /// σ̂, RMS and max, saying what they are: ratios to the stated noise, with its χ² test; in the
 /// error unit; or, for mixed rows without a stated noise, in the error unit for positions and
 /// the tilt unit for rotations (one tilt unit weighing as one error unit).
@@ -520,11 +532,9 @@ fn sigma_line(r: &report::FitReport) -> String {
             w.p
         );
     }
-    if mixes_kinds(r) {
-        let t = &r.tilt_unit;
+    if let Some(note) = mixed_units(r) {
         return format!(
-            "  σ̂ = {:.4}   residual RMS {:.4}   max {:.4}   R² = {:.6}   ({u} on positions and lengths, {t} on rotations: \
-             one {t} weighs as one {u}; state the instrument's noise with --noise and --noise-tilt to weigh them by it)\n",
+            "  σ̂ = {:.4}   residual RMS {:.4}   max {:.4}   R² = {:.6}   ({note})\n",
             r.sigma, r.rms, r.max, r.r2
         );
     }

@@ -123,7 +123,8 @@ fn bin(pts: &[(f64, f64)]) -> Option<Vec<Bin>> {
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (x, _)| {
             (lo.min(*x), hi.max(*x))
         });
-    if !(hi > lo) {
+    // No points (lo = ∞) or one value: nothing to bin (x is finite here).
+    if hi <= lo {
         return None;
     }
     let width = (hi - lo) / MAX_BINS as f64;

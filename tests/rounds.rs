@@ -91,9 +91,14 @@ fn fit_weights_mixed_rows_by_the_stated_noise() {
 
     let s = ok(&kin(&["fit", m, d]));
     assert!(
-        !s.contains("σ̂/σ") && s.contains("um on positions and lengths, urad on rotations"),
+        !s.contains("σ̂/σ")
+            && s.contains("σ̂ mixes um on positions and lengths with urad on rotations"),
         "{s}"
     );
+
+    let s = ok(&kin(&["diagnose", m, d]));
+    let second = s.lines().nth(1).unwrap_or("");
+    assert!(second.contains("σ̂ mixes um on positions"), "{s}");
 
     let out = kin(&["fit", m, d, "--noise", "0.3um"]);
     assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));

@@ -345,16 +345,29 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
 fn summary(s: &mut String, inp: &Inputs) {
     let f = inp.fit;
     let u = esc(&f.error_unit);
+    // With a stated noise, σ̂, the RMS and the max are ratios to it.
+    let su = if f.weights.is_some() {
+        "σ".to_string()
+    } else {
+        u.clone()
+    };
     s.push_str("<section id=\"summary\">\n<h2>Summary</h2>\n<div class=\"cards\">\n");
     let kept = f.coefficients.iter().filter(|c| c.kept).count() + f.nuisance.len();
     let cards = [
         (
-            format!("{} {u}", num(f.sigma, 4)),
-            "σ̂, noise estimate".to_string(),
+            format!("{} {su}", num(f.sigma, 4)),
+            if f.weights.is_some() {
+                "σ̂/σ, against the stated noise".to_string()
+            } else {
+                "σ̂, noise estimate".to_string()
+            },
         ),
-        (format!("{} {u}", num(f.rms, 4)), "residual RMS".to_string()),
         (
-            format!("{} {u}", num(f.max, 4)),
+            format!("{} {su}", num(f.rms, 4)),
+            "residual RMS".to_string(),
+        ),
+        (
+            format!("{} {su}", num(f.max, 4)),
             "largest |residual|".to_string(),
         ),
         (num(f.r2, 6), "R², variance explained".to_string()),
@@ -382,7 +395,24 @@ fn summary(s: &mut String, inp: &Inputs) {
         .iter()
         .flat_map(|x| &x.components)
         .any(|c| c.name.starts_with("er"));
-    if rotations && f.tilt_unit != f.error_unit {
+    if let Some(w) = &f.weights {
+        let mut stated = Vec::new();
+        if let Some(p) = w.position {
+            stated.push(format!("{} {u} on positions and lengths", num(p, 4)));
+        }
+        if let Some(t) = w.rotation {
+            stated.push(format!("{} {} on rotations", num(t, 4), esc(&w.tilt_unit)));
+        }
+        let _ = writeln!(
+            s,
+            "<p class=\"note\">Every row was divided by the instrument's stated noise ({}): σ̂, the RMS and the max are ratios to it, the per-component figures below are in their own units. χ² = {} on {} degrees of freedom, p = {}: {}.</p>",
+            stated.join(", "),
+            num(w.chi2, 1),
+            w.dof,
+            pval(w.p),
+            if w.p < 0.01 { "the residuals exceed the stated noise" } else { "consistent with the stated noise" }
+        );
+    } else if rotations && f.tilt_unit != f.error_unit {
         let _ = writeln!(s, "<p class=\"note\">Rotation residuals are in {}; one {} counts as one {} in σ̂ and the RMS.</p>", esc(&f.tilt_unit), esc(&f.tilt_unit), u);
     }
     s.push_str(

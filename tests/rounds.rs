@@ -77,6 +77,22 @@ fn fit_weights_mixed_rows_by_the_stated_noise() {
         .unwrap();
     assert!((17.0..23.0).contains(&erx), "erx RMS {erx}");
 
+    // The report holds the residuals against the stated noise, not against σ̂.
+    let html = dir.join("report.html");
+    ok(&kin(&[
+        "report",
+        m,
+        "--fit",
+        json.to_str().unwrap(),
+        d,
+        "-o",
+        html.to_str().unwrap(),
+    ]));
+    let html = std::fs::read_to_string(&html).unwrap();
+    assert!(html.contains("σ̂/σ, against the stated noise"));
+    assert!(html.contains(
+        "±3σ of the instrument's stated noise (±0.900 um on positions, ±60.0 urad on rotations"
+    ));
     let s = ok(&kin(&[
         "fit",
         m,

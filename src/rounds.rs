@@ -42,15 +42,17 @@ pub fn entry(fitted: &Fitted, replaced: Option<&str>) -> Entry {
     }
 }
 
-/// What the rows were weighted by: fits weighted differently are not compared.
+/// What the rows were weighted by, and how many were fitted (a `--holdout` fits part of the
+/// files): fits weighted differently, or of other rows, are not compared.
 fn weighting(r: &FitReport) -> String {
-    match &r.weights {
+    let weights = match &r.weights {
         Some(w) => format!(
             "stated noise {:?} {} {:?} {}",
             w.position, w.error_unit, w.rotation, w.tilt_unit
         ),
         None => format!("unit weights {} {}", r.error_unit, r.tilt_unit),
-    }
+    };
+    format!("{weights}; {} rows", r.rows)
 }
 
 /// The fit's residuals (display units) binned along every axis, input and time, per component:

@@ -129,8 +129,8 @@ pub fn content_hash(path: &Path) -> Result<String, HistoryError> {
 }
 
 /// The key that says two fits were made of the same data: every file's path and content hash,
-/// in order, and the unit σ̂ is in.
-pub fn data_key(files: &[FileRms], sigma_unit: &str) -> Option<String> {
+/// in order, and how the rows were weighted (`weighting`: at least the unit σ̂ is in).
+pub fn data_key(files: &[FileRms], weighting: &str) -> Option<String> {
     let mut h = FNV_START;
     for f in files {
         h = fnv(h, f.path.as_bytes());
@@ -138,7 +138,7 @@ pub fn data_key(files: &[FileRms], sigma_unit: &str) -> Option<String> {
         h = fnv(h, f.hash.as_ref()?.as_bytes());
         h = fnv(h, &[0]);
     }
-    h = fnv(h, sigma_unit.as_bytes());
+    h = fnv(h, weighting.as_bytes());
     Some(format!("{h:016x}"))
 }
 

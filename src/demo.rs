@@ -97,6 +97,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         enter: None,
         holdout: None,
         seed: 0,
+        noise: None,
         engine: kin_runtime::engine::Engine::default(),
         ignore: Vec::new(),
         color,
@@ -133,7 +134,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         let top = d.findings.iter().find(|f| f.significant);
         // A revision about to be replaced keeps its text in its history record.
         let replaced = (top.is_some() && round <= rounds).then_some(fitted.source.as_str());
-        fitcmd::record(&model, r, replaced);
+        fitcmd::record(&model, &fitted, replaced);
         let report = text(&d, r.sigma, r.rms);
         // The diagnosis text without its own header line.
         println!("{}", report.lines().skip(1).collect::<Vec<_>>().join("\n"));

@@ -55,10 +55,13 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
-    print!(
-        "{}",
-        text(&diagnosis, fitted.report.sigma, fitted.report.rms)
-    );
+    let mut said = text(&diagnosis, fitted.report.sigma, fitted.report.rms);
+    if let Some(note) = fitcmd::mixed_units(&fitted.report) {
+        // σ̂ of rows in µm and µrad is in neither unit alone: say so under the header.
+        let at = said.find('\n').map_or(said.len(), |i| i + 1);
+        said.insert_str(at, &format!("  ({note})\n"));
+    }
+    print!("{said}");
     if let Some(out) = &a.output {
         let json = serde_json::to_string_pretty(&diagnosis).map_err(|e| {
             eprintln!("error: {e}");
@@ -123,9 +126,63 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         previous_path(model).display()
     );
     // The fit before the change is recorded with the text it was made of, so the refit prints
-    // the fall and the revision can be restored from the history.
-    fitcmd::record(model, &fitted.report, Some(&fitted.source));
-    fitcmd::fit_command(&a.fit)?;
+    // the fall and the revision can be restored from the history. Its own comparison with the
+    // round before was printed by that round: not again here.
+    let _ = fitcmd::record_quietly(model, &fitted, Some(&fitted.source));
+    let mut refit = fitcmd::fit_quietly(&a.fit)?;
+    write_back(
+        model,
+        &mut refit,
+        revision.line..revision.line + revision.added.len(),
+    )?;
+    fitcmd::finish(&a.fit, &refit)?;
+    Ok(())
+}
+
+/// After the refit of an `--apply`: the fitted non-linear values of the added line (its lines
+/// `lines`, 1-based) become their declarations' start values in the model file, and the refit
+/// is recorded as a fit of that text (the same model, started at its optimum). Fitted values
+/// of the model's other declarations are offered, not written.
+fn write_back(
+    model: &Path,
+    refit: &mut fitcmd::Fitted,
+    lines: std::ops::Range<usize>,
+) -> Result<(), Failed> {
+    let all = crate::writeback::fitted_values(&refit.source, &refit.compiled, &refit.report);
+    let line_of = |at: usize| {
+        refit
+            .source
+            .get(..at)
+            .map(|t| t.matches('\n').count() + 1)
+            .unwrap_or(0)
+    };
+    let (added, others): (Vec<_>, Vec<_>) = all
+        .iter()
+        .partition(|f| lines.contains(&line_of(f.at.start)));
+    let added: Vec<_> = added.into_iter().filter(|f| f.old != f.new).collect();
+    if !added.is_empty() {
+        let text = crate::writeback::rewrite(&refit.source, &added);
+        amend_model(model, &refit.source, &text)?;
+        for f in &added {
+            println!(
+                "wrote the fitted {} into {}: `fit {}` → `fit {}` (± {:.3} {})",
+                f.name,
+                model.display(),
+                f.old,
+                f.new,
+                f.se,
+                f.unit
+            );
+        }
+        refit.report.model_hash = kin_runtime::fit::report::model_hash(&text);
+        refit.source = text;
+    }
+    for f in others.iter().filter(|f| f.old != f.new) {
+        println!(
+            "also fitted: {} (declared `fit {}`) is {} ± {:.3} {}; edit the model to start it there",
+            f.name, f.old, f.new, f.se, f.unit
+        );
+    }
     Ok(())
 }
 
@@ -175,6 +232,16 @@ pub fn with_line(source: &str, line: &str, why: &str) -> Result<Revision, Failed
 /// is written and the command fails, so no edit is reverted and no added line is lost. `base`
 /// is kept in `PATH.previous` before the model is replaced.
 pub fn replace_model(path: &Path, base: &str, revised: &str) -> Result<(), Failed> {
+    replace(path, base, revised, true)
+}
+
+/// As [`replace_model`], without keeping `base` in `PATH.previous`: for a second step of the
+/// same `--apply`, so `PATH.previous` stays the text from before the command.
+fn amend_model(path: &Path, base: &str, revised: &str) -> Result<(), Failed> {
+    replace(path, base, revised, false)
+}
+
+fn replace(path: &Path, base: &str, revised: &str, keep: bool) -> Result<(), Failed> {
     let _lock = output::lock_beside(path).map_err(|e| {
         eprintln!("error: cannot lock `{}`: {e}", path.display());
         Failed::USAGE
@@ -191,7 +258,9 @@ pub fn replace_model(path: &Path, base: &str, revised: &str) -> Result<(), Faile
         );
         return Err(Failed::USAGE);
     }
-    files::write(&previous_path(path), base.as_bytes())?;
+    if keep {
+        files::write(&previous_path(path), base.as_bytes())?;
+    }
     files::write(path, revised.as_bytes())
 }
 

@@ -28,10 +28,23 @@ pub struct FitArgs {
     pub enter: Option<f64>,
     pub holdout: Option<f64>,
     pub seed: u64,
+    /// The instrument's stated noise: rows are weighted by it.
+    pub noise: Option<fit::Noise>,
     pub engine: kin_runtime::engine::Engine,
     /// Columns of the data files to skip unread.
     pub ignore: Vec<String>,
     pub color: bool,
+}
+
+/// The stated noise of `--noise` and `--noise-tilt`, SI, if either was given.
+pub fn stated_noise(
+    position: Option<&crate::args::Spread>,
+    rotation: Option<&crate::args::Spread>,
+) -> Option<fit::Noise> {
+    (position.is_some() || rotation.is_some()).then(|| fit::Noise {
+        position: position.map(|s| s.si),
+        rotation: rotation.map(|s| s.si),
+    })
 }
 
 pub fn run(a: FitArgs) -> ExitCode {
@@ -71,15 +84,22 @@ pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
         check_outputs(out, a)?;
     }
     let fitted = fit_quietly(a)?;
+    finish(a, &fitted)?;
+    Ok(fitted)
+}
+
+/// What `kin fit` does with a finished fit: writes the report files, records the history,
+/// prints the summary and the comparison.
+pub fn finish(a: &FitArgs, fitted: &Fitted) -> Result<(), Failed> {
     // Files first: when the reader of standard output has gone (`kin fit … | head -c1`), the
     // next print ends kin (SIGPIPE, see `main`), and the fit must already be on disk by then.
     if let Some(out) = &a.output {
         write_report(out, &fitted.report)?;
     }
-    let compared = record_quietly(&a.machine, &fitted.report, None);
+    let compared = record_quietly(&a.machine, fitted, None);
     print!("{}", summary(&fitted.report));
     print!("{}", compared.unwrap_or_default());
-    Ok(fitted)
+    Ok(())
 }
 
 /// Every file a fit reads or keeps up to date next to the model: what an output must not be.
@@ -133,6 +153,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
             remove,
             enter: a.enter,
         }),
+        noise: a.noise,
         ..Options::default()
     };
     let total = fit::count_rows(&files) as u64;
@@ -209,39 +230,22 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     })
 }
 
-/// Appends this fit to the model's history and prints how it compares with the previous
-/// revision of the model, if there was one. `replaced` is the model's text when this revision
-/// is being replaced (`--apply`), kept in the record. A history that cannot be read or written
-/// is reported but does not fail the fit; damaged lines in it are skipped with a warning.
-pub fn record(model: &Path, r: &report::FitReport, replaced: Option<&str>) {
-    if let Some(text) = record_quietly(model, r, replaced) {
+/// Appends this fit to the model's history and prints how it compares with the last fit of
+/// the same data (see [`record_quietly`]). `replaced` is the model's text when this revision is
+/// being replaced (`--apply`), kept in the record. A history that cannot be read or written is
+/// reported but does not fail the fit; damaged lines in it are skipped with a warning.
+pub fn record(model: &Path, fitted: &Fitted, replaced: Option<&str>) {
+    if let Some(text) = record_quietly(model, fitted, replaced) {
         print!("{text}");
     }
 }
 
-/// As [`record`], returning the before/after comparison instead of printing it.
-fn record_quietly(model: &Path, r: &report::FitReport, replaced: Option<&str>) -> Option<String> {
-    let entry = history::Entry {
-        time: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs())
-            .unwrap_or(0),
-        model_hash: r.model_hash.clone(),
-        parameters: r.coefficients.iter().filter(|c| c.kept).count(),
-        rows: r.rows,
-        sigma: r.sigma,
-        rms: r.rms,
-        error_unit: r.error_unit.clone(),
-        files: r
-            .files
-            .iter()
-            .map(|f| history::FileRms {
-                path: f.path.clone(),
-                rms: f.rms,
-            })
-            .collect(),
-        source: replaced.map(str::to_string),
-    };
+/// As [`record`], returning the comparison instead of printing it: "model revised" with the
+/// before/after when the last fit of the same data (same paths and contents, same weighting)
+/// was of another revision, "unchanged" when it was of this one, "new data" when these data
+/// were never fitted before — fits of different data are never compared.
+pub fn record_quietly(model: &Path, fitted: &Fitted, replaced: Option<&str>) -> Option<String> {
+    let entry = crate::rounds::entry(fitted, replaced);
     let entries = match history::read(model) {
         Ok(h) => {
             // Once per command: `--apply` and the demo record several fits.
@@ -258,8 +262,22 @@ fn record_quietly(model: &Path, r: &report::FitReport, replaced: Option<&str>) -
             Vec::new()
         }
     };
-    let compared = history::previous_revision(&entries, &r.model_hash)
-        .map(|before| comparison(before, &entry));
+    let compared = match history::relation(&entries, &entry.model_hash, entry.data_hash.as_deref()) {
+        history::Relation::First => None,
+        history::Relation::Revised(before) => Some(comparison(before, &entry)),
+        history::Relation::Unchanged(before) => Some(format!(
+            "\n  unchanged: the model and the data are those of the fit of {} (σ̂ {:.4} → {:.4} {})\n",
+            crate::report::utc(before.time),
+            before.sigma,
+            entry.sigma,
+            entry.error_unit
+        )),
+        history::Relation::NewData => Some(
+            "\n  new data: these files (paths and contents) or their weighting were not fitted before; \
+             the history compares fits of the same data only\n"
+                .to_string(),
+        ),
+    };
     // Recorded before anything is printed, for the reason given in `fit_command`.
     if let Err(e) = history::append(model, &entry) {
         eprintln!("warning: {e}");
@@ -313,7 +331,6 @@ fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
 /// The terminal summary: the fit, a table per observation file, a table per error component.
 pub fn summary(r: &report::FitReport) -> String {
     let mut s = String::new();
-    let u = &r.error_unit;
     let _ = &r.tilt_unit;
     let kept = r.coefficients.iter().filter(|c| c.kept).count() + r.nuisance.len();
     let selected = if kept < r.columns {
@@ -325,10 +342,7 @@ pub fn summary(r: &report::FitReport) -> String {
         "fit of `{}`: {} observations, {} parameters{selected} (rank {}, condition {:.3e}), {} degrees of freedom\n",
         r.machine, r.rows, r.columns, r.rank, r.condition, r.dof
     ));
-    s.push_str(&format!(
-        "  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n",
-        r.sigma, r.rms, r.max, r.r2
-    ));
+    s.push_str(&sigma_line(r));
     s.push_str("\n  file                                   rows      RMS      max  outliers\n");
     for f in &r.files {
         s.push_str(&format!(
@@ -453,6 +467,81 @@ pub fn summary(r: &report::FitReport) -> String {
         s.push_str(&format!("  constrained (minimum norm): {c}\n"));
     }
     s
+}
+
+/// The unit σ̂, the RMS and the max are in, as the history and the summary name it: a stated
+/// noise makes them ratios to that noise.
+pub fn sigma_unit(r: &report::FitReport) -> String {
+    if r.weights.is_some() {
+        STATED.to_string()
+    } else {
+        r.error_unit.clone()
+    }
+}
+
+/// The unit of σ̂ of a fit weighted by a stated noise: σ̂ / σ.
+pub const STATED: &str = "σ (stated)";
+
+/// Whether the fit mixed rows of positions (or lengths) with rows of rotations.
+fn mixes_kinds(r: &report::FitReport) -> bool {
+    let rotation = |c: &report::ComponentSummary| c.name.starts_with("er");
+    let comps = || r.files.iter().flat_map(|f| &f.components);
+    comps().any(rotation) && comps().any(|c| !rotation(c))
+}
+
+/// What σ̂ of an unweighted fit of rows in both kinds of unit is, when it is that.
+pub fn mixed_units(r: &report::FitReport) -> Option<String> {
+    if r.weights.is_some() || !mixes_kinds(r) {
+        return None;
+    }
+    let (u, t) = (&r.error_unit, &r.tilt_unit);
+    Some(format!(
+        "σ̂ mixes {u} on positions and lengths with {t} on rotations, one {t} weighing as one {u}; \
+         state the instrument's noise with --noise and --noise-tilt to weigh them by it"
+    ))
+}
+
+/// σ̂, RMS and max, saying what they are: ratios to the stated noise, with its χ² test; in the
+/// error unit; or, for mixed rows without a stated noise, in the error unit for positions and
+/// the tilt unit for rotations (one tilt unit weighing as one error unit).
+fn sigma_line(r: &report::FitReport) -> String {
+    let u = &r.error_unit;
+    if let Some(w) = &r.weights {
+        let mut stated = Vec::new();
+        if let Some(p) = w.position {
+            stated.push(format!("{p} {} on positions and lengths", w.error_unit));
+        }
+        if let Some(t) = w.rotation {
+            stated.push(format!("{t} {} on rotations", w.tilt_unit));
+        }
+        let verdict = if w.p < 0.01 {
+            "the residuals exceed the stated noise"
+        } else {
+            "consistent with the stated noise"
+        };
+        return format!(
+            "  σ̂/σ = {:.4}   RMS {:.4} σ   max {:.4} σ   R² = {:.6}   (every row divided by the stated noise: {})\n  \
+             χ² = {:.1} on {} degrees of freedom, p = {:.3}: {verdict}\n",
+            r.sigma,
+            r.rms,
+            r.max,
+            r.r2,
+            stated.join(", "),
+            w.chi2,
+            w.dof,
+            w.p
+        );
+    }
+    if let Some(note) = mixed_units(r) {
+        return format!(
+            "  σ̂ = {:.4}   residual RMS {:.4}   max {:.4}   R² = {:.6}   ({note})\n",
+            r.sigma, r.rms, r.max, r.r2
+        );
+    }
+    format!(
+        "  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n",
+        r.sigma, r.rms, r.max, r.r2
+    )
 }
 
 fn short(p: &str, n: usize) -> String {

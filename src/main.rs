@@ -10,7 +10,9 @@ mod fit;
 mod load;
 mod render;
 mod report;
+mod rounds;
 mod simulate;
+mod writeback;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -151,6 +153,14 @@ enum Command {
         /// Seed of the held-out draw.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: every
+        /// row is divided by its stated noise (weighted least squares), σ̂ becomes σ̂/σ and is
+        /// tested against 1 (χ²). Rotation rows then need --noise-tilt.
+        #[arg(long, value_name = "Q", value_parser = args::stated_length_noise, allow_hyphen_values = true)]
+        noise: Option<Spread>,
+        /// The instrument's standard deviation on rotations, e.g. `1urad`.
+        #[arg(long, value_name = "Q", value_parser = args::stated_angle_noise, allow_hyphen_values = true)]
+        noise_tilt: Option<Spread>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -347,6 +357,8 @@ fn main() -> ExitCode {
             enter,
             holdout,
             seed,
+            noise,
+            noise_tilt,
             engine,
             ignore,
             color,
@@ -362,6 +374,7 @@ fn main() -> ExitCode {
             enter,
             holdout,
             seed,
+            noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
             engine,
             ignore: ignore.columns,
             color: color.enabled(),
@@ -393,6 +406,8 @@ fn main() -> ExitCode {
                 enter: None,
                 holdout: None,
                 seed: 0,
+                // The diagnosis judges unweighted residuals against the stated noise itself.
+                noise: None,
                 engine,
                 ignore: ignore.columns,
                 color: color.enabled(),

@@ -23,6 +23,7 @@ use kin_runtime::history::{self, Entry};
 use thiserror::Error;
 
 use crate::load::{self, Failed};
+pub use curves::var_unit;
 use curves::Curves;
 use plot::{Chart, Series};
 
@@ -344,16 +345,29 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
 fn summary(s: &mut String, inp: &Inputs) {
     let f = inp.fit;
     let u = esc(&f.error_unit);
+    // With a stated noise, σ̂, the RMS and the max are ratios to it.
+    let su = if f.weights.is_some() {
+        "σ".to_string()
+    } else {
+        u.clone()
+    };
     s.push_str("<section id=\"summary\">\n<h2>Summary</h2>\n<div class=\"cards\">\n");
     let kept = f.coefficients.iter().filter(|c| c.kept).count() + f.nuisance.len();
     let cards = [
         (
-            format!("{} {u}", num(f.sigma, 4)),
-            "σ̂, noise estimate".to_string(),
+            format!("{} {su}", num(f.sigma, 4)),
+            if f.weights.is_some() {
+                "σ̂/σ, against the stated noise".to_string()
+            } else {
+                "σ̂, noise estimate".to_string()
+            },
         ),
-        (format!("{} {u}", num(f.rms, 4)), "residual RMS".to_string()),
         (
-            format!("{} {u}", num(f.max, 4)),
+            format!("{} {su}", num(f.rms, 4)),
+            "residual RMS".to_string(),
+        ),
+        (
+            format!("{} {su}", num(f.max, 4)),
             "largest |residual|".to_string(),
         ),
         (num(f.r2, 6), "R², variance explained".to_string()),
@@ -381,7 +395,24 @@ fn summary(s: &mut String, inp: &Inputs) {
         .iter()
         .flat_map(|x| &x.components)
         .any(|c| c.name.starts_with("er"));
-    if rotations && f.tilt_unit != f.error_unit {
+    if let Some(w) = &f.weights {
+        let mut stated = Vec::new();
+        if let Some(p) = w.position {
+            stated.push(format!("{} {u} on positions and lengths", num(p, 4)));
+        }
+        if let Some(t) = w.rotation {
+            stated.push(format!("{} {} on rotations", num(t, 4), esc(&w.tilt_unit)));
+        }
+        let _ = writeln!(
+            s,
+            "<p class=\"note\">Every row was divided by the instrument's stated noise ({}): σ̂, the RMS and the max are ratios to it, the per-component figures below are in their own units. χ² = {} on {} degrees of freedom, p = {}: {}.</p>",
+            stated.join(", "),
+            num(w.chi2, 1),
+            w.dof,
+            pval(w.p),
+            if w.p < 0.01 { "the residuals exceed the stated noise" } else { "consistent with the stated noise" }
+        );
+    } else if rotations && f.tilt_unit != f.error_unit {
         let _ = writeln!(s, "<p class=\"note\">Rotation residuals are in {}; one {} counts as one {} in σ̂ and the RMS.</p>", esc(&f.tilt_unit), esc(&f.tilt_unit), u);
     }
     s.push_str(
@@ -471,7 +502,7 @@ struct Placed {
 
 /// The variables residuals are plotted along: the axes, the inputs, then time. Named as
 /// `kin diagnose` names them, since its bins are matched to the plots by name.
-fn along(m: &Machine) -> Vec<(String, Var)> {
+pub fn along(m: &Machine) -> Vec<(String, Var)> {
     let axes = m
         .axes
         .iter()
@@ -490,7 +521,7 @@ fn along(m: &Machine) -> Vec<(String, Var)> {
 /// A variable's value at a residual's row in SI, NaN when the file has no such column. A
 /// length's residual belongs to the whole segment, so it is placed at the midpoint of its two
 /// ends; inputs and time are shared by both ends, so their midpoint is the row's own value.
-fn value(obs: &Observations, row: usize, v: Var) -> f64 {
+pub fn value(obs: &Observations, row: usize, v: Var) -> f64 {
     let x = match obs {
         Observations::Points(p) => p.value(v, row),
         Observations::Lengths(l) => match (l.value(v, 0, row), l.value(v, 1, row)) {
@@ -583,18 +614,17 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
             outlier: r.studentized.abs() > f.outlier_threshold || r.cook > f.cook_threshold,
         });
     }
-    let band = 3.0 * f.sigma;
+    let band = Band::of(inp);
     let _ = writeln!(
         s,
-        "<p>Each residual (measured − fitted) against the position of every axis, every input the model declares and time. The green band is ±3σ̂ = ±{} {}: about 997 in 1000 residuals fall inside it when the model is complete. A pattern along an axis is a geometric effect the model lacks; a pattern along an input or in time is a thermal drift, a load or a lag it lacks.{}</p>",
-        num(band, 3),
-        esc(&f.error_unit),
+        "<p>Each residual (measured − fitted) against the position of every axis, every input the model declares and time. The green band is {}: about 997 in 1000 residuals fall inside it when the model is complete and the noise is that. A pattern along an axis is a geometric effect the model lacks; a pattern along an input or in time is a thermal drift, a load or a lag it lacks.{}</p>",
+        band.said,
         if f.files.iter().any(|x| x.kind == "lengths") { " A length's residual is placed at the midpoint of its two ends." } else { "" }
     );
     let mut items = vec![
         Key::dot(plot::BLUE, "residual"),
         Key::dot(plot::RED, "outlier"),
-        Key::area(plot::GREEN, "±3σ̂"),
+        Key::area(plot::GREEN, band.key),
     ];
     if inp.diagnosis.is_some_and(|d| !d.bins.is_empty()) {
         items.push(Key::line(plot::ORANGE, "binned RMS (±)"));
@@ -657,7 +687,11 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
         let panel = Panel {
             component: name,
             unit,
-            band,
+            band: if (3..6).contains(c) {
+                band.rotation
+            } else {
+                band.position
+            },
             diagnosis: inp.diagnosis,
             shown: &shown,
         };
@@ -684,12 +718,98 @@ fn residuals(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     Ok(())
 }
 
+/// The ±3σ band of the residual plots: what the residuals are held against. It is never the
+/// σ̂ of a fit that may be poor (a band that grows with the misfit would hide it), but the stated
+/// noise when there is one, or else the σ̂ of the best fit of the same data in the history.
+struct Band {
+    /// Half-widths for position (and length) residuals and for rotation residuals, in their
+    /// display units.
+    position: f64,
+    rotation: f64,
+    /// What the band is, for the text above the plots.
+    said: String,
+    key: &'static str,
+}
+
+impl Band {
+    fn of(inp: &Inputs) -> Band {
+        let f = inp.fit;
+        let (eu, tu) = (esc(&f.error_unit), esc(&f.tilt_unit));
+        let stated = f
+            .weights
+            .as_ref()
+            .map(|w| (w.position, w.rotation, "kin fit --noise"))
+            .or_else(|| {
+                inp.diagnosis
+                    .filter(|d| d.noise.stated.is_some() || d.noise.stated_tilt.is_some())
+                    .map(|d| (d.noise.stated, d.noise.stated_tilt, "kin diagnose --noise"))
+            });
+        if let Some((p, t, by)) = stated {
+            let mut parts = Vec::new();
+            if let Some(p) = p {
+                parts.push(format!("±{} {eu} on positions", num(3.0 * p, 3)));
+            }
+            if let Some(t) = t {
+                parts.push(format!("±{} {tu} on rotations", num(3.0 * t, 3)));
+            }
+            return Band {
+                position: p.map_or(f64::NAN, |v| 3.0 * v),
+                rotation: t.map_or(f64::NAN, |v| 3.0 * v),
+                said: format!(
+                    "±3σ of the instrument's stated noise ({}, from <code>{by}</code>)",
+                    parts.join(", ")
+                ),
+                key: "±3σ, stated noise",
+            };
+        }
+        // The best fit of these data: the lowest σ̂ among the history's fits of the data this
+        // fit was made of (its record has the same model hash, rows and unit).
+        let data = inp
+            .history
+            .iter()
+            .rev()
+            .find(|e| {
+                e.model_hash == f.model_hash && e.rows == f.rows && e.error_unit == f.error_unit
+            })
+            .and_then(|e| e.data_hash.clone());
+        let best = data.and_then(|d| {
+            inp.history
+                .iter()
+                .filter(|e| e.data_hash.as_deref() == Some(d.as_str()) && e.sigma.is_finite())
+                .min_by(|a, b| a.sigma.total_cmp(&b.sigma))
+        });
+        match best {
+            Some(b) if b.sigma < f.sigma => Band {
+                position: 3.0 * b.sigma,
+                rotation: 3.0 * b.sigma,
+                said: format!(
+                    "±3σ̂ = ±{} {eu} (rotations: {tu}), σ̂ of the best fit of these data in the history (fitted {} UTC, model <code>{}</code>), not this fit's σ̂ = {}; no instrument noise was stated",
+                    num(3.0 * b.sigma, 3),
+                    utc(b.time),
+                    esc(b.model_hash.get(..8).unwrap_or(&b.model_hash)),
+                    num(f.sigma, 4)
+                ),
+                key: "±3σ̂, best fit of these data",
+            },
+            _ => Band {
+                position: 3.0 * f.sigma,
+                rotation: 3.0 * f.sigma,
+                said: format!(
+                    "±3σ̂ = ±{} {eu} (rotations: {tu}), σ̂ of this fit, the best of these data in the history; no instrument noise was stated, so the band is the model's own scatter and says nothing of the absolute level (state it with <code>--noise</code>)",
+                    num(3.0 * f.sigma, 3)
+                ),
+                key: "±3σ̂ of this fit",
+            },
+        }
+    }
+}
+
 /// What the residual plots of one component share.
 struct Panel<'a> {
     component: &'a str,
     /// The residuals' unit.
     unit: &'a str,
-    /// Half-width of the ±3σ̂ band, in the error unit.
+    /// Half-width of the band, in the residuals' unit (NaN: none).
     band: f64,
     diagnosis: Option<&'a Diagnosis>,
     /// The residuals drawn, after thinning.
@@ -712,12 +832,14 @@ fn residual_plot(
         (420, 290),
     );
     chart.y_symmetric = true;
-    chart.series.push(Series::HBand {
-        lo: -p.band,
-        hi: p.band,
-        color: plot::GREEN,
-        opacity: 0.13,
-    });
+    if p.band.is_finite() {
+        chart.series.push(Series::HBand {
+            lo: -p.band,
+            hi: p.band,
+            color: plot::GREEN,
+            opacity: 0.13,
+        });
+    }
     let pick = |outlier: bool| -> Vec<(f64, f64)> {
         p.shown
             .iter()
@@ -807,7 +929,11 @@ fn spectrum(s: &mut String, d: &Diagnosis) -> Result<(), ReportError> {
         s.push_str("<p class=\"note\">The diagnosis holds no spectrum.</p>\n</section>\n");
         return Ok(());
     }
-    s.push_str("<p>Lomb–Scargle periodogram of the residuals along each axis (the sampling need not be uniform). A peak that stands out names the wavelength of a periodic error the model lacks — a leadscrew pitch, a scale period. The false-alarm probability says how likely so high a peak is from noise alone.</p>\n<div class=\"grid\">\n");
+    let panels = d.spectra.len();
+    let _ = writeln!(
+        s,
+        "<p>Lomb–Scargle periodogram of the residuals along each axis (the sampling need not be uniform). A peak that stands out names the wavelength of a periodic error the model lacks — a leadscrew pitch, a scale period. The false-alarm probability says how likely so high a peak is from noise alone in one panel; since {panels} panels are searched, each is also given corrected for all of them (Šidák: 1 − (1 − p)<sup>{panels}</sup>), which is the one to read: the highest of {panels} peaks is expected to look rarer than it is.</p>\n<div class=\"grid\">"
+    );
     for sp in &d.spectra {
         let peak = sp
             .power
@@ -847,11 +973,12 @@ fn spectrum(s: &mut String, d: &Diagnosis) -> Result<(), ReportError> {
                     opacity: 1.0,
                 });
                 caption = format!(
-                    "<figcaption>{}highest peak at λ = {} {}, false-alarm probability {}</figcaption>",
+                    "<figcaption>{}highest peak at λ = {} {}, false-alarm probability {} in this panel, {} over the {panels} panels</figcaption>",
                     keys(&[Key::dot(plot::RED, "")]),
                     num(w, 4),
                     esc(&sp.unit),
-                    pval(sp.peak_false_alarm)
+                    pval(sp.peak_false_alarm),
+                    pval(sidak(sp.peak_false_alarm, panels))
                 );
             }
         }
@@ -859,6 +986,15 @@ fn spectrum(s: &mut String, d: &Diagnosis) -> Result<(), ReportError> {
     }
     s.push_str("</div>\n</section>\n");
     Ok(())
+}
+
+/// The probability that at least one of `k` independent tests at level `p` is this extreme
+/// (Šidák), computed without cancellation for small p.
+fn sidak(p: f64, k: usize) -> f64 {
+    if !(0.0..=1.0).contains(&p) {
+        return p;
+    }
+    -(k as f64 * (-p).ln_1p()).exp_m1()
 }
 
 fn family(f: Family) -> &'static str {
@@ -880,7 +1016,12 @@ fn candidates(s: &mut String, d: &Diagnosis) {
         "<section id=\"candidates\">\n<h2>Where the model fails, and what is missing</h2>\n",
     );
     if d.regions.is_empty() {
-        s.push_str("<div class=\"ok\">No region of the workspace has residuals larger than the noise allows.</div>\n");
+        // "The noise" only when a stated noise was tested; else the reference is σ̂ itself.
+        if d.noise.chi2.is_some() {
+            s.push_str("<div class=\"ok\">No region of the workspace has residuals larger than the stated noise allows.</div>\n");
+        } else {
+            s.push_str("<div class=\"ok\">No region of the workspace stands out against the model's own residual scatter σ̂ (no instrument noise was stated, so this says nothing of the absolute level).</div>\n");
+        }
     } else {
         s.push_str("<ul>\n");
         for r in &d.regions {
@@ -945,17 +1086,85 @@ fn candidates(s: &mut String, d: &Diagnosis) {
 /// Candidates listed before the rest is folded away (all significant ones are always listed).
 const SHOWN_CANDIDATES: usize = 8;
 
-/// The fits of the model's history, one per revision: consecutive fits of one revision show
-/// as the last of them.
+/// The fits of the model's history, one per round: consecutive fits of one revision on the
+/// same data show as the last of them.
 fn revisions(h: &[Entry]) -> Vec<&Entry> {
     let mut out: Vec<&Entry> = Vec::new();
     for e in h {
         match out.last_mut() {
-            Some(last) if last.model_hash == e.model_hash => *last = e,
+            Some(last) if last.model_hash == e.model_hash && last.data_hash == e.data_hash => {
+                *last = e
+            }
             _ => out.push(e),
         }
     }
     out
+}
+
+/// At most this many rounds get their kept residual plots in the report (the latest ones).
+const ROUND_PLOTS: usize = 12;
+
+/// Each round's residuals as they were when it was fitted: the binned mean and ±RMS its
+/// history record kept, per component and variable.
+fn round_plots(s: &mut String, revs: &[&Entry], current: &str) -> Result<(), ReportError> {
+    let kept: Vec<(usize, &&Entry)> = revs
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| !e.binned.is_empty())
+        .collect();
+    if kept.is_empty() {
+        return Ok(());
+    }
+    let skip = kept.len().saturating_sub(ROUND_PLOTS);
+    let _ = writeln!(
+        s,
+        "<h3>Residuals of each round, as they were</h3>\n<p>What each round's fit left, kept in its history record as residuals binned along every variable ({} equal bins over the range; the line is the bin's mean residual, the band ± its RMS). A pattern that a later round removed stays visible here.{}</p>",
+        history::MAX_BINS,
+        if skip > 0 { format!(" The {skip} oldest rounds are left out.") } else { String::new() }
+    );
+    for (i, e) in kept.into_iter().skip(skip) {
+        let open = if e.model_hash == current { " open" } else { "" };
+        let _ = writeln!(
+            s,
+            "<details class=\"round\" id=\"round-{}\"{open}><summary>Round {} — fitted {} UTC, model <code>{}</code>, σ̂ {} {}</summary>\n<div class=\"grid\">",
+            i + 1,
+            i + 1,
+            utc(e.time),
+            esc(e.model_hash.get(..8).unwrap_or(&e.model_hash)),
+            num(e.sigma, 4),
+            esc(&e.error_unit)
+        );
+        for b in &e.binned {
+            let mut chart = Chart::new(
+                format!("round {}: {} along {}", i + 1, b.component, b.variable),
+                format!("{} [{}]", b.variable, b.variable_unit),
+                format!("{} residual [{}]", b.component, b.unit),
+                (420, 290),
+            );
+            chart.y_symmetric = true;
+            let x: Vec<f64> = b.bins.iter().map(|k| k.at).collect();
+            chart.series.push(Series::Band {
+                x: x.clone(),
+                lower: b.bins.iter().map(|k| k.mean - k.rms).collect(),
+                upper: b.bins.iter().map(|k| k.mean + k.rms).collect(),
+                color: plot::BLUE,
+                opacity: 0.18,
+            });
+            chart.series.push(Series::Line {
+                points: x
+                    .iter()
+                    .copied()
+                    .zip(b.bins.iter().map(|k| k.mean))
+                    .collect(),
+                color: plot::BLUE,
+                width: 2,
+                dashed: false,
+            });
+            let _ = writeln!(s, "<figure>{}</figure>", chart.svg()?);
+        }
+        s.push_str("</div>\n</details>\n");
+    }
+    Ok(())
 }
 
 fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
@@ -971,7 +1180,7 @@ fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
         .unwrap_or_else(|| inp.fit.error_unit.clone());
     let _ = writeln!(
         s,
-        "<p>Residual RMS and σ̂ of the last fit of each revision of the model (from <code>{}</code>). Adding the effect the data show makes the error fall towards the noise.</p>",
+        "<p>Residual RMS and σ̂ of the last fit of each revision of the model on each data set (from <code>{}</code>). Adding the effect the data show makes the error fall towards the noise. Changes are given only between fits of the same data (same files, same contents, same weighting): a fit of other data is marked “new data”.</p>",
         esc(&inp.history_path)
     );
     let mut chart = Chart::new(
@@ -1051,11 +1260,25 @@ fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
         keys(&items)
     );
     let _ = writeln!(s, "<table>\n<tr><th>revision</th><th class=\"l\">fitted (UTC)</th><th class=\"l\">model hash</th><th>parameters</th><th>rows</th><th>σ̂ [{u}]</th><th>RMS [{u}]</th><th>change</th></tr>", u = esc(&u));
-    let mut before: Option<f64> = None;
+    // A change is stated only between fits of the same data: another data set's RMS says
+    // nothing of whether the model improved.
+    let mut before: Option<&Entry> = None;
     for (i, e) in revs.iter().enumerate() {
-        let change = before
-            .map(|b| format!("{:+.1} %", 100.0 * (e.rms - b) / b.max(f64::MIN_POSITIVE)))
-            .unwrap_or_else(|| "—".into());
+        let change = match before {
+            None => "—".into(),
+            Some(b) if b.data_hash.is_some() && b.data_hash == e.data_hash => {
+                if b.model_hash == e.model_hash {
+                    "unchanged".into()
+                } else {
+                    format!(
+                        "{:+.1} %",
+                        100.0 * (e.rms - b.rms) / b.rms.max(f64::MIN_POSITIVE)
+                    )
+                }
+            }
+            Some(_) if e.data_hash.is_none() => "— (data not recorded)".into(),
+            Some(_) => "new data".into(),
+        };
         let _ = writeln!(
             s,
             "<tr{}><td>{}</td><td class=\"l\">{}</td><td class=\"l\"><code>{}</code></td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
@@ -1069,9 +1292,11 @@ fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
             num(e.rms, 4),
             change
         );
-        before = Some(e.rms);
+        before = Some(e);
     }
-    s.push_str("</table>\n</section>\n");
+    s.push_str("</table>\n");
+    round_plots(s, &revs, &inp.fit.model_hash)?;
+    s.push_str("</section>\n");
     Ok(())
 }
 
@@ -1348,7 +1573,7 @@ fn short(p: &str, width: usize) -> String {
 }
 
 /// Unix seconds as `YYYY-MM-DD hh:mm` UTC (Hinnant's civil-from-days).
-fn utc(secs: u64) -> String {
+pub fn utc(secs: u64) -> String {
     let days = (secs / 86_400) as i64;
     let rem = secs % 86_400;
     let z = days + 719_468;
@@ -1389,6 +1614,14 @@ mod tests {
     }
 
     #[test]
+    fn sidak_corrects_for_the_panels() {
+        assert!((sidak(0.01, 1) - 0.01).abs() < 1e-15);
+        assert!((sidak(0.01, 6) - (1.0 - 0.99f64.powi(6))).abs() < 1e-12);
+        assert!((sidak(1e-12, 6) - 6e-12).abs() < 1e-20);
+        assert_eq!(sidak(1.0, 6), 1.0);
+    }
+
+    #[test]
     fn consecutive_fits_of_one_revision_collapse() {
         let e = |hash: &str, rms: f64| Entry {
             time: 0,
@@ -1400,6 +1633,8 @@ mod tests {
             error_unit: "um".into(),
             files: Vec::new(),
             source: None,
+            data_hash: None,
+            binned: Vec::new(),
         };
         let h = vec![e("a", 3.0), e("a", 2.5), e("b", 1.0), e("a", 2.0)];
         let r: Vec<f64> = revisions(&h).iter().map(|e| e.rms).collect();

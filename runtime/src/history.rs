@@ -14,6 +14,11 @@ pub enum HistoryError {
         path: PathBuf,
         source: std::io::Error,
     },
+    #[error("cannot read the data file `{path}` to key the fit history on it: {source}")]
+    Data {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("cannot write the fit history `{path}`: {source}")]
     Write {
         path: PathBuf,
@@ -27,6 +32,10 @@ pub struct FileRms {
     /// NaN when the fit could not tell (written as `null`).
     #[serde(deserialize_with = "nan_if_null")]
     pub rms: f64,
+    /// Hash of the file's contents ([`content_hash`]); absent in records written before it was
+    /// kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hash: Option<String>,
 }
 
 /// One fit of one revision of a model.
@@ -49,6 +58,125 @@ pub struct Entry {
     /// revision can be restored.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source: Option<String>,
+    /// What the fit was made from besides the model: the data files' paths and contents and the
+    /// unit of σ̂ (a stated noise changes it), hashed ([`data_key`]). Fits are compared only
+    /// when this is the same. Absent in records written before it was kept: those are read and
+    /// shown, but compared with nothing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub data_hash: Option<String>,
+    /// Residuals of this fit binned along each variable, so that a later report can show each
+    /// round's residuals as they were (bounded: [`MAX_BINS`] bins per component and variable).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub binned: Vec<Binned>,
+}
+
+/// At most this many bins per component and variable in a record's [`Binned`] residuals.
+pub const MAX_BINS: usize = 16;
+
+/// The residuals of one component along one variable, in equal-width bins of its range.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Binned {
+    /// Error component (`ex` … `erz`, `dL`) and its display unit.
+    pub component: String,
+    pub unit: String,
+    /// Axis, input or `time`, and the unit of its values.
+    pub variable: String,
+    pub variable_unit: String,
+    /// Per bin: its centre, number of rows, mean residual and RMS residual.
+    pub bins: Vec<Bin>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Bin {
+    #[serde(deserialize_with = "nan_if_null")]
+    pub at: f64,
+    pub rows: usize,
+    #[serde(deserialize_with = "nan_if_null")]
+    pub mean: f64,
+    #[serde(deserialize_with = "nan_if_null")]
+    pub rms: f64,
+}
+
+/// FNV-1a (64 bit) of bytes, continued from `h` (start with [`FNV_START`]).
+fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x100000001b3);
+    }
+    h
+}
+
+const FNV_START: u64 = 0xcbf29ce484222325;
+
+/// A hash of a file's contents, read in blocks (a data file may be large): the same data under
+/// the same name give the same hash, and an edited file a different one.
+pub fn content_hash(path: &Path) -> Result<String, HistoryError> {
+    let err = |source| HistoryError::Data {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut f = std::fs::File::open(path).map_err(err)?;
+    let mut buf = vec![0u8; 1 << 16];
+    let mut h = FNV_START;
+    loop {
+        let n = f.read(&mut buf).map_err(err)?;
+        if n == 0 {
+            break;
+        }
+        h = fnv(h, buf.get(..n).unwrap_or(&[]));
+    }
+    Ok(format!("{h:016x}"))
+}
+
+/// The key that says two fits were made of the same data: every file's path and content hash,
+/// in order, and how the rows were weighted (`weighting`: at least the unit σ̂ is in).
+pub fn data_key(files: &[FileRms], weighting: &str) -> Option<String> {
+    let mut h = FNV_START;
+    for f in files {
+        h = fnv(h, f.path.as_bytes());
+        h = fnv(h, &[0]);
+        h = fnv(h, f.hash.as_ref()?.as_bytes());
+        h = fnv(h, &[0]);
+    }
+    h = fnv(h, weighting.as_bytes());
+    Some(format!("{h:016x}"))
+}
+
+/// How a new fit relates to the history before it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Relation<'a> {
+    /// No earlier record.
+    First,
+    /// The last fit of the same data was of this same model: nothing changed.
+    Unchanged(&'a Entry),
+    /// The last fit of the same data was of another revision of the model: compare with it.
+    Revised(&'a Entry),
+    /// No earlier fit of these data (or of data that can be told to be the same): nothing to
+    /// compare with.
+    NewData,
+}
+
+/// How a fit of `model_hash` on the data `data_hash` relates to `entries`: only fits of the
+/// same data are compared.
+pub fn relation<'a>(
+    entries: &'a [Entry],
+    model_hash: &str,
+    data_hash: Option<&str>,
+) -> Relation<'a> {
+    if entries.is_empty() {
+        return Relation::First;
+    }
+    let same_data = data_hash.and_then(|d| {
+        entries
+            .iter()
+            .rev()
+            .find(|e| e.data_hash.as_deref() == Some(d))
+    });
+    match same_data {
+        Some(e) if e.model_hash == model_hash => Relation::Unchanged(e),
+        Some(e) => Relation::Revised(e),
+        None => Relation::NewData,
+    }
 }
 
 fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
@@ -158,18 +286,6 @@ pub fn append(model: &Path, entry: &Entry) -> Result<(), HistoryError> {
         .map_err(|source| HistoryError::Write { path, source })
 }
 
-/// The last fit of a *different* revision than `hash`, and of the same files: what "before"
-/// means when the model changed.
-pub fn previous_revision<'a>(entries: &'a [Entry], hash: &str) -> Option<&'a Entry> {
-    let last_same = entries.iter().rposition(|e| e.model_hash == hash);
-    let upto = match last_same {
-        // Refitting the same revision: compare with the revision before it.
-        Some(i) if i + 1 == entries.len() => &entries[..i],
-        _ => entries,
-    };
-    upto.iter().rev().find(|e| e.model_hash != hash)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -186,8 +302,11 @@ mod tests {
             files: vec![FileRms {
                 path: "a.csv".into(),
                 rms: sigma,
+                hash: Some("0123".into()),
             }],
             source: None,
+            data_hash: Some("d".into()),
+            binned: Vec::new(),
         }
     }
 
@@ -213,5 +332,45 @@ mod tests {
         assert_eq!(h.damaged, vec![2, 5]);
         let said = h.damage().unwrap();
         assert!(said.contains("lines 2, 5 are not"), "{said}");
+    }
+
+    #[test]
+    fn only_fits_of_the_same_data_are_compared() {
+        let mut a = entry(2.0);
+        a.model_hash = "m1".into();
+        let mut b = entry(1.0);
+        b.model_hash = "m2".into();
+        b.data_hash = Some("other".into());
+        let h = vec![a.clone(), b];
+        assert_eq!(relation(&h, "m2", Some("d")), Relation::Revised(&a));
+        assert_eq!(relation(&h, "m1", Some("d")), Relation::Unchanged(&a));
+        assert_eq!(relation(&h, "m2", Some("new")), Relation::NewData);
+        assert_eq!(relation(&h, "m2", None), Relation::NewData);
+        assert_eq!(relation(&[], "m2", Some("d")), Relation::First);
+    }
+
+    #[test]
+    fn records_without_a_data_hash_still_read() {
+        let old = r#"{"time":1,"model_hash":"h","parameters":3,"rows":10,"sigma":0.5,"rms":0.5,"error_unit":"um","files":[{"path":"a.csv","rms":0.5}]}"#;
+        let h = parse(old.as_bytes(), PathBuf::from("m.kin.history.jsonl"));
+        assert!(h.damaged.is_empty());
+        assert_eq!(h.entries[0].data_hash, None);
+        assert_eq!(h.entries[0].files[0].hash, None);
+        assert_eq!(relation(&h.entries, "h", Some("d")), Relation::NewData);
+        assert_eq!(data_key(&h.entries[0].files, "um"), None);
+    }
+
+    #[test]
+    fn the_data_key_follows_contents_and_paths() {
+        let f = |path: &str, hash: &str| FileRms {
+            path: path.into(),
+            rms: 1.0,
+            hash: Some(hash.into()),
+        };
+        let k = data_key(&[f("a.csv", "1")], "um");
+        assert_eq!(k, data_key(&[f("a.csv", "1")], "um"));
+        assert_ne!(k, data_key(&[f("a.csv", "2")], "um"));
+        assert_ne!(k, data_key(&[f("b.csv", "1")], "um"));
+        assert_ne!(k, data_key(&[f("a.csv", "1")], "σ (stated)"));
     }
 }

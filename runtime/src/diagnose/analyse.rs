@@ -1299,22 +1299,55 @@ fn regions(
 /// Pairs the strongest one-variable regions of the same component into one statement. Each was
 /// tested along its own variable only, so the words do not claim the two hold together ("ez …
 /// for Y > 420 mm; also, along another variable, for X < 150 mm").
+///
+/// Separate ranges of one variable (bins that are not adjacent) are one statement that says
+/// they are separate ("in 2 separate ranges of X: X < 120 mm and X > 680 mm"), never a
+/// condition that reads as if both had to hold, nor "another variable".
 fn combine(found: Vec<Region>) -> Vec<Region> {
     let mut out: Vec<Region> = Vec::new();
+    let local = |o: &Region| {
+        o.conditions
+            .iter()
+            .all(|c| c != "throughout the workspace" && !c.starts_with("direction of motion"))
+    };
+    let variables = |o: &Region| -> Vec<String> {
+        o.conditions
+            .iter()
+            .map(|c| variable_of(c).to_string())
+            .collect()
+    };
     for r in found {
-        let local = |o: &Region| {
-            o.conditions
-                .iter()
-                .all(|c| c != "throughout the workspace" && !c.starts_with("direction of motion"))
-        };
+        let var = r.conditions.first().map(|c| variable_of(c).to_string());
+        if let Some(prev) = out.iter_mut().find(|o| {
+            local(o) && local(&r) && o.component == r.component && {
+                let vs = variables(o);
+                vs.iter().all(|v| Some(v) == var.as_ref())
+            }
+        }) {
+            let v = var.unwrap_or_default();
+            prev.conditions.extend(r.conditions.clone());
+            // Sorted by strength: the first one's ratio is the largest.
+            let base = prev
+                .text
+                .split_once(" for ")
+                .or_else(|| prev.text.rsplit_once(" in "))
+                .map(|(b, _)| b.to_string())
+                .unwrap_or_else(|| prev.text.clone());
+            prev.text = format!(
+                "{base} in {} separate ranges of {v}: {}",
+                prev.conditions.len(),
+                prev.conditions.join(" and ")
+            );
+            prev.rows += r.rows;
+            prev.p = prev.p.min(r.p);
+            continue;
+        }
         if let Some(prev) = out.iter_mut().find(|o| {
             local(o)
                 && local(&r)
                 && o.component == r.component
                 && o.conditions.len() == 1
-                && !o.conditions.iter().any(|c| {
-                    c.split_whitespace().next() == r.conditions[0].split_whitespace().next()
-                })
+                && !variables(o).iter().any(|v| Some(v) == var.as_ref())
         }) {
             prev.conditions.extend(r.conditions.clone());
             prev.text = format!(
@@ -1327,6 +1360,23 @@ fn combine(found: Vec<Region>) -> Vec<Region> {
         out.push(r);
     }
     out
+}
+
+/// The variable a region's condition is about: `X` of `X < 120 mm`, `X > 680 mm`,
+/// `120 mm < X < 300 mm`.
+fn variable_of(condition: &str) -> &str {
+    let mut words = condition.split_whitespace();
+    let first = words.next().unwrap_or("");
+    if first.parse::<f64>().is_ok() {
+        // `LO UNIT < VAR < HI UNIT`
+        condition
+            .split(" < ")
+            .nth(1)
+            .map(str::trim)
+            .unwrap_or(first)
+    } else {
+        first
+    }
 }
 
 fn nice(v: f64) -> String {
@@ -1346,6 +1396,38 @@ fn nice(v: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn region(component: &str, cond: &str, ratio: f64) -> Region {
+        Region {
+            component: component.into(),
+            conditions: vec![cond.into()],
+            ratio,
+            rows: 10,
+            p: 1e-6,
+            text: format!("{component} residuals are {ratio:.1}× σ̂ for {cond}"),
+        }
+    }
+
+    #[test]
+    fn separate_ranges_of_one_variable_are_said_to_be_separate() {
+        assert_eq!(variable_of("X < 120 mm"), "X");
+        assert_eq!(variable_of("120 mm < X < 300 mm"), "X");
+        assert_eq!(variable_of("-5.5 degC < T_room < 3 degC"), "T_room");
+        let out = combine(vec![
+            region("ex", "X < 120 mm", 3.1),
+            region("ex", "300 mm < X < 420 mm", 2.9),
+            region("ex", "X > 680 mm", 2.8),
+            region("ex", "Y > 400 mm", 2.5),
+            region("ey", "X > 680 mm", 2.0),
+        ]);
+        assert_eq!(out.len(), 3, "{out:?}");
+        assert_eq!(
+            out[0].text,
+            "ex residuals are 3.1× σ̂ in 3 separate ranges of X: X < 120 mm and 300 mm < X < 420 mm and X > 680 mm"
+        );
+        assert_eq!(out[1].conditions, vec!["Y > 400 mm"]);
+        assert!(!out.iter().any(|r| r.text.contains("another variable")));
+    }
 
     const CMM: &str = r#"
 machine cmm3 {

@@ -54,6 +54,92 @@ impl Nuisance {
     }
 }
 
+/// The instrument's stated noise (standard deviations, SI): positions and lengths, rotations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Noise {
+    pub position: Option<f64>,
+    pub rotation: Option<f64>,
+}
+
+/// What every row of one kind is multiplied by before the fit (rows of SI values).
+///
+/// Without a stated noise a tilt unit weighs as an error unit (µrad as µm with the default
+/// units), so the fit does not depend on SI's choice of metre and radian. With one, every row is
+/// divided by its kind's standard deviation (and multiplied by the error unit's scale, so that a
+/// weighted residual divided by that scale is `residual / σ`): the weighted least squares that
+/// makes µm and µrad rows commensurable, and σ̂ the ratio of the scatter to the stated noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Weights {
+    /// Position and length rows.
+    pub position: f64,
+    /// Rotation rows.
+    pub rotation: f64,
+    /// Whether the weights come from a stated noise (σ̂ is then dimensionless).
+    pub stated: bool,
+}
+
+impl Weights {
+    /// The unit weighting of `m` (no stated noise).
+    pub fn unit(m: &Machine) -> Weights {
+        Weights {
+            position: 1.0,
+            rotation: rotation_weight(m),
+            stated: false,
+        }
+    }
+
+    /// The weighting by a stated noise; a kind with no stated σ keeps its unit weight (the fit
+    /// refuses data holding such rows, see [`kinds_observed`]).
+    pub fn from_noise(m: &Machine, noise: Option<Noise>) -> Weights {
+        let unit = Weights::unit(m);
+        let Some(n) = noise else {
+            return unit;
+        };
+        let s = m.units.error.scale;
+        let by = |sigma: Option<f64>, fallback: f64| match sigma {
+            Some(v) if v > 0.0 && v.is_finite() => s / v,
+            _ => fallback,
+        };
+        Weights {
+            position: by(n.position, unit.position),
+            rotation: by(n.rotation, unit.rotation),
+            stated: true,
+        }
+    }
+
+    /// The weight of rows of `component` (0..6 = ex..erz, [`LENGTH`]).
+    pub fn of(&self, component: u8) -> f64 {
+        if (3..6).contains(&component) {
+            self.rotation
+        } else {
+            self.position
+        }
+    }
+}
+
+/// Whether the files observe positions or lengths, and whether they observe rotations.
+pub fn kinds_observed(files: &[DataSet]) -> (bool, bool) {
+    let mut kinds = (false, false);
+    for f in files {
+        match &f.observations {
+            Observations::Lengths(_) => kinds.0 = true,
+            Observations::Points(p) => {
+                for (c, column) in p.observed.iter().enumerate() {
+                    let any = column
+                        .as_ref()
+                        .is_some_and(|v| v.iter().any(|x| !x.is_nan()));
+                    if any && c < 3 {
+                        kinds.0 = true;
+                    } else if any {
+                        kinds.1 = true;
+                    }
+                }
+            }
+        }
+    }
+    kinds
+}
+
 /// The columns: the model's coefficients first, then the nuisance parameters.
 #[derive(Debug, Clone)]
 pub struct Layout {
@@ -61,6 +147,8 @@ pub struct Layout {
     pub nuisance: Vec<Nuisance>,
     /// Per file, per artifact id: the column of its first nuisance parameter.
     first: Vec<Vec<usize>>,
+    /// What each row is multiplied by: the one place where rows are weighted.
+    pub weights: Weights,
 }
 
 impl Layout {
@@ -97,6 +185,15 @@ impl Layout {
             coefficients,
             nuisance,
             first,
+            weights: Weights::unit(m),
+        }
+    }
+
+    /// The layout with rows weighted by a stated `noise` (unit weights when `None`).
+    pub fn weighted(self, m: &Machine, noise: Option<Noise>) -> Layout {
+        Layout {
+            weights: Weights::from_noise(m, noise),
+            ..self
         }
     }
 
@@ -355,7 +452,7 @@ pub fn for_each_row(
     let mut x = vec![0.0; width];
     let mut lrow = vec![0.0; n];
     let mut err = [0.0; 6];
-    let w_rot = rotation_weight(engine.machine());
+    let weights = layout.weights;
     for (f, (file, st)) in files.iter().zip(states).enumerate() {
         let path = || file.path.display().to_string();
         let rows = file.observations.rows();
@@ -391,7 +488,7 @@ pub fn for_each_row(
                         else {
                             continue;
                         };
-                        let w = if c < 3 { 1.0 } else { w_rot };
+                        let w = weights.of(c as u8);
                         x.fill(0.0);
                         for (slot, v) in
                             x.iter_mut().zip(jac.get(c * n..(c + 1) * n).unwrap_or(&[]))
@@ -402,11 +499,11 @@ pub fn for_each_row(
                             // A rigid displacement (t, ω) of the artifact changes the observed
                             // error by t + ω × p at a point p, and by ω in orientation.
                             if c < 3 {
-                                set(&mut x, first + c, 1.0);
+                                set(&mut x, first + c, w);
                                 for k in 0..3 {
                                     let e_k = unit(k);
                                     let moved = cross(e_k, p);
-                                    set(&mut x, first + 3 + k, moved[c]);
+                                    set(&mut x, first + 3 + k, moved[c] * w);
                                 }
                             } else {
                                 set(&mut x, first + c, w);
@@ -439,12 +536,16 @@ pub fn for_each_row(
                     let Some(obs) = l.dl.get(r).copied().filter(|v| !v.is_nan()) else {
                         continue;
                     };
+                    let w = weights.of(LENGTH);
                     x.fill(0.0);
-                    x.get_mut(..n).unwrap_or(&mut []).copy_from_slice(&lrow);
-                    if let Some(first) = layout.first_of(f, rows.artifact_of(r)) {
-                        set(&mut x, first, 1.0);
+                    for (slot, v) in x.iter_mut().zip(&lrow) {
+                        *slot = v * w;
                     }
-                    finite_row(&x, obs - fixed, path, line)?;
+                    if let Some(first) = layout.first_of(f, rows.artifact_of(r)) {
+                        set(&mut x, first, w);
+                    }
+                    let y = (obs - fixed) * w;
+                    finite_row(&x, y, path, line)?;
                     row(
                         RowMeta {
                             file: f as u32,
@@ -452,7 +553,7 @@ pub fn for_each_row(
                             component: LENGTH,
                         },
                         &x,
-                        obs - fixed,
+                        y,
                     );
                 }
             }

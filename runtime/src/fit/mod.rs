@@ -18,8 +18,9 @@ use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor, Normal};
 use thiserror::Error;
 
 pub use design::{
-    count_rows, for_each_row, holdout, rotation_weight, states, states_with, DataSet, DesignError,
-    FileStates, Layout, Nuisance, NuisanceKind, RowMeta, LENGTH,
+    count_rows, for_each_row, holdout, kinds_observed, rotation_weight, states, states_with,
+    DataSet, DesignError, FileStates, Layout, Noise, Nuisance, NuisanceKind, RowMeta, Weights,
+    LENGTH,
 };
 pub use qr::{Reduced, StreamingQr};
 pub use solve::{Solution, Solver};
@@ -42,6 +43,12 @@ pub enum FitError {
          model are too large to fit"
     )]
     Overflow,
+    #[error(
+        "the data hold {kind} but no noise is stated for them: with a stated noise every kind of \
+         row needs its own standard deviation (--noise for positions and lengths, --noise-tilt \
+         for rotations)"
+    )]
+    NoNoiseFor { kind: &'static str },
     #[error("the design is rank-deficient: rank {rank} of {columns} columns")]
     RankDeficient {
         rank: usize,
@@ -63,6 +70,8 @@ pub struct Options {
     pub outlier_alpha: f64,
     /// Stepwise selection of the coefficients (§3.2.2), if asked.
     pub stepwise: Option<Stepwise>,
+    /// The instrument's stated noise: rows are weighted by it (see [`Weights`]).
+    pub noise: Option<Noise>,
 }
 
 /// Significance levels of the partial F-tests: a coefficient whose p-value exceeds `remove`
@@ -82,12 +91,14 @@ impl Default for Options {
             block: 4096,
             outlier_alpha: 0.05,
             stepwise: None,
+            noise: None,
         }
     }
 }
 
-/// One observed value after the fit. Values are weighted (rotation rows scaled so a tilt unit
-/// weighs as an error unit); `report` converts to display units.
+/// One observed value after the fit. Values are weighted (by `layout.weights`: a tilt unit
+/// weighs as an error unit, or every row is divided by its stated noise); `report` converts to
+/// display units.
 #[derive(Debug, Clone, Copy)]
 pub struct ResidualRow {
     pub meta: RowMeta,
@@ -134,7 +145,8 @@ pub fn fit(
 ) -> Result<FitResult, FitError> {
     let m = &compiled.machine;
     design::check_artifacts(files)?;
-    let layout = Layout::new(m, files);
+    check_noise(files, options.noise)?;
+    let layout = Layout::new(m, files).weighted(m, options.noise);
     let p = layout.columns();
     // Fitted wavelengths and time constants first: the linear problem below is the one at
     // their optimum.
@@ -275,6 +287,24 @@ pub fn fit(
     })
 }
 
+/// With a stated noise, every kind of row the files hold needs its own σ: a row without one
+/// would get an arbitrary weight against the others.
+fn check_noise(files: &[DataSet], noise: Option<Noise>) -> Result<(), FitError> {
+    let Some(n) = noise else {
+        return Ok(());
+    };
+    let (positions, rotations) = kinds_observed(files);
+    if positions && n.position.is_none() {
+        return Err(FitError::NoNoiseFor {
+            kind: "positions or lengths",
+        });
+    }
+    if rotations && n.rotation.is_none() {
+        return Err(FitError::NoNoiseFor { kind: "rotations" });
+    }
+    Ok(())
+}
+
 /// Rows buffered for the residual pass.
 struct Block {
     x: Mat<f64>,
@@ -336,7 +366,8 @@ fn validation_residuals(
     options: &Options,
 ) -> Result<Vec<ResidualRow>, FitError> {
     let m = &compiled.machine;
-    let layout = Layout::new(m, files);
+    check_noise(files, options.noise)?;
+    let layout = Layout::new(m, files).weighted(m, options.noise);
     let n = layout.coefficients;
     let states = design::states_with(m, files, values)?;
     let beta = solution.beta.get(..n).unwrap_or(&[]);

@@ -72,6 +72,7 @@ fn at_values(
     engine: &mut dyn Evaluator,
     files: &[DataSet],
     values: &[f64],
+    noise: Option<design::Noise>,
 ) -> Result<(Vec<design::FileStates>, Layout), FitError> {
     let m = &compiled.machine;
     engine
@@ -83,7 +84,7 @@ fn at_values(
         })?;
     Ok((
         design::states_with(m, files, values)?,
-        Layout::new(m, files),
+        Layout::new(m, files).weighted(m, noise),
     ))
 }
 
@@ -107,7 +108,7 @@ fn masked_fit(
     options: &Options,
     without: &[bool],
 ) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
-    let (states, layout) = at_values(compiled, engine, files, values)?;
+    let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
     let mut acc = StreamingQr::new(layout.columns(), options.block);
     let mut row = vec![0.0; layout.columns()];
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
@@ -153,8 +154,9 @@ fn predictions(
     files: &[DataSet],
     values: &[f64],
     beta: &[f64],
+    options: &Options,
 ) -> Result<Vec<f64>, FitError> {
-    let (states, layout) = at_values(compiled, engine, files, values)?;
+    let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
     let mut out = Vec::new();
     design::for_each_row(engine, files, &states, &layout, |_, x, _| {
         out.push(x.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>())
@@ -186,8 +188,8 @@ fn covariance(
         let (mut up, mut dn) = (values.to_vec(), values.to_vec());
         up[i] += h;
         dn[i] -= h;
-        let pu = predictions(compiled, engine, files, &up, &beta)?;
-        let pd = predictions(compiled, engine, files, &dn, &beta)?;
+        let pu = predictions(compiled, engine, files, &up, &beta, options)?;
+        let pd = predictions(compiled, engine, files, &dn, &beta, options)?;
         d.push(
             pu.iter()
                 .zip(&pd)
@@ -195,7 +197,7 @@ fn covariance(
                 .collect(),
         );
     }
-    let (states, layout) = at_values(compiled, engine, files, values)?;
+    let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
     let p = layout.columns();
     let mut acc = StreamingQr::new(p + k, options.block);
     let mut row = vec![0.0; p + k];
@@ -336,7 +338,7 @@ pub fn optimise(
         let mut held = values.clone();
         held[i] = start;
         let (rs, _) = residuals(compiled, engine, files, &held, options)?;
-        let moved = moved_columns(compiled, engine, files, &values, i)?;
+        let moved = moved_columns(compiled, engine, files, &values, i, options)?;
         let without = moved.iter().filter(|&&b| b).count();
         let (rw, _, _) = masked_fit(compiled, engine, files, &values, options, &moved)?;
         let term_p = f_test_p(sumsq(&rw) - rss, (without + 1) as f64, rss, dof);
@@ -402,9 +404,10 @@ fn moved_columns(
     files: &[DataSet],
     values: &[f64],
     i: usize,
+    options: &Options,
 ) -> Result<Vec<bool>, FitError> {
     let mut projection = |values: &[f64]| -> Result<Vec<(f64, f64)>, FitError> {
-        let (states, layout) = at_values(compiled, engine, files, values)?;
+        let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
         let mut sums = vec![(0.0, 0.0); layout.columns()];
         let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
         design::for_each_row(engine, files, &states, &layout, |_, x, _| {

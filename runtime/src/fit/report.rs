@@ -5,7 +5,7 @@
 use kin_compiler::ir::Machine;
 use serde::{Deserialize, Serialize};
 
-use super::design::{NuisanceKind, LENGTH};
+use super::design::{NuisanceKind, Weights, LENGTH};
 use super::{solve, FitResult, Options, ResidualRow};
 use crate::data::OBSERVED;
 use crate::fit::DataSet;
@@ -78,6 +78,31 @@ pub struct FitReport {
     pub stepwise: Option<StepwiseReport>,
     /// The fitted values as a `params { … }` block.
     pub params: String,
+    /// The stated instrument noise the rows were weighted by, and the χ² test of σ̂ against it.
+    /// When present, `sigma`, `rms` and `max` are ratios to that noise (dimensionless); the
+    /// residuals and the per-file and per-component summaries stay in display units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weights: Option<StatedWeights>,
+}
+
+/// The weights of a fit by a stated noise (`kin fit --noise`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StatedWeights {
+    /// The stated standard deviation of positions and lengths, error unit (`null` if none).
+    #[serde(default)]
+    pub position: Option<f64>,
+    /// The stated standard deviation of rotations, tilt unit (`null` if none).
+    #[serde(default)]
+    pub rotation: Option<f64>,
+    pub error_unit: String,
+    pub tilt_unit: String,
+    /// Σ (residual / σ)² over the fitted rows, on `dof` degrees of freedom.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub chi2: f64,
+    pub dof: usize,
+    /// P(χ²_dof ≥ chi2): small when the residuals exceed what the stated noise gives.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub p: f64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -195,16 +220,25 @@ pub fn model_hash(source: &str) -> String {
     format!("{h:016x}")
 }
 
-fn residual(m: &Machine, r: &ResidualRow) -> Residual {
-    // Rows are weighted so that one tilt unit counts as one error unit: dividing by the error
-    // unit's scale gives display units for both kinds.
-    let s = m.units.error.scale;
+/// What turns a weighted value of a row of `component` into its display unit: undo the row's
+/// weight, then express the SI value in the error or tilt unit.
+fn display_factor(m: &Machine, w: &Weights, component: u8) -> f64 {
+    let unit = if (3..6).contains(&component) {
+        &m.units.tilt
+    } else {
+        &m.units.error
+    };
+    1.0 / (w.of(component) * unit.scale)
+}
+
+fn residual(m: &Machine, w: &Weights, r: &ResidualRow) -> Residual {
+    let s = display_factor(m, w, r.meta.component);
     Residual {
         file: r.meta.file,
         line: r.meta.line,
         component: component_name(r.meta.component).to_string(),
-        observed: r.observed / s,
-        residual: r.residual / s,
+        observed: r.observed * s,
+        residual: r.residual * s,
         studentized: r.studentized,
         leverage: r.leverage,
         cook: r.cook,
@@ -213,10 +247,13 @@ fn residual(m: &Machine, r: &ResidualRow) -> Residual {
 
 fn summaries(
     m: &Machine,
+    w: &Weights,
     files: &[DataSet],
     rows: &[ResidualRow],
     threshold: f64,
 ) -> Vec<FileSummary> {
+    // The file's overall RMS mixes kinds the way σ̂ does (weighted, over the error scale); the
+    // per-component figures are each in their own display unit.
     let s = m.units.error.scale;
     files
         .iter()
@@ -229,7 +266,7 @@ fn summaries(
                 let vals: Vec<f64> = mine
                     .iter()
                     .filter(|r| r.meta.component == c)
-                    .map(|r| r.residual / s)
+                    .map(|r| r.residual * display_factor(m, w, c))
                     .collect();
                 if vals.is_empty() {
                     continue;
@@ -381,6 +418,7 @@ pub fn build(
         .map(|(a, b)| cov_full[(a, b)])
         .collect();
     let s = m.units.error.scale;
+    let w = &result.layout.weights;
     let all: Vec<f64> = result.residuals.iter().map(|r| r.residual / s).collect();
     let outliers: Vec<Residual> = result
         .residuals
@@ -388,7 +426,7 @@ pub fn build(
         .filter(|r| {
             r.studentized.abs() > result.outlier_threshold || r.cook > result.cook_threshold
         })
-        .map(|r| residual(m, r))
+        .map(|r| residual(m, w, r))
         .collect();
     let keep = result.residuals.len() <= MAX_RESIDUALS;
     FitReport {
@@ -409,7 +447,8 @@ pub fn build(
         r2: result.r2,
         error_unit: m.units.error.name.clone(),
         tilt_unit: m.units.tilt.name.clone(),
-        files: summaries(m, files, &result.residuals, result.outlier_threshold),
+        files: summaries(m, w, files, &result.residuals, result.outlier_threshold),
+        weights: stated_weights(m, options, result),
         params: params_text(m, &sol.beta, &nonlinear),
         stepwise: result
             .selection
@@ -423,19 +462,48 @@ pub fn build(
         cook_threshold: result.cook_threshold,
         outliers,
         residuals: if keep {
-            result.residuals.iter().map(|r| residual(m, r)).collect()
+            result.residuals.iter().map(|r| residual(m, w, r)).collect()
         } else {
             Vec::new()
         },
         residuals_omitted: if keep { 0 } else { result.residuals.len() },
-        validation: summaries(m, validate, &result.validation, f64::INFINITY),
-        validation_residuals: result.validation.iter().map(|r| residual(m, r)).collect(),
+        validation: summaries(m, w, validate, &result.validation, f64::INFINITY),
+        validation_residuals: result
+            .validation
+            .iter()
+            .map(|r| residual(m, w, r))
+            .collect(),
         constrained: result
             .constrained
             .iter()
             .map(|d| d.message.clone())
             .collect(),
     }
+}
+
+/// The stated noise and the χ² test of the fit against it: with rows divided by their σ, the
+/// residual sum of squares is χ²-distributed on the residual degrees of freedom when the model
+/// is complete and the noise is what was stated.
+fn stated_weights(m: &Machine, options: &Options, result: &FitResult) -> Option<StatedWeights> {
+    let n = options.noise?;
+    let dof = result.rows.saturating_sub(result.solution.rank);
+    let ratio = result.sigma / m.units.error.scale;
+    let chi2 = ratio * ratio * dof as f64;
+    let p = statrs::distribution::ChiSquared::new(dof.max(1) as f64)
+        .map(|d| {
+            use statrs::distribution::ContinuousCDF;
+            d.sf(chi2)
+        })
+        .unwrap_or(f64::NAN);
+    Some(StatedWeights {
+        position: n.position.map(|v| v / m.units.error.scale),
+        rotation: n.rotation.map(|v| v / m.units.tilt.scale),
+        error_unit: m.units.error.name.clone(),
+        tilt_unit: m.units.tilt.name.clone(),
+        chi2,
+        dof,
+        p,
+    })
 }
 
 fn stepwise_report(

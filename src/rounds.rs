@@ -1,0 +1,178 @@
+//! What the fit history keeps of one fit (`MACHINE.history.jsonl`): its figures, the data it
+//! was made of (paths and content hashes, so only fits of the same data are compared), and its
+//! residuals binned along every variable, so the report can show each round as it was.
+
+use kin_runtime::fit::report::FitReport;
+use kin_runtime::history::{self, Bin, Binned, Entry, FileRms, MAX_BINS};
+
+use crate::fit::Fitted;
+
+/// The history record of `fitted`; `replaced` is the model's text when this revision is being
+/// replaced (`--apply`). A data file that cannot be read again leaves the record without a data
+/// key (compared with nothing), with a warning.
+pub fn entry(fitted: &Fitted, replaced: Option<&str>) -> Entry {
+    let r = &fitted.report;
+    let files: Vec<FileRms> = r
+        .files
+        .iter()
+        .zip(&fitted.files)
+        .map(|(f, d)| FileRms {
+            path: f.path.clone(),
+            rms: f.rms,
+            hash: history::content_hash(&d.path)
+                .map_err(|e| eprintln!("warning: {e}"))
+                .ok(),
+        })
+        .collect();
+    Entry {
+        time: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0),
+        model_hash: r.model_hash.clone(),
+        parameters: r.coefficients.iter().filter(|c| c.kept).count(),
+        rows: r.rows,
+        sigma: r.sigma,
+        rms: r.rms,
+        error_unit: crate::fit::sigma_unit(r),
+        data_hash: history::data_key(&files, &weighting(r)),
+        files,
+        source: replaced.map(str::to_string),
+        binned: binned(fitted),
+    }
+}
+
+/// What the rows were weighted by, and how many were fitted (a `--holdout` fits part of the
+/// files): fits weighted differently, or of other rows, are not compared.
+fn weighting(r: &FitReport) -> String {
+    let weights = match &r.weights {
+        Some(w) => format!(
+            "stated noise {:?} {} {:?} {}",
+            w.position, w.error_unit, w.rotation, w.tilt_unit
+        ),
+        None => format!("unit weights {} {}", r.error_unit, r.tilt_unit),
+    };
+    format!("{weights}; {} rows", r.rows)
+}
+
+/// The fit's residuals (display units) binned along every axis, input and time, per component:
+/// [`MAX_BINS`] equal-width bins over the values the rows take. Empty when FIT.json's residuals
+/// were left out for size.
+pub fn binned(fitted: &Fitted) -> Vec<Binned> {
+    let m = &fitted.compiled.machine;
+    let r = &fitted.report;
+    let vars = crate::report::along(m);
+    // Each residual with the values of every variable at its row.
+    let rows: Vec<Vec<usize>> = fitted
+        .files
+        .iter()
+        .map(|d| d.observations.rows().line.clone())
+        .collect();
+    let mut placed: Vec<(&str, Vec<f64>, f64)> = Vec::with_capacity(r.residuals.len());
+    for res in &r.residuals {
+        let (Some(d), Some(lines)) = (
+            fitted.files.get(res.file as usize),
+            rows.get(res.file as usize),
+        ) else {
+            continue;
+        };
+        // Lines ascend within a file: the row is found by bisection.
+        let Ok(row) = lines.binary_search(&(res.line as usize)) else {
+            continue;
+        };
+        let values = vars
+            .iter()
+            .map(|(_, v)| crate::report::value(&d.observations, row, *v))
+            .collect();
+        placed.push((res.component.as_str(), values, res.residual));
+    }
+    let mut components: Vec<&str> = placed.iter().map(|p| p.0).collect();
+    components.sort_unstable();
+    components.dedup();
+    let mut out = Vec::new();
+    for c in components {
+        let unit = if c.starts_with("er") {
+            &r.tilt_unit
+        } else {
+            &r.error_unit
+        };
+        for (k, (name, var)) in vars.iter().enumerate() {
+            let vu = crate::report::var_unit(m, *var);
+            let pts: Vec<(f64, f64)> = placed
+                .iter()
+                .filter(|p| p.0 == c)
+                .filter_map(|p| p.1.get(k).map(|x| (vu.from_si(*x), p.2)))
+                .filter(|(x, _)| x.is_finite())
+                .collect();
+            if let Some(bins) = bin(&pts) {
+                out.push(Binned {
+                    component: c.to_string(),
+                    unit: unit.clone(),
+                    variable: name.clone(),
+                    variable_unit: vu.name.clone(),
+                    bins,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Equal-width bins of `(x, residual)` over the range of x; `None` when x does not vary.
+fn bin(pts: &[(f64, f64)]) -> Option<Vec<Bin>> {
+    let (lo, hi) = pts
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), (x, _)| {
+            (lo.min(*x), hi.max(*x))
+        });
+    // No points (lo = ∞) or one value: nothing to bin (x is finite here).
+    if hi <= lo {
+        return None;
+    }
+    let width = (hi - lo) / MAX_BINS as f64;
+    let mut sums = [(0usize, 0.0f64, 0.0f64); MAX_BINS];
+    for (x, y) in pts {
+        // The top of the range belongs to the last bin.
+        let k = (((x - lo) / width) as usize).min(MAX_BINS - 1);
+        if let Some(s) = sums.get_mut(k) {
+            s.0 += 1;
+            s.1 += y;
+            s.2 += y * y;
+        }
+    }
+    Some(
+        sums.iter()
+            .enumerate()
+            .filter(|(_, s)| s.0 > 0)
+            .map(|(k, s)| Bin {
+                at: round(lo + (k as f64 + 0.5) * width),
+                rows: s.0,
+                mean: round(s.1 / s.0 as f64),
+                rms: round((s.2 / s.0 as f64).sqrt()),
+            })
+            .collect(),
+    )
+}
+
+/// Four significant digits: what a plot can show, at a third of the record's size.
+fn round(v: f64) -> f64 {
+    format!("{v:.3e}").parse().unwrap_or(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bins_cover_the_range_and_hold_every_point() {
+        let pts: Vec<(f64, f64)> = (0..=100)
+            .map(|i| (i as f64, if i < 50 { 1.0 } else { -1.0 }))
+            .collect();
+        let b = bin(&pts).unwrap();
+        assert_eq!(b.len(), MAX_BINS);
+        assert_eq!(b.iter().map(|b| b.rows).sum::<usize>(), 101);
+        assert!((b[0].mean - 1.0).abs() < 1e-12 && (b[MAX_BINS - 1].mean + 1.0).abs() < 1e-12);
+        assert!(bin(&[(1.0, 2.0), (1.0, 3.0)]).is_none());
+        assert!(bin(&[]).is_none());
+    }
+}

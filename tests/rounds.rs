@@ -1,0 +1,285 @@
+//! End-to-end runs of fits over rounds of a model: weights from a stated noise, the history
+//! keyed on the model and the data, fitted non-linear values written back by `--apply`.
+
+mod common;
+
+use common::{cmm3, kin, ok, scratch, simulate, text, CMM3_ERRORS, CMM3_TRUTH};
+
+/// The number after `label` in `s`.
+fn after(s: &str, label: &str) -> f64 {
+    s.split(label)
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|v| v.trim_end_matches([',', ':']).parse().ok())
+        .unwrap_or_else(|| panic!("no number after `{label}` in:\n{s}"))
+}
+
+/// Position rows with 0.3 µm of noise and rotation rows with 20 µrad: weighted by what was
+/// stated, σ̂/σ is near 1 and the χ² test passes; stated three times too small, it fails; the
+/// unweighted fit says that its σ̂ mixes µm and µrad; a missing σ for rotations is refused.
+#[test]
+fn fit_weights_mixed_rows_by_the_stated_noise() {
+    let dir = scratch("weights");
+    let model = dir.join("cmm3.kin");
+    std::fs::write(&model, cmm3(CMM3_ERRORS)).unwrap();
+    let truth = dir.join("truth.params");
+    std::fs::write(&truth, CMM3_TRUTH).unwrap();
+    let data = dir.join("pose.csv");
+    let (m, d) = (model.to_str().unwrap(), data.to_str().unwrap());
+    simulate(
+        m,
+        truth.to_str().unwrap(),
+        500,
+        4,
+        &[
+            "--noise",
+            "0.3um",
+            "--noise-tilt",
+            "20urad",
+            "--components",
+            "pose",
+        ],
+        d,
+    );
+
+    let json = dir.join("fit.json");
+    let s = ok(&kin(&[
+        "fit",
+        m,
+        d,
+        "--noise",
+        "0.3um",
+        "--noise-tilt",
+        "20urad",
+        "-o",
+        json.to_str().unwrap(),
+    ]));
+    let ratio = after(&s, "σ̂/σ =");
+    assert!((0.9..1.1).contains(&ratio), "σ̂/σ {ratio}:\n{s}");
+    assert!(s.contains("consistent with the stated noise"), "{s}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["weights"]["position"], 0.3);
+    assert_eq!(v["weights"]["rotation"], 20.0);
+    assert!(
+        v["weights"]["p"].as_f64().unwrap() > 0.01,
+        "{}",
+        v["weights"]
+    );
+    // The residuals stay in their own units: rotations in µrad, near their 20 µrad noise.
+    let erx = v["files"][0]["components"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == "erx")
+        .expect("erx summary")["rms"]
+        .as_f64()
+        .unwrap();
+    assert!((17.0..23.0).contains(&erx), "erx RMS {erx}");
+
+    // The report holds the residuals against the stated noise, not against σ̂.
+    let html = dir.join("report.html");
+    ok(&kin(&[
+        "report",
+        m,
+        "--fit",
+        json.to_str().unwrap(),
+        d,
+        "-o",
+        html.to_str().unwrap(),
+    ]));
+    let html = std::fs::read_to_string(&html).unwrap();
+    assert!(html.contains("σ̂/σ, against the stated noise"));
+    assert!(html.contains(
+        "±3σ of the instrument's stated noise (±0.900 um on positions, ±60.0 urad on rotations"
+    ));
+    let s = ok(&kin(&[
+        "fit",
+        m,
+        d,
+        "--noise",
+        "0.1um",
+        "--noise-tilt",
+        "7urad",
+    ]));
+    assert!(after(&s, "σ̂/σ =") > 2.5, "{s}");
+    assert!(s.contains("the residuals exceed the stated noise"), "{s}");
+
+    let s = ok(&kin(&["fit", m, d]));
+    assert!(
+        !s.contains("σ̂/σ")
+            && s.contains("σ̂ mixes um on positions and lengths with urad on rotations"),
+        "{s}"
+    );
+
+    let s = ok(&kin(&["diagnose", m, d]));
+    let second = s.lines().nth(1).unwrap_or("");
+    assert!(second.contains("σ̂ mixes um on positions"), "{s}");
+
+    let out = kin(&["fit", m, d, "--noise", "0.3um"]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));
+    assert!(
+        text(&out.stderr).contains("no noise is stated for them"),
+        "{}",
+        text(&out.stderr)
+    );
+}
+
+/// The same model fitted to two data sets is not "improved" by the second; a refit of the same
+/// model on the same data is "unchanged"; the same path with other contents is new data; and
+/// only a changed model on the same data is "model revised".
+#[test]
+fn the_history_compares_fits_of_the_same_data_only() {
+    let dir = scratch("history");
+    let model = dir.join("cmm3.kin");
+    std::fs::write(&model, cmm3(CMM3_ERRORS)).unwrap();
+    let truth = dir.join("truth.params");
+    std::fs::write(&truth, CMM3_TRUTH).unwrap();
+    let (a, b) = (dir.join("a.csv"), dir.join("b.csv"));
+    let m = model.to_str().unwrap();
+    let t = truth.to_str().unwrap();
+    simulate(m, t, 300, 1, &["--noise", "0.3um"], a.to_str().unwrap());
+    // Three times the noise: a comparison with `a` would read as a worse model.
+    simulate(m, t, 300, 2, &["--noise", "0.9um"], b.to_str().unwrap());
+
+    let first = ok(&kin(&["fit", m, a.to_str().unwrap()]));
+    assert!(
+        !first.contains("model revised") && !first.contains("new data"),
+        "{first}"
+    );
+    let again = ok(&kin(&["fit", m, a.to_str().unwrap()]));
+    assert!(
+        again.contains("unchanged: the model and the data are those of the fit"),
+        "{again}"
+    );
+    let other = ok(&kin(&["fit", m, b.to_str().unwrap()]));
+    assert!(other.contains("new data:"), "{other}");
+    assert!(
+        !other.contains("model revised") && !other.contains(" %)"),
+        "{other}"
+    );
+
+    // Same path, other contents.
+    simulate(m, t, 300, 3, &["--noise", "0.3um"], a.to_str().unwrap());
+    let edited = ok(&kin(&["fit", m, a.to_str().unwrap()]));
+    assert!(edited.contains("new data:"), "{edited}");
+
+    // A revised model on data fitted before: the before/after.
+    let revised = CMM3_ERRORS.replace(
+        "Y.ty = linear(Y)\n",
+        "Y.ty = linear(Y)\n        Y.tx = const\n",
+    );
+    std::fs::write(&model, cmm3(&revised)).unwrap();
+    let s = ok(&kin(&["fit", m, b.to_str().unwrap()]));
+    assert!(s.contains("model revised: 7 → 8 parameters"), "{s}");
+
+    // Every record keeps its data key and binned residuals; an old record without them reads.
+    let history = dir.join("cmm3.kin.history.jsonl");
+    let records = std::fs::read_to_string(&history).unwrap();
+    for line in records.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert!(
+            v["data_hash"].is_string() && v["binned"].is_array(),
+            "{line}"
+        );
+    }
+    let old = r#"{"time":1,"model_hash":"0","parameters":7,"rows":900,"sigma":0.3,"rms":0.3,"error_unit":"um","files":[{"path":"b.csv","rms":0.3}]}"#;
+    std::fs::write(&history, format!("{old}\n{records}")).unwrap();
+    let out = kin(&["fit", m, b.to_str().unwrap()]);
+    let s = ok(&out);
+    assert!(s.contains("unchanged"), "{s}");
+    assert!(
+        !text(&out.stderr).contains("warning"),
+        "{}",
+        text(&out.stderr)
+    );
+}
+
+/// `--apply` of a periodic candidate with a fitted wavelength writes the refit's wavelength back
+/// as the line's start value; the text before the command stays in MACHINE.previous; the
+/// previous round's comparison is not printed again; and the report shows each round's
+/// residuals as they were.
+#[test]
+fn apply_writes_the_fitted_wavelength_back_and_the_report_keeps_every_round() {
+    let dir = scratch("apply");
+    let model = dir.join("cmm3.kin");
+    std::fs::write(&model, cmm3(CMM3_ERRORS)).unwrap();
+    let truth_model = dir.join("truth.kin");
+    let truth_errors = CMM3_ERRORS.replace(
+        "X.tx = spline(X, knots 2)\n",
+        "X.tx = spline(X, knots 2)\n        X.tx += periodic(X, wavelength 47 mm, knots 2)\n",
+    );
+    std::fs::write(&truth_model, cmm3(&truth_errors)).unwrap();
+    let truth = dir.join("truth.params");
+    std::fs::write(
+        &truth,
+        "params {\n    X.tx = [3, -2, 1, 0.5, 1.2, 0.8] um\n    X.rz[0] = 4 urad\n    Y.ty[0] = 1.5 um\n    Z.tz[0] = 2 um\n}\n",
+    )
+    .unwrap();
+    let data = dir.join("points.csv");
+    let (m, d) = (model.to_str().unwrap(), data.to_str().unwrap());
+    simulate(
+        truth_model.to_str().unwrap(),
+        truth.to_str().unwrap(),
+        800,
+        3,
+        &["--noise", "0.2um"],
+        d,
+    );
+    let s = ok(&kin(&["diagnose", m, d]));
+    let lines: Vec<&str> = s.lines().collect();
+    let at = lines
+        .iter()
+        .position(|l| {
+            l.trim()
+                .starts_with("add: X.tx += periodic(X, wavelength fit ")
+        })
+        .unwrap_or_else(|| panic!("a periodic candidate with a fitted wavelength:\n{s}"));
+    let scanned = after(lines[at], "wavelength fit");
+    let n: String = lines[..at]
+        .iter()
+        .rev()
+        .find_map(|l| l.trim().split_once(". ").map(|(n, _)| n.to_string()))
+        .expect("numbered candidate");
+    let original = std::fs::read_to_string(&model).unwrap();
+
+    let s = ok(&kin(&["diagnose", m, d, "--apply", &n]));
+    // The comparison printed is the one of this round only.
+    assert_eq!(s.matches("model revised").count(), 1, "{s}");
+    let wrote = s
+        .lines()
+        .find(|l| l.starts_with("wrote the fitted X.tx.wavelength"))
+        .unwrap_or_else(|| panic!("the fitted wavelength written back:\n{s}"));
+    let revised = std::fs::read_to_string(&model).unwrap();
+    let line = revised
+        .lines()
+        .find(|l| l.contains("X.tx += periodic(X, wavelength fit "))
+        .expect("the applied line");
+    let written = after(line, "wavelength fit");
+    assert!(written != scanned, "{wrote}\n{line}");
+    assert!((written - 47.0).abs() < 1.0, "{line}");
+    assert_eq!(
+        std::fs::read_to_string(dir.join("cmm3.kin.previous")).unwrap(),
+        original
+    );
+    // Started at its optimum, the next fit is of the same model: nothing changed.
+    let json = dir.join("fit.json");
+    let s = ok(&kin(&["fit", m, d, "-o", json.to_str().unwrap()]));
+    assert!(s.contains("unchanged"), "{s}");
+
+    let html = dir.join("report.html");
+    ok(&kin(&[
+        "report",
+        m,
+        "--fit",
+        json.to_str().unwrap(),
+        d,
+        "-o",
+        html.to_str().unwrap(),
+    ]));
+    let html = std::fs::read_to_string(&html).unwrap();
+    for round in ["round 1: ex along X", "round 2: ex along X"] {
+        assert!(html.contains(round), "the report lacks `{round}`");
+    }
+    assert!(!html.contains("larger than the noise allows"));
+}

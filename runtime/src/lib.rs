@@ -7,6 +7,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 pub mod bench;
 pub mod bounded_read;
+pub mod compensate;
 pub mod data;
 pub mod diagnose;
 pub mod embed;

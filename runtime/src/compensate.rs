@@ -16,7 +16,7 @@
 //! they stay in the remaining error, which is reported per pose.
 
 use kin_compiler::ir::{JointKind, Machine};
-use nalgebra::{DMatrix, DVector, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix4, Vector6};
 use thiserror::Error;
 
 use crate::exact;
@@ -138,46 +138,44 @@ impl<'m> Compensator<'m> {
     /// are kept; the directions are those of the commanded motion, which the small correction
     /// does not reverse).
     pub fn compensate(&mut self, state: &State) -> Result<Correction, CompensateError> {
+        self.compensate_with(state, None)
+    }
+
+    /// As [`Compensator::compensate`], moving only the axes `free` marks (indexed like
+    /// `Machine::axes`; all of them when `None`): what a per-axis controller table can do.
+    pub fn compensate_with(
+        &mut self,
+        state: &State,
+        free: Option<&[bool]>,
+    ) -> Result<Correction, CompensateError> {
         check_range(self.m, state.q)?;
         let n = self.m.axes.len();
-        let commanded = Pose {
-            q: state.q,
-            tool: state.tool,
-            tool_offset: state.tool_offset,
-        };
-        let target = exact::nominal_transform(self.m, &commanded)?;
+        let target = self.target(state)?;
         let w = Vector6::from(self.options.weights);
         let mut dq = vec![0.0; n];
-        let mut before = None;
+        let mut residual = self.error_at(state, &dq, &target)?;
+        let before = residual;
         let mut rank = 0;
-        let mut residual = Vector6::zeros();
-        for step in 0..=self.options.iterations {
-            for ((slot, q), d) in self.q.iter_mut().zip(state.q).zip(&dq) {
-                *slot = q + d;
-            }
+        for step in 0..self.options.iterations {
+            // The Jacobian at the pose reached so far (`self.q` holds it after `error_at`).
             let moved = State {
                 q: &self.q,
                 ..*state
             };
-            self.it.frame_errors(&moved, self.beta, &mut self.errors)?;
-            let pose = Pose {
-                q: &self.q,
-                tool: state.tool,
-                tool_offset: state.tool_offset,
-            };
-            let actual = exact::actual_transform(self.m, &pose, &self.errors)?;
-            residual = exact::location_error(&target, &actual);
-            before.get_or_insert(residual);
-            if step == self.options.iterations {
-                break;
-            }
             self.it.nominal_jacobian(&moved, &mut self.jacobian)?;
+            if let Some(free) = free {
+                for (j, column) in self.jacobian.iter_mut().enumerate() {
+                    if !free.get(j).copied().unwrap_or(false) {
+                        *column = Vector6::zeros();
+                    }
+                }
+            }
             let (delta, r) = solve(&self.jacobian, &w, &residual, self.options.rank_tolerance)?;
             rank = r;
             for (d, x) in dq.iter_mut().zip(delta.iter()) {
                 *d += x;
             }
-            // The step's effect on the weighted error; below a picometre it no longer matters.
+            // The step's effect on the weighted error: below a picometre it no longer matters.
             let effect: f64 = self
                 .jacobian
                 .iter()
@@ -185,32 +183,66 @@ impl<'m> Compensator<'m> {
                 .map(|(j, x)| j.component_mul(&w) * *x)
                 .sum::<Vector6<f64>>()
                 .norm();
+            residual = self.error_at(state, &dq, &target)?;
             if effect < 1e-12 && step > 0 {
-                // One more evaluation for the reported remaining error.
-                for ((slot, q), d) in self.q.iter_mut().zip(state.q).zip(&dq) {
-                    *slot = q + d;
-                }
-                let moved = State {
-                    q: &self.q,
-                    ..*state
-                };
-                self.it.frame_errors(&moved, self.beta, &mut self.errors)?;
-                let pose = Pose {
-                    q: &self.q,
-                    tool: state.tool,
-                    tool_offset: state.tool_offset,
-                };
-                let actual = exact::actual_transform(self.m, &pose, &self.errors)?;
-                residual = exact::location_error(&target, &actual);
                 break;
             }
         }
         Ok(Correction {
             dq,
-            before: before.unwrap_or(residual).into(),
+            before: before.into(),
             after: residual.into(),
             rank,
         })
+    }
+
+    /// The predicted error (exact transforms) of the commanded pose `state` when the axes are
+    /// moved by `dq` instead: how well some other correction (a controller table's) does.
+    pub fn remaining(&mut self, state: &State, dq: &[f64]) -> Result<[f64; 6], CompensateError> {
+        let target = self.target(state)?;
+        Ok(self.error_at(state, dq, &target)?.into())
+    }
+
+    /// The nominal location the commanded pose asks for.
+    fn target(&self, state: &State) -> Result<Matrix4<f64>, CompensateError> {
+        let commanded = Pose {
+            q: state.q,
+            tool: state.tool,
+            tool_offset: state.tool_offset,
+        };
+        Ok(exact::nominal_transform(self.m, &commanded)?)
+    }
+
+    /// The actual location at `state.q + dq` (errors evaluated there, same tool, inputs and
+    /// directions) against `target`; leaves `self.q` at the moved pose.
+    fn error_at(
+        &mut self,
+        state: &State,
+        dq: &[f64],
+        target: &Matrix4<f64>,
+    ) -> Result<Vector6<f64>, CompensateError> {
+        if dq.len() != self.q.len() {
+            return Err(KinematicsError::JointCount {
+                expected: self.q.len(),
+                got: dq.len(),
+            }
+            .into());
+        }
+        for ((slot, q), d) in self.q.iter_mut().zip(state.q).zip(dq) {
+            *slot = q + d;
+        }
+        let moved = State {
+            q: &self.q,
+            ..*state
+        };
+        self.it.frame_errors(&moved, self.beta, &mut self.errors)?;
+        let pose = Pose {
+            q: &self.q,
+            tool: state.tool,
+            tool_offset: state.tool_offset,
+        };
+        let actual = exact::actual_transform(self.m, &pose, &self.errors)?;
+        Ok(exact::location_error(target, &actual))
     }
 }
 

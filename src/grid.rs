@@ -155,10 +155,12 @@ pub fn parse(spec: &str, m: &Machine) -> Result<Grid, String> {
             None if axis.continuous || (axis.range[0] <= 0.0 && axis.range[1] >= 0.0) => {
                 out.push(vec![0.0])
             }
-            None => return Err(format!(
+            None => {
+                return Err(format!(
                 "axis {} is not in the grid and 0 is outside its range: give it (e.g. {}=VALUE)",
                 axis.name, axis.name
-            )),
+            ))
+            }
         }
     }
     let used = kin_runtime::states::used_vars(m);

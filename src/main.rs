@@ -4,6 +4,7 @@ mod args;
 mod bench;
 mod check;
 mod compensate;
+mod correct;
 mod demo;
 mod diagnose;
 mod files;
@@ -298,6 +299,29 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// A measuring machine's coordinates corrected by its fitted model: measured minus
+    /// predicted error, with each corrected coordinate's standard uncertainty (eq. 4.12).
+    ///
+    /// Example: kin correct cmm.kin --fit FIT.json points.csv -o corrected.csv
+    ///
+    /// POINTS.csv holds a pose per row (axis positions, dir_AXIS, tool, inputs, time, as in a
+    /// point file; error columns there are not read into the result). The output adds the
+    /// measured coordinates x y z (nominal kinematics), x_corrected …, and u_x ….
+    #[command(verbatim_doc_comment)]
+    Correct {
+        machine: PathBuf,
+        /// The fit report written by `kin fit -o` (a fit of another machine is refused).
+        #[arg(long)]
+        fit: PathBuf,
+        points: PathBuf,
+        /// The corrected CSV; never one of the inputs, replaced atomically.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        ignore: Ignore,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
     /// A measurement on this computer, not a test.
@@ -503,6 +527,21 @@ fn main() -> ExitCode {
             grid,
             correct,
             table,
+            output,
+            ignore: ignore.columns,
+            color: color.enabled(),
+        }),
+        Command::Correct {
+            machine,
+            fit,
+            points,
+            output,
+            ignore,
+            color,
+        } => correct::run(correct::CorrectArgs {
+            machine,
+            fit,
+            points,
             output,
             ignore: ignore.columns,
             color: color.enabled(),

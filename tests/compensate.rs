@@ -80,11 +80,15 @@ const TRUTH: &str =
 /// Writes the machine, simulates it without noise and fits it; returns the folder, the
 /// machine and the fit.
 fn fitted(name: &str) -> (PathBuf, PathBuf, PathBuf) {
+    fitted_source(name, MILL)
+}
+
+fn fitted_source(name: &str, source: &str) -> (PathBuf, PathBuf, PathBuf) {
     let d = dir().join(name);
     std::fs::create_dir_all(&d).expect("dir");
     let machine = d.join("mill3.kin");
     let truth = d.join("truth.params");
-    std::fs::write(&machine, MILL).expect("write");
+    std::fs::write(&machine, source).expect("write");
     std::fs::write(&truth, TRUTH).expect("write");
     let sim = d.join("sim.csv");
     let fit = d.join("fit.json");
@@ -338,4 +342,72 @@ fn help_shows_an_example() {
         "{help}"
     );
     assert!(help.contains("linuxcnc"), "{help}");
+}
+
+#[test]
+fn correct_takes_the_predicted_error_off_measured_coordinates() {
+    let cmm = MILL.replace("task position", "task measure");
+    let (d, machine, fit) = fitted_source("correct", &cmm);
+    let s = |p: &Path| p.to_str().expect("utf-8 path").to_string();
+    // Fresh points and their true error (exact, no noise) from the truth.
+    let truth = d.join("truth.params");
+    let points = d.join("points.csv");
+    ok(&kin(&[
+        "simulate",
+        &s(&machine),
+        "--params",
+        &s(&truth),
+        "--sample",
+        "40",
+        "--seed",
+        "9",
+        "-o",
+        &s(&points),
+    ]));
+    let out = d.join("corrected.csv");
+    let o = kin(&[
+        "correct",
+        &s(&machine),
+        "--fit",
+        &s(&fit),
+        &s(&points),
+        "-o",
+        &s(&out),
+    ]);
+    ok(&o);
+    for (axis, k) in [("x", "ex"), ("y", "ey"), ("z", "ez")] {
+        let measured = column(&out, axis);
+        let corrected = column(&out, &format!("{axis}_corrected"));
+        let u = column(&out, &format!("u_{axis}"));
+        let true_error = column(&points, k);
+        assert_eq!(corrected.len(), 40);
+        for r in 0..40 {
+            // mm; the error in µm. The true coordinate is measured − true error.
+            let truth = measured[r] - true_error[r] * 1e-3;
+            let miss = (corrected[r] - truth).abs() * 1e3;
+            assert!(
+                miss <= 5.0 * u[r] + 1e-4,
+                "{axis} row {r}: off by {miss} um, u = {} um",
+                u[r]
+            );
+            assert!(true_error[r].abs() > 1e-3 || axis == "z");
+        }
+    }
+    // A positioning machine is compensated, not corrected.
+    let (_, mill, mill_fit) = fitted("correct-refused");
+    let r = kin(&[
+        "correct",
+        &s(&mill),
+        "--fit",
+        &s(&mill_fit),
+        &s(&points),
+        "-o",
+        &s(&d.join("no.csv")),
+    ]);
+    assert_eq!(r.status.code(), Some(1));
+    assert!(
+        text(&r.stderr).contains("kin compensate"),
+        "{}",
+        text(&r.stderr)
+    );
 }

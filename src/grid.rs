@@ -35,7 +35,7 @@ fn range(text: &str, item: &str) -> Result<Vec<f64>, String> {
         [v] => Ok(vec![number(v, item)?]),
         [from, to, step] => {
             let (from, to, step) = (number(from, item)?, number(to, item)?, number(step, item)?);
-            if !(step > 0.0) || to < from {
+            if step <= 0.0 || to < from {
                 return Err(format!(
                     "`{item}`: a range is FROM:TO:STEP with FROM ≤ TO and STEP > 0"
                 ));
@@ -43,7 +43,7 @@ fn range(text: &str, item: &str) -> Result<Vec<f64>, String> {
             let span = to - from;
             // Steps that land on TO up to rounding count as landing on it.
             let steps = (span / step * (1.0 + 1e-12)).floor();
-            if !(steps < MAX_POINTS as f64) {
+            if steps >= MAX_POINTS as f64 {
                 return Err(format!(
                     "`{item}` has more than {MAX_POINTS} points: a larger STEP"
                 ));

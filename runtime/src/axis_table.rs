@@ -138,6 +138,9 @@ impl AxisTable {
 /// Twelve significant digits: well below a nanometre on any machine's travel, without the
 /// binary noise of the shortest round-trip form.
 fn format_number(v: f64) -> String {
+    if v == 0.0 {
+        return "0".to_string();
+    }
     let text = format!("{:.*e}", 11, v);
     // Plain digits read more easily in a controller's file; `sscanf("%lf")` takes either.
     match text.parse::<f64>() {
@@ -147,7 +150,6 @@ fn format_number(v: f64) -> String {
             let plain = plain.trim_end_matches('0').trim_end_matches('.');
             plain.to_string()
         }
-        Ok(x) if x == 0.0 => "0".to_string(),
         _ => text,
     }
 }

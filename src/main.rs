@@ -3,10 +3,13 @@
 mod args;
 mod bench;
 mod check;
+mod compensate;
+mod correct;
 mod demo;
 mod diagnose;
 mod files;
 mod fit;
+mod grid;
 mod load;
 mod render;
 mod report;
@@ -265,6 +268,70 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// Corrections of a positioning machine's axes that cancel its fitted errors (Soons 1993,
+    /// §2.3.5), at commanded poses, or as controller tables.
+    ///
+    /// Example: kin compensate mill.kin --fit FIT.json --grid X=0:500:50,Y=0:400:50,Z=-100
+    /// -o corrections.csv
+    ///
+    /// The CSV holds per pose the predicted error (ex … erz), the correction to add to each
+    /// axis command (corr_AXIS), the error the model predicts after it (rest_…: what the axes
+    /// cannot correct) and the standard uncertainty of the prediction (u_…).
+    #[command(verbatim_doc_comment)]
+    Compensate {
+        machine: PathBuf,
+        /// The fit report written by `kin fit -o` (a fit of another machine is refused).
+        #[arg(long)]
+        fit: PathBuf,
+        /// Commanded poses: a point file's pose columns (axes, dir_AXIS, tool, inputs, time).
+        #[arg(long, conflicts_with = "grid", required_unless_present = "grid")]
+        poses: Option<PathBuf>,
+        /// Commanded poses on a grid: comma-separated NAME=VALUE or NAME=FROM:TO:STEP, NAME an
+        /// axis (the model's length or angle unit) or an input (its declared unit), plus
+        /// dir_AXIS=+1|-1 and tool=NAME. A range always ends at TO; an axis left out is held
+        /// at 0. Example: X=0:500:50,Y=0:400:50,Z=-100,T_spindle=0.
+        #[arg(long, value_name = "SPEC")]
+        grid: Option<String>,
+        /// What the corrections minimise: the whole tool location or its position only.
+        #[arg(long, value_enum, default_value_t = compensate::Correct::Pose)]
+        correct: compensate::Correct,
+        /// Write controller tables instead of the CSV: `linuxcnc` writes AXIS.comp (LinuxCNC
+        /// COMP_FILE, COMP_FILE_TYPE = 0) for every axis --grid ranges over, evaluated with the
+        /// other axes at the middle of their grid values, into the folder -o, with
+        /// kin-compensation.txt saying what the tables cannot hold.
+        #[arg(long, value_enum, requires = "grid")]
+        table: Option<compensate::Table>,
+        /// The CSV (a folder with --table); never one of the inputs, replaced atomically.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        ignore: Ignore,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
+    /// A measuring machine's coordinates corrected by its fitted model: measured minus
+    /// predicted error, with each corrected coordinate's standard uncertainty (eq. 4.12).
+    ///
+    /// Example: kin correct cmm.kin --fit FIT.json points.csv -o corrected.csv
+    ///
+    /// POINTS.csv holds a pose per row (axis positions, dir_AXIS, tool, inputs, time, as in a
+    /// point file; error columns there are not read into the result). The output adds the
+    /// measured coordinates x y z (nominal kinematics), x_corrected …, and u_x ….
+    #[command(verbatim_doc_comment)]
+    Correct {
+        machine: PathBuf,
+        /// The fit report written by `kin fit -o` (a fit of another machine is refused).
+        #[arg(long)]
+        fit: PathBuf,
+        points: PathBuf,
+        /// The corrected CSV; never one of the inputs, replaced atomically.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        ignore: Ignore,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
     /// A measurement on this computer, not a test.
@@ -454,6 +521,42 @@ fn main() -> ExitCode {
             fit,
             diagnose,
             data,
+            output,
+            ignore: ignore.columns,
+            color: color.enabled(),
+        }),
+        Command::Compensate {
+            machine,
+            fit,
+            poses,
+            grid,
+            correct,
+            table,
+            output,
+            ignore,
+            color,
+        } => compensate::run(compensate::CompensateArgs {
+            machine,
+            fit,
+            poses,
+            grid,
+            correct,
+            table,
+            output,
+            ignore: ignore.columns,
+            color: color.enabled(),
+        }),
+        Command::Correct {
+            machine,
+            fit,
+            points,
+            output,
+            ignore,
+            color,
+        } => correct::run(correct::CorrectArgs {
+            machine,
+            fit,
+            points,
             output,
             ignore: ignore.columns,
             color: color.enabled(),

@@ -485,6 +485,9 @@ pub enum ExtraQuantity {
     Error,
     /// A rotation error (the tilt unit).
     Tilt,
+    /// A position or coordinate (the length unit), e.g. the corrected coordinates of
+    /// `kin correct`.
+    Length,
 }
 
 #[derive(Debug, Error)]

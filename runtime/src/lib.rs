@@ -5,8 +5,10 @@
 // `!(x > 0.0)` is written on purpose: it is also true for NaN, which must fail the same checks
 // as a non-positive number.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+pub mod axis_table;
 pub mod bench;
 pub mod bounded_read;
+pub mod compensate;
 pub mod data;
 pub mod diagnose;
 pub mod embed;

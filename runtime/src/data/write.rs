@@ -73,11 +73,16 @@ fn extra_columns<'a>(
     units: &DisplayUnits,
     options: &'a WriteOptions,
 ) -> impl Iterator<Item = Column<'a>> + 'a {
-    let (error, tilt) = (units.error.clone(), units.tilt.clone());
+    let (error, tilt, length) = (
+        units.error.clone(),
+        units.tilt.clone(),
+        units.length.clone(),
+    );
     options.extra.iter().map(move |c| {
         let unit = match c.quantity {
             ExtraQuantity::Error => &error,
             ExtraQuantity::Tilt => &tilt,
+            ExtraQuantity::Length => &length,
         };
         Column::number(&c.name, unit, &c.values, false)
     })

@@ -247,6 +247,7 @@ pub fn observations(
     let options = ReadOptions {
         poses,
         ignore: ignore.to_vec(),
+        ..ReadOptions::default()
     };
     data::read_file(path, &compiled.machine, &options).map_err(|e| {
         eprintln!("error: {e}");

@@ -267,6 +267,7 @@ pub fn observations(
                         unknown.join(",")
                     );
                 }
+                eprintln!("note: the format of measurement files is described in spec/data.md");
                 Failed::INPUT
             }
         }

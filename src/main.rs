@@ -75,7 +75,8 @@ enum Command {
         /// Parameter values (`params { … }` file); the machine's own `params` block otherwise.
         #[arg(long)]
         params: Option<PathBuf>,
-        /// Poses to simulate: a point or length file (observed columns are not needed).
+        /// Poses to simulate: a point or length file (observed columns are not needed; the
+        /// format is in spec/data.md).
         #[arg(long, conflicts_with = "sample")]
         poses: Option<PathBuf>,
         /// Instead of a poses file, sample N poses over the axis ranges (1 to 10⁸).
@@ -112,7 +113,7 @@ enum Command {
     /// Fit the model's coefficients to measurement files by least squares.
     Fit {
         machine: PathBuf,
-        /// Point and length files (contract §3).
+        /// Point and length files (measurement files: spec/data.md).
         #[arg(required = true)]
         data: Vec<PathBuf>,
         /// Files to check the fitted model against, not fitted to.
@@ -175,6 +176,7 @@ enum Command {
     /// Where the fitted model fails, and which physical effect is missing from it.
     Diagnose {
         machine: PathBuf,
+        /// Point and length files (measurement files: spec/data.md).
         #[arg(required = true)]
         data: Vec<PathBuf>,
         /// Family-wise significance level of the candidate tests (0 < A < 1).
@@ -214,6 +216,7 @@ enum Command {
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     Eval {
         machine: PathBuf,
+        /// A point or length file of poses; observed columns are not needed (spec/data.md).
         poses: PathBuf,
         #[arg(long)]
         params: Option<PathBuf>,

@@ -7,6 +7,7 @@ mod demo;
 mod diagnose;
 mod files;
 mod fit;
+mod iso;
 mod load;
 mod render;
 mod report;
@@ -212,6 +213,15 @@ enum Command {
         ignore: Ignore,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
+    },
+    /// ISO 230-2 figures of a bidirectional positioning run along one axis: per target the
+    /// mean deviations, standard uncertainties and reversal value; E, M, B, R and A.
+    #[command(name = "iso230-2")]
+    Iso2302 {
+        /// The run: columns target, deviation, direction (+1/-1), cycle (spec/iso230-2.md).
+        run: PathBuf,
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
     },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     Eval {
@@ -452,5 +462,6 @@ fn main() -> ExitCode {
             seconds,
             color,
         } => bench::run(&machine, poses, seconds, color.enabled()),
+        Command::Iso2302 { run, format } => iso::run(&run, format),
     }
 }

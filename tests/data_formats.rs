@@ -105,3 +105,58 @@ fn a_file_still_wrong_names_file_line_column_and_what_was_expected() {
         assert!(err.contains(expected), "missing `{expected}` in:\n{err}");
     }
 }
+
+#[test]
+fn iso230_2_prints_the_published_figures_and_refuses_bad_runs() {
+    let run = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("runtime/src/iso230_2/ecmc_fat_sat.csv")
+        .display()
+        .to_string();
+    let out = kin(&["iso230-2", &run]);
+    assert_eq!(out.status.code(), Some(0), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    // The report prints B = 1.22e-05 mm, M = 2.77e-05 mm, A = 8.881e-05 mm; kin shows µm.
+    let figure = |label: &str| -> Vec<String> {
+        stdout
+            .lines()
+            .find(|l| l.starts_with(label))
+            .map(|l| l.split_whitespace().map(str::to_string).collect())
+            .unwrap_or_else(|| panic!("no `{label}` line in:\n{stdout}"))
+    };
+    assert!(
+        figure("B  reversal").contains(&"0.0122".to_string()),
+        "{stdout}"
+    );
+    assert!(
+        figure("M  mean").contains(&"0.0277".to_string()),
+        "{stdout}"
+    );
+    assert!(
+        figure("A  accuracy").contains(&"0.0888".to_string()),
+        "{stdout}"
+    );
+    let out = kin(&["iso230-2", &run, "--format", "json"]);
+    let json: serde_json::Value =
+        serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}"));
+    let r = json["axis"]["r"].as_f64().unwrap_or(f64::NAN);
+    assert!((r * 1e3 - 6.882e-05).abs() < 0.5e-8, "{r}");
+
+    let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+    let bad = write(
+        dir.path(),
+        "run.csv",
+        b"target;deviation;direction;cycle\n0;1,5;+1;1\n0;2;sideways;1\n",
+    );
+    let out = kin(&["iso230-2", &bad]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("line 3, column 5: `sideways`: expected +1"),
+        "{err}"
+    );
+    let out = kin(&[
+        "iso230-2",
+        &dir.path().join("missing.csv").display().to_string(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+}

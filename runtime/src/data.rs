@@ -17,6 +17,7 @@ use kin_compiler::units::UnitError;
 mod read;
 mod write;
 
+pub(crate) use read::{csv, inch_unit};
 pub use read::{read, read_file};
 pub use write::{write_file, write_lengths, write_points};
 

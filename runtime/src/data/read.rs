@@ -10,7 +10,7 @@ use kin_compiler::ir::{JointKind, Machine};
 use kin_compiler::units::{Dim, Unit, UnitError};
 use logos::Logos;
 
-mod csv;
+pub(crate) mod csv;
 
 use csv::{Dialect, SplitError};
 
@@ -137,14 +137,14 @@ enum Tok {
 /// A cell's span in its line, spaces around it excluded (ASCII ones; the slow path trims the
 /// rest). An empty cell has `start == end` at the place it would be.
 #[derive(Debug, Clone, Copy)]
-struct Cell {
-    start: usize,
-    end: usize,
+pub(crate) struct Cell {
+    pub(crate) start: usize,
+    pub(crate) end: usize,
     /// The cell is exactly one number token: the fast path may parse it directly.
     number: bool,
     /// Byte offset of the cell in the line as written, for its column in messages (the span
     /// may index a copy of the line with quotes removed).
-    origin: usize,
+    pub(crate) origin: usize,
 }
 
 fn split_cells(line: &str, cells: &mut Vec<Cell>) {
@@ -1121,7 +1121,7 @@ fn column_unit(
 
 /// Inch-based lengths, which instruments and exports in inch units write in headers. They are
 /// units of measurement files only: a `.kin` model states its own units.
-fn inch_unit(text: &str) -> Option<Unit> {
+pub(crate) fn inch_unit(text: &str) -> Option<Unit> {
     const INCH: f64 = 0.0254;
     let (name, scale) = match text {
         "in" => ("in", INCH),

@@ -6,11 +6,11 @@
 //! on its own line: measurement files have one record per line, and a line break inside a cell
 //! would make every later line number wrong in messages.
 
-use super::Cell;
+pub(crate) use super::Cell;
 
 /// How a file separates its cells, fixed from the header line (or by the caller).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) struct Dialect {
+pub(crate) struct Dialect {
     pub delimiter: u8,
     /// Spreadsheets in many locales write `1,5` for 1.5 when the separator is not a comma.
     pub decimal_comma: bool,
@@ -59,7 +59,7 @@ impl Dialect {
 
 /// A line that cannot be split: the byte offset in the line and what is wrong there.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum SplitError {
+pub(crate) enum SplitError {
     /// The quote opening a cell at this offset is not closed on the line.
     Unclosed(usize),
     /// Text follows the quote closing a cell at this offset instead of the separator.
@@ -73,7 +73,7 @@ fn is_blank(b: u8, delimiter: u8) -> bool {
 /// Splits `line` into `cells` whose spans index into `buf` (cleared first): quotes removed,
 /// doubled quotes undone, spaces around unquoted cells dropped. `Cell::origin` is the cell's
 /// byte offset in `line`, for columns in messages.
-pub(super) fn split(
+pub(crate) fn split(
     line: &str,
     delimiter: u8,
     buf: &mut String,
@@ -136,7 +136,7 @@ pub(super) fn split(
 
 /// A number with a decimal comma (`-1,25e-3`) read as with a point; `None` for anything else,
 /// so a thousands separator (`1.234,5`) or two commas are not guessed at.
-pub(super) fn decimal_comma(text: &str) -> Option<f64> {
+pub(crate) fn decimal_comma(text: &str) -> Option<f64> {
     if text.contains('.') || text.matches(',').count() != 1 {
         return None;
     }

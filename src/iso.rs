@@ -52,7 +52,7 @@ fn evaluate(path: &Path, format: Format) -> Result<(), Failed> {
 
 /// Decimals that show the largest figure with four significant digits.
 fn decimals(largest: f64) -> usize {
-    if !(largest > 0.0) {
+    if largest.is_nan() || largest <= 0.0 {
         return 3;
     }
     (3.0 - largest.log10().floor()).clamp(0.0, 12.0) as usize

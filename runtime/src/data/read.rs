@@ -1,7 +1,9 @@
 //! The reader. The header is small and read with plain string handling; data rows are the hot
 //! path (millions of numeric cells) and go through a logos lexer that finds cells and recognises
 //! a plain number in one pass. Anything the fast path does not recognise falls back to a careful,
-//! slow path that produces the diagnostic.
+//! slow path that produces the diagnostic. Lines with quotes, and files separated by `;` or tabs,
+//! are split by the CSV front end ([`csv`]) instead of the lexer; the cells then go through the
+//! same checks.
 
 use std::collections::HashMap;
 use std::path::Path;

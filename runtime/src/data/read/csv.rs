@@ -137,10 +137,23 @@ pub(crate) fn split(
 /// A number with a decimal comma (`-1,25e-3`) read as with a point; `None` for anything else,
 /// so a thousands separator (`1.234,5`) or two commas are not guessed at.
 pub(crate) fn decimal_comma(text: &str) -> Option<f64> {
-    if text.contains('.') || text.matches(',').count() != 1 {
+    // Rewritten on the stack: spreadsheet files have millions of such cells.
+    const LONGEST: usize = 64;
+    let bytes = text.as_bytes();
+    if bytes.len() > LONGEST || bytes.contains(&b'.') {
         return None;
     }
-    text.replacen(',', ".", 1)
+    let mut commas = bytes.iter().filter(|&&b| b == b',');
+    if commas.next().is_none() || commas.next().is_some() {
+        return None;
+    }
+    let mut copy = [0u8; LONGEST];
+    let copy = copy.get_mut(..bytes.len())?;
+    for (c, &b) in copy.iter_mut().zip(bytes) {
+        *c = if b == b',' { b'.' } else { b };
+    }
+    std::str::from_utf8(copy)
+        .ok()?
         .parse::<f64>()
         .ok()
         .filter(|v| v.is_finite())
@@ -215,5 +228,6 @@ mod tests {
         assert_eq!(decimal_comma("1,2,3"), None);
         assert_eq!(decimal_comma("a,b"), None);
         assert_eq!(decimal_comma("inf,0"), None);
+        assert_eq!(decimal_comma(&format!("1,{}", "0".repeat(70))), None);
     }
 }

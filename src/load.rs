@@ -247,6 +247,7 @@ pub fn observations(
     let options = ReadOptions {
         poses,
         ignore: ignore.to_vec(),
+        ..ReadOptions::default()
     };
     data::read_file(path, &compiled.machine, &options).map_err(|e| {
         eprintln!("error: {e}");
@@ -266,6 +267,7 @@ pub fn observations(
                         unknown.join(",")
                     );
                 }
+                eprintln!("note: the format of measurement files is described in spec/data.md");
                 Failed::INPUT
             }
         }

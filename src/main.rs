@@ -10,6 +10,7 @@ mod diagnose;
 mod files;
 mod fit;
 mod grid;
+mod iso;
 mod load;
 mod render;
 mod report;
@@ -80,7 +81,8 @@ enum Command {
         /// Parameter values (`params { … }` file); the machine's own `params` block otherwise.
         #[arg(long)]
         params: Option<PathBuf>,
-        /// Poses to simulate: a point or length file (observed columns are not needed).
+        /// Poses to simulate: a point or length file (observed columns are not needed; the
+        /// format is in spec/data.md).
         #[arg(long, conflicts_with = "sample")]
         poses: Option<PathBuf>,
         /// Instead of a poses file, sample N poses over the axis ranges (1 to 10⁸).
@@ -117,7 +119,7 @@ enum Command {
     /// Fit the model's coefficients to measurement files by least squares.
     Fit {
         machine: PathBuf,
-        /// Point and length files (contract §3).
+        /// Point and length files (measurement files: spec/data.md).
         #[arg(required = true)]
         data: Vec<PathBuf>,
         /// Files to check the fitted model against, not fitted to.
@@ -188,6 +190,7 @@ enum Command {
     /// Where the fitted model fails, and which physical effect is missing from it.
     Diagnose {
         machine: PathBuf,
+        /// Point and length files (measurement files: spec/data.md).
         #[arg(required = true)]
         data: Vec<PathBuf>,
         /// Family-wise significance level of the candidate tests (0 < A < 1).
@@ -224,9 +227,19 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// ISO 230-2 figures of a bidirectional positioning run along one axis: per target the
+    /// mean deviations, standard uncertainties and reversal value; E, M, B, R and A.
+    #[command(name = "iso230-2")]
+    Iso2302 {
+        /// The run: columns target, deviation, direction (+1/-1), cycle (spec/iso230-2.md).
+        run: PathBuf,
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
+    },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     Eval {
         machine: PathBuf,
+        /// A point or length file of poses; observed columns are not needed (spec/data.md).
         poses: PathBuf,
         #[arg(long)]
         params: Option<PathBuf>,
@@ -567,5 +580,6 @@ fn main() -> ExitCode {
             seconds,
             color,
         } => bench::run(&machine, poses, seconds, color.enabled()),
+        Command::Iso2302 { run, format } => iso::run(&run, format),
     }
 }

@@ -499,3 +499,125 @@ fn the_rule_splitter_sees_what_the_brief_pattern_sees() {
     assert_eq!(r[0].lines.len(), 4);
     assert_eq!(r[1].lines, ["y = { x }"]);
 }
+
+/// What a ` ```csv … ` info string asks for.
+#[derive(Debug, Default)]
+struct CsvExpect {
+    poses: bool,
+    error: bool,
+    kind: Option<&'static str>,
+}
+
+fn parse_csv_info(info: &str) -> Result<CsvExpect, String> {
+    let mut e = CsvExpect::default();
+    for word in info.split_whitespace().skip(1) {
+        match word {
+            "poses" => e.poses = true,
+            "error" => e.error = true,
+            "points" => e.kind = Some("points"),
+            "lengths" => e.kind = Some("lengths"),
+            _ => {
+                return Err(format!(
+                    "unknown word `{word}` in the info string (poses, error, points, lengths)"
+                ))
+            }
+        }
+    }
+    Ok(e)
+}
+
+/// Checks one ` ```csv ` block against `machine`; `message` is the ` ```text ` block that follows
+/// an error example, whose lines (without the CLI's `error: ` prefix and `help:` lines) must be
+/// lines of the reader's message.
+fn check_csv_block(
+    block: &Block,
+    machine: &kin_compiler::ir::Machine,
+    message: Option<&Block>,
+) -> Option<String> {
+    use kin_runtime::data::{read, Observations, ReadOptions};
+    let expect = match parse_csv_info(&block.info) {
+        Ok(e) => e,
+        Err(e) => return Some(e),
+    };
+    let options = ReadOptions {
+        poses: expect.poses,
+        ..ReadOptions::default()
+    };
+    let result = read(
+        block.text.as_bytes(),
+        Path::new("data.csv"),
+        machine,
+        &options,
+    );
+    match (result, expect.error) {
+        (Ok(_), true) => Some("is read without a problem, but is marked `error`".into()),
+        (Err(e), false) => Some(format!("is refused: {e}")),
+        (Err(e), true) => {
+            let Some(message) = message.filter(|m| m.language() == "text") else {
+                return Some(
+                    "an error example must be followed by a ```text block of its message".into(),
+                );
+            };
+            let printed = e.to_string();
+            let printed: Vec<&str> = printed.lines().map(str::trim).collect();
+            message
+                .text
+                .lines()
+                .map(|l| l.trim())
+                .filter(|l| !l.is_empty() && !l.starts_with("help:"))
+                .map(|l| l.strip_prefix("error: ").unwrap_or(l))
+                .find(|l| !printed.contains(l))
+                .map(|l| {
+                    format!(
+                        "the message lacks the line `{l}`; it is:\n{}",
+                        printed.join("\n")
+                    )
+                })
+        }
+        (Ok(o), false) => {
+            let kind = match o {
+                Observations::Points(_) => "points",
+                Observations::Lengths(_) => "lengths",
+            };
+            match expect.kind {
+                Some(k) if k != kind => Some(format!("is read as {kind}, not {k}")),
+                _ => None,
+            }
+        }
+    }
+}
+
+#[test]
+fn every_csv_block_of_the_spec_reads_as_annotated() {
+    let mut problems = Vec::new();
+    let mut checked = 0;
+    for (file, text) in spec_files() {
+        let blocks = fenced_blocks(&file, &text, &mut problems);
+        let mut machine = None;
+        for (i, block) in blocks.iter().enumerate() {
+            match block.language() {
+                "kin" if !block.info.contains("error=") => {
+                    machine = compile(&block.text).compiled.map(|c| c.machine);
+                }
+                "csv" => {
+                    checked += 1;
+                    let Some(m) = machine.as_ref() else {
+                        problems.push(format!("{}: no ```kin machine before it", block.place()));
+                        continue;
+                    };
+                    if let Some(p) = check_csv_block(block, m, blocks.get(i + 1)) {
+                        problems.push(format!("{}: {p}", block.place()));
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+    assert!(
+        problems.is_empty(),
+        "{} problem(s) in spec csv blocks:\n  {}",
+        problems.len(),
+        problems.join("\n  ")
+    );
+    assert!(checked >= 10, "only {checked} `csv` blocks found");
+}

@@ -11,7 +11,7 @@ use crate::basis::Basis;
 use crate::units::Unit;
 
 /// Measuring machines report `indicated − true`, positioning machines `actual − nominal`
-/// (contract §2; thesis eq. 2.31 / 2.34).
+/// (spec/kinematics.md; thesis eq. 2.31 / 2.34).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Task {
     Measure,
@@ -85,7 +85,7 @@ pub struct Input {
     pub range: Option<[f64; 2]>,
 }
 
-/// Which of the six parametric errors of a frame (contract §2): translations then rotations.
+/// Which of the six parametric errors of a frame (spec/kinematics.md): translations then rotations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub enum Component {
     Tx,

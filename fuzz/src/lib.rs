@@ -138,6 +138,8 @@ pub fn measurement_csv(data: &[u8]) {
         } else {
             Vec::new()
         },
+        // Detected from the header, so the fuzzer reaches every separator and quoting.
+        delimiter: None,
     };
     let m = &c.machine;
     match data::read(bytes, Path::new("fuzz.csv"), m, &options) {
@@ -174,6 +176,7 @@ fn tiny_poses() -> Option<&'static Observations> {
             let options = ReadOptions {
                 poses: true,
                 ignore: Vec::new(),
+                delimiter: None,
             };
             let m = &tiny()?.machine;
             data::read(TINY_POSES.as_bytes(), Path::new("poses.csv"), m, &options).ok()

@@ -1,8 +1,8 @@
-//! Measurement files (contract §3): point and length observations as CSV.
+//! Measurement files (spec/data.md): point and length observations as CSV.
 //!
 //! Reading is strict: every data row becomes an observation or a located [`Problem`]; nothing is
 //! dropped or guessed. Values come out columnar and in SI (m, rad, s, K, N), with observed errors
-//! in the file's sign, which is the machine's task sign (contract §2). Writing produces exactly
+//! in the file's sign, which is the machine's task sign (spec/kinematics.md). Writing produces exactly
 //! the format reading accepts, with every unit spelled out in the header.
 
 use std::fmt;
@@ -17,6 +17,7 @@ use kin_compiler::units::UnitError;
 mod read;
 mod write;
 
+pub(crate) use read::{csv, inch_unit};
 pub use read::{read, read_file};
 pub use write::{write_file, write_lengths, write_points};
 
@@ -37,6 +38,9 @@ pub struct ReadOptions {
     /// optional, and a row may observe nothing (all NaN). A length file is then also recognised
     /// by its `_1`/`_2` axis columns.
     pub poses: bool,
+    /// The cell separator: `b','`, `b';'` or `b'\t'`. `None` detects it from the header line
+    /// (spec/data.md). With a separator other than a comma, numbers may use a decimal comma.
+    pub delimiter: Option<u8>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -82,7 +86,7 @@ pub struct Rows {
     pub inputs: Vec<Option<Vec<f64>>>,
 }
 
-/// A point file (contract §3a).
+/// A point file (spec/data.md).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct PointData {
     pub rows: Rows,
@@ -92,7 +96,7 @@ pub struct PointData {
     pub observed: [Option<Vec<f64>>; 6],
 }
 
-/// A length file (contract §3b).
+/// A length file (spec/data.md).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct LengthData {
     pub rows: Rows,
@@ -262,6 +266,20 @@ pub enum Problem {
     NotUtf8 { line: usize, column: usize },
     #[error("no header row: the file holds only comments and blank lines")]
     NoHeader,
+    #[error(
+        "line {line}, column {column}: the quote opening this cell is not closed on its line \
+         (a quoted cell ends on its line; a quote inside it is written twice, `\"\"`)"
+    )]
+    UnclosedQuote { line: usize, column: usize },
+    #[error(
+        "line {line}, column {column}: text after the closing quote of a cell: expected the \
+         separator {separator} or the end of the line"
+    )]
+    AfterQuote {
+        line: usize,
+        column: usize,
+        separator: &'static str,
+    },
     #[error("no data rows after the header")]
     NoRows,
     #[error("line {line}, column {column}: empty column name")]

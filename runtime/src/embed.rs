@@ -7,7 +7,7 @@
 //! [`Model::set_beta`]. Evaluation takes `&self`, allocates nothing and takes no lock, so one
 //! model serves many threads at once, each with its own output buffers:
 //!
-//! - [`Model::eval`]: the tool-location error (task sign, contract §2) at a [`State`] for a β;
+//! - [`Model::eval`]: the tool-location error (task sign, spec/kinematics.md) at a [`State`] for a β;
 //! - [`Model::eval_jacobian`]: the error and its 6 × n β-Jacobian (the design-matrix rows);
 //! - [`Model::nominal_jacobian`]: the nominal tool location and its joint Jacobian;
 //! - [`Model::eval_rows`] and [`Model::eval_jacobian_rows`]: the same over many states at once

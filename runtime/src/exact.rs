@@ -7,7 +7,7 @@
 //! rather than in closed form, and reads errors off the actual transform with the rotation log
 //! map. Only the input types and the error enum are shared.
 //!
-//! All errors returned are *positioning* errors (actual − nominal, contract §2); apply
+//! All errors returned are *positioning* errors (actual − nominal, spec/kinematics.md); apply
 //! [`task_error`] for the reported sign.
 
 use kin_compiler::ir::{Element, FrameKind, JointKind, Machine, Shape};
@@ -17,7 +17,7 @@ pub use crate::kinematics::task_error;
 use crate::kinematics::{check_pose, Chain, FrameErrors, KinematicsError, Pose};
 
 /// The nominal location `T(wr→tl) = T(0→wr)⁻¹ · T(0→tl)` of the tool frame at `pose`
-/// (eq. 2.6–2.7, contract §2).
+/// (eq. 2.6–2.7, spec/kinematics.md).
 pub fn nominal_transform(
     machine: &Machine,
     pose: &Pose<'_>,
@@ -38,7 +38,7 @@ pub fn actual_transform(
     relative_location(machine, pose, Some(errors))
 }
 
-/// The exact positioning error `(ex, ey, ez, erx, ery, erz)` at `pose` (contract §2): the
+/// The exact positioning error `(ex, ey, ez, erx, ery, erz)` at `pose` (spec/kinematics.md): the
 /// translation of the actual `T(wr→tl)` minus the nominal one, and the rotation vector `r` of
 /// `R_act·R_nomᵀ`, both in wr axes.
 pub fn positioning_error(
@@ -51,7 +51,7 @@ pub fn positioning_error(
     Ok(location_error(&nominal, &actual))
 }
 
-/// The exact length error between two poses, positioning sign (contract §3b):
+/// The exact length error between two poses, positioning sign (spec/data.md):
 /// `|p2_act − p1_act| − |p2_nom − p1_nom|`, where `p_act` is the tool origin in the *actual*
 /// wr frame of its pose and `p_nom` in the nominal one. Each end is expressed in its own pose's
 /// wr frame because the measured object rides with the workpiece, whatever the table did
@@ -71,7 +71,7 @@ pub fn length_error(
     Ok((a2 - a1).norm() - (n2 - n1).norm())
 }
 
-/// The error of `actual` relative to `nominal`, both `T(wr→tl)`, as contract §2 defines it.
+/// The error of `actual` relative to `nominal`, both `T(wr→tl)`, as spec/kinematics.md defines it.
 pub fn location_error(nominal: &Matrix4<f64>, actual: &Matrix4<f64>) -> Vector6<f64> {
     let dp = actual.fixed_view::<3, 1>(0, 3) - nominal.fixed_view::<3, 1>(0, 3);
     let r_nom = nominal.fixed_view::<3, 3>(0, 0);
@@ -119,7 +119,7 @@ pub fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
     axis * angle
 }
 
-/// `T(wr→tl)` with or without errors: `T(0→wr)⁻¹ · T(0→tl)` (contract §2).
+/// `T(wr→tl)` with or without errors: `T(0→wr)⁻¹ · T(0→tl)` (spec/kinematics.md).
 fn relative_location(
     machine: &Machine,
     pose: &Pose<'_>,
@@ -210,7 +210,7 @@ fn error_transform(e: &[f64; 6]) -> Matrix4<f64> {
 }
 
 /// `Trans(t)·Rot_x(r_x)·Rot_y(r_y)·Rot_z(r_z)` as a product of elementary transforms: the
-/// form of both a shape transform (contract §1) and an error transform (eq. 2.8).
+/// form of both a shape transform (spec/kinematics.md) and an error transform (eq. 2.8).
 fn shape_or_error(t: [f64; 3], r: [f64; 3]) -> Matrix4<f64> {
     let mut translation = Matrix4::identity();
     translation[(0, 3)] = t[0];
@@ -235,7 +235,7 @@ fn elementary_rotation(axis: usize, angle: f64) -> Matrix4<f64> {
     m
 }
 
-/// The nominal joint motion `J(q)` (contract §1). A rotation is built in an orthonormal basis
+/// The nominal joint motion `J(q)` (spec/kinematics.md). A rotation is built in an orthonormal basis
 /// `(u, v, w)` with `w = u × v`: `u uᵀ + cos q (v vᵀ + w wᵀ) + sin q (w vᵀ − v wᵀ)`, which
 /// turns `v` towards `w` as a right-handed rotation about `u` must.
 fn joint_motion(kind: JointKind, direction: [f64; 3], q: f64) -> Matrix4<f64> {

@@ -33,7 +33,7 @@ pub enum EvalError {
     Missing { name: String },
 }
 
-/// One observation state, in SI units (contract §3): what an error is a function of.
+/// One observation state, in SI units (spec/data.md): what an error is a function of.
 #[derive(Debug, Clone, Copy)]
 pub struct State<'a> {
     /// Joint positions, indexed like `Machine::axes`.

@@ -2,13 +2,13 @@
 //! eq. 2.35–2.38): for one pose, the 6×6 matrices `F_k` that map the parametric errors of every
 //! frame to the error of the tool frame `tl` relative to the workpiece reference `wr`.
 //!
-//! # Conventions (contract §1–§2)
+//! # Conventions (spec/kinematics.md)
 //!
 //! * Every 6-vector is ordered translations first: a frame's parametric errors are
 //!   `(tx, ty, tz, rx, ry, rz)` in the frame's own axes, and a tool-location error is
 //!   `(ex, ey, ez, erx, ery, erz)`. The thesis (eq. 2.25/2.26) puts rotations first; here the
 //!   blocks are swapped so that both vectors index like [`Component`].
-//! * The tool-location error is the contract's: position error = translation of the actual
+//! * The tool-location error is as spec/kinematics.md defines it: position error = translation of the actual
 //!   `T(wr→tl)` minus the nominal one, in *wr* axes; rotation error `r` in *wr* axes with
 //!   `R_act ≈ (I + [r]×) R_nom`. The thesis expresses `wr E_tl` in the nominal *tl* axes
 //!   (eq. 2.11/2.12); its closing remark under eq. 2.28 says that premultiplying both blocks of
@@ -99,12 +99,12 @@ pub struct Pose<'a> {
     pub q: &'a [f64],
     /// Index into `Machine::tools`.
     pub tool: usize,
-    /// Replaces the translation of the selected tool's offset (contract §3a `tool_x/y/z`).
+    /// Replaces the translation of the selected tool's offset (spec/data.md `tool_x/y/z`).
     pub tool_offset: Option<[f64; 3]>,
 }
 
 /// The parametric errors of every frame at one pose, `(tx, ty, tz, rx, ry, rz)` in the frame's
-/// own axes (contract §2), in m and rad.
+/// own axes (spec/kinematics.md), in m and rad.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameErrors {
     pub tool_chain: Vec<[f64; 6]>,
@@ -570,7 +570,7 @@ fn propagation(rotation: &Matrix3<f64>, arm: &Vector3<f64>, sign: f64, f: &mut M
     f.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
 }
 
-/// Shape transform `S = Trans(t)·Rot_x(rx)·Rot_y(ry)·Rot_z(rz)` (contract §1, the form of
+/// Shape transform `S = Trans(t)·Rot_x(rx)·Rot_y(ry)·Rot_z(rz)` (spec/kinematics.md, the form of
 /// eq. 2.8), with the rotation product written out in closed form.
 fn shape_transform(shape: &Shape) -> Rigid {
     let [rx, ry, rz] = shape.rotation;
@@ -594,7 +594,7 @@ fn shape_transform(shape: &Shape) -> Rigid {
     }
 }
 
-/// Postmultiplies `g` by the joint transform `J_k(q)` (contract §1): a translation `q·u`, or a
+/// Postmultiplies `g` by the joint transform `J_k(q)` (spec/kinematics.md): a translation `q·u`, or a
 /// rotation by `q` about the unit axis `u` through the frame origin by Rodrigues' formula
 /// `cI + s[u]× + (1−c)uuᵀ`. Done in place because either joint leaves half of `g` untouched.
 fn apply_joint(g: &mut Rigid, kind: JointKind, u: &Vector3<f64>, q: f64) {
@@ -625,7 +625,7 @@ pub fn length_direction(
     }
 }
 
-/// First-order length error `dL = u·(Δp_2 − Δp_1)` (eq. 4.5, contract §3b), with `Δp` the
+/// First-order length error `dL = u·(Δp_2 − Δp_1)` (eq. 4.5, spec/data.md), with `Δp` the
 /// position errors of the two ends in wr axes.
 pub fn length_error(u: &Vector3<f64>, dp1: &Vector3<f64>, dp2: &Vector3<f64>) -> f64 {
     u.dot(&(dp2 - dp1))

@@ -2,7 +2,7 @@
 //!
 //! Each lag follows `dx/dt = (u − x)/τ` (the state-space model of eq. 3.42 with one mode,
 //! normalised to unit steady-state gain). Between consecutive rows the input is linear in time
-//! (contract §3a), for which the update is exact:
+//! (spec/data.md), for which the update is exact:
 //! `x₁ = u₁ − aτ + (x₀ − u₀ + aτ)·e^{−Δt/τ}`, `a = (u₁ − u₀)/Δt`;
 //! the particular solution of a ramp is `u − aτ`, and the difference from it decays with `e^{−Δt/τ}`.
 //! A run starts in steady state with its first input value.

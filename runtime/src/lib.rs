@@ -18,6 +18,7 @@ pub mod fit;
 pub mod history;
 pub mod identify;
 pub mod interp;
+pub mod iso230_2;
 pub mod jit;
 pub mod kinematics;
 pub mod lag;

@@ -1,6 +1,6 @@
 //! Observation states from measurement rows: what the interpreter evaluates, row by row.
 //!
-//! Lag states are integrated here, per run in time order (contract §3a), because they depend on
+//! Lag states are integrated here, per run in time order (spec/data.md), because they depend on
 //! the history of a run rather than on one row.
 
 use kin_compiler::ir::{Machine, Scalar, Var};

@@ -1,7 +1,9 @@
 //! The reader. The header is small and read with plain string handling; data rows are the hot
 //! path (millions of numeric cells) and go through a logos lexer that finds cells and recognises
 //! a plain number in one pass. Anything the fast path does not recognise falls back to a careful,
-//! slow path that produces the diagnostic.
+//! slow path that produces the diagnostic. Lines with quotes, and files separated by `;` or tabs,
+//! are split by the CSV front end ([`csv`]) instead of the lexer; the cells then go through the
+//! same checks.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -9,6 +11,10 @@ use std::path::Path;
 use kin_compiler::ir::{JointKind, Machine};
 use kin_compiler::units::{Dim, Unit, UnitError};
 use logos::Logos;
+
+pub(crate) mod csv;
+
+use csv::{Dialect, SplitError};
 
 use super::{
     Groups, LengthData, Observations, PointData, Pose, Problem, ReadError, ReadOptions, Rows,
@@ -62,14 +68,26 @@ pub fn read(
     let Some((header_line, header)) = header else {
         return Err(invalid(vec![Problem::NoHeader], 0));
     };
-    let mut reader = Reader::new(machine, options, header_line, header);
+    let dialect = options
+        .delimiter
+        .map_or_else(|| Dialect::detect(header), Dialect::with_delimiter);
+    let mut reader = Reader::new(machine, options, dialect, header_line, header);
     let mut cells = Vec::with_capacity(reader.columns.len());
+    let mut buf = String::new();
     for (number, line) in lines {
         if skipped(line) {
             continue;
         }
-        split_cells(line, &mut cells);
-        reader.row(number, line, &cells);
+        // The comma lexer is the hot path; quotes and other separators take the general one.
+        if dialect.delimiter == b',' && !line.contains('"') {
+            split_cells(line, &mut cells);
+            reader.row(number, line, line, &cells);
+        } else {
+            match csv::split(line, dialect.delimiter, &mut buf, &mut cells) {
+                Ok(()) => reader.row(number, line, &buf, &cells),
+                Err(e) => reader.unsplittable(number, line, e),
+            }
+        }
     }
     reader.finish().map_err(|p| invalid(p.list, p.omitted))
 }
@@ -84,6 +102,20 @@ fn not_utf8(bytes: &[u8], valid: usize) -> Problem {
     let column = 1 + std::str::from_utf8(prefix.get(line_start..).unwrap_or_default())
         .map_or(0, |s| s.chars().count());
     Problem::NotUtf8 { line, column }
+}
+
+fn split_problem(line_no: usize, line: &str, e: SplitError, dialect: Dialect) -> Problem {
+    match e {
+        SplitError::Unclosed(at) => Problem::UnclosedQuote {
+            line: line_no,
+            column: char_column(line, at),
+        },
+        SplitError::AfterQuote(at) => Problem::AfterQuote {
+            line: line_no,
+            column: char_column(line, at) + 1,
+            separator: dialect.name(),
+        },
+    }
 }
 
 /// Comments and blank lines carry no data; a comment may come before the header.
@@ -107,11 +139,14 @@ enum Tok {
 /// A cell's span in its line, spaces around it excluded (ASCII ones; the slow path trims the
 /// rest). An empty cell has `start == end` at the place it would be.
 #[derive(Debug, Clone, Copy)]
-struct Cell {
-    start: usize,
-    end: usize,
+pub(crate) struct Cell {
+    pub(crate) start: usize,
+    pub(crate) end: usize,
     /// The cell is exactly one number token: the fast path may parse it directly.
     number: bool,
+    /// Byte offset of the cell in the line as written, for its column in messages (the span
+    /// may index a copy of the line with quotes removed).
+    pub(crate) origin: usize,
 }
 
 fn split_cells(line: &str, cells: &mut Vec<Cell>) {
@@ -121,6 +156,7 @@ fn split_cells(line: &str, cells: &mut Vec<Cell>) {
         start: 0,
         end: 0,
         number: false,
+        origin: 0,
     };
     let mut tokens = 0usize;
     while let Some(tok) = lex.next() {
@@ -132,12 +168,14 @@ fn split_cells(line: &str, cells: &mut Vec<Cell>) {
                     start: span.end,
                     end: span.end,
                     number: false,
+                    origin: span.end,
                 };
                 tokens = 0;
             }
             other => {
                 if tokens == 0 {
                     cell.start = span.start;
+                    cell.origin = span.start;
                 }
                 tokens += 1;
                 cell.end = span.end;
@@ -250,6 +288,7 @@ struct Reader<'m> {
     /// Per run id, the last accepted time (SI) and its line.
     last_time: Vec<Option<(f64, usize)>>,
     has_run: bool,
+    dialect: Dialect,
 }
 
 /// 1-based character column of a byte offset in a line.
@@ -291,19 +330,27 @@ fn split_name(text: &str) -> Result<(&str, Option<&str>), &'static str> {
 }
 
 impl<'m> Reader<'m> {
-    fn new(machine: &'m Machine, options: &ReadOptions, line_no: usize, line: &str) -> Self {
+    fn new(
+        machine: &'m Machine,
+        options: &ReadOptions,
+        dialect: Dialect,
+        line_no: usize,
+        line: &str,
+    ) -> Self {
         let mut problems = Problems::default();
-        let raw: Vec<(usize, &str)> = {
-            let mut offset = 0;
-            line.split(',')
-                .map(|cell| {
-                    let lead = cell.len() - cell.trim_start().len();
-                    let start = offset + lead;
-                    offset += cell.len() + 1;
-                    (char_column(line, start), cell.trim())
-                })
-                .collect()
-        };
+        let mut buf = String::new();
+        let mut cells = Vec::new();
+        if let Err(e) = csv::split(line, dialect.delimiter, &mut buf, &mut cells) {
+            problems.push(split_problem(line_no, line, e, dialect));
+            cells.clear();
+        }
+        let raw: Vec<(usize, &str)> = cells
+            .iter()
+            .map(|c| {
+                let text = buf.get(c.start..c.end).unwrap_or("").trim();
+                (char_column(line, c.origin), text)
+            })
+            .collect();
         let ignored = |name: &str| options.ignore.iter().any(|i| i == name);
         let name_of = |text: &str| split_name(text).map_or(String::new(), |(n, _)| n.to_string());
         let names: Vec<String> = raw.iter().map(|(_, t)| name_of(t)).collect();
@@ -326,7 +373,7 @@ impl<'m> Reader<'m> {
         // Roles whose column is there, readable or not: a column with a bad unit is reported
         // once, as such, not again as missing.
         let mut present = Vec::new();
-        for &(column, text) in &raw {
+        for (index, &(column, text)) in raw.iter().enumerate() {
             let skip = |name: String| Column {
                 name,
                 role: None,
@@ -348,6 +395,11 @@ impl<'m> Reader<'m> {
                     continue;
                 }
             };
+            // pandas' `to_csv` writes the row index as a first column with no name.
+            if name.is_empty() && index == 0 && unit_text.is_none() && raw.len() > 1 {
+                columns.push(skip(String::new()));
+                continue;
+            }
             if name.is_empty() {
                 problems.push(Problem::EmptyName {
                     line: line_no,
@@ -452,10 +504,20 @@ impl<'m> Reader<'m> {
             artifacts: Interner::default(),
             last_time: Vec::new(),
             has_run,
+            dialect,
         }
     }
 
-    fn row(&mut self, line_no: usize, line: &str, cells: &[Cell]) {
+    /// A data line whose quotes do not close or are followed by text.
+    fn unsplittable(&mut self, line_no: usize, line: &str, e: SplitError) {
+        self.data_lines += 1;
+        let p = split_problem(line_no, line, e, self.dialect);
+        self.problems.push(p);
+    }
+
+    /// One data row: `raw` is the line as written (for columns), `line` the text the cells'
+    /// spans index into (the same line, or a copy with quotes removed).
+    fn row(&mut self, line_no: usize, raw: &str, line: &str, cells: &[Cell]) {
         self.data_lines += 1;
         if cells.len() != self.columns.len() {
             self.problems.push(Problem::CellCount {
@@ -466,6 +528,7 @@ impl<'m> Reader<'m> {
             return;
         }
         let poses = self.poses;
+        let decimal_comma = self.dialect.decimal_comma;
         let Reader {
             machine,
             columns,
@@ -483,7 +546,7 @@ impl<'m> Reader<'m> {
             let text = line.get(cell.start..cell.end).unwrap_or("").trim();
             problems.push(Problem::BadCell {
                 line: line_no,
-                column: char_column(line, cell.start),
+                column: char_column(raw, cell.origin),
                 name: name.to_string(),
                 text: excerpt(text),
                 expected,
@@ -493,14 +556,15 @@ impl<'m> Reader<'m> {
             let Some(role) = col.role else { continue };
             match (&mut col.store, role) {
                 (Store::Numbers(values), Role::Dir { .. }) => {
-                    let v = direction(line, cell);
+                    let v = direction(line, cell, decimal_comma);
                     if v.is_none() {
                         bad(problems, &col.name, cell, "+1 or -1".into());
                     }
                     values.push(v.unwrap_or(f64::NAN));
                 }
                 (Store::Numbers(values), _) => {
-                    let parsed = number(line, cell).map(|v| v.map(|v| v * col.scale + col.offset));
+                    let parsed = number(line, cell, decimal_comma)
+                        .map(|v| v.map(|v| v * col.scale + col.offset));
                     let required = match role {
                         Role::Axis { .. } | Role::Time => true,
                         Role::Dl => !poses,
@@ -514,7 +578,7 @@ impl<'m> Reader<'m> {
                                 let text = line.get(cell.start..cell.end).unwrap_or("").trim();
                                 problems.push(Problem::Implausible {
                                     line: line_no,
-                                    column: char_column(line, cell.start),
+                                    column: char_column(raw, cell.origin),
                                     name: col.name.clone(),
                                     text: excerpt(text),
                                     what,
@@ -567,7 +631,7 @@ impl<'m> Reader<'m> {
                         } else {
                             problems.push(Problem::UnknownTool {
                                 line: line_no,
-                                column: char_column(line, cell.start),
+                                column: char_column(raw, cell.origin),
                                 name: col.name.clone(),
                                 text: excerpt(text),
                                 declared: machine.tools.iter().map(|t| t.name.clone()).collect(),
@@ -758,7 +822,7 @@ impl<'m> Reader<'m> {
 }
 
 /// `Ok(None)` for an empty cell; `Err` for anything that is not a finite number.
-fn number(line: &str, cell: &Cell) -> Result<Option<f64>, ()> {
+fn number(line: &str, cell: &Cell, decimal_comma: bool) -> Result<Option<f64>, ()> {
     let raw = line.get(cell.start..cell.end).unwrap_or("");
     if cell.number {
         if let Ok(v) = raw.parse::<f64>() {
@@ -772,6 +836,7 @@ fn number(line: &str, cell: &Cell) -> Result<Option<f64>, ()> {
     // `f64::from_str` also reads `nan` and `inf`, which are not measurements.
     match text.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(Some(v)),
+        Err(_) if decimal_comma => csv::decimal_comma(text).map(Some).ok_or(()),
         _ => Err(()),
     }
 }
@@ -826,7 +891,7 @@ fn limit_text(bound: f64, scale: f64, unit: &str) -> String {
     }
 }
 
-fn direction(line: &str, cell: &Cell) -> Option<f64> {
+fn direction(line: &str, cell: &Cell, decimal_comma: bool) -> Option<f64> {
     let text = line.get(cell.start..cell.end).unwrap_or("").trim();
     match text {
         "+" => return Some(1.0),
@@ -834,10 +899,11 @@ fn direction(line: &str, cell: &Cell) -> Option<f64> {
         _ => {}
     }
     let text = text.replace('\u{2212}', "-");
-    match text.parse::<f64>() {
-        Ok(v) if v == 1.0 || v == -1.0 => Some(v),
-        _ => None,
-    }
+    let v = match text.parse::<f64>() {
+        Err(_) if decimal_comma => csv::decimal_comma(&text),
+        parsed => parsed.ok(),
+    };
+    v.filter(|&v| v == 1.0 || v == -1.0)
 }
 
 fn axis_column(axis: &str, kind: Kind, end: usize) -> String {
@@ -1033,7 +1099,10 @@ fn column_unit(
     let unit = match header {
         None => default,
         Some(text) => {
-            let unit = Unit::parse(text).map_err(UnitProblem::Parse)?;
+            let unit = match inch_unit(text) {
+                Some(unit) => unit,
+                None => Unit::parse(text).map_err(UnitProblem::Parse)?,
+            };
             if unit.dim != expected {
                 return Err(UnitProblem::Dimension {
                     unit: unit.name,
@@ -1052,8 +1121,29 @@ fn column_unit(
     }))
 }
 
+/// Inch-based lengths, which instruments and exports in inch units write in headers. They are
+/// units of measurement files only: a `.kin` model states its own units.
+pub(crate) fn inch_unit(text: &str) -> Option<Unit> {
+    const INCH: f64 = 0.0254;
+    let (name, scale) = match text {
+        "in" => ("in", INCH),
+        "mil" => ("mil", INCH * 1e-3),
+        "uin" | "\u{b5}in" | "\u{3bc}in" => ("uin", INCH * 1e-6),
+        _ => return None,
+    };
+    Some(Unit {
+        name: name.to_string(),
+        dim: Dim::LENGTH,
+        scale,
+        offset: 0.0,
+    })
+}
+
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod dialect_tests;
 
 #[cfg(test)]
 pub(crate) fn read_text(text: &str, machine: &Machine) -> Result<Observations, ReadError> {

@@ -14,7 +14,7 @@ use super::{
     OBSERVED, TOOL_OFFSET,
 };
 
-/// Writes a point file (contract §3a).
+/// Writes a point file (spec/data.md).
 pub fn write_points<W: Write>(
     out: W,
     machine: &Machine,
@@ -50,7 +50,7 @@ pub fn write_points<W: Write>(
     emit(out, &columns, n, options)
 }
 
-/// Writes a length file (contract §3b).
+/// Writes a length file (spec/data.md).
 pub fn write_lengths<W: Write>(
     out: W,
     machine: &Machine,

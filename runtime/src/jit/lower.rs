@@ -461,7 +461,7 @@ impl Builder<'_> {
         Rigid { r, t }
     }
 
-    /// Postmultiplies `g` by the joint motion `J(q)` (contract §1): a translation `q·u`, or
+    /// Postmultiplies `g` by the joint motion `J(q)` (spec/kinematics.md): a translation `q·u`, or
     /// Rodrigues' rotation `cI + s[u]× + (1−c)uuᵀ` about the unit axis `u`.
     fn joint(&mut self, g: &mut Rigid, kind: JointKind, u: [f64; 3], q: Id) {
         match kind {
@@ -934,7 +934,7 @@ fn cross_matrix_f(u: [f64; 3]) -> [[f64; 3]; 3] {
     [[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]]
 }
 
-/// Shape transform `S = Trans(t)·Rot_x(rx)·Rot_y(ry)·Rot_z(rz)` (contract §1, eq. 2.8), the
+/// Shape transform `S = Trans(t)·Rot_x(rx)·Rot_y(ry)·Rot_z(rz)` (spec/kinematics.md, eq. 2.8), the
 /// closed form of `kinematics::shape_transform`, evaluated once at compile time.
 pub(super) fn shape_transform(shape: &Shape) -> ([[f64; 3]; 3], [f64; 3]) {
     let [rx, ry, rz] = shape.rotation;

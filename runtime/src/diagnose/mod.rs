@@ -213,5 +213,6 @@ pub struct Diagnosis {
 
 mod analyse;
 pub mod library;
+mod periodic;
 
 pub use analyse::{diagnose, DiagnoseError, Settings};

@@ -131,6 +131,15 @@ const CASES: &[Case] = &[
         values: &[40.0, -25.0],
     },
     Case {
+        name: "periodic, two harmonics (X 20 mm)",
+        kind: Kind::Cmm,
+        family: Family::Periodic,
+        target: "X.tx",
+        // 5 µm at λ = 20 mm and 2 µm at λ/2: one round must take both harmonics.
+        hidden: "X.tx += fourier(X, harmonics 1..2, wavelength 20 mm)",
+        values: &[5.0, 0.0, 0.0, 2.0],
+    },
+    Case {
         name: "more knots (X.tx bump)",
         kind: Kind::Cmm,
         family: Family::MoreKnots,

@@ -8,6 +8,7 @@ use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 use thiserror::Error;
 
 use super::library::{self, Available, Proposal, Sampling};
+use super::periodic;
 use super::{
     Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, LackOfFit, NoiseCheck, Outlier,
     Plausibility, Region, Spectrum,
@@ -789,20 +790,43 @@ fn test_candidates(
     }
     // One finding per group (a lag at its best time constant); a BTreeMap and a tie-break on
     // the text keep the choice independent of any iteration order.
-    let mut best: BTreeMap<String, Tested> = BTreeMap::new();
+    let mut groups: BTreeMap<String, Vec<Tested>> = BTreeMap::new();
     for t in tested {
-        let g = proposals[t.proposal].group.clone();
-        match best.get(&g) {
-            Some(b)
-                if b.finding.f > t.finding.f
-                    || (b.finding.f == t.finding.f
-                        && b.finding.candidate.text <= t.finding.candidate.text) => {}
-            _ => {
-                best.insert(g, t);
+        groups
+            .entry(proposals[t.proposal].group.clone())
+            .or_default()
+            .push(t);
+    }
+    let mut all: Vec<Tested> = Vec::with_capacity(groups.len());
+    for (g, mut members) in groups {
+        // The readings of one periodic error: as many harmonics as the data support.
+        if periodic::is_series(&g) {
+            let readings: Vec<periodic::Reading> = members
+                .iter()
+                .map(|t| periodic::Reading {
+                    fourier: t.finding.candidate.text.contains("fourier("),
+                    columns: t.finding.columns,
+                    rss: t.rss,
+                    bic: t.finding.bic,
+                })
+                .collect();
+            if let Some(i) = periodic::choose(&readings, rows, base_rank, settings.alpha) {
+                all.push(members.swap_remove(i));
+            }
+            continue;
+        }
+        let mut best: Option<Tested> = None;
+        for t in members {
+            match &best {
+                Some(b)
+                    if b.finding.f > t.finding.f
+                        || (b.finding.f == t.finding.f
+                            && b.finding.candidate.text <= t.finding.candidate.text) => {}
+                _ => best = Some(t),
             }
         }
+        all.extend(best);
     }
-    let mut all: Vec<Tested> = best.into_values().collect();
     all.sort_by(|a, b| rank_order(&a.finding, &b.finding));
     let mut findings = equivalent_groups(all, rss_base);
     // The plausibility of the refit, for what the user may act on.

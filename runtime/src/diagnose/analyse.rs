@@ -404,6 +404,40 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
         .collect()
 }
 
+/// The normalised Lomb–Scargle power of the residuals `pts` (position, residual; mean and
+/// variance given) at one wavelength. `trig` is scratch space.
+fn periodogram(
+    pts: &[(f64, f64)],
+    mean: f64,
+    var: f64,
+    lambda: f64,
+    trig: &mut Vec<(f64, f64)>,
+) -> f64 {
+    let w = std::f64::consts::TAU / lambda;
+    // One sincos per point: the double angle gives τ's sums, the angle difference
+    // the projections (four trigonometric calls per point otherwise).
+    trig.clear();
+    trig.extend(pts.iter().map(|(x, _)| libm::sincos(w * x)));
+    let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| {
+        (s + 2.0 * sn * cs, c + cs * cs - sn * sn)
+    });
+    let (st, ct) = libm::sincos(0.5 * libm::atan2(s2, c2));
+    let (mut yc, mut ys, mut cc, mut ss) = (0.0, 0.0, 0.0, 0.0);
+    for ((_, y), (sn, cs)) in pts.iter().zip(trig.iter()) {
+        // sin(w(x − τ)) and cos(w(x − τ)) with wτ = atan2(s2, c2)/2.
+        let (sn, cs) = (sn * ct - cs * st, cs * ct + sn * st);
+        yc += (y - mean) * cs;
+        ys += (y - mean) * sn;
+        cc += cs * cs;
+        ss += sn * sn;
+    }
+    if cc > 0.0 && ss > 0.0 {
+        (yc * yc / cc + ys * ys / ss) / (2.0 * var)
+    } else {
+        0.0
+    }
+}
+
 /// Lomb–Scargle periodogram (Scargle 1982) of the residuals along each prismatic axis, per
 /// translation component: for non-uniform sampling, which is what real measurement plans are.
 fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<Spectrum> {
@@ -449,31 +483,34 @@ fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<S
             let mut power = Vec::with_capacity(count);
             for k in 0..count {
                 let lambda = longest * (shortest / longest).powf(k as f64 / (count - 1) as f64);
-                let w = std::f64::consts::TAU / lambda;
-                // One sincos per point: the double angle gives τ's sums, the angle difference
-                // the projections (four trigonometric calls per point otherwise).
-                trig.clear();
-                trig.extend(pts.iter().map(|(x, _)| libm::sincos(w * x)));
-                let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| {
-                    (s + 2.0 * sn * cs, c + cs * cs - sn * sn)
-                });
-                let (st, ct) = libm::sincos(0.5 * libm::atan2(s2, c2));
-                let (mut yc, mut ys, mut cc, mut ss) = (0.0, 0.0, 0.0, 0.0);
-                for ((_, y), (sn, cs)) in pts.iter().zip(&trig) {
-                    // sin(w(x − τ)) and cos(w(x − τ)) with wτ = atan2(s2, c2)/2.
-                    let (sn, cs) = (sn * ct - cs * st, cs * ct + sn * st);
-                    yc += (y - mean) * cs;
-                    ys += (y - mean) * sn;
-                    cc += cs * cs;
-                    ss += sn * sn;
-                }
-                let p = if cc > 0.0 && ss > 0.0 {
-                    (yc * yc / cc + ys * ys / ss) / (2.0 * var)
-                } else {
-                    0.0
-                };
                 wavelengths.push(lambda);
-                power.push(p);
+                power.push(periodogram(&pts, mean, var, lambda, &mut trig));
+            }
+            // The grid is ~1 % apart, but over tens of periods a wavelength off by that much
+            // drifts out of phase, and a candidate tested at it needs spurious harmonics to
+            // follow: the peak moves to the maximum between its neighbours (golden section).
+            if let Some(k) = (1..count.saturating_sub(1))
+                .max_by(|&a, &b| power[a].total_cmp(&power[b]))
+                .filter(|&k| power[k] >= power[k - 1] && power[k] >= power[k + 1])
+            {
+                let (mut a, mut b) = (wavelengths[k + 1], wavelengths[k - 1]);
+                let g = (5f64.sqrt() - 1.0) / 2.0;
+                for _ in 0..40 {
+                    let (c, d) = (b - g * (b - a), a + g * (b - a));
+                    if periodogram(&pts, mean, var, c, &mut trig)
+                        >= periodogram(&pts, mean, var, d, &mut trig)
+                    {
+                        b = d;
+                    } else {
+                        a = c;
+                    }
+                }
+                let best = 0.5 * (a + b);
+                let p = periodogram(&pts, mean, var, best, &mut trig);
+                if p > power[k] {
+                    wavelengths[k] = best;
+                    power[k] = p;
+                }
             }
             let peak = power.iter().copied().fold(0.0, f64::max);
             // Independent frequencies ≈ the number of periods the grid spans over the range.

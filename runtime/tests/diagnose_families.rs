@@ -713,6 +713,19 @@ fn a_two_harmonic_periodic_error_is_fixed_in_one_round() {
         assert!(after <= 1.1, "seed {seed}: rms after {after}");
         let nl = refit.nonlinear.as_ref().expect("a fitted wavelength");
         let (lambda, se) = (nl.values[0], nl.se[0].expect("its standard error"));
+        // Point 8: what the finding states is this refit's, not the scan's.
+        let stated = top.fitted.first().expect("the finding states its fitted λ");
+        assert!(
+            (stated.value - lambda * 1e3).abs() <= 0.1 * se * 1e3
+                && (stated.se - se * 1e3).abs() <= 0.1 * se * 1e3,
+            "seed {seed}: stated {stated:?}, refit {lambda} ± {se}"
+        );
+        let refit_rms = rms(&refit) / 1e-6;
+        assert!(
+            (top.rms_after - refit_rms).abs() <= 1e-3 * refit_rms,
+            "seed {seed}: stated RMS after {} µm, refit {refit_rms} µm",
+            top.rms_after
+        );
         let inside = (lambda - truth_lambda).abs() <= 2.0 * se;
         covered += usize::from(inside);
         lines.push(format!(

@@ -8,7 +8,7 @@ use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 use thiserror::Error;
 
 use super::library::{self, Available, Proposal, Sampling};
-use super::periodic;
+use super::{periodic, refit};
 use super::{
     Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, LackOfFit, NoiseCheck, Outlier,
     Plausibility, Region, Spectrum,
@@ -796,6 +796,7 @@ fn test_candidates(
                 rms_after: (rss / rows).sqrt() / s,
                 bic: rows * (rss / rss_base).ln() + added as f64 * rows.ln(),
                 plausibility: None,
+                fitted: Vec::new(),
             },
             basis: own,
             columns: own_cols,
@@ -880,6 +881,13 @@ fn test_candidates(
         f.finding.plausibility = Some(p);
     }
     let mut out: Vec<Finding> = findings.into_iter().map(|t| t.finding).collect();
+    // What a line with a fitted wavelength or time constant states comes from its refit.
+    for f in out
+        .iter_mut()
+        .filter(|f| f.significant && f.candidate.text.contains(" fit "))
+    {
+        refit::restate(f, compiled, source, files, options, settings.engine)?;
+    }
     out.sort_by(rank_order);
     Ok(out)
 }

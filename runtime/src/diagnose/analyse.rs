@@ -886,7 +886,15 @@ fn test_candidates(
         .iter_mut()
         .filter(|f| f.significant && f.candidate.text.contains(" fit "))
     {
-        refit::restate(f, compiled, source, files, options, settings.engine)?;
+        refit::restate(
+            f,
+            compiled,
+            source,
+            files,
+            options,
+            settings.engine,
+            settings.alpha,
+        )?;
     }
     out.sort_by(rank_order);
     Ok(out)

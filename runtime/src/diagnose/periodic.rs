@@ -19,6 +19,14 @@ pub(super) fn propose(
 ) {
     let length = &m.units.length;
     let fmt_len = |v: f64| format!("{} {}", round(length.from_si(v)), length.name);
+    // The tested wavelength keeps the refined peak's digits: over tens of periods a
+    // wavelength rounded to four digits drifts out of phase, and the series would take
+    // harmonics it does not need to follow.
+    let exact = |v: f64| {
+        let v = length.from_si(v);
+        let p = 10f64.powi(8 - v.abs().log10().ceil() as i32);
+        format!("{} {}", (v * p).round() / p, length.name)
+    };
     let sampled = available.sampled.get(a).copied().flatten();
     for &(_, lambda) in wavelengths.iter().filter(|(pa, _)| *pa == a) {
         let Some(sampling) = sampled.filter(|s| s.resolves(lambda)) else {
@@ -40,12 +48,7 @@ pub(super) fn propose(
             } else {
                 format!("1..{top}")
             };
-            let harmonics = match top {
-                1 => "a sinusoid".to_string(),
-                2 => "a sinusoid and its 2nd harmonic".to_string(),
-                3 => "a sinusoid and its 2nd and 3rd harmonics".to_string(),
-                _ => format!("a sinusoid and its harmonics up to the {top}th"),
-            };
+            let harmonics = phrase(top);
             push(
                 out,
                 Family::Periodic,
@@ -59,7 +62,7 @@ pub(super) fn propose(
                     test: format!(
                         "fourier({}, harmonics {hs}, wavelength {})",
                         axis.name,
-                        fmt_len(lambda)
+                        exact(lambda)
                     ),
                     harmonic: None,
                 }],
@@ -85,7 +88,7 @@ pub(super) fn propose(
                 test: format!(
                     "periodic({}, wavelength {}, knots 2)",
                     axis.name,
-                    fmt_len(lambda)
+                    exact(lambda)
                 ),
                 harmonic: None,
             }],
@@ -97,6 +100,26 @@ pub(super) fn propose(
             Some(group),
         );
     }
+}
+
+/// How a series of harmonics 1..`top` is described.
+pub(super) fn phrase(top: u32) -> String {
+    match top {
+        1 => "a sinusoid".to_string(),
+        2 => "a sinusoid and its 2nd harmonic".to_string(),
+        3 => "a sinusoid and its 2nd and 3rd harmonics".to_string(),
+        _ => format!("a sinusoid and its harmonics up to the {top}th"),
+    }
+}
+
+/// The top harmonic `H` of a series `fourier(V, harmonics 1..H, …)` in a line, and where its
+/// number is written.
+pub(super) fn top_harmonic(line: &str) -> Option<(u32, std::ops::Range<usize>)> {
+    let at = line.find("fourier(")?;
+    let from = at + line.get(at..)?.find("harmonics 1..")? + "harmonics 1..".len();
+    let len = line.get(from..)?.find(|c: char| !c.is_ascii_digit())?;
+    let h = line.get(from..from + len)?.parse().ok()?;
+    Some((h, from..from + len))
 }
 
 /// The most harmonics a candidate series carries (a pitch error's shape beyond the 4th is
@@ -122,6 +145,7 @@ pub(super) struct Reading {
 
 /// Which reading of one periodic error the data support: the Fourier series grows one
 /// harmonic at a time while the added harmonic is significant by a partial F-test at `alpha`
+/// shared among the harmonics tested
 /// (against the series without it, on `rows` rows beside `base_rank` base columns); the periodic
 /// spline replaces it only where its BIC is lower (a shape the harmonics do not follow).
 pub(super) fn choose(
@@ -135,6 +159,8 @@ pub(super) fn choose(
         .collect();
     series.sort_by_key(|&i| readings[i].columns);
     let mut chosen = series.first().copied();
+    // Each further harmonic is one more test of the same effect: Bonferroni over them.
+    let level = alpha / series.len().saturating_sub(1).max(1) as f64;
     for pair in series.windows(2) {
         let (a, b) = (&readings[pair[0]], &readings[pair[1]]);
         let q = b.columns.saturating_sub(a.columns) as f64;
@@ -146,7 +172,7 @@ pub(super) fn choose(
         let p = statrs::distribution::FisherSnedecor::new(q, dof)
             .map(|d| 1.0 - statrs::distribution::ContinuousCDF::cdf(&d, f.max(0.0)))
             .unwrap_or(1.0);
-        if p >= alpha {
+        if p >= level {
             break;
         }
         chosen = Some(pair[1]);

@@ -4,7 +4,10 @@
 
 use kin_compiler::{compile, Compiled};
 
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+
 use super::analyse::DiagnoseError;
+use super::periodic;
 use super::{Finding, Fitted};
 use crate::fit::{self, DataSet};
 
@@ -33,15 +36,44 @@ pub(super) fn restate(
     files: &[DataSet],
     options: &fit::Options,
     engine: crate::engine::Engine,
+    alpha: f64,
 ) -> Result<(), DiagnoseError> {
-    let text = with_line(source, &finding.candidate.text)?;
-    let Some(c) = compile(&text).compiled else {
+    let refit = |line: &str| -> Result<Option<(Compiled, fit::FitResult)>, DiagnoseError> {
+        let Some(c) = compile(&with_line(source, line)?).compiled else {
+            return Ok(None);
+        };
+        let r = {
+            let mut eval = crate::engine::make(&c.machine, engine)?;
+            fit::fit(&c, eval.as_mut(), files, &[], options, &mut |_, _| {}).ok()
+        };
+        Ok(r.map(|r| (c, r)))
+    };
+    let Some((mut c, mut r)) = refit(&finding.candidate.text)? else {
         return Ok(());
     };
-    let mut eval = crate::engine::make(&c.machine, engine)?;
-    let Ok(r) = fit::fit(&c, eval.as_mut(), files, &[], options, &mut |_, _| {}) else {
-        return Ok(());
-    };
+    // A series' top harmonic is tested again with the wavelength fitted: at the scanned
+    // wavelength, a small phase drift over many periods makes higher harmonics look needed.
+    while let Some((top, at)) = periodic::top_harmonic(&finding.candidate.text) {
+        if top < 2 {
+            break;
+        }
+        let mut line = finding.candidate.text.clone();
+        line.replace_range(at, &(top - 1).to_string());
+        let line = line.replace("harmonics 1..1,", "harmonics 1,");
+        let Some((c1, r1)) = refit(&line)? else {
+            break;
+        };
+        if significant_gain(&r1, &r, alpha) {
+            break;
+        }
+        finding.candidate.explanation = finding
+            .candidate
+            .explanation
+            .replace(&periodic::phrase(top), &periodic::phrase(top - 1));
+        finding.candidate.text = line;
+        finding.columns = finding.columns.saturating_sub(2);
+        (c, r) = (c1, r1);
+    }
     let Some(nl) = &r.nonlinear else {
         return Ok(());
     };
@@ -76,6 +108,28 @@ pub(super) fn restate(
     }
     finding.fitted = fitted;
     Ok(())
+}
+
+/// Whether the fit `big` improves on `small` (its columns and parameters a subset) by a
+/// partial F-test at `alpha`, the residual sums of squares weighted as the fits are.
+fn significant_gain(small: &fit::FitResult, big: &fit::FitResult, alpha: f64) -> bool {
+    let params = |r: &fit::FitResult| {
+        r.solution.rank
+            + r.nonlinear
+                .as_ref()
+                .map_or(0, |n| n.se.iter().filter(|s| s.is_some()).count())
+    };
+    let (p0, p1) = (params(small), params(big));
+    let dof = big.rows.saturating_sub(p1) as f64;
+    let q = p1.saturating_sub(p0) as f64;
+    if q <= 0.0 || dof <= 0.0 || big.solution.rss <= 0.0 {
+        return false;
+    }
+    let f = ((small.solution.rss - big.solution.rss) / q) / (big.solution.rss / dof);
+    let p = FisherSnedecor::new(q, dof)
+        .map(|d| 1.0 - d.cdf(f.max(0.0)))
+        .unwrap_or(1.0);
+    p < alpha
 }
 
 /// The line with the value (and unit) after each `fit` replaced by the fitted ones, in order.

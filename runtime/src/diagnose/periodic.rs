@@ -136,6 +136,7 @@ pub(super) fn is_series(group: &str) -> bool {
 
 /// One tested reading of a periodic error: whether it is a Fourier series, the columns it adds
 /// and the residual sum of squares with it.
+#[derive(Debug, Clone)]
 pub(super) struct Reading {
     pub fourier: bool,
     pub columns: usize,
@@ -184,5 +185,53 @@ pub(super) fn choose(
         (Some(c), Some(s)) if readings[s].bic < readings[c].bic => Some(s),
         (None, s) => s,
         (c, _) => c,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reading(fourier: bool, columns: usize, rss: f64) -> Reading {
+        let (rows, rss0) = (1000.0, 100.0);
+        Reading {
+            fourier,
+            columns,
+            rss,
+            bic: rows * (rss / rss0).ln() + columns as f64 * rows.ln(),
+        }
+    }
+
+    #[test]
+    fn harmonics_are_added_while_each_is_significant() {
+        // H = 1 explains most, H = 2 a clear second harmonic, H = 3 only noise.
+        let series = [
+            reading(true, 2, 20.0),
+            reading(true, 4, 10.0),
+            reading(true, 6, 9.99),
+        ];
+        assert_eq!(choose(&series, 1000.0, 5, 0.01), Some(1));
+        // A spline that fits no better with more columns is not preferred.
+        let mut with_spline = series.to_vec();
+        with_spline.push(reading(false, 2, 15.0));
+        assert_eq!(choose(&with_spline, 1000.0, 5, 0.01), Some(1));
+        // One that fits far better (a shape no few harmonics follow) is.
+        with_spline.push(reading(false, 2, 5.0));
+        assert_eq!(choose(&with_spline, 1000.0, 5, 0.01), Some(4));
+    }
+
+    #[test]
+    fn the_top_harmonic_is_found_in_a_line() {
+        let line = "X.tx += fourier(X, harmonics 1..3, wavelength fit 20 mm)";
+        let (h, at) = top_harmonic(line).expect("a series");
+        assert_eq!((h, &line[at]), (3, "3"));
+        assert_eq!(
+            top_harmonic("X.tx += fourier(X, harmonics 1, wavelength fit 20 mm)"),
+            None
+        );
+        assert_eq!(
+            top_harmonic("X.tx += periodic(X, wavelength fit 20 mm, knots 2)"),
+            None
+        );
     }
 }

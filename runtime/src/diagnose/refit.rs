@@ -149,14 +149,13 @@ fn with_values(line: &str, fitted: &[Fitted]) -> String {
     out
 }
 
-/// `v` to one more digit than its standard error resolves (at least four significant).
+/// `v` to one more decimal than its standard error's leading digit (at least four significant
+/// digits, at most twelve decimals).
 fn significant(v: f64, se: f64) -> String {
-    let digits = if se > 0.0 && se.is_finite() && v != 0.0 {
-        ((v.abs().log10() - se.log10()).ceil() as i32 + 1).clamp(4, 12)
-    } else {
-        6
-    };
-    let decimals = (digits - 1 - v.abs().log10().floor() as i32).max(0) as usize;
+    let lead = |x: f64| x.abs().log10().floor() as i32;
+    let by_se = if se > 0.0 && se.is_finite() { 1 - lead(se) } else { 0 };
+    let by_value = if v != 0.0 && v.is_finite() { 3 - lead(v) } else { 0 };
+    let decimals = by_se.max(by_value).clamp(0, 12) as usize;
     format!("{v:.decimals$}")
 }
 

@@ -153,8 +153,16 @@ fn with_values(line: &str, fitted: &[Fitted]) -> String {
 /// digits, at most twelve decimals).
 fn significant(v: f64, se: f64) -> String {
     let lead = |x: f64| x.abs().log10().floor() as i32;
-    let by_se = if se > 0.0 && se.is_finite() { 1 - lead(se) } else { 0 };
-    let by_value = if v != 0.0 && v.is_finite() { 3 - lead(v) } else { 0 };
+    let by_se = if se > 0.0 && se.is_finite() {
+        1 - lead(se)
+    } else {
+        0
+    };
+    let by_value = if v != 0.0 && v.is_finite() {
+        3 - lead(v)
+    } else {
+        0
+    };
     let decimals = by_se.max(by_value).clamp(0, 12) as usize;
     format!("{v:.decimals$}")
 }

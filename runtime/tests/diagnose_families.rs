@@ -324,9 +324,9 @@ struct Outcome {
     seconds: f64,
 }
 
-/// Simulates the truth (`hidden` added to the base, or nothing), fits the base, diagnoses, and
-/// when a finding is significant adds the top candidate's text and refits.
-fn run(kind: Kind, hidden: Option<(&str, &[f64])>, n: usize, seed: u64) -> (Outcome, Diagnosis) {
+/// Point data of the truth (`hidden` added to the base, or nothing): `n` poses, noise
+/// [`NOISE`], coefficients and noise drawn from `seed`.
+fn simulated(kind: Kind, hidden: Option<(&str, &[f64])>, n: usize, seed: u64) -> [DataSet; 1] {
     let base_src = base_source(kind);
     let (truth_src, range) = match hidden {
         Some((line, _)) => with_line(base_src, line),
@@ -346,10 +346,17 @@ fn run(kind: Kind, hidden: Option<(&str, &[f64])>, n: usize, seed: u64) -> (Outc
         },
     )
     .unwrap();
-    let files = [DataSet {
+    [DataSet {
         path: "data.csv".into(),
         observations: obs,
-    }];
+    }]
+}
+
+/// Simulates the truth (`hidden` added to the base, or nothing), fits the base, diagnoses, and
+/// when a finding is significant adds the top candidate's text and refits.
+fn run(kind: Kind, hidden: Option<(&str, &[f64])>, n: usize, seed: u64) -> (Outcome, Diagnosis) {
+    let base_src = base_source(kind);
+    let files = simulated(kind, hidden, n, seed);
     let base = compiled(base_src);
     let r = fit_model(&base, &files);
     let t = Instant::now();
@@ -666,25 +673,7 @@ fn a_two_harmonic_periodic_error_is_fixed_in_one_round() {
     let mut lines = Vec::new();
     let mut elsewhere = Vec::new();
     for &seed in &seeds {
-        let (truth_src, range) = with_line(CMM, case.hidden);
-        let truth = compiled(&truth_src);
-        let beta = truth_beta(&truth, range, case.values, 300 + seed);
-        let p = poses(&truth.machine, Kind::Cmm, 500, 300 + seed);
-        let obs = simulate::simulate(
-            &truth.machine,
-            &beta,
-            &Observations::Points(p),
-            &simulate::Options {
-                noise: NOISE,
-                seed: 301 + seed,
-                ..simulate::Options::default()
-            },
-        )
-        .unwrap();
-        let files = [DataSet {
-            path: "data.csv".into(),
-            observations: obs,
-        }];
+        let files = simulated(Kind::Cmm, Some((case.hidden, case.values)), 500, 300 + seed);
         let base = compiled(CMM);
         let r = fit_model(&base, &files);
         let d = diagnose::diagnose(

@@ -519,6 +519,96 @@ fn diagnose_apply_refits_a_candidate_the_model_partly_has() {
     );
 }
 
+/// Issue 11, point 1 end to end: a periodic error with a strong second harmonic (5 µm at
+/// λ = 20 mm, 2 µm at λ/2) is found and fixed by one `--apply 1`, which writes the fitted
+/// wavelength; nothing periodic is left significant after it.
+#[test]
+fn diagnose_apply_fixes_a_two_harmonic_periodic_error_in_one_round() {
+    let model = "machine cmm3 {
+    task measure
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 800 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 500) mm
+        tool probe at (0, 0, -100) mm
+    }
+    errors {
+        X.tx = spline(X, knots 2)
+        Y.ty = linear(Y)
+        Z.tz = linear(Z)
+    }
+}
+";
+    let truth = model.replace(
+        "X.tx = spline(X, knots 2)",
+        "X.tx = spline(X, knots 2) + fourier(X, harmonics 1..2, wavelength 20 mm)",
+    );
+    let dir = tmp("harmonics");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (model_path, truth_path) = (dir.join("cmm3.kin"), dir.join("truth.kin"));
+    std::fs::write(&model_path, model).unwrap();
+    std::fs::write(&truth_path, truth).unwrap();
+    let params = dir.join("truth.params");
+    std::fs::write(
+        &params,
+        "params {\n    X.tx = [3, -2, 1, 0.5, 5, 0, 0, 2] um\n    Y.ty = [1.5] um\n    Z.tz = [2] um\n}\n",
+    )
+    .unwrap();
+    let data = dir.join("points.csv");
+    let out = kin(&[
+        "simulate",
+        truth_path.to_str().unwrap(),
+        "--params",
+        params.to_str().unwrap(),
+        "--sample",
+        "600",
+        "--noise",
+        "0.2um",
+        "--seed",
+        "5",
+        "-o",
+        data.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let (model_arg, data_arg) = (model_path.to_str().unwrap(), data.to_str().unwrap());
+    let out = kin(&["diagnose", model_arg, data_arg, "--apply", "1"]);
+    let s = text(&out.stdout);
+    assert!(out.status.success(), "{s}\n{}", text(&out.stderr));
+    assert!(
+        s.contains("added to") && s.contains("X.tx += fourier(X, harmonics 1..2, wavelength fit "),
+        "{s}"
+    );
+    let sigma: f64 = s
+        .rsplit("σ̂ = ")
+        .next()
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("σ̂ of the refit");
+    assert!(sigma < 1.1 * 0.2, "σ̂ {sigma} after the refit: {s}");
+    // The line written carries the refit's wavelength, close to the truth.
+    let revised = std::fs::read_to_string(&model_path).unwrap();
+    let lambda: f64 = revised
+        .split("wavelength fit ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{revised}"));
+    assert!((lambda - 20.0).abs() < 0.01, "{revised}");
+    let out = kin(&["diagnose", model_arg, data_arg]);
+    let s = text(&out.stdout);
+    assert!(out.status.success(), "{s}\n{}", text(&out.stderr));
+    assert!(
+        !s.lines()
+            .any(|l| l.trim().starts_with("add: X.tx += fourier")
+                || l.trim().starts_with("add: X.tx += periodic")),
+        "a periodic term is still proposed after one round: {s}"
+    );
+}
+
 /// The verdict follows the test that was made: with the instrument's noise stated and σ̂ ≈ 2.7
 /// times it, neither "nowhere" nor "down to the noise" may appear; stated right, the same data
 /// are "down to the stated noise"; with nothing stated the words are relative to σ̂.

@@ -84,6 +84,7 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
         separation: None,
         bic: -100.0,
         plausibility: None,
+        fitted: Vec::new(),
     };
     Diagnosis {
         machine: "bridge_cmm".into(),

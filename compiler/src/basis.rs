@@ -158,8 +158,14 @@ pub enum Basis {
         detrend: Detrend,
         functions: Vec<SplineFunction>,
     },
-    /// `cos(h x), sin(h x)` for each harmonic `h`, `x` in rad.
-    Fourier { harmonics: Vec<u32> },
+    /// `cos(h x), sin(h x)` for each harmonic `h`, `x` in rad; with a wavelength λ (a variable
+    /// that is not an angle), `cos(2π h x/λ), sin(2π h x/λ)`: the harmonics of a fundamental
+    /// of period λ (eq. 3.11 written as its Fourier series).
+    Fourier {
+        harmonics: Vec<u32>,
+        #[serde(default)]
+        wavelength: Option<Wavelength>,
+    },
     /// Periodic piecewise polynomial of the wavelength fraction `w` (eq. 3.11–3.15).
     Periodic {
         wavelength: Wavelength,
@@ -246,7 +252,28 @@ impl Basis {
         if let Some(w) = sorted.windows(2).find(|w| w[0] == w[1]) {
             return Err(BasisError::DuplicateHarmonic { harmonic: w[0] });
         }
-        Ok(Basis::Fourier { harmonics })
+        Ok(Basis::Fourier {
+            harmonics,
+            wavelength: None,
+        })
+    }
+
+    /// Harmonics `h` of a fundamental of wavelength λ (SI unit of the variable):
+    /// `cos(2π h x/λ), sin(2π h x/λ)` per entry, in the given order.
+    pub fn fourier_along(harmonics: Vec<u32>, wavelength: Wavelength) -> Result<Basis, BasisError> {
+        if let Wavelength::Fixed(tau) = wavelength {
+            check_finite("the wavelength", tau)?;
+            if tau <= 0.0 {
+                return Err(BasisError::Wavelength { value: tau });
+            }
+        }
+        let Basis::Fourier { harmonics, .. } = Basis::fourier(harmonics)? else {
+            return Err(BasisError::NoHarmonics);
+        };
+        Ok(Basis::Fourier {
+            harmonics,
+            wavelength: Some(wavelength),
+        })
     }
 
     /// A periodic term of wavelength τ and phase φ (in the variable's SI unit), built from a
@@ -295,7 +322,7 @@ impl Basis {
             Basis::Const | Basis::Linear { .. } | Basis::Sign => 1,
             Basis::Legendre { degree, .. } => *degree as usize,
             Basis::Spline { functions, .. } => functions.len(),
-            Basis::Fourier { harmonics } => 2 * harmonics.len(),
+            Basis::Fourier { harmonics, .. } => 2 * harmonics.len(),
             Basis::Periodic { functions, .. } => functions.len(),
         }
     }
@@ -342,7 +369,15 @@ impl Basis {
                     }
                 }
             }
-            Basis::Fourier { harmonics } => {
+            Basis::Fourier {
+                harmonics,
+                wavelength,
+            } => {
+                // The fundamental's angle: x itself (rad), or 2π x/λ.
+                let x = match wavelength {
+                    None => x,
+                    Some(w) => std::f64::consts::TAU * x / wavelength_value(w, nonlinear),
+                };
                 for (pair, h) in out.chunks_mut(2).zip(harmonics) {
                     let a = f64::from(*h) * x;
                     pair[0] = libm::cos(a);
@@ -357,11 +392,7 @@ impl Basis {
                 functions,
                 ..
             } => {
-                let tau = match wavelength {
-                    Wavelength::Fixed(t) => *t,
-                    Wavelength::Fitted(p) => nonlinear.get(p.index).copied().unwrap_or(f64::NAN),
-                };
-                let w = wavelength_fraction(x, tau, *phase);
+                let w = wavelength_fraction(x, wavelength_value(wavelength, nonlinear), *phase);
                 for (o, f) in out.iter_mut().zip(functions) {
                     *o = periodic_value(f, w);
                 }
@@ -393,15 +424,23 @@ impl Basis {
                     Detrend::OncePerRev => format!("{g} - rev1"),
                 }
             }
-            Basis::Fourier { harmonics } => {
+            Basis::Fourier {
+                harmonics,
+                wavelength,
+            } => {
                 let Some(h) = harmonics.get(i / 2) else {
                     return "?".to_string();
                 };
                 let f = if i.is_multiple_of(2) { "cos" } else { "sin" };
-                if *h == 1 {
-                    format!("{f} x")
+                let x = if wavelength.is_some() {
+                    "(2πx/λ)"
                 } else {
-                    format!("{f} {h}x")
+                    "x"
+                };
+                if *h == 1 {
+                    format!("{f} {x}")
+                } else {
+                    format!("{f} {h}{x}")
                 }
             }
             Basis::Periodic { functions, .. } => match functions.get(i) {
@@ -541,6 +580,14 @@ fn in_removed_span(f: &SplineFunction, detrend: Detrend, breaks: &[f64], length:
     let energy = integrate_pieces(breaks, panels, |s| sq(f.g.value(s)));
     let left = integrate_pieces(breaks, panels, |s| sq(residual(s)));
     left <= DROP_RELATIVE_ENERGY * energy
+}
+
+/// A wavelength's value in SI: fixed, or read from the non-linear parameters (NaN if missing).
+fn wavelength_value(w: &Wavelength, nonlinear: &[f64]) -> f64 {
+    match w {
+        Wavelength::Fixed(t) => *t,
+        Wavelength::Fitted(p) => nonlinear.get(p.index).copied().unwrap_or(f64::NAN),
+    }
 }
 
 /// The wavelength fraction `w ∈ [0, 1)` of eq. 3.13: `w = y − ⌊y⌋`, `y = (x − φ)/τ`.
@@ -1204,6 +1251,32 @@ mod tests {
         assert_eq!(values(&l, lo, &[]), vec![-1.0]);
         assert_eq!(values(&l, hi, &[]), vec![1.0]);
         assert_eq!(b.label(1), "P2(2s-1)");
+    }
+
+    #[test]
+    fn fourier_along_a_wavelength() {
+        let b = Basis::fourier_along(vec![1, 2], Wavelength::Fixed(0.02)).unwrap();
+        let mut out = [0.0; 4];
+        // A quarter of the fundamental: cos, sin of π/2 and of π.
+        b.eval(0.005, &[], &mut out);
+        let want = [0.0, 1.0, -1.0, 0.0];
+        for (o, w) in out.iter().zip(want) {
+            assert!((o - w).abs() < 1e-12, "{out:?}");
+        }
+        let fitted =
+            Basis::fourier_along(vec![1], Wavelength::Fitted(NonLinear { index: 0 })).unwrap();
+        let mut a = [0.0; 2];
+        fitted.eval(0.005, &[0.04], &mut a);
+        assert!((a[1] - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-12);
+        assert_eq!(b.label(3), "sin 2(2πx/λ)");
+        assert_eq!(
+            Basis::fourier_along(vec![1], Wavelength::Fixed(0.0)),
+            Err(BasisError::Wavelength { value: 0.0 })
+        );
+        assert_eq!(
+            Basis::fourier_along(vec![], Wavelength::Fixed(1.0)),
+            Err(BasisError::NoHarmonics)
+        );
     }
 
     #[test]

@@ -825,12 +825,6 @@ impl Checker<'_> {
         sink: &mut Sink,
     ) -> Option<Basis> {
         let revolute = matches!(var, Var::Axis(i) if self.st.axes.get(i).map(|a| a.kind) == Some(JointKind::Revolute));
-        let wrong_kind = |what: &str, sink: &mut Sink| {
-            sink.push(
-                Diagnostic::error("E0305", format!("`{f}` applies to {what} only"), var_span)
-                    .with_label(format!("`{var_name}` is not {what}")),
-            );
-        };
         let basis = match f {
             "linear" => {
                 let (r, ..) = self.range_of(var, var_name, var_span, f, sink)?;
@@ -869,49 +863,46 @@ impl Checker<'_> {
                 };
                 Basis::spline(r[0], r[1], knots, degree, smooth, detrend)
             }
-            "fourier" => {
-                if !revolute {
-                    wrong_kind("a revolute axis", sink);
-                    if let Some(d) = sink.diagnostics.last_mut() {
-                        d.help = Some(format!("for a periodic error along a prismatic axis use `periodic({var_name}, wavelength …)`"));
-                    }
+            "fourier" if revolute => {
+                // Per revolution: the fundamental is the revolution itself (§3.2.4).
+                if let Some(o) = opts.take("wavelength") {
+                    sink.push(
+                        Diagnostic::error(
+                            "E0305",
+                            "`wavelength` is for a `fourier` along a variable that is not an angle",
+                            o.name.span,
+                        )
+                        .with_label(format!("`{var_name}` is a revolute axis"))
+                        .with_note("along a revolute axis the harmonics are per revolution: the fundamental is one turn")
+                        .with_help(format!("write `fourier({var_name}, harmonics …)` without a wavelength")),
+                    );
                     return None;
                 }
                 let h = opts.harmonics(sink)?;
                 Basis::fourier(h)
             }
+            "fourier" => {
+                let (r, dim, unit) = self.range_of(var, var_name, var_span, f, sink)?;
+                if !opts.has("wavelength") {
+                    sink.push(
+                        Diagnostic::error(
+                            "E0305",
+                            format!("`fourier` along `{var_name}` needs a `wavelength`"),
+                            var_span,
+                        )
+                        .with_label(format!("`{var_name}` is not an angle: which fundamental?"))
+                        .with_note("only a revolute axis has a natural period (one turn)")
+                        .with_help(format!("give the fundamental, e.g. `fourier({var_name}, harmonics 1..2, wavelength fit 25.4 mm)`")),
+                    );
+                    return None;
+                }
+                let wavelength = self.wavelength(r, dim, &unit, var_name, opts, sink)?;
+                let h = opts.harmonics(sink)?;
+                Basis::fourier_along(h, wavelength)
+            }
             "periodic" => {
                 let (r, dim, unit) = self.range_of(var, var_name, var_span, f, sink)?;
-                let (tau, tau_span, fitted) =
-                    opts.required_quantity("wavelength", dim, &unit, sink)?;
-                if !(tau > 0.0) {
-                    sink.push(
-                        Diagnostic::error("E0105", "the wavelength must be positive", tau_span)
-                            .with_label("not positive"),
-                    );
-                    return None;
-                }
-                if tau > r[1] - r[0] + 1e-12 {
-                    sink.push(
-                        Diagnostic::error("E0303", format!("the wavelength is longer than the range of `{var_name}`"), tau_span)
-                            .with_label(format!(
-                                "{} {} > range {} {}",
-                                fmt_num(unit.from_si(tau) - unit.from_si(0.0)),
-                                unit.name,
-                                fmt_num(unit.from_si(r[1]) - unit.from_si(r[0])),
-                                unit.name
-                            ))
-                            .with_note("a periodic error must repeat within the range to be told apart from the ordinary error")
-                            .with_help("use `spline` for slow variations, or check the wavelength's unit"),
-                    );
-                    return None;
-                }
-                let wavelength = if fitted {
-                    let index = self.nonlinear("wavelength", tau, unit.as_difference(), tau_span);
-                    Wavelength::Fitted(NonLinear { index })
-                } else {
-                    Wavelength::Fixed(tau)
-                };
+                let wavelength = self.wavelength(r, dim, &unit, var_name, opts, sink)?;
                 let phase = opts
                     .quantity("phase", dim, &unit, sink)?
                     .map(|(v, _, _)| v)
@@ -946,6 +937,49 @@ impl Checker<'_> {
                 None
             }
         }
+    }
+
+    /// The `wavelength [fit] λ` option of `periodic` or `fourier` along a variable of range `r`:
+    /// positive, and no longer than the range (a period must repeat within it).
+    fn wavelength(
+        &mut self,
+        r: [f64; 2],
+        dim: Dim,
+        unit: &Unit,
+        var_name: &str,
+        opts: &mut Options,
+        sink: &mut Sink,
+    ) -> Option<Wavelength> {
+        let (tau, tau_span, fitted) = opts.required_quantity("wavelength", dim, unit, sink)?;
+        if !(tau > 0.0) {
+            sink.push(
+                Diagnostic::error("E0105", "the wavelength must be positive", tau_span)
+                    .with_label("not positive"),
+            );
+            return None;
+        }
+        if tau > r[1] - r[0] + 1e-12 {
+            sink.push(
+                        Diagnostic::error("E0303", format!("the wavelength is longer than the range of `{var_name}`"), tau_span)
+                            .with_label(format!(
+                                "{} {} > range {} {}",
+                                fmt_num(unit.from_si(tau) - unit.from_si(0.0)),
+                                unit.name,
+                                fmt_num(unit.from_si(r[1]) - unit.from_si(r[0])),
+                                unit.name
+                            ))
+                            .with_note("a periodic error must repeat within the range to be told apart from the ordinary error")
+                            .with_help("use `spline` for slow variations, or check the wavelength's unit"),
+                    );
+            return None;
+        }
+        let wavelength = if fitted {
+            let index = self.nonlinear("wavelength", tau, unit.as_difference(), tau_span);
+            Wavelength::Fitted(NonLinear { index })
+        } else {
+            Wavelength::Fixed(tau)
+        };
+        Some(wavelength)
     }
 
     fn nonlinear(&mut self, kind: &'static str, value: f64, unit: Unit, span: Span) -> usize {
@@ -1071,7 +1105,7 @@ fn allowed_options(f: &str) -> &'static [&'static str] {
         "poly" => &["degree"],
         "spline" => &["knots", "degree", "smooth", "no_once_per_rev"],
         "straightness" => &["knots", "degree", "smooth"],
-        "fourier" => &["harmonics"],
+        "fourier" => &["harmonics", "wavelength"],
         "periodic" => &["wavelength", "knots", "degree", "smooth", "phase"],
         "lag" => &["tau"],
         _ => &[],
@@ -1221,6 +1255,10 @@ impl<'a> Options<'a> {
                 None
             }
         }
+    }
+
+    fn has(&self, name: &str) -> bool {
+        self.options.iter().any(|o| o.name.node == name)
     }
 
     fn take(&mut self, name: &str) -> Option<&'a OptionArg> {

@@ -304,6 +304,9 @@ fn examples_agree_with_the_interpreter() {
 /// drawing on every factor family, products, known scalings and fixed terms.
 struct Gen {
     rng: StdRng,
+    /// Also `fourier(V, …, wavelength λ)` along a variable that is not an angle. Off for the
+    /// older tests, whose random streams (and so their machines) stay as they were.
+    fourier_along: bool,
 }
 
 #[derive(Clone)]
@@ -570,6 +573,14 @@ impl Gen {
                     avoid.push(v.clone());
                     let lambda = span / f64::from(self.rng.random_range(2..9u32));
                     let fit = if self.chance(0.5) { "fit " } else { "" };
+                    // A revolute axis' harmonics are per revolution, never at a wavelength.
+                    if self.fourier_along && unit != "deg" && self.chance(0.3) {
+                        // The Fourier series of a fundamental along a variable that is not an angle.
+                        let top = self.rng.random_range(1..5u32);
+                        return Some(format!(
+                            "fourier({v}, harmonics 1..{top}, wavelength {fit}{lambda:.4} {unit})"
+                        ));
+                    }
                     let phase = if self.chance(0.4) {
                         format!(", phase {:.3} {unit}", self.f(0.0, lambda))
                     } else {
@@ -688,6 +699,7 @@ impl Gen {
 fn random_machines_agree_with_the_interpreter() {
     let mut gen = Gen {
         rng: StdRng::seed_from_u64(20240601),
+        fourier_along: false,
     };
     let mut rng = StdRng::seed_from_u64(99);
     let mut worst = Worst::default();
@@ -728,10 +740,43 @@ fn random_machines_agree_with_the_interpreter() {
 }
 
 #[test]
+fn fourier_along_an_axis_agrees_with_the_interpreter() {
+    let mut gen = Gen {
+        rng: StdRng::seed_from_u64(20261123),
+        fourier_along: true,
+    };
+    let mut rng = StdRng::seed_from_u64(7);
+    // Machines with a Fourier series at a fixed and at a fitted wavelength.
+    let (mut fixed, mut fitted) = (0, 0);
+    for index in 0..120 {
+        let src = gen.machine(index);
+        let along = |fit: &str| {
+            src.split("fourier(")
+                .skip(1)
+                .any(|t| t.split(')').next().is_some_and(|a| a.contains(fit)))
+        };
+        fixed += usize::from(along("wavelength "));
+        fitted += usize::from(along("wavelength fit"));
+        let m = compile_source(&src);
+        let model = jit::compile(&m).unwrap_or_else(|e| panic!("{src}\n{e}"));
+        let states: Vec<OwnedState> = (0..6).map(|_| random_state(&mut rng, &m)).collect();
+        let w = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            compare(&m, &model, &states, &mut rng, &format!("machine {index}"))
+        }));
+        if let Err(e) = w {
+            eprintln!("failing source:\n{src}");
+            std::panic::resume_unwind(e);
+        }
+    }
+    assert!(fixed > fitted && fitted > 0, "{fixed} {fitted}");
+}
+
+#[test]
 fn every_family_is_generated() {
     // The generator's reach, checked on its text so a change cannot quietly drop a family.
     let mut gen = Gen {
         rng: StdRng::seed_from_u64(20240601),
+        fourier_along: false,
     };
     let text: String = (0..200).map(|i| gen.machine(i)).collect();
     for needle in [

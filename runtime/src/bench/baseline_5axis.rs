@@ -485,7 +485,8 @@ impl Baseline {
             let b = basis(Workpiece(3), c, i)?;
             ensure!(
                 b == &Basis::Fourier {
-                    harmonics: h.to_vec()
+                    harmonics: h.to_vec(),
+                    wavelength: None,
                 },
                 "C.{c:?} term {i} is {b:?}"
             );

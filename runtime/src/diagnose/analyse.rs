@@ -8,6 +8,7 @@ use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 use thiserror::Error;
 
 use super::library::{self, Available, Proposal, Sampling};
+use super::{periodic, refit};
 use super::{
     Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, LackOfFit, NoiseCheck, Outlier,
     Plausibility, Region, Spectrum,
@@ -403,6 +404,40 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
         .collect()
 }
 
+/// The normalised Lomb–Scargle power of the residuals `pts` (position, residual; mean and
+/// variance given) at one wavelength. `trig` is scratch space.
+fn periodogram(
+    pts: &[(f64, f64)],
+    mean: f64,
+    var: f64,
+    lambda: f64,
+    trig: &mut Vec<(f64, f64)>,
+) -> f64 {
+    let w = std::f64::consts::TAU / lambda;
+    // One sincos per point: the double angle gives τ's sums, the angle difference
+    // the projections (four trigonometric calls per point otherwise).
+    trig.clear();
+    trig.extend(pts.iter().map(|(x, _)| libm::sincos(w * x)));
+    let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| {
+        (s + 2.0 * sn * cs, c + cs * cs - sn * sn)
+    });
+    let (st, ct) = libm::sincos(0.5 * libm::atan2(s2, c2));
+    let (mut yc, mut ys, mut cc, mut ss) = (0.0, 0.0, 0.0, 0.0);
+    for ((_, y), (sn, cs)) in pts.iter().zip(trig.iter()) {
+        // sin(w(x − τ)) and cos(w(x − τ)) with wτ = atan2(s2, c2)/2.
+        let (sn, cs) = (sn * ct - cs * st, cs * ct + sn * st);
+        yc += (y - mean) * cs;
+        ys += (y - mean) * sn;
+        cc += cs * cs;
+        ss += sn * sn;
+    }
+    if cc > 0.0 && ss > 0.0 {
+        (yc * yc / cc + ys * ys / ss) / (2.0 * var)
+    } else {
+        0.0
+    }
+}
+
 /// Lomb–Scargle periodogram (Scargle 1982) of the residuals along each prismatic axis, per
 /// translation component: for non-uniform sampling, which is what real measurement plans are.
 fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<Spectrum> {
@@ -448,31 +483,34 @@ fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<S
             let mut power = Vec::with_capacity(count);
             for k in 0..count {
                 let lambda = longest * (shortest / longest).powf(k as f64 / (count - 1) as f64);
-                let w = std::f64::consts::TAU / lambda;
-                // One sincos per point: the double angle gives τ's sums, the angle difference
-                // the projections (four trigonometric calls per point otherwise).
-                trig.clear();
-                trig.extend(pts.iter().map(|(x, _)| libm::sincos(w * x)));
-                let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| {
-                    (s + 2.0 * sn * cs, c + cs * cs - sn * sn)
-                });
-                let (st, ct) = libm::sincos(0.5 * libm::atan2(s2, c2));
-                let (mut yc, mut ys, mut cc, mut ss) = (0.0, 0.0, 0.0, 0.0);
-                for ((_, y), (sn, cs)) in pts.iter().zip(&trig) {
-                    // sin(w(x − τ)) and cos(w(x − τ)) with wτ = atan2(s2, c2)/2.
-                    let (sn, cs) = (sn * ct - cs * st, cs * ct + sn * st);
-                    yc += (y - mean) * cs;
-                    ys += (y - mean) * sn;
-                    cc += cs * cs;
-                    ss += sn * sn;
-                }
-                let p = if cc > 0.0 && ss > 0.0 {
-                    (yc * yc / cc + ys * ys / ss) / (2.0 * var)
-                } else {
-                    0.0
-                };
                 wavelengths.push(lambda);
-                power.push(p);
+                power.push(periodogram(&pts, mean, var, lambda, &mut trig));
+            }
+            // The grid is ~1 % apart, but over tens of periods a wavelength off by that much
+            // drifts out of phase, and a candidate tested at it needs spurious harmonics to
+            // follow: the peak moves to the maximum between its neighbours (golden section).
+            if let Some(k) = (1..count.saturating_sub(1))
+                .max_by(|&a, &b| power[a].total_cmp(&power[b]))
+                .filter(|&k| power[k] >= power[k - 1] && power[k] >= power[k + 1])
+            {
+                let (mut a, mut b) = (wavelengths[k + 1], wavelengths[k - 1]);
+                let g = (5f64.sqrt() - 1.0) / 2.0;
+                for _ in 0..40 {
+                    let (c, d) = (b - g * (b - a), a + g * (b - a));
+                    if periodogram(&pts, mean, var, c, &mut trig)
+                        >= periodogram(&pts, mean, var, d, &mut trig)
+                    {
+                        b = d;
+                    } else {
+                        a = c;
+                    }
+                }
+                let best = 0.5 * (a + b);
+                let p = periodogram(&pts, mean, var, best, &mut trig);
+                if p > power[k] {
+                    wavelengths[k] = best;
+                    power[k] = p;
+                }
             }
             let peak = power.iter().copied().fold(0.0, f64::max);
             // Independent frequencies ≈ the number of periods the grid spans over the range.
@@ -758,6 +796,7 @@ fn test_candidates(
                 rms_after: (rss / rows).sqrt() / s,
                 bic: rows * (rss / rss_base).ln() + added as f64 * rows.ln(),
                 plausibility: None,
+                fitted: Vec::new(),
             },
             basis: own,
             columns: own_cols,
@@ -789,20 +828,43 @@ fn test_candidates(
     }
     // One finding per group (a lag at its best time constant); a BTreeMap and a tie-break on
     // the text keep the choice independent of any iteration order.
-    let mut best: BTreeMap<String, Tested> = BTreeMap::new();
+    let mut groups: BTreeMap<String, Vec<Tested>> = BTreeMap::new();
     for t in tested {
-        let g = proposals[t.proposal].group.clone();
-        match best.get(&g) {
-            Some(b)
-                if b.finding.f > t.finding.f
-                    || (b.finding.f == t.finding.f
-                        && b.finding.candidate.text <= t.finding.candidate.text) => {}
-            _ => {
-                best.insert(g, t);
+        groups
+            .entry(proposals[t.proposal].group.clone())
+            .or_default()
+            .push(t);
+    }
+    let mut all: Vec<Tested> = Vec::with_capacity(groups.len());
+    for (g, mut members) in groups {
+        // The readings of one periodic error: as many harmonics as the data support.
+        if periodic::is_series(&g) {
+            let readings: Vec<periodic::Reading> = members
+                .iter()
+                .map(|t| periodic::Reading {
+                    fourier: t.finding.candidate.text.contains("fourier("),
+                    columns: t.finding.columns,
+                    rss: t.rss,
+                    bic: t.finding.bic,
+                })
+                .collect();
+            if let Some(i) = periodic::choose(&readings, rows, base_rank, settings.alpha) {
+                all.push(members.swap_remove(i));
+            }
+            continue;
+        }
+        let mut best: Option<Tested> = None;
+        for t in members {
+            match &best {
+                Some(b)
+                    if b.finding.f > t.finding.f
+                        || (b.finding.f == t.finding.f
+                            && b.finding.candidate.text <= t.finding.candidate.text) => {}
+                _ => best = Some(t),
             }
         }
+        all.extend(best);
     }
-    let mut all: Vec<Tested> = best.into_values().collect();
     all.sort_by(|a, b| rank_order(&a.finding, &b.finding));
     let mut findings = equivalent_groups(all, rss_base);
     // The plausibility of the refit, for what the user may act on.
@@ -819,6 +881,21 @@ fn test_candidates(
         f.finding.plausibility = Some(p);
     }
     let mut out: Vec<Finding> = findings.into_iter().map(|t| t.finding).collect();
+    // What a line with a fitted wavelength or time constant states comes from its refit.
+    for f in out
+        .iter_mut()
+        .filter(|f| f.significant && f.candidate.text.contains(" fit "))
+    {
+        refit::restate(
+            f,
+            compiled,
+            source,
+            files,
+            options,
+            settings.engine,
+            settings.alpha,
+        )?;
+    }
     out.sort_by(rank_order);
     Ok(out)
 }

@@ -306,7 +306,7 @@ fn uses(t: &kin_compiler::ir::Term, v: Var) -> bool {
 }
 
 /// Appends a proposal: `target += ` the terms; alone in its group unless `group` is given.
-fn push(
+pub(super) fn push(
     out: &mut Vec<Proposal>,
     family: Family,
     target: String,
@@ -344,7 +344,6 @@ pub fn propose(
     let mut out = Vec::new();
     let length = &m.units.length;
     let angle = &m.units.angle;
-    let fmt_len = |v: f64| format!("{} {}", round(length.from_si(v)), length.name);
     for (a, frame) in axis_frames(m) {
         let Some(axis) = m.axes.get(a) else { continue };
         let Some(name) = frame_name(m, frame) else {
@@ -416,30 +415,8 @@ pub fn propose(
 
         // Periodic errors along a prismatic axis, at the spectral peak found for it.
         if !revolute {
-            let sampled = available.sampled.get(a).copied().flatten();
-            for &(_, lambda) in wavelengths.iter().filter(|(pa, _)| *pa == a) {
-                if lambda > 0.0
-                    && lambda < axis.range[1] - axis.range[0]
-                    && sampled.is_some_and(|s| s.resolves(lambda))
-                {
-                    {
-                        let comp = motion;
-                        let target = format!("{name}.{}", comp.name());
-                        push(
-&mut out,
-                            Family::Periodic,
-                            target.clone(),
-                            vec![Term {
-                                text: format!("periodic({}, wavelength fit {}, knots 2)", axis.name, fmt_len(lambda)),
-                                test: format!("periodic({}, wavelength {}, knots 2)", axis.name, fmt_len(lambda)),
-                                harmonic: None,
-                            }],
-                            format!("a periodic error of wavelength ≈ {} along {}: a leadscrew pitch, a scale or encoder period", fmt_len(lambda), axis.name),
-                            None,
-                        );
-                    }
-                }
-            }
+            let target = format!("{name}.{}", motion.name());
+            super::periodic::propose(&mut out, m, available, wavelengths, a, axis, &target);
         }
 
         // Error motions of a revolute axis at 2, 3, 4 per revolution, those whose period the
@@ -673,7 +650,7 @@ pub fn propose(
     out
 }
 
-fn round(v: f64) -> f64 {
+pub(super) fn round(v: f64) -> f64 {
     let p = 10f64.powi(4 - v.abs().log10().ceil().max(0.0) as i32);
     (v * p).round() / p
 }

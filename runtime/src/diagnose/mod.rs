@@ -75,6 +75,20 @@ pub struct Finding {
     /// How the model looks with the line added (significant findings only).
     #[serde(default)]
     pub plausibility: Option<Plausibility>,
+    /// The non-linear parameters the line adds, as the refit with it gives them (significant
+    /// findings only); `rms_after` is then that refit's too.
+    #[serde(default)]
+    pub fitted: Vec<Fitted>,
+}
+
+/// A non-linear parameter (wavelength, time constant) of a refit, in its display unit.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Fitted {
+    pub name: String,
+    pub value: f64,
+    /// Standard error (Gauss–Newton, with the linear coefficients' correlation).
+    pub se: f64,
+    pub unit: String,
 }
 
 /// Whether a refit with the candidate would still be a believable model of the machine.
@@ -213,5 +227,7 @@ pub struct Diagnosis {
 
 mod analyse;
 pub mod library;
+mod periodic;
+mod refit;
 
 pub use analyse::{diagnose, DiagnoseError, Settings};

@@ -91,6 +91,10 @@ pub(super) fn validate(m: &Machine) -> Result<(), JitError> {
                 if let Basis::Periodic {
                     wavelength: Wavelength::Fitted(p),
                     ..
+                }
+                | Basis::Fourier {
+                    wavelength: Some(Wavelength::Fitted(p)),
+                    ..
                 } = &f.basis
                 {
                     if p.index >= m.nonlinear.len() {
@@ -778,7 +782,23 @@ impl Builder<'_> {
                     })
                     .collect()
             }
-            Basis::Fourier { harmonics } => {
+            Basis::Fourier {
+                harmonics,
+                wavelength,
+            } => {
+                // The fundamental's angle: x (rad), or 2π x/λ (`Basis::eval`).
+                let x = match wavelength {
+                    None => x,
+                    Some(w) => {
+                        let tau = match w {
+                            Wavelength::Fixed(t) => self.c(*t),
+                            Wavelength::Fitted(p) => self.g.load(Src::Nonlinear, p.index),
+                        };
+                        let two_pi = self.c(std::f64::consts::TAU);
+                        let a = self.g.mul(two_pi, x);
+                        self.g.div(a, tau)
+                    }
+                };
                 let mut out = Vec::with_capacity(2 * harmonics.len());
                 for h in harmonics {
                     let hc = self.c(f64::from(*h));

@@ -1,0 +1,197 @@
+//! The numbers a candidate with a fitted non-linear parameter states come from the refit that
+//! adding its line gives, not from the scan that found it: the scan tests a wavelength or time
+//! constant on a grid, and the refit moves it (and the residual level with it).
+
+use kin_compiler::{compile, Compiled};
+
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+
+use super::analyse::DiagnoseError;
+use super::periodic;
+use super::{Finding, Fitted};
+use crate::fit::{self, DataSet};
+
+/// `source` with `line` added to the last `errors` block (or a new one).
+fn with_line(source: &str, line: &str) -> Result<String, DiagnoseError> {
+    let file = kin_compiler::syntax::parse_file(source)
+        .map_err(|d| DiagnoseError::Candidates(d.message))?;
+    let (at, open, close) = match file.machine.errors_close() {
+        Some(at) => (at, "", ""),
+        None => (file.machine.span.end.saturating_sub(1), "errors {\n", "}\n"),
+    };
+    let (head, tail) = (
+        source.get(..at).unwrap_or(""),
+        source.get(at..).unwrap_or(""),
+    );
+    Ok(format!("{head}\n{open}{line}\n{close}{tail}"))
+}
+
+/// Refits the model with the finding's line and states the refit's values: the residual RMS
+/// after, each new non-linear parameter with its standard error, and the line with the fitted
+/// values as its start values. A refit that fails leaves the finding as the scan stated it.
+pub(super) fn restate(
+    finding: &mut Finding,
+    base: &Compiled,
+    source: &str,
+    files: &[DataSet],
+    options: &fit::Options,
+    engine: crate::engine::Engine,
+    alpha: f64,
+) -> Result<(), DiagnoseError> {
+    let refit = |line: &str| -> Result<Option<(Compiled, fit::FitResult)>, DiagnoseError> {
+        let Some(c) = compile(&with_line(source, line)?).compiled else {
+            return Ok(None);
+        };
+        let r = {
+            let mut eval = crate::engine::make(&c.machine, engine)?;
+            fit::fit(&c, eval.as_mut(), files, &[], options, &mut |_, _| {}).ok()
+        };
+        Ok(r.map(|r| (c, r)))
+    };
+    let Some((mut c, mut r)) = refit(&finding.candidate.text)? else {
+        return Ok(());
+    };
+    // A series' top harmonic is tested again with the wavelength fitted: at the scanned
+    // wavelength, a small phase drift over many periods makes higher harmonics look needed.
+    while let Some((top, at)) = periodic::top_harmonic(&finding.candidate.text) {
+        if top < 2 {
+            break;
+        }
+        let mut line = finding.candidate.text.clone();
+        line.replace_range(at, &(top - 1).to_string());
+        let line = line.replace("harmonics 1..1,", "harmonics 1,");
+        let Some((c1, r1)) = refit(&line)? else {
+            break;
+        };
+        if significant_gain(&r1, &r, alpha) {
+            break;
+        }
+        finding.candidate.explanation = finding
+            .candidate
+            .explanation
+            .replace(&periodic::phrase(top), &periodic::phrase(top - 1));
+        finding.candidate.text = line;
+        finding.columns = finding.columns.saturating_sub(2);
+        (c, r) = (c1, r1);
+    }
+    let Some(nl) = &r.nonlinear else {
+        return Ok(());
+    };
+    let s = c.machine.units.error.scale;
+    let all: Vec<f64> = r.residuals.iter().map(|x| x.residual / s).collect();
+    finding.rms_after = fit::report::rms(&all);
+    let mut fitted = Vec::new();
+    for (i, p) in c.machine.nonlinear.iter().enumerate() {
+        if !p.fitted || base.machine.nonlinear.iter().any(|q| q.name == p.name) {
+            continue;
+        }
+        let (Some(&v), Some(se)) = (nl.values.get(i), nl.se.get(i).copied().flatten()) else {
+            continue;
+        };
+        let u = &p.unit;
+        fitted.push(Fitted {
+            name: p.name.clone(),
+            value: u.from_si(v) - u.from_si(0.0),
+            se: u.from_si(se) - u.from_si(0.0),
+            unit: u.name.clone(),
+        });
+    }
+    finding.candidate.text = with_values(&finding.candidate.text, &fitted);
+    for f in &fitted {
+        let what = f.name.rsplit('.').next().unwrap_or(&f.name);
+        finding.candidate.explanation.push_str(&format!(
+            "; refit with this line: {what} {} ± {} {} (2σ)",
+            significant(f.value, f.se),
+            significant(2.0 * f.se, f.se),
+            f.unit
+        ));
+    }
+    finding.fitted = fitted;
+    Ok(())
+}
+
+/// Whether the fit `big` improves on `small` (its columns and parameters a subset) by a
+/// partial F-test at `alpha`, the residual sums of squares weighted as the fits are.
+fn significant_gain(small: &fit::FitResult, big: &fit::FitResult, alpha: f64) -> bool {
+    let params = |r: &fit::FitResult| {
+        r.solution.rank
+            + r.nonlinear
+                .as_ref()
+                .map_or(0, |n| n.se.iter().filter(|s| s.is_some()).count())
+    };
+    let (p0, p1) = (params(small), params(big));
+    let dof = big.rows.saturating_sub(p1) as f64;
+    let q = p1.saturating_sub(p0) as f64;
+    if q <= 0.0 || dof <= 0.0 || big.solution.rss <= 0.0 {
+        return false;
+    }
+    let f = ((small.solution.rss - big.solution.rss) / q) / (big.solution.rss / dof);
+    let p = FisherSnedecor::new(q, dof)
+        .map(|d| 1.0 - d.cdf(f.max(0.0)))
+        .unwrap_or(1.0);
+    p < alpha
+}
+
+/// The line with the value (and unit) after each `fit` replaced by the fitted ones, in order.
+fn with_values(line: &str, fitted: &[Fitted]) -> String {
+    let mut out = String::new();
+    let mut rest = line;
+    for f in fitted {
+        let Some(at) = rest.find(" fit ") else { break };
+        let (head, tail) = rest.split_at(at + 5);
+        // The value and its unit end at the option's `,` or the call's `)`.
+        let end = tail.find([',', ')']).unwrap_or(tail.len());
+        out.push_str(head);
+        out.push_str(&format!("{} {}", significant(f.value, f.se), f.unit));
+        rest = &tail[end..];
+    }
+    out.push_str(rest);
+    out
+}
+
+/// `v` to one more decimal than its standard error's leading digit (at least four significant
+/// digits, at most twelve decimals).
+fn significant(v: f64, se: f64) -> String {
+    let lead = |x: f64| x.abs().log10().floor() as i32;
+    let by_se = if se > 0.0 && se.is_finite() {
+        1 - lead(se)
+    } else {
+        0
+    };
+    let by_value = if v != 0.0 && v.is_finite() {
+        3 - lead(v)
+    } else {
+        0
+    };
+    let decimals = by_se.max(by_value).clamp(0, 12) as usize;
+    format!("{v:.decimals$}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fitted_values_replace_the_scanned_ones() {
+        let f = |value, se, unit: &str| Fitted {
+            name: String::new(),
+            value,
+            se,
+            unit: unit.into(),
+        };
+        assert_eq!(
+            with_values(
+                "X.tx += fourier(X, harmonics 1..2, wavelength fit 20.05 mm)",
+                &[f(19.99974, 0.00053, "mm")]
+            ),
+            "X.tx += fourier(X, harmonics 1..2, wavelength fit 19.99974 mm)"
+        );
+        assert_eq!(
+            with_values(
+                "tool.tz += lag(T, tau fit 30 min) * const",
+                &[f(40.123, 2.5, "min")]
+            ),
+            "tool.tz += lag(T, tau fit 40.12 min) * const"
+        );
+    }
+}

@@ -787,15 +787,17 @@ fn test_candidates(
         tested[i].finding.p_adjusted = running;
         tested[i].finding.significant = running < settings.alpha;
     }
-    // One finding per group (a lag at its best time constant); a BTreeMap and a tie-break on
-    // the text keep the choice independent of any iteration order.
+    // One finding per group (a lag at its best time constant, a constant step or one whose
+    // width varies): the lowest BIC, so that a member with more columns wins only when they
+    // pay; a BTreeMap and a tie-break on the text keep the choice independent of any
+    // iteration order.
     let mut best: BTreeMap<String, Tested> = BTreeMap::new();
     for t in tested {
         let g = proposals[t.proposal].group.clone();
         match best.get(&g) {
             Some(b)
-                if b.finding.f > t.finding.f
-                    || (b.finding.f == t.finding.f
+                if b.finding.bic < t.finding.bic
+                    || (b.finding.bic == t.finding.bic
                         && b.finding.candidate.text <= t.finding.candidate.text) => {}
             _ => {
                 best.insert(g, t);
@@ -861,6 +863,7 @@ fn simplicity(f: Family) -> u8 {
         Family::CrossCoupling => 5,
         Family::Periodic => 6,
         Family::RevoluteHarmonics => 7,
+        Family::ErrorMotion => 6,
         Family::MoreKnots => 8,
     }
 }

@@ -32,6 +32,9 @@ pub enum Family {
     AbbeAngular,
     /// A missing squareness or axis-location constant.
     Constant,
+    /// An error motion of an axis along its own travel: a prismatic axis' positioning (scale)
+    /// or straightness error, a limited rotary axis' angular positioning error (§3.2.2–3.2.3).
+    ErrorMotion,
 }
 
 /// A term that could be added to the model.
@@ -212,6 +215,8 @@ pub struct Diagnosis {
 }
 
 mod analyse;
+pub mod coverage;
 pub mod library;
+mod motions;
 
 pub use analyse::{diagnose, DiagnoseError, Settings};

@@ -210,11 +210,15 @@ fn once_per_rev(
     }
 }
 
-/// Whether the positions of a revolute axis go round: the visited angles, with one sampling
-/// step beyond the last (the step that closes the circle), span a turn, at three positions at
-/// least (a sinusoid of one period has a cosine, a sine and the mean to fit).
+/// Whether the positions of a revolute axis go round: the arc the visited angles leave
+/// uncovered is no wider than two sampling steps or 10° (random angles leave a few steps at
+/// the wrap; 0°, 90°, 180°, 270° leave one step), at three positions at least (a sinusoid of
+/// one period has a cosine, a sine and the mean to fit).
 fn covers_revolution(s: &super::library::Sampling) -> bool {
-    s.distinct >= 3 && s.span() + s.step >= std::f64::consts::TAU * (1.0 - 1e-9)
+    let turn = std::f64::consts::TAU;
+    s.distinct >= 3
+        && s.span() <= turn * (1.0 + 1e-9)
+        && turn - s.span() <= (2.0 * s.step).max(turn / 36.0)
 }
 
 /// A reversal error whose width varies with the axis' position (Soons 1993, §3.2.5: the

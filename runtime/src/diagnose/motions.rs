@@ -26,6 +26,7 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                 frame,
                 &name,
                 &axis.name,
+                own,
                 along(axis.direction),
                 knots,
                 out,
@@ -39,9 +40,14 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                 for comp in [axial, angular] {
                     once_per_rev(m, frame, &name, &axis.name, comp, &siblings, out);
                 }
-            } else if sampled.is_some() && !has(m, frame, angular, |t| uses(t, own)) {
+            } else if !axis.continuous
+                && sampled.is_some()
+                && !has(m, frame, angular, |t| uses(t, own))
+            {
                 // Over less than a turn the angular positioning error is a curve along the
-                // range, as for a prismatic axis; harmonics would be ill-conditioned there.
+                // range, as for a prismatic axis; harmonics would be ill-conditioned there. A
+                // continuous axis is left out: its angles wrap, and a spline over the turn
+                // would join the two ends of the data seen across 0°.
                 let target = format!("{name}.{}", angular.name());
                 push(
                     out,
@@ -83,19 +89,17 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
 /// (eq. 3.4–3.8), for components with no term in the axis' position yet. The positioning
 /// error is offered as a scale error (`linear`) and as a spline; both are one group, so the
 /// one with the better information criterion is reported.
+#[allow(clippy::too_many_arguments)]
 fn travel(
     m: &Machine,
     frame: FrameRef,
     name: &str,
     axis: &str,
+    own: Var,
     motion: Component,
     knots: usize,
     out: &mut Vec<Proposal>,
 ) {
-    let own = match m.axes.iter().position(|x| x.name == axis) {
-        Some(a) => Var::Axis(a),
-        None => return,
-    };
     for comp in [Component::Tx, Component::Ty, Component::Tz] {
         if has(m, frame, comp, |t| uses(t, own)) {
             continue;

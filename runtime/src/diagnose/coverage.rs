@@ -11,7 +11,7 @@ use super::Family;
 
 /// The kind of element a candidate is on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Element {
+pub(super) enum Element {
     Prismatic,
     Revolute,
     /// The tool end (`tool`, or one tool by name).
@@ -20,7 +20,7 @@ pub enum Element {
 
 /// The components of a row, relative to the element's axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Components {
+pub(super) enum Components {
     /// The translation along the axis (a prismatic axis' motion, a revolute axis' axial motion).
     Along,
     /// The translations across the axis.
@@ -39,7 +39,7 @@ pub enum Components {
 
 /// One row of the coverage table.
 #[derive(Debug, Clone, Copy)]
-pub struct Row {
+pub(super) struct Row {
     /// A short stable key, also the row's name in spec/diagnosis.md.
     pub key: &'static str,
     pub element: Element,
@@ -51,7 +51,7 @@ pub struct Row {
 
 /// The table. The rule that admits each row and its thesis section are in spec/diagnosis.md,
 /// next to the same key.
-pub const ROWS: &[Row] = &[
+pub(super) const ROWS: &[Row] = &[
     Row {
         key: "squareness",
         element: Element::Prismatic,
@@ -224,7 +224,7 @@ pub const ROWS: &[Row] = &[
 
 /// The row a proposal of the library belongs to; `None` if no row describes it (the table is
 /// then incomplete, which the tests below catch).
-pub fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
+pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
     let (frame, comp) = p.candidate.target.split_once('.')?;
     let axis = m.axes.iter().enumerate().find(|(_, a)| a.name == frame);
     let element = match axis {
@@ -387,6 +387,7 @@ machine cover {{
         let mut seen = BTreeSet::new();
         for r in ROWS {
             assert!(seen.insert(r.key), "key {} twice", r.key);
+            assert!(!r.form.is_empty(), "row {} states no form", r.key);
             assert!(
                 spec.contains(&format!("| `{}` |", r.key)),
                 "spec/diagnosis.md has no row `{}`",

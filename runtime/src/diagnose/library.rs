@@ -297,7 +297,7 @@ pub(super) fn has(
         .any(test)
 }
 
-pub(super) fn is_const(t: &kin_compiler::ir::Term) -> bool {
+fn is_const(t: &kin_compiler::ir::Term) -> bool {
     t.coefficients == 1 && t.factors.is_empty()
 }
 

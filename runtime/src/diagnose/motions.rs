@@ -1,5 +1,5 @@
 //! The error motions of an axis along its own travel and the reversal errors whose width
-//! varies with position: the rows of the coverage table ([`super::coverage`]) that the older
+//! varies with position: the rows of the coverage table (`coverage.rs`, spec/diagnosis.md) that the older
 //! families of [`super::library`] do not generate. Each candidate is proposed only when the
 //! model lacks it and the data can show it (directions of motion, a covered revolution).
 

@@ -1008,6 +1008,7 @@ fn family(f: Family) -> &'static str {
         Family::RevoluteHarmonics => "revolute harmonics",
         Family::AbbeAngular => "Abbe (angular)",
         Family::Constant => "constant",
+        Family::ErrorMotion => "error motion",
     }
 }
 

@@ -826,8 +826,10 @@ fn test_candidates(
         tested[i].finding.p_adjusted = running;
         tested[i].finding.significant = running < settings.alpha;
     }
-    // One finding per group (a lag at its best time constant); a BTreeMap and a tie-break on
-    // the text keep the choice independent of any iteration order.
+    // One finding per group (a lag at its best time constant, a constant step or one whose
+    // width varies): the lowest BIC, so that a member with more columns wins only when they
+    // pay; a BTreeMap and a tie-break on the text keep the choice independent of any
+    // iteration order.
     let mut groups: BTreeMap<String, Vec<Tested>> = BTreeMap::new();
     for t in tested {
         groups
@@ -857,8 +859,8 @@ fn test_candidates(
         for t in members {
             match &best {
                 Some(b)
-                    if b.finding.f > t.finding.f
-                        || (b.finding.f == t.finding.f
+                    if b.finding.bic < t.finding.bic
+                        || (b.finding.bic == t.finding.bic
                             && b.finding.candidate.text <= t.finding.candidate.text) => {}
                 _ => best = Some(t),
             }
@@ -938,6 +940,7 @@ fn simplicity(f: Family) -> u8 {
         Family::CrossCoupling => 5,
         Family::Periodic => 6,
         Family::RevoluteHarmonics => 7,
+        Family::ErrorMotion => 6,
         Family::MoreKnots => 8,
     }
 }

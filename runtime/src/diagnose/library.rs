@@ -115,7 +115,7 @@ pub struct Term {
 }
 
 impl Term {
-    fn new(text: String) -> Term {
+    pub(super) fn new(text: String) -> Term {
         Term {
             test: text.clone(),
             text,
@@ -123,7 +123,7 @@ impl Term {
         }
     }
 
-    fn harmonic(axis: &str, h: u32) -> Term {
+    pub(super) fn harmonic(axis: &str, h: u32) -> Term {
         Term {
             harmonic: Some((axis.to_string(), h)),
             ..Term::new(format!("fourier({axis}, harmonics {h})"))
@@ -234,7 +234,7 @@ pub fn restate(p: &Proposal, kept: &[bool]) -> Candidate {
     }
 }
 
-fn frame_name(m: &Machine, f: FrameRef) -> Option<String> {
+pub(super) fn frame_name(m: &Machine, f: FrameRef) -> Option<String> {
     let axis = |chain: &[kin_compiler::ir::Element], k: usize| {
         chain
             .get(k)
@@ -251,7 +251,7 @@ fn frame_name(m: &Machine, f: FrameRef) -> Option<String> {
 }
 
 /// The frame of each axis, in chain order.
-fn axis_frames(m: &Machine) -> Vec<(usize, FrameRef)> {
+pub(super) fn axis_frames(m: &Machine) -> Vec<(usize, FrameRef)> {
     let mut out: Vec<(usize, FrameRef)> = m
         .tool_chain
         .iter()
@@ -268,14 +268,14 @@ fn axis_frames(m: &Machine) -> Vec<(usize, FrameRef)> {
 }
 
 /// Which of tx, ty, tz lies along a unit direction (the largest component).
-fn along(direction: [f64; 3]) -> Component {
+pub(super) fn along(direction: [f64; 3]) -> Component {
     let k = (0..3)
         .max_by(|&a, &b| direction[a].abs().total_cmp(&direction[b].abs()))
         .unwrap_or(0);
     [Component::Tx, Component::Ty, Component::Tz][k]
 }
 
-fn rotation_about(direction: [f64; 3]) -> Component {
+pub(super) fn rotation_about(direction: [f64; 3]) -> Component {
     match along(direction) {
         Component::Tx => Component::Rx,
         Component::Ty => Component::Ry,
@@ -284,7 +284,7 @@ fn rotation_about(direction: [f64; 3]) -> Component {
 }
 
 /// Whether a model already has a term of the given shape on a target.
-fn has(
+pub(super) fn has(
     m: &Machine,
     frame: FrameRef,
     comp: Component,
@@ -301,7 +301,7 @@ fn is_const(t: &kin_compiler::ir::Term) -> bool {
     t.coefficients == 1 && t.factors.is_empty()
 }
 
-fn uses(t: &kin_compiler::ir::Term, v: Var) -> bool {
+pub(super) fn uses(t: &kin_compiler::ir::Term, v: Var) -> bool {
     t.factors.iter().any(|f| f.var == v)
 }
 
@@ -373,7 +373,8 @@ pub fn propose(
             }
         }
 
-        // Angular errors seen through the tool's Abbe offset.
+        // Angular errors seen through the tool's Abbe offset, with as many knots as the axis'
+        // other splines: fewer would leave "more knots" for the next round.
         if !revolute {
             for comp in [Component::Rx, Component::Ry, Component::Rz] {
                 if !has(m, frame, comp, |t| uses(t, own)) {
@@ -382,7 +383,7 @@ pub fn propose(
 &mut out,
                         Family::AbbeAngular,
                         target.clone(),
-                        vec![Term::new(format!("spline({}, knots 2)", axis.name))],
+                        vec![Term::new(format!("spline({}, knots {})", axis.name, sibling_knots(m, frame, own)))],
                         format!("the {} carriage tilts about {} as it travels; the tool sees the tilt times its Abbe offset", axis.name, &comp.name()[1..]),
                         None,
                     );
@@ -568,6 +569,10 @@ pub fn propose(
         let _ = angle;
     }
 
+    // The error motions, reversal widths and offsets the families above leave out (the
+    // coverage table of spec/diagnosis.md).
+    super::motions::propose(m, available, &mut out);
+
     // Thermal drift: a temperature input through a lag, on the tool (growth of the spindle or
     // ram) and on each prismatic axis' scale.
     for (i, input) in m.inputs.iter().enumerate() {
@@ -648,6 +653,22 @@ pub fn propose(
         }
     }
     out
+}
+
+/// The knot count a new spline along axis `own` on `frame` takes: the most any spline of that
+/// frame along it has (its siblings), at least 2.
+pub(super) fn sibling_knots(m: &Machine, frame: FrameRef, own: Var) -> usize {
+    m.errors
+        .iter()
+        .filter(|e| e.frame == frame)
+        .flat_map(|e| &e.terms)
+        .flat_map(|t| &t.factors)
+        .filter(|f| f.var == own)
+        .filter_map(|f| match &f.basis {
+            Basis::Spline { knots, .. } => Some(knots.len()),
+            _ => None,
+        })
+        .fold(2, usize::max)
 }
 
 pub(super) fn round(v: f64) -> f64 {

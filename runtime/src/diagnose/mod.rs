@@ -32,6 +32,9 @@ pub enum Family {
     AbbeAngular,
     /// A missing squareness or axis-location constant.
     Constant,
+    /// An error motion of an axis along its own travel: a prismatic axis' positioning (scale)
+    /// or straightness error, a limited rotary axis' angular positioning error (§3.2.2–3.2.3).
+    ErrorMotion,
 }
 
 /// A term that could be added to the model.
@@ -226,7 +229,11 @@ pub struct Diagnosis {
 }
 
 mod analyse;
+// The coverage table the library is audited against (its tests; spec/diagnosis.md for users).
+#[cfg(test)]
+mod coverage;
 pub mod library;
+mod motions;
 mod periodic;
 mod refit;
 

@@ -1,0 +1,285 @@
+//! The error motions of an axis along its own travel and the reversal errors whose width
+//! varies with position: the rows of the coverage table (`coverage.rs`, spec/diagnosis.md) that the older
+//! families of [`super::library`] do not generate. Each candidate is proposed only when the
+//! model lacks it and the data can show it (directions of motion, a covered revolution).
+
+use kin_compiler::basis::Basis;
+use kin_compiler::ir::{Component, FrameRef, JointKind, Machine, Var};
+
+use super::library::{
+    along, axis_frames, frame_name, has, line, push, rotation_about, sibling_knots, uses,
+    Available, Proposal, Term,
+};
+use super::Family;
+
+/// Appends the candidates of the rows this module generates.
+pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal>) {
+    for (a, frame) in axis_frames(m) {
+        let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else {
+            continue;
+        };
+        let own = Var::Axis(a);
+        let knots = sibling_knots(m, frame, own);
+        if axis.kind == JointKind::Prismatic {
+            travel(
+                m,
+                frame,
+                &name,
+                &axis.name,
+                own,
+                along(axis.direction),
+                knots,
+                out,
+            );
+        } else {
+            let sampled = available.sampled.get(a).copied().flatten();
+            let full = sampled.as_ref().is_some_and(covers_revolution);
+            let (axial, angular) = (along(axis.direction), rotation_about(axis.direction));
+            if full {
+                let siblings = sampled.map(|s| s.harmonics(2..=4)).unwrap_or_default();
+                for comp in [axial, angular] {
+                    once_per_rev(m, frame, &name, &axis.name, comp, &siblings, out);
+                }
+            } else if !axis.continuous
+                && sampled.is_some()
+                && !has(m, frame, angular, |t| uses(t, own))
+            {
+                // Over less than a turn the angular positioning error is a curve along the
+                // range, as for a prismatic axis; harmonics would be ill-conditioned there. A
+                // continuous axis is left out: its angles wrap, and a spline over the turn
+                // would join the two ends of the data seen across 0°.
+                let target = format!("{name}.{}", angular.name());
+                push(
+                    out,
+                    Family::ErrorMotion,
+                    target.clone(),
+                    vec![Term::new(format!("spline({}, knots {knots})", axis.name))],
+                    format!(
+                        "{target} varies over the range of {}: an angular positioning error of the axis (its encoder or drive)",
+                        axis.name
+                    ),
+                    None,
+                );
+            }
+        }
+        if available.directions.get(a).copied().unwrap_or(false) {
+            // A continuous axis wraps: a reversal width linear in its angle would jump by the
+            // slope × 2π where the angle wraps.
+            if axis.kind == JointKind::Revolute && axis.continuous {
+                continue;
+            }
+            let comps: Vec<Component> = if axis.kind == JointKind::Revolute {
+                vec![rotation_about(axis.direction)]
+            } else {
+                vec![
+                    along(axis.direction),
+                    Component::Rx,
+                    Component::Ry,
+                    Component::Rz,
+                ]
+            };
+            for comp in comps {
+                reversal_width(m, frame, &name, &axis.name, a, comp, knots, out);
+            }
+        }
+    }
+}
+
+/// A prismatic axis' positioning error along its travel (eq. 3.1) and straightness across it
+/// (eq. 3.4–3.8), for components with no term in the axis' position yet. The positioning
+/// error is offered as a scale error (`linear`) and as a spline; both are one group, so the
+/// one with the better information criterion is reported.
+#[allow(clippy::too_many_arguments)]
+fn travel(
+    m: &Machine,
+    frame: FrameRef,
+    name: &str,
+    axis: &str,
+    own: Var,
+    motion: Component,
+    knots: usize,
+    out: &mut Vec<Proposal>,
+) {
+    for comp in [Component::Tx, Component::Ty, Component::Tz] {
+        if has(m, frame, comp, |t| uses(t, own)) {
+            continue;
+        }
+        let target = format!("{name}.{}", comp.name());
+        if comp == motion {
+            let group = format!("positioning {target}");
+            push(
+                out,
+                Family::ErrorMotion,
+                target.clone(),
+                vec![Term::new(format!("linear({axis})"))],
+                format!("{target} grows in proportion to the travel of {axis}: a scale error of its measuring system"),
+                Some(group.clone()),
+            );
+            push(
+                out,
+                Family::ErrorMotion,
+                target.clone(),
+                vec![Term::new(format!("spline({axis}, knots {knots})"))],
+                format!("{target} varies along {axis}: a positioning error of the axis (its scale or leadscrew)"),
+                Some(group),
+            );
+        } else {
+            push(
+                out,
+                Family::ErrorMotion,
+                target.clone(),
+                vec![Term::new(format!("straightness({axis}, knots {knots})"))],
+                format!("the {axis} carriage does not travel straight along {}: a straightness error of its guideway (the linear trend is a squareness)", &comp.name()[1..]),
+                None,
+            );
+        }
+    }
+}
+
+/// Once-per-revolution axial motion and angular positioning error of a revolute axis that
+/// covers a revolution. Unlike radial and tilt motion, which at once per revolution are the
+/// axis' location (Soons 1993, appendix B), these two are not absorbed by any constant. Offered
+/// alone and with the 2 … 4 per revolution the library tests anyway, in that candidate's
+/// group, so the reading with the better information criterion is the finding.
+fn once_per_rev(
+    m: &Machine,
+    frame: FrameRef,
+    name: &str,
+    axis: &str,
+    comp: Component,
+    siblings: &[u32],
+    out: &mut Vec<Proposal>,
+) {
+    let Some(a) = m.axes.iter().position(|x| x.name == axis) else {
+        return;
+    };
+    let own = Var::Axis(a);
+    // A term in the angle that can follow a sinusoid of one period already holds it.
+    let holds_first = |t: &kin_compiler::ir::Term| {
+        t.factors.iter().any(|f| {
+            f.var == own
+                && match &f.basis {
+                    Basis::Fourier { harmonics, .. } => harmonics.contains(&1),
+                    Basis::Spline { detrend, .. } => {
+                        *detrend != kin_compiler::basis::Detrend::OncePerRev
+                    }
+                    Basis::Sign => false,
+                    _ => true,
+                }
+        })
+    };
+    if has(m, frame, comp, holds_first) {
+        return;
+    }
+    let target = format!("{name}.{}", comp.name());
+    let motion = if comp.is_rotation() {
+        "angular positioning error"
+    } else {
+        "axial error motion"
+    };
+    let others = !siblings.is_empty() && !has(m, frame, comp, |t| uses(t, own));
+    let group = if others {
+        let terms: Vec<Term> = siblings.iter().map(|&h| Term::harmonic(axis, h)).collect();
+        let all: Vec<&Term> = terms.iter().collect();
+        line(&target, &all, true)
+    } else {
+        format!("once per revolution {target}")
+    };
+    let first = out.len();
+    let what = format!(
+        "a {motion} of the {axis} axis at once per revolution (a tilted or eccentric bearing face, an eccentric encoder), which no location error absorbs"
+    );
+    push(
+        out,
+        Family::RevoluteHarmonics,
+        target.clone(),
+        vec![Term::harmonic(axis, 1)],
+        what.clone(),
+        Some(group.clone()),
+    );
+    if others {
+        let mut terms = vec![Term::harmonic(axis, 1)];
+        terms.extend(siblings.iter().map(|&h| Term::harmonic(axis, h)));
+        push(
+            out,
+            Family::RevoluteHarmonics,
+            target,
+            terms,
+            what,
+            Some(group),
+        );
+    }
+    for p in out.iter_mut().skip(first) {
+        p.motion = motion.to_string();
+    }
+}
+
+/// Whether the positions of a revolute axis go round: the arc the visited angles leave
+/// uncovered is no wider than two sampling steps or 10° (random angles leave a few steps at
+/// the wrap; 0°, 90°, 180°, 270° leave one step), at three positions at least (a sinusoid of
+/// one period has a cosine, a sine and the mean to fit).
+fn covers_revolution(s: &super::library::Sampling) -> bool {
+    let turn = std::f64::consts::TAU;
+    s.distinct >= 3
+        && s.span() <= turn * (1.0 + 1e-9)
+        && turn - s.span() <= (2.0 * s.step).max(turn / 36.0)
+}
+
+/// A reversal error whose width varies with the axis' position (Soons 1993, §3.2.5: the
+/// clearance varies along the guideway; a leadscrew's elastic windup grows with the length in
+/// the loop). Nested with the constant step: with the constant in the model, the extension
+/// alone; without it, the constant plus the extension, in the constant's group, so that the
+/// extended form is the finding only when its information criterion beats the constant's.
+#[allow(clippy::too_many_arguments)]
+fn reversal_width(
+    m: &Machine,
+    frame: FrameRef,
+    name: &str,
+    axis: &str,
+    a: usize,
+    comp: Component,
+    knots: usize,
+    out: &mut Vec<Proposal>,
+) {
+    let (own, dir) = (Var::Axis(a), Var::Direction(a));
+    let target = format!("{name}.{}", comp.name());
+    let step_only = |t: &kin_compiler::ir::Term| t.factors.len() == 1 && uses(t, dir);
+    let with_position = |t: &kin_compiler::ir::Term| uses(t, dir) && uses(t, own);
+    if has(m, frame, comp, with_position) {
+        return;
+    }
+    let constant = has(m, frame, comp, step_only);
+    if !constant && has(m, frame, comp, |t| uses(t, dir)) {
+        // Some other reversal term the model states (e.g. across axes): leave it to the user.
+        return;
+    }
+    let step = Term::new(format!("backlash({axis})"));
+    let kind = if comp.is_rotation() {
+        "angular hysteresis"
+    } else {
+        "backlash"
+    };
+    let group = if constant {
+        format!("reversal width {target}")
+    } else {
+        line(&target, &[&step], true)
+    };
+    for width in [
+        format!("linear({axis}) * backlash({axis})"),
+        format!("spline({axis}, knots {knots}) * backlash({axis})"),
+    ] {
+        let mut terms = Vec::new();
+        if !constant {
+            terms.push(step.clone());
+        }
+        terms.push(Term::new(width));
+        push(
+            out,
+            Family::Backlash,
+            target.clone(),
+            terms,
+            format!("{target} steps with the direction of motion of {axis} by an amount that changes along {axis}: {kind} whose width varies with position (clearance along the guideway, windup of the drive)"),
+            Some(group.clone()),
+        );
+    }
+}

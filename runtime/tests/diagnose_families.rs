@@ -144,6 +144,7 @@ const CASES: &[Case] = &[
         // 5 µm at λ = 20 mm and 2 µm at λ/2: one round must take both harmonics.
         hidden: "X.tx += fourier(X, harmonics 1..2, wavelength 20 mm)",
         values: &[5.0, 0.0, 0.0, 2.0],
+        form: "fourier(X, harmonics 1..2, wavelength fit",
     },
     Case {
         name: "more knots (X.tx bump)",

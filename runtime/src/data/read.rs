@@ -74,7 +74,7 @@ pub fn read(
     reader.finish().map_err(|p| invalid(p.list, p.omitted))
 }
 
-fn not_utf8(bytes: &[u8], valid: usize) -> Problem {
+pub(super) fn not_utf8(bytes: &[u8], valid: usize) -> Problem {
     let prefix = bytes.get(..valid).unwrap_or_default();
     let line_start = prefix
         .iter()
@@ -87,7 +87,7 @@ fn not_utf8(bytes: &[u8], valid: usize) -> Problem {
 }
 
 /// Comments and blank lines carry no data; a comment may come before the header.
-fn skipped(line: &str) -> bool {
+pub(super) fn skipped(line: &str) -> bool {
     let t = line.trim_start();
     t.is_empty() || t.starts_with('#')
 }
@@ -107,14 +107,14 @@ enum Tok {
 /// A cell's span in its line, spaces around it excluded (ASCII ones; the slow path trims the
 /// rest). An empty cell has `start == end` at the place it would be.
 #[derive(Debug, Clone, Copy)]
-struct Cell {
+pub(super) struct Cell {
     start: usize,
     end: usize,
     /// The cell is exactly one number token: the fast path may parse it directly.
     number: bool,
 }
 
-fn split_cells(line: &str, cells: &mut Vec<Cell>) {
+pub(super) fn split_cells(line: &str, cells: &mut Vec<Cell>) {
     cells.clear();
     let mut lex = Tok::lexer(line);
     let mut cell = Cell {
@@ -236,7 +236,7 @@ impl Problems {
     }
 }
 
-struct Reader<'m> {
+pub(super) struct Reader<'m> {
     machine: &'m Machine,
     kind: Kind,
     /// Observations optional: the file only gives poses to evaluate a model at.
@@ -291,7 +291,12 @@ fn split_name(text: &str) -> Result<(&str, Option<&str>), &'static str> {
 }
 
 impl<'m> Reader<'m> {
-    fn new(machine: &'m Machine, options: &ReadOptions, line_no: usize, line: &str) -> Self {
+    pub(super) fn new(
+        machine: &'m Machine,
+        options: &ReadOptions,
+        line_no: usize,
+        line: &str,
+    ) -> Self {
         let mut problems = Problems::default();
         let raw: Vec<(usize, &str)> = {
             let mut offset = 0;
@@ -455,7 +460,7 @@ impl<'m> Reader<'m> {
         }
     }
 
-    fn row(&mut self, line_no: usize, line: &str, cells: &[Cell]) {
+    pub(super) fn row(&mut self, line_no: usize, line: &str, cells: &[Cell]) {
         self.data_lines += 1;
         if cells.len() != self.columns.len() {
             self.problems.push(Problem::CellCount {
@@ -667,6 +672,23 @@ impl<'m> Reader<'m> {
         if !self.problems.is_empty() {
             return Err(self.problems);
         }
+        Ok(self.take())
+    }
+
+    /// The problems found so far, at most [`MAX_PROBLEMS`] of them, and how many more.
+    pub(super) fn problems(&self) -> (&[Problem], usize) {
+        (&self.problems.list, self.problems.omitted)
+    }
+
+    /// Data lines read so far (rows and rows with problems).
+    pub(super) fn data_lines(&self) -> usize {
+        self.data_lines
+    }
+
+    /// The rows read since the last call, as observations; the reader goes on with the next
+    /// rows. Run and artifact ids stay those of the whole file (the labels are all those seen
+    /// so far), so the rows of several calls can be told apart as one file's.
+    pub(super) fn take(&mut self) -> Observations {
         let n = self.lines.len();
         let m = self.machine;
         let ends = if self.kind == Kind::Lengths { 2 } else { 1 };
@@ -691,7 +713,12 @@ impl<'m> Reader<'m> {
         let mut dl = vec![f64::NAN; n];
         for col in &mut self.columns {
             let Some(role) = col.role else { continue };
-            match (std::mem::replace(&mut col.store, Store::Skip), role) {
+            let store = match &mut col.store {
+                Store::Skip => Store::Skip,
+                Store::Numbers(v) => Store::Numbers(std::mem::take(v)),
+                Store::Ids(v) => Store::Ids(std::mem::take(v)),
+            };
+            match (store, role) {
                 (Store::Numbers(v), Role::Axis { end, axis }) => {
                     if let Some(slot) = poses.get_mut(end).and_then(|p| p.axes.get_mut(axis)) {
                         *slot = v;
@@ -725,13 +752,13 @@ impl<'m> Reader<'m> {
                 (Store::Ids(ids), Role::Run) => {
                     rows.run = Some(Groups {
                         of_row: ids,
-                        labels: std::mem::take(&mut self.runs.labels),
+                        labels: self.runs.labels.clone(),
                     });
                 }
                 (Store::Ids(ids), Role::Artifact) => {
                     rows.artifact = Some(Groups {
                         of_row: ids.into_iter().map(|i| (i != NO_ID).then_some(i)).collect(),
-                        labels: std::mem::take(&mut self.artifacts.labels),
+                        labels: self.artifacts.labels.clone(),
                     });
                 }
                 _ => {}
@@ -742,7 +769,7 @@ impl<'m> Reader<'m> {
         }
         let mut poses = poses.into_iter();
         let first = poses.next().unwrap_or_default();
-        Ok(match self.kind {
+        match self.kind {
             Kind::Points => Observations::Points(PointData {
                 rows,
                 pose: first,
@@ -753,7 +780,7 @@ impl<'m> Reader<'m> {
                 poses: [first, poses.next().unwrap_or_default()],
                 dl,
             }),
-        })
+        }
     }
 }
 

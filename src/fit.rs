@@ -70,9 +70,10 @@ pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
     if let Some(out) = &a.output {
         check_outputs(out, a)?;
     }
-    let fitted = match streamed_paths(a)? {
-        Some(total) => fit_streamed(a, total)?,
-        None => fit_quietly(a)?,
+    let fitted = if streams(a) {
+        fit_streamed(a)?
+    } else {
+        fit_quietly(a)?
     };
     // Files first: when the reader of standard output has gone (`kin fit … | head -c1`), the
     // next print ends kin (SIGPIPE, see `main`), and the fit must already be on disk by then.
@@ -115,27 +116,26 @@ fn check_outputs(out: &Path, a: &FitArgs) -> Result<(), Failed> {
 /// whole-file path is as good.
 const STREAM_FROM_BYTES: u64 = 64 << 20;
 
-/// The data files' total size when `kin fit` streams them: large regular files (a pipe cannot
-/// be read once per pass), nothing held out or validated, and a machine whose fit needs no
-/// row twice at once (no fitted non-linear parameter, no lag).
-fn streamed_paths(a: &FitArgs) -> Result<Option<u64>, Failed> {
+/// Whether `kin fit` streams the data files: large regular files (a pipe cannot be read once
+/// per pass), nothing held out or validated. The machine is checked by [`fit_streamed`].
+fn streams(a: &FitArgs) -> bool {
     if !a.validate.is_empty() || a.holdout.is_some() {
-        return Ok(None);
+        return false;
     }
     let mut total = 0u64;
     for path in &a.data {
         match std::fs::metadata(path) {
             Ok(meta) if meta.is_file() => total = total.saturating_add(meta.len()),
             // Not a regular file, or not there: the whole-file reader says what is wrong.
-            _ => return Ok(None),
+            _ => return false,
         }
     }
-    Ok((total >= STREAM_FROM_BYTES).then_some(total))
+    total >= STREAM_FROM_BYTES
 }
 
 /// As [`fit_quietly`], reading the data files a block of rows at a time in each pass; falls
-/// back to it for a machine that cannot be streamed.
-fn fit_streamed(a: &FitArgs, bytes: u64) -> Result<Fitted, Failed> {
+/// back to it for a machine that cannot be streamed (fitted non-linear parameters, lags).
+fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
     let source = load::model_text(&a.machine, a.color)?;
     let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
     if !fit::stream::streamable(&compiled) {
@@ -147,9 +147,8 @@ fn fit_streamed(a: &FitArgs, bytes: u64) -> Result<Fitted, Failed> {
         poses: false,
         ignore: a.ignore.clone(),
     };
-    // The rows are not counted before the fit (that would be one more pass): the bar follows
-    // the bytes' share of the passes only roughly, so it shows the rows done.
-    let _ = bytes;
+    // The rows are not counted before the fit (that would be one more pass over the files):
+    // the progress shows the rows done in each pass.
     let bar = ProgressBar::new_spinner();
     bar.set_style(
         ProgressStyle::with_template("{msg:>12} {spinner} {pos} rows")

@@ -125,22 +125,50 @@ fn main() {
 
     let poses = identify::poses_for(p, Observe::Pose);
     let t = Instant::now();
-    let report = identify::sampled_with(
+    // What `kin check` runs: the dependencies, no condition estimate.
+    let report = identify::sampled_verdicts(
         &c.machine,
         Observe::Pose,
         false,
         poses,
         0x6b696e,
         Engine::Jit,
+        identify::Condition::Skip,
     )
     .expect("identifiability");
+    let seconds = t.elapsed().as_secs_f64();
+    // The floating-point work: the Gram matrix by poses (poses × p²/2 multiply-adds, using the
+    // pose structure) and its Cholesky factorisation (p³/6 multiply-adds).
+    let flops = 2.0 * poses as f64 * (p as f64).powi(2) / 2.0 + (p as f64).powi(3) / 3.0;
     println!(
-        "identifiability (pose, {poses} poses, {} rows): {:.2} s, peak RSS {:.0} MB, rank {} of {}, {} dependencies",
+        "identifiability (pose, {poses} poses, {} rows): {seconds:.2} s, peak RSS {:.0} MB, rank {} of {}, {} dependencies; {:.0} GFLOP/s on {:.2e} flop",
         report.rows,
-        t.elapsed().as_secs_f64(),
         peak_mb(),
         report.rank,
         report.columns,
-        report.dependencies.len()
+        report.dependencies.len(),
+        flops / seconds / 1e9,
+        flops
     );
+    println!("reference: {:.1} GFLOP/s", matmul_rate());
+}
+
+/// What one core reaches now on a large matrix product (faer, 1536³), in GFLOP/s: the rate
+/// the analysis could at best reach per core on this machine at this load.
+fn matmul_rate() -> f64 {
+    use faer::{Accum, Mat, Par};
+    const N: usize = 1536;
+    let a = Mat::<f64>::from_fn(N, N, |i, j| ((i * 31 + j * 17) % 97) as f64);
+    let b = a.transpose().to_owned();
+    let mut c = Mat::<f64>::zeros(N, N);
+    let t = Instant::now();
+    faer::linalg::matmul::matmul(
+        c.as_mut(),
+        Accum::Replace,
+        a.as_ref(),
+        b.as_ref(),
+        1.0,
+        Par::Seq,
+    );
+    2.0 * (N as f64).powi(3) / t.elapsed().as_secs_f64() / 1e9
 }

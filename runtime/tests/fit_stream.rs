@@ -228,3 +228,27 @@ fn a_bad_cell_past_the_first_block_is_the_same_error_as_when_read_whole() {
     assert!(whole.is_some(), "the damaged file must not read");
     assert_eq!(whole, streamed);
 }
+
+#[test]
+fn a_file_without_rows_or_with_a_bad_header_is_the_same_error_as_when_read_whole() {
+    let c = machine();
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (name, text) in [
+        ("empty.csv", "# nothing\n"),
+        ("header_only.csv", "X[mm],Y[mm],Z[mm],ex[um]\n"),
+        ("bad_header.csv", "X[mm],Y[mm],Z[mm],ex[um],bogus\n"),
+        (
+            "bad_header_rows.csv",
+            "X[mm],Y[mm],Z[mm],bogus,ex[um]\n1,2,-3,4,5\n",
+        ),
+    ] {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).expect("write");
+        let whole = data::read_file(&path, &c.machine, &ReadOptions::default())
+            .err()
+            .map(|e| e.to_string());
+        let streamed = streamed(&c, &[path], 10).err().map(|e| e.to_string());
+        assert!(whole.is_some(), "{name} must not read");
+        assert_eq!(whole, streamed, "{name}");
+    }
+}

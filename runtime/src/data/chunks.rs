@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use kin_compiler::ir::Machine;
 
 use super::read::{not_utf8, skipped, split_cells, Cell, Reader};
-use super::{Observations, Problem, ReadError, ReadOptions};
+use super::{Observations, Problem, ReadError, ReadOptions, MAX_PROBLEMS};
 
 /// The rows of one file, `rows` at a time (see [`chunks`]).
 pub struct Chunks<'m> {
@@ -126,7 +126,15 @@ impl Chunks<'_> {
     fn next_block(&mut self) -> Result<Option<Observations>, ReadError> {
         let more = self.fill()?;
         if !more && self.reader.data_lines() == 0 {
-            return Err(invalid(&self.path, vec![Problem::NoRows], 0));
+            // After the header's own problems, as `read` lists them.
+            let (problems, mut omitted) = self.reader.problems();
+            let mut problems = problems.to_vec();
+            if problems.len() < MAX_PROBLEMS {
+                problems.push(Problem::NoRows);
+            } else {
+                omitted += 1;
+            }
+            return Err(invalid(&self.path, problems, omitted));
         }
         if !self.reader.problems().0.is_empty() {
             // The whole file's problems, as `read` lists them; the rows are dropped as read.

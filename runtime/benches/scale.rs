@@ -23,9 +23,17 @@
 //! - `kin check`, 10 000 coefficients: 704 s / 894 MB before (previous measurement, load
 //!   8–9); 89 s, then 56 s with the condition estimate on slices (load 10); 26–27 s / 860 MB
 //!   at load 3–4.
+//! - `kin check`, 10 000 coefficients, split by phase with temporary timers (load 14, 2
+//!   threads): Gram matrix 48 s, factorisation 28 s, condition estimate 22 s, 98 s in all;
+//!   on one core (`taskset -c 0`) 41 / 28 / 24 s, 94 s — at that load the second thread
+//!   found no free core. `kin check` no longer estimates the condition (it never showed it).
+//!   Now 93 s / 846 MB at load 9, 7 GFLOP/s where one core's large product reached 14
+//!   (the `reference` line); 1 000 coefficients 0.4 s / 28 MB.
 //! - Fit, 10⁷ observed values (41 coefficients): 101 s wall, 19 s CPU at load 11; 20 s at load
 //!   3; 1.1 GB peak (about 110 bytes per value held). 10⁸ values (load 3): `kin simulate`
-//!   89 s / 7.4 GB, `kin fit` 206 s / 10.7 GB — linear in time and memory.
+//!   89 s / 7.4 GB, `kin fit` 206 s / 10.7 GB — linear in time and memory. Streamed
+//!   (`fit::stream`, 88 coefficients, load 8): 10⁷ values 152 s / 42 MB against 151 s /
+//!   1.18 GB read whole, the same FIT.json; 10⁸ values FIT8.
 
 use std::fmt::Write as _;
 use std::time::Instant;

@@ -42,7 +42,17 @@ fn identify(
         return Vec::new();
     }
     let n = kin_runtime::identify::poses_for(c.machine.coefficients.len(), observe);
-    match kin_runtime::identify::sampled_with(&c.machine, observe, aligned, n, 0x6b696e, engine) {
+    // `kin check` shows the dependencies only: the condition number is not estimated.
+    let report = kin_runtime::identify::sampled_verdicts(
+        &c.machine,
+        observe,
+        aligned,
+        n,
+        0x6b696e,
+        engine,
+        kin_runtime::identify::Condition::Skip,
+    );
+    match report {
         Ok(report) => {
             kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)
         }

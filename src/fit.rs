@@ -83,7 +83,11 @@ pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
     if let Some(out) = &a.output {
         check_outputs(out, a)?;
     }
-    let fitted = fit_quietly(a)?;
+    let fitted = if streams(a) {
+        fit_streamed(a)?
+    } else {
+        fit_quietly(a)?
+    };
     finish(a, &fitted)?;
     Ok(fitted)
 }
@@ -127,6 +131,141 @@ fn check_outputs(out: &Path, a: &FitArgs) -> Result<(), Failed> {
     crate::files::check(&params, &inputs)
 }
 
+/// Data files together at least this large are fitted without holding their rows (see
+/// [`fit::stream`]): below it the rows take less memory than a few hundred megabytes and the
+/// whole-file path is as good.
+const STREAM_FROM_BYTES: u64 = 64 << 20;
+
+/// Whether `kin fit` streams the data files: large regular files (a pipe cannot be read once
+/// per pass), nothing held out or validated. The machine is checked by [`fit_streamed`].
+fn streams(a: &FitArgs) -> bool {
+    // A stated noise weights rows by kind, which needs every kind of row the files hold
+    // checked before the fit (the whole-file path does it).
+    if !a.validate.is_empty() || a.holdout.is_some() || a.noise.is_some() {
+        return false;
+    }
+    let mut total = 0u64;
+    for path in &a.data {
+        match std::fs::metadata(path) {
+            Ok(meta) if meta.is_file() => total = total.saturating_add(meta.len()),
+            // Not a regular file, or not there: the whole-file reader says what is wrong.
+            _ => return false,
+        }
+    }
+    total >= STREAM_FROM_BYTES
+}
+
+/// As [`fit_quietly`], reading the data files a block of rows at a time in each pass; falls
+/// back to it for a machine that cannot be streamed (fitted non-linear parameters, lags).
+fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
+    let source = load::model_text(&a.machine, a.color)?;
+    let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
+    if !fit::stream::streamable(&compiled) {
+        return fit_quietly(a);
+    }
+    let m = &compiled.machine;
+    let options = options(a);
+    let read = kin_runtime::data::ReadOptions {
+        poses: false,
+        ignore: a.ignore.clone(),
+        ..kin_runtime::data::ReadOptions::default()
+    };
+    // The rows are not counted before the fit (that would be one more pass over the files):
+    // the progress shows the rows done in each pass.
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>12} {spinner} {pos} rows")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    let mut engine = kin_runtime::engine::make(m, a.engine).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed::INPUT
+    })?;
+    let mut progress = |pass: &'static str, done: usize| {
+        bar.set_message(pass);
+        bar.set_position(done as u64);
+    };
+    let streamed = fit::stream::fit(
+        &compiled,
+        engine.as_mut(),
+        &a.data,
+        &read,
+        &options,
+        &mut progress,
+    );
+    bar.finish_and_clear();
+    drop(engine);
+    let streamed = match streamed {
+        Ok(s) => s,
+        Err(FitError::Read(e)) => return Err(load::read_failed(e)),
+        Err(e) => return Err(fit_failed(a, &source, e)),
+    };
+    let report = report::build(
+        m,
+        &source,
+        a.engine.name(),
+        &streamed.files,
+        &[],
+        &streamed.result,
+        &options,
+    );
+    Ok(Fitted {
+        source,
+        compiled,
+        files: streamed.files,
+        options,
+        result: streamed.result,
+        report,
+    })
+}
+
+fn options(a: &FitArgs) -> Options {
+    Options {
+        solver: match a.solver {
+            SolverArg::Qr => Solver::Qr,
+            SolverArg::Svd => Solver::Svd,
+        },
+        tolerance: a.tolerance,
+        min_norm: a.min_norm,
+        stepwise: a.stepwise.map(|remove| fit::Stepwise {
+            remove,
+            enter: a.enter,
+        }),
+        noise: a.noise,
+        ..Options::default()
+    }
+}
+
+/// Prints why a fit failed: a rank-deficient design with the invisible combinations located
+/// in the model.
+fn fit_failed(a: &FitArgs, source: &str, e: FitError) -> Failed {
+    match e {
+        FitError::RankDeficient {
+            rank,
+            columns,
+            diagnostics,
+        } => {
+            let mut stderr = std::io::stderr().lock();
+            let _ = crate::render::human(
+                &a.machine.display().to_string(),
+                source,
+                &diagnostics,
+                a.color,
+                &mut stderr,
+            );
+            eprintln!(
+                "error: the data determine only {rank} of {columns} parameters; the combinations above are invisible to them.\n\
+                 Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
+            );
+            Failed::INPUT
+        }
+        e => {
+            eprintln!("error: {e}");
+            Failed::INPUT
+        }
+    }
+}
+
 /// The fit alone: diagnostics of the inputs are printed, results are returned.
 pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     let source = load::model_text(&a.machine, a.color)?;
@@ -142,20 +281,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         }
         None => files,
     };
-    let options = Options {
-        solver: match a.solver {
-            SolverArg::Qr => Solver::Qr,
-            SolverArg::Svd => Solver::Svd,
-        },
-        tolerance: a.tolerance,
-        min_norm: a.min_norm,
-        stepwise: a.stepwise.map(|remove| fit::Stepwise {
-            remove,
-            enter: a.enter,
-        }),
-        noise: a.noise,
-        ..Options::default()
-    };
+    let options = options(a);
     let total = fit::count_rows(&files) as u64;
     let bar = ProgressBar::new(2 * total);
     bar.set_style(
@@ -187,29 +313,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     drop(engine);
     let result = match result {
         Ok(r) => r,
-        Err(FitError::RankDeficient {
-            rank,
-            columns,
-            diagnostics,
-        }) => {
-            let mut stderr = std::io::stderr().lock();
-            let _ = crate::render::human(
-                &a.machine.display().to_string(),
-                &source,
-                &diagnostics,
-                a.color,
-                &mut stderr,
-            );
-            eprintln!(
-                "error: the data determine only {rank} of {columns} parameters; the combinations above are invisible to them.\n\
-                 Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
-            );
-            return Err(Failed::INPUT);
-        }
-        Err(e) => {
-            eprintln!("error: {e}");
-            return Err(Failed::INPUT);
-        }
+        Err(e) => return Err(fit_failed(a, &source, e)),
     };
     let report = report::build(
         m,

@@ -249,29 +249,33 @@ pub fn observations(
         ignore: ignore.to_vec(),
         ..ReadOptions::default()
     };
-    data::read_file(path, &compiled.machine, &options).map_err(|e| {
-        eprintln!("error: {e}");
-        match e {
-            data::ReadError::Io { .. } | data::ReadError::TooLarge { .. } => Failed::USAGE,
-            data::ReadError::Invalid { problems, .. } => {
-                let unknown: Vec<&str> = problems
-                    .iter()
-                    .filter_map(|p| match p {
-                        data::Problem::UnknownColumn { name, .. } => Some(name.as_str()),
-                        _ => None,
-                    })
-                    .collect();
-                if !unknown.is_empty() {
-                    eprintln!(
-                        "help: a column kin should not read can be skipped: --ignore {}",
-                        unknown.join(",")
-                    );
-                }
-                eprintln!("note: the format of measurement files is described in spec/data.md");
-                Failed::INPUT
+    data::read_file(path, &compiled.machine, &options).map_err(read_failed)
+}
+
+/// Prints a measurement file's read error (with a hint for unknown columns) and gives the exit
+/// code: 2 when the file cannot be read, 1 when what it holds is wrong.
+pub fn read_failed(e: data::ReadError) -> Failed {
+    eprintln!("error: {e}");
+    match e {
+        data::ReadError::Io { .. } | data::ReadError::TooLarge { .. } => Failed::USAGE,
+        data::ReadError::Invalid { problems, .. } => {
+            let unknown: Vec<&str> = problems
+                .iter()
+                .filter_map(|p| match p {
+                    data::Problem::UnknownColumn { name, .. } => Some(name.as_str()),
+                    _ => None,
+                })
+                .collect();
+            if !unknown.is_empty() {
+                eprintln!(
+                    "help: a column kin should not read can be skipped: --ignore {}",
+                    unknown.join(",")
+                );
             }
+            eprintln!("note: the format of measurement files is described in spec/data.md");
+            Failed::INPUT
         }
-    })
+    }
 }
 
 /// Parses `0.3um`, `0.3 um` or `2urad` into SI, checking the dimension (the option's name is

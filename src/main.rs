@@ -119,7 +119,10 @@ enum Command {
     /// Fit the model's coefficients to measurement files by least squares.
     Fit {
         machine: PathBuf,
-        /// Point and length files (measurement files: spec/data.md).
+        /// Point and length files (measurement files: spec/data.md). Files of 64 MiB or more
+        /// together are read a block of rows at a time and never held whole (not with
+        /// --validate, --holdout, --noise, fitted wavelengths or time constants, or lags;
+        /// spec/cli.md).
         #[arg(required = true)]
         data: Vec<PathBuf>,
         /// Files to check the fitted model against, not fitted to.

@@ -23,9 +23,17 @@
 //! - `kin check`, 10 000 coefficients: 704 s / 894 MB before (previous measurement, load
 //!   8–9); 89 s, then 56 s with the condition estimate on slices (load 10); 26–27 s / 860 MB
 //!   at load 3–4.
+//! - `kin check`, 10 000 coefficients, split by phase with temporary timers (load 14, 2
+//!   threads): Gram matrix 48 s, factorisation 28 s, condition estimate 22 s, 98 s in all;
+//!   on one core (`taskset -c 0`) 41 / 28 / 24 s, 94 s — at that load the second thread
+//!   found no free core. `kin check` no longer estimates the condition (it never showed it).
+//!   Now 93 s / 846 MB at load 9, 7 GFLOP/s where one core's large product reached 14
+//!   (the `reference` line); 1 000 coefficients 0.4 s / 28 MB.
 //! - Fit, 10⁷ observed values (41 coefficients): 101 s wall, 19 s CPU at load 11; 20 s at load
 //!   3; 1.1 GB peak (about 110 bytes per value held). 10⁸ values (load 3): `kin simulate`
-//!   89 s / 7.4 GB, `kin fit` 206 s / 10.7 GB — linear in time and memory.
+//!   89 s / 7.4 GB, `kin fit` 206 s / 10.7 GB — linear in time and memory. Streamed
+//!   (`fit::stream`, 88 coefficients, load 8): 10⁷ values 152 s / 42 MB against 151 s /
+//!   1.18 GB read whole, the same FIT.json; 10⁸ values 1 287 s (537 s CPU, load 8–9) / 50 MB.
 
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -125,22 +133,50 @@ fn main() {
 
     let poses = identify::poses_for(p, Observe::Pose);
     let t = Instant::now();
-    let report = identify::sampled_with(
+    // What `kin check` runs: the dependencies, no condition estimate.
+    let report = identify::sampled_verdicts(
         &c.machine,
         Observe::Pose,
         false,
         poses,
         0x6b696e,
         Engine::Jit,
+        identify::Condition::Skip,
     )
     .expect("identifiability");
+    let seconds = t.elapsed().as_secs_f64();
+    // The floating-point work: the Gram matrix by poses (poses × p²/2 multiply-adds, using the
+    // pose structure) and its Cholesky factorisation (p³/6 multiply-adds).
+    let flops = 2.0 * poses as f64 * (p as f64).powi(2) / 2.0 + (p as f64).powi(3) / 3.0;
     println!(
-        "identifiability (pose, {poses} poses, {} rows): {:.2} s, peak RSS {:.0} MB, rank {} of {}, {} dependencies",
+        "identifiability (pose, {poses} poses, {} rows): {seconds:.2} s, peak RSS {:.0} MB, rank {} of {}, {} dependencies; {:.0} GFLOP/s on {:.2e} flop",
         report.rows,
-        t.elapsed().as_secs_f64(),
         peak_mb(),
         report.rank,
         report.columns,
-        report.dependencies.len()
+        report.dependencies.len(),
+        flops / seconds / 1e9,
+        flops
     );
+    println!("reference: {:.1} GFLOP/s", matmul_rate());
+}
+
+/// What one core reaches now on a large matrix product (faer, 1536³), in GFLOP/s: the rate
+/// the analysis could at best reach per core on this machine at this load.
+fn matmul_rate() -> f64 {
+    use faer::{Accum, Mat, Par};
+    const N: usize = 1536;
+    let a = Mat::<f64>::from_fn(N, N, |i, j| ((i * 31 + j * 17) % 97) as f64);
+    let b = a.transpose().to_owned();
+    let mut c = Mat::<f64>::zeros(N, N);
+    let t = Instant::now();
+    faer::linalg::matmul::matmul(
+        c.as_mut(),
+        Accum::Replace,
+        a.as_ref(),
+        b.as_ref(),
+        1.0,
+        Par::Seq,
+    );
+    2.0 * (N as f64).powi(3) / t.elapsed().as_secs_f64() / 1e9
 }

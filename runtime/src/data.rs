@@ -14,9 +14,11 @@ use thiserror::Error;
 
 use kin_compiler::units::UnitError;
 
+mod chunks;
 mod read;
 mod write;
 
+pub use chunks::{chunks, Chunks};
 pub(crate) use read::{csv, inch_unit};
 pub use read::{read, read_file};
 pub use write::{write_file, write_lengths, write_points};

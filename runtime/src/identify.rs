@@ -72,7 +72,8 @@ pub struct Report {
     pub rank: usize,
     /// Relative singular-value threshold used for the rank.
     pub tolerance: f64,
-    /// Largest over smallest kept singular value of the scaled matrix.
+    /// Largest over smallest kept singular value of the scaled matrix (NaN when not
+    /// estimated, see [`Condition`]).
     pub condition: f64,
     pub dependencies: Vec<Dependency>,
 }
@@ -231,17 +232,7 @@ impl Gram {
             return;
         }
         let b = self.block.as_ref().subcols(0, self.filled);
-        faer::linalg::matmul::triangular::matmul(
-            self.g.as_mut(),
-            BlockStructure::TriangularLower,
-            Accum::Add,
-            b,
-            BlockStructure::Rectangular,
-            b.transpose(),
-            BlockStructure::Rectangular,
-            1.0,
-            Par::Seq,
-        );
+        crate::rank_update::lower(self.g.as_mut(), b, 1.0);
         self.filled = 0;
     }
 
@@ -376,33 +367,108 @@ impl PoseGram {
     }
 
     fn flush(&mut self) {
-        let (n, comps, ng) = (self.poses, self.comps, self.groups.len());
+        let n = self.poses;
         if n == 0 {
             return;
         }
-        for a in 0..ng {
+        let bands = bands(&self.groups, crate::rank_update::threads());
+        let shared = Buffered {
+            groups: &self.groups,
+            v: self.v.as_ref(),
+            dirs: &self.dirs,
+            comps: self.comps,
+            poses: n,
+        };
+        // Each band of groups owns the rows of `g` its groups cover (every column left of the
+        // diagonal): bands write disjoint entries, so they run on their own threads.
+        std::thread::scope(|scope| {
+            let mut rest = self.rows.g.as_mut();
+            let mut first_row = 0usize;
+            let mut scratch = Some((&mut self.scaled, &mut self.weights));
+            for (k, &(a0, a1)) in bands.iter().enumerate() {
+                let end = self
+                    .groups
+                    .get(a1.wrapping_sub(1))
+                    .map_or(first_row, |g| g.0 + g.1);
+                let (band, next) = rest.split_at_row_mut(end.saturating_sub(first_row));
+                rest = next;
+                let offset = first_row;
+                first_row = end;
+                let shared = &shared;
+                if k + 1 == bands.len() {
+                    // The last band runs here, with the accumulator's own scratch.
+                    if let Some((scaled, weights)) = scratch.take() {
+                        shared.add(band, offset, a0..a1, scaled, weights);
+                    }
+                } else {
+                    scope.spawn(move || {
+                        let mut scaled = Mat::zeros(shared.widest(), shared.poses);
+                        let mut weights = vec![0.0; shared.poses];
+                        shared.add(band, offset, a0..a1, &mut scaled, &mut weights);
+                    });
+                }
+            }
+        });
+        self.rows.rows += n * self.comps;
+        self.poses = 0;
+    }
+
+    fn finish(mut self) -> (Mat<f64>, usize) {
+        self.flush();
+        self.rows.finish()
+    }
+}
+
+/// What [`PoseGram`] holds of its buffered poses, shared read-only by the threads of a flush.
+struct Buffered<'a> {
+    groups: &'a [(usize, usize)],
+    v: faer::MatRef<'a, f64>,
+    dirs: &'a [f64],
+    comps: usize,
+    poses: usize,
+}
+
+impl Buffered<'_> {
+    fn widest(&self) -> usize {
+        self.groups.iter().map(|g| g.1).max().unwrap_or(0)
+    }
+
+    /// Adds the buffered poses' products of groups `a ∈ groups` with every group `b ≤ a` to
+    /// `band`, the rows `offset..` of the Gram matrix the groups cover.
+    fn add(
+        &self,
+        mut band: faer::MatMut<'_, f64>,
+        offset: usize,
+        groups: std::ops::Range<usize>,
+        scaled: &mut Mat<f64>,
+        weights: &mut [f64],
+    ) {
+        let (n, comps, ng) = (self.poses, self.comps, self.groups.len());
+        let dir = |p: usize, g: usize| {
+            self.dirs
+                .get((p * ng + g) * comps..(p * ng + g + 1) * comps)
+                .unwrap_or(&[])
+        };
+        for a in groups {
             let (sa, la) = self.groups[a];
             for b in 0..=a {
                 let (sb, lb) = self.groups[b];
                 let mut any = false;
-                for (p, wt) in self.weights.iter_mut().enumerate().take(n) {
-                    let da = &self.dirs[(p * ng + a) * comps..(p * ng + a + 1) * comps];
-                    let db = &self.dirs[(p * ng + b) * comps..(p * ng + b + 1) * comps];
-                    *wt = da.iter().zip(db).map(|(x, y)| x * y).sum();
+                for (p, wt) in weights.iter_mut().enumerate().take(n) {
+                    *wt = dir(p, a).iter().zip(dir(p, b)).map(|(x, y)| x * y).sum();
                     any |= *wt != 0.0;
                 }
                 if !any {
                     continue;
                 }
-                for p in 0..n {
-                    let wt = self.weights[p];
+                for (p, &wt) in weights.iter().enumerate().take(n) {
                     for j in 0..lb {
-                        self.scaled[(j, p)] = self.v[(sb + j, p)] * wt;
+                        scaled[(j, p)] = self.v[(sb + j, p)] * wt;
                     }
                 }
-                let va = self.v.as_ref().submatrix(sa, 0, la, n);
-                let sc = self.scaled.as_ref().submatrix(0, 0, lb, n);
-                let target = self.rows.g.as_mut().submatrix_mut(sa, sb, la, lb);
+                let va = self.v.submatrix(sa, 0, la, n);
+                let sc = scaled.as_ref().submatrix(0, 0, lb, n);
+                let target = band.as_mut().submatrix_mut(sa - offset, sb, la, lb);
                 // Groups are in column order, so block (a, b ≤ a) is in the lower triangle;
                 // a diagonal block needs only its own lower triangle.
                 let structure = if a == b {
@@ -423,14 +489,32 @@ impl PoseGram {
                 );
             }
         }
-        self.rows.rows += n * comps;
-        self.poses = 0;
     }
+}
 
-    fn finish(mut self) -> (Mat<f64>, usize) {
-        self.flush();
-        self.rows.finish()
+/// Splits the groups into at most `threads` consecutive bands of about equal work (a group's
+/// products reach every column left of its end: its width times its last column).
+fn bands(groups: &[(usize, usize)], threads: usize) -> Vec<(usize, usize)> {
+    let work: Vec<f64> = groups
+        .iter()
+        .map(|&(s, l)| l as f64 * (s + l) as f64)
+        .collect();
+    let total: f64 = work.iter().sum();
+    let threads = threads.max(1);
+    let mut out = Vec::with_capacity(threads);
+    let (mut start, mut done) = (0usize, 0.0);
+    for (i, w) in work.iter().enumerate() {
+        done += w;
+        let share = total * (out.len() + 1) as f64 / threads as f64;
+        if done >= share && out.len() + 1 < threads {
+            out.push((start, i + 1));
+            start = i + 1;
+        }
     }
+    if start < groups.len() || out.is_empty() {
+        out.push((start, groups.len()));
+    }
+    out
 }
 
 /// Column groups of the design that share one direction at every pose: each term's
@@ -470,7 +554,7 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
         }
     }
     let (g, rows) = gram.finish();
-    analyse_gram(g, rows, columns)
+    analyse_gram(g, rows, columns, Condition::Estimate)
 }
 
 /// The analysis from the lower triangle of `XᵀX` (what [`analyse`] does after accumulating it).
@@ -482,7 +566,12 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
 /// elimination. Cost: `rows × columns²` to accumulate, `columns³ / 3` to factor; memory
 /// `columns²`. Forming `XᵀX` squares the condition: a residual is resolved to about
 /// `√(columns · ε)` of the column's length, below `DEPENDENT` up to 10⁴ columns.
-fn analyse_gram(mut g: Mat<f64>, rows: usize, columns: &[Column]) -> Result<Report, IdentifyError> {
+fn analyse_gram(
+    mut g: Mat<f64>,
+    rows: usize,
+    columns: &[Column],
+    estimate: Condition,
+) -> Result<Report, IdentifyError> {
     let n = columns.len();
     if rows == 0 || n == 0 {
         return Err(IdentifyError::Empty);
@@ -560,7 +649,11 @@ fn analyse_gram(mut g: Mat<f64>, rows: usize, columns: &[Column]) -> Result<Repo
         columns: n,
         rank,
         tolerance: TOLERANCE,
-        condition: condition(&l, &independent),
+        condition: if estimate == Condition::Estimate {
+            condition(&l, &independent)
+        } else {
+            f64::NAN
+        },
         dependencies,
     })
 }
@@ -619,16 +712,10 @@ fn factor_in_order(g: &mut Mat<f64>, scale: &[f64]) -> Vec<bool> {
         }
         if j1 < n {
             let panel = g.as_ref().submatrix(j1, j0, n - j1, j1 - j0).to_owned();
-            faer::linalg::matmul::triangular::matmul(
+            crate::rank_update::lower(
                 g.as_mut().submatrix_mut(j1, j1, n - j1, n - j1),
-                BlockStructure::TriangularLower,
-                Accum::Add,
                 panel.as_ref(),
-                BlockStructure::Rectangular,
-                panel.as_ref().transpose(),
-                BlockStructure::Rectangular,
                 -1.0,
-                Par::Seq,
             );
         }
         j0 = j1;
@@ -798,6 +885,29 @@ pub fn sampled_with(
     seed: u64,
     engine: crate::engine::Engine,
 ) -> Result<Report, IdentifyError> {
+    sampled_verdicts(m, observe, aligned, n, seed, engine, Condition::Estimate)
+}
+
+/// Whether the analysis estimates the condition number of the independent columns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Condition {
+    Estimate,
+    /// Left out (`Report::condition` is NaN): the dependencies alone are wanted, as by
+    /// `kin check`. At 10 000 coefficients the estimate reads the 400 MB factor sixty times,
+    /// about a quarter of the analysis.
+    Skip,
+}
+
+/// As [`sampled_with`], estimating the condition number only when asked.
+pub fn sampled_verdicts(
+    m: &Machine,
+    observe: Observe,
+    aligned: bool,
+    n: usize,
+    seed: u64,
+    engine: crate::engine::Engine,
+    estimate: Condition,
+) -> Result<Report, IdentifyError> {
     let states = States::sample(m, n, seed);
     let width = m.coefficients.len()
         + if aligned && observe != Observe::Length {
@@ -818,7 +928,7 @@ pub fn sampled_with(
         let (g, rows) = gram.finish();
         (g, rows, columns)
     };
-    analyse_gram(g, rows, &columns)
+    analyse_gram(g, rows, &columns, estimate)
 }
 
 fn column_name(m: &Machine, c: &Column) -> String {

@@ -23,6 +23,7 @@ pub mod jit;
 pub mod kinematics;
 pub mod lag;
 pub mod output;
+mod rank_update;
 pub mod simulate;
 pub mod states;
 

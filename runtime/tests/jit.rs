@@ -1204,4 +1204,3 @@ fn a_large_model_compiles_and_agrees_with_the_interpreter() {
         model.compile_time()
     );
 }
-

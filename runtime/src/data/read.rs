@@ -68,9 +68,7 @@ pub fn read(
     let Some((header_line, header)) = header else {
         return Err(invalid(vec![Problem::NoHeader], 0));
     };
-    let dialect = options
-        .delimiter
-        .map_or_else(|| Dialect::detect(header), Dialect::with_delimiter);
+    let dialect = dialect_of(options, header);
     let mut reader = Reader::new(machine, options, dialect, header_line, header);
     let mut cells = Vec::with_capacity(reader.columns.len());
     let mut buf = String::new();
@@ -78,21 +76,19 @@ pub fn read(
         if skipped(line) {
             continue;
         }
-        // The comma lexer is the hot path; quotes and other separators take the general one.
-        if dialect.delimiter == b',' && !line.contains('"') {
-            split_cells(line, &mut cells);
-            reader.row(number, line, line, &cells);
-        } else {
-            match csv::split(line, dialect.delimiter, &mut buf, &mut cells) {
-                Ok(()) => reader.row(number, line, &buf, &cells),
-                Err(e) => reader.unsplittable(number, line, e),
-            }
-        }
+        reader.line(number, line, &mut cells, &mut buf);
     }
     reader.finish().map_err(|p| invalid(p.list, p.omitted))
 }
 
-fn not_utf8(bytes: &[u8], valid: usize) -> Problem {
+/// The separator and decimal mark: as the options say, or as the header line shows.
+pub(super) fn dialect_of(options: &ReadOptions, header: &str) -> Dialect {
+    options
+        .delimiter
+        .map_or_else(|| Dialect::detect(header), Dialect::with_delimiter)
+}
+
+pub(super) fn not_utf8(bytes: &[u8], valid: usize) -> Problem {
     let prefix = bytes.get(..valid).unwrap_or_default();
     let line_start = prefix
         .iter()
@@ -119,7 +115,7 @@ fn split_problem(line_no: usize, line: &str, e: SplitError, dialect: Dialect) ->
 }
 
 /// Comments and blank lines carry no data; a comment may come before the header.
-fn skipped(line: &str) -> bool {
+pub(super) fn skipped(line: &str) -> bool {
     let t = line.trim_start();
     t.is_empty() || t.starts_with('#')
 }
@@ -274,7 +270,7 @@ impl Problems {
     }
 }
 
-struct Reader<'m> {
+pub(super) struct Reader<'m> {
     machine: &'m Machine,
     kind: Kind,
     /// Observations optional: the file only gives poses to evaluate a model at.
@@ -330,7 +326,7 @@ fn split_name(text: &str) -> Result<(&str, Option<&str>), &'static str> {
 }
 
 impl<'m> Reader<'m> {
-    fn new(
+    pub(super) fn new(
         machine: &'m Machine,
         options: &ReadOptions,
         dialect: Dialect,
@@ -505,6 +501,27 @@ impl<'m> Reader<'m> {
             last_time: Vec::new(),
             has_run,
             dialect,
+        }
+    }
+
+    /// One data line (not a comment or blank): split in the file's dialect and read as a row.
+    /// `cells` and `buf` are scratch space kept between lines.
+    pub(super) fn line(
+        &mut self,
+        number: usize,
+        line: &str,
+        cells: &mut Vec<Cell>,
+        buf: &mut String,
+    ) {
+        // The comma lexer is the hot path; quotes and other separators take the general one.
+        if self.dialect.delimiter == b',' && !line.contains('"') {
+            split_cells(line, cells);
+            self.row(number, line, line, cells);
+        } else {
+            match csv::split(line, self.dialect.delimiter, buf, cells) {
+                Ok(()) => self.row(number, line, buf, cells),
+                Err(e) => self.unsplittable(number, line, e),
+            }
         }
     }
 
@@ -731,6 +748,23 @@ impl<'m> Reader<'m> {
         if !self.problems.is_empty() {
             return Err(self.problems);
         }
+        Ok(self.take())
+    }
+
+    /// The problems found so far, at most [`MAX_PROBLEMS`] of them, and how many more.
+    pub(super) fn problems(&self) -> (&[Problem], usize) {
+        (&self.problems.list, self.problems.omitted)
+    }
+
+    /// Data lines read so far (rows and rows with problems).
+    pub(super) fn data_lines(&self) -> usize {
+        self.data_lines
+    }
+
+    /// The rows read since the last call, as observations; the reader goes on with the next
+    /// rows. Run and artifact ids stay those of the whole file (the labels are all those seen
+    /// so far), so the rows of several calls can be told apart as one file's.
+    pub(super) fn take(&mut self) -> Observations {
         let n = self.lines.len();
         let m = self.machine;
         let ends = if self.kind == Kind::Lengths { 2 } else { 1 };
@@ -755,7 +789,12 @@ impl<'m> Reader<'m> {
         let mut dl = vec![f64::NAN; n];
         for col in &mut self.columns {
             let Some(role) = col.role else { continue };
-            match (std::mem::replace(&mut col.store, Store::Skip), role) {
+            let store = match &mut col.store {
+                Store::Skip => Store::Skip,
+                Store::Numbers(v) => Store::Numbers(std::mem::take(v)),
+                Store::Ids(v) => Store::Ids(std::mem::take(v)),
+            };
+            match (store, role) {
                 (Store::Numbers(v), Role::Axis { end, axis }) => {
                     if let Some(slot) = poses.get_mut(end).and_then(|p| p.axes.get_mut(axis)) {
                         *slot = v;
@@ -789,13 +828,13 @@ impl<'m> Reader<'m> {
                 (Store::Ids(ids), Role::Run) => {
                     rows.run = Some(Groups {
                         of_row: ids,
-                        labels: std::mem::take(&mut self.runs.labels),
+                        labels: self.runs.labels.clone(),
                     });
                 }
                 (Store::Ids(ids), Role::Artifact) => {
                     rows.artifact = Some(Groups {
                         of_row: ids.into_iter().map(|i| (i != NO_ID).then_some(i)).collect(),
-                        labels: std::mem::take(&mut self.artifacts.labels),
+                        labels: self.artifacts.labels.clone(),
                     });
                 }
                 _ => {}
@@ -806,7 +845,7 @@ impl<'m> Reader<'m> {
         }
         let mut poses = poses.into_iter();
         let first = poses.next().unwrap_or_default();
-        Ok(match self.kind {
+        match self.kind {
             Kind::Points => Observations::Points(PointData {
                 rows,
                 pose: first,
@@ -817,7 +856,7 @@ impl<'m> Reader<'m> {
                 poses: [first, poses.next().unwrap_or_default()],
                 dl,
             }),
-        })
+        }
     }
 }
 

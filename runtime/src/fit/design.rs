@@ -359,19 +359,30 @@ pub fn check_artifacts(files: &[DataSet]) -> Result<(), DesignError> {
                 }
             }
         }
-        let thin: Vec<ThinArtifact> = seen
-            .into_iter()
-            .filter(|(t, rotations)| t.values < 6 || (!rotations && t.rows < 3))
-            .map(|(t, _)| t)
-            .collect();
-        if !thin.is_empty() {
-            return Err(DesignError::ThinArtifacts {
-                path: file.path.display().to_string(),
-                labels: thin,
-            });
-        }
+        judge_artifacts(&file.path.display().to_string(), seen)?;
     }
     Ok(())
+}
+
+/// The verdict of [`check_artifacts`] on one file's counts: per label, its rows, values and
+/// whether a rotation is observed.
+pub(super) fn judge_artifacts(
+    path: &str,
+    seen: Vec<(ThinArtifact, bool)>,
+) -> Result<(), DesignError> {
+    let thin: Vec<ThinArtifact> = seen
+        .into_iter()
+        .filter(|(t, rotations)| t.values < 6 || (!rotations && t.rows < 3))
+        .map(|(t, _)| t)
+        .collect();
+    if thin.is_empty() {
+        Ok(())
+    } else {
+        Err(DesignError::ThinArtifacts {
+            path: path.to_string(),
+            labels: thin,
+        })
+    }
 }
 
 /// A row with an infinite or NaN entry would turn every sum it enters (the triangle, σ̂, the

@@ -11,6 +11,8 @@ mod qr;
 pub mod report;
 mod solve;
 pub mod stepwise;
+pub mod stream;
+pub mod tally;
 
 use faer::Mat;
 use kin_compiler::{Compiled, Diagnostic};
@@ -49,6 +51,8 @@ pub enum FitError {
          for rotations)"
     )]
     NoNoiseFor { kind: &'static str },
+    #[error(transparent)]
+    Read(#[from] crate::data::ReadError),
     #[error("the design is rank-deficient: rank {rank} of {columns} columns")]
     RankDeficient {
         rank: usize,
@@ -129,6 +133,9 @@ pub struct FitResult {
     pub selection: Option<stepwise::Selection>,
     /// The fitted non-linear parameters, when the model has any.
     pub nonlinear: Option<nonlinear::NonlinearFit>,
+    /// Set by a streamed fit ([`stream::fit`]), which keeps `residuals` only up to
+    /// [`report::MAX_RESIDUALS`] rows: the per-file statistics and the outliers of every row.
+    pub tally: Option<tally::Tally>,
 }
 
 /// Progress callback: rows done in the current pass, and the pass name.
@@ -176,65 +183,14 @@ pub fn fit(
         return Err(FitError::Overflow);
     }
 
-    // Selection reads sub-models off the triangle, which needs independent columns: a
-    // deficient model is reported (or fitted by minimum norm) before anything is selected.
-    if options.stepwise.is_some() && !options.min_norm {
-        if let Err(s) = solve::solve(&red, options.solver, options.tolerance, false) {
-            return Err(FitError::RankDeficient {
-                rank: s.rank,
-                columns: p,
-                diagnostics: name_invisible(compiled, &layout, &red),
-            });
-        }
-    }
-    let selection = options
-        .stepwise
-        .map(|sw| stepwise::select(&red, layout.coefficients, sw.remove, sw.enter));
-    let solved = match &selection {
-        Some(sel) => solve::solve(
-            &stepwise::restrict(&red, &sel.kept),
-            options.solver,
-            options.tolerance,
-            options.min_norm,
-        )
-        .map(|s| solve::expand(s, &sel.kept))
-        .map_err(|s| solve::expand(s, &sel.kept)),
-        None => solve::solve(&red, options.solver, options.tolerance, options.min_norm),
-    };
-    let solution = match solved {
-        Ok(s) => s,
-        Err(s) => {
-            return Err(FitError::RankDeficient {
-                rank: s.rank,
-                columns: p,
-                diagnostics: name_invisible(compiled, &layout, &red),
-            });
-        }
-    };
-    let active = selection
-        .as_ref()
-        .map(|s| s.kept.iter().filter(|&&k| k).count())
-        .unwrap_or(p);
-    let constrained = if solution.rank < active {
-        name_invisible(compiled, &layout, &red)
-    } else {
-        Vec::new()
-    };
-    let dof = red.rows.saturating_sub(solution.rank);
-    if dof == 0 {
-        return Err(FitError::TooFewRows {
-            rows: red.rows,
-            rank: solution.rank,
-        });
-    }
-    let sigma2 = solution.rss / dof as f64;
-    let sigma = sigma2.sqrt();
-    let sst = red.y_sumsq - red.y_sum * red.y_sum / red.rows as f64;
-    let r2 = if sst > 0.0 {
-        1.0 - solution.rss / sst
-    } else {
-        f64::NAN
-    };
+    let Solved {
+        solution,
+        selection,
+        constrained,
+        dof,
+        sigma,
+        r2,
+    } = solve_reduced(compiled, &layout, &red, options)?;
 
     // Pass 2: residuals and influence, leverages in blocks (one matrix product per block).
     let mut residuals = Vec::with_capacity(red.rows);
@@ -252,18 +208,11 @@ pub fn fit(
     })?;
     block.drain(&solution, &mut residuals);
     progress("residuals", done);
-    let rank = solution.rank.max(1) as f64;
     for r in &mut residuals {
-        let room = (1.0 - r.leverage).max(1e-15);
-        r.studentized = r.residual / (sigma * room.sqrt());
-        r.cook = r.studentized.powi(2) * r.leverage / (rank * room);
+        influence(r, sigma, solution.rank);
     }
-
-    let n = red.rows as f64;
-    let outlier_threshold = Normal::new(0.0, 1.0)
-        .map(|d| d.inverse_cdf(1.0 - options.outlier_alpha / (2.0 * n)))
-        .unwrap_or(4.0);
-    let cook_threshold = f_median(rank, dof as f64);
+    let (outlier_threshold, cook_threshold) =
+        thresholds(red.rows, solution.rank, dof, options.outlier_alpha);
 
     let validation = if validate.is_empty() {
         Vec::new()
@@ -284,6 +233,115 @@ pub fn fit(
         validation,
         selection,
         nonlinear,
+        tally: None,
+    })
+}
+
+/// A row's studentized residual and Cook's distance, from its residual and leverage.
+fn influence(r: &mut ResidualRow, sigma: f64, rank: usize) {
+    let rank = rank.max(1) as f64;
+    let room = (1.0 - r.leverage).max(1e-15);
+    r.studentized = r.residual / (sigma * room.sqrt());
+    r.cook = r.studentized.powi(2) * r.leverage / (rank * room);
+}
+
+/// The outlier threshold of |studentized| (Bonferroni at `alpha` over `rows`) and the
+/// Cook's-distance threshold (median of F(rank, dof)).
+fn thresholds(rows: usize, rank: usize, dof: usize, alpha: f64) -> (f64, f64) {
+    let n = rows as f64;
+    let outlier = Normal::new(0.0, 1.0)
+        .map(|d| d.inverse_cdf(1.0 - alpha / (2.0 * n)))
+        .unwrap_or(4.0);
+    (outlier, f_median(rank.max(1) as f64, dof as f64))
+}
+
+/// What the triangle of pass 1 gives, before the residual pass.
+struct Solved {
+    solution: Solution,
+    selection: Option<stepwise::Selection>,
+    constrained: Vec<Diagnostic>,
+    dof: usize,
+    sigma: f64,
+    r2: f64,
+}
+
+/// The solve, the rank decision, the selection and σ̂ from the accumulated triangle: the part
+/// of a fit between its two passes over the rows (the same for a fit that holds its rows and
+/// for a streamed one).
+fn solve_reduced(
+    compiled: &Compiled,
+    layout: &Layout,
+    red: &Reduced,
+    options: &Options,
+) -> Result<Solved, FitError> {
+    let p = layout.columns();
+    // Selection reads sub-models off the triangle, which needs independent columns: a
+    // deficient model is reported (or fitted by minimum norm) before anything is selected.
+    if options.stepwise.is_some() && !options.min_norm {
+        if let Err(s) = solve::solve(red, options.solver, options.tolerance, false) {
+            return Err(FitError::RankDeficient {
+                rank: s.rank,
+                columns: p,
+                diagnostics: name_invisible(compiled, layout, red),
+            });
+        }
+    }
+    let selection = options
+        .stepwise
+        .map(|sw| stepwise::select(red, layout.coefficients, sw.remove, sw.enter));
+    let solved = match &selection {
+        Some(sel) => solve::solve(
+            &stepwise::restrict(red, &sel.kept),
+            options.solver,
+            options.tolerance,
+            options.min_norm,
+        )
+        .map(|s| solve::expand(s, &sel.kept))
+        .map_err(|s| solve::expand(s, &sel.kept)),
+        None => solve::solve(red, options.solver, options.tolerance, options.min_norm),
+    };
+    let solution = match solved {
+        Ok(s) => s,
+        Err(s) => {
+            return Err(FitError::RankDeficient {
+                rank: s.rank,
+                columns: p,
+                diagnostics: name_invisible(compiled, layout, red),
+            });
+        }
+    };
+    let active = selection
+        .as_ref()
+        .map(|s| s.kept.iter().filter(|&&k| k).count())
+        .unwrap_or(p);
+    let constrained = if solution.rank < active {
+        name_invisible(compiled, layout, red)
+    } else {
+        Vec::new()
+    };
+    let dof = red.rows.saturating_sub(solution.rank);
+    if dof == 0 {
+        return Err(FitError::TooFewRows {
+            rows: red.rows,
+            rank: solution.rank,
+        });
+    }
+    let sigma2 = solution.rss / dof as f64;
+    let sigma = sigma2.sqrt();
+    let sst = red.y_sumsq - red.y_sum * red.y_sum / red.rows as f64;
+    let r2 = if sst > 0.0 {
+        1.0 - solution.rss / sst
+    } else {
+        f64::NAN
+    };
+
+    Ok(Solved {
+        solution,
+        selection,
+        constrained,
+        dof,
+        sigma,
+        r2,
     })
 }
 

@@ -6,6 +6,7 @@ use kin_compiler::ir::Machine;
 use serde::{Deserialize, Serialize};
 
 use super::design::{NuisanceKind, Weights, LENGTH};
+use super::tally::{FileTally, Tally};
 use super::{solve, FitResult, Options, ResidualRow};
 use crate::data::OBSERVED;
 use crate::fit::DataSet;
@@ -231,6 +232,11 @@ fn display_factor(m: &Machine, w: &Weights, component: u8) -> f64 {
     1.0 / (w.of(component) * unit.scale)
 }
 
+/// Each component's [`display_factor`], for a [`Tally`].
+pub(super) fn display_factors(m: &Machine, w: &Weights) -> [f64; LENGTH as usize + 1] {
+    std::array::from_fn(|c| display_factor(m, w, c as u8))
+}
+
 fn residual(m: &Machine, w: &Weights, r: &ResidualRow) -> Residual {
     let s = display_factor(m, w, r.meta.component);
     Residual {
@@ -245,60 +251,44 @@ fn residual(m: &Machine, w: &Weights, r: &ResidualRow) -> Residual {
     }
 }
 
-fn summaries(
-    m: &Machine,
-    w: &Weights,
-    files: &[DataSet],
-    rows: &[ResidualRow],
-    threshold: f64,
-) -> Vec<FileSummary> {
-    // The file's overall RMS mixes kinds the way σ̂ does (weighted, over the error scale); the
-    // per-component figures are each in their own display unit.
-    let s = m.units.error.scale;
+fn summaries(m: &Machine, files: &[DataSet], tally: &Tally) -> Vec<FileSummary> {
     files
         .iter()
         .enumerate()
         .map(|(f, file)| {
-            let mine: Vec<&ResidualRow> =
-                rows.iter().filter(|r| r.meta.file as usize == f).collect();
-            let mut components = Vec::new();
-            for c in 0..=LENGTH {
-                let vals: Vec<f64> = mine
-                    .iter()
-                    .filter(|r| r.meta.component == c)
-                    .map(|r| r.residual * display_factor(m, w, c))
-                    .collect();
-                if vals.is_empty() {
-                    continue;
-                }
-                let unit = if (3..6).contains(&c) {
-                    &m.units.tilt
-                } else {
-                    &m.units.error
-                };
-                components.push(ComponentSummary {
-                    name: component_name(c).to_string(),
-                    unit: unit.name.clone(),
-                    rows: vals.len(),
-                    rms: rms(&vals),
-                    max: vals.iter().fold(0.0f64, |a, v| a.max(v.abs())),
-                });
-            }
-            let all: Vec<f64> = mine.iter().map(|r| r.residual / s).collect();
+            let empty = FileTally::default();
+            let mine = tally.file(f).unwrap_or(&empty);
+            let components = (0..=LENGTH)
+                .filter_map(|c| {
+                    let sum = mine.components.get(c as usize)?;
+                    if sum.rows == 0 {
+                        return None;
+                    }
+                    let unit = if (3..6).contains(&c) {
+                        &m.units.tilt
+                    } else {
+                        &m.units.error
+                    };
+                    Some(ComponentSummary {
+                        name: component_name(c).to_string(),
+                        unit: unit.name.clone(),
+                        rows: sum.rows,
+                        rms: sum.rms(),
+                        max: sum.max(),
+                    })
+                })
+                .collect();
             FileSummary {
                 path: file.path.display().to_string(),
                 kind: match file.observations {
                     crate::data::Observations::Points(_) => "points".into(),
                     crate::data::Observations::Lengths(_) => "lengths".into(),
                 },
-                rows: all.len(),
+                rows: mine.all.rows,
                 components,
-                rms: rms(&all),
-                max: all.iter().fold(0.0f64, |a, v| a.max(v.abs())),
-                outliers: mine
-                    .iter()
-                    .filter(|r| r.studentized.abs() > threshold)
-                    .count(),
+                rms: mine.all.rms(),
+                max: mine.all.max(),
+                outliers: mine.outliers,
             }
         })
         .collect()
@@ -419,16 +409,24 @@ pub fn build(
         .collect();
     let s = m.units.error.scale;
     let w = &result.layout.weights;
-    let all: Vec<f64> = result.residuals.iter().map(|r| r.residual / s).collect();
-    let outliers: Vec<Residual> = result
-        .residuals
-        .iter()
-        .filter(|r| {
-            r.studentized.abs() > result.outlier_threshold || r.cook > result.cook_threshold
-        })
-        .map(|r| residual(m, w, r))
-        .collect();
-    let keep = result.residuals.len() <= MAX_RESIDUALS;
+    // A streamed fit brings its tally; otherwise it is made from the rows held.
+    let held;
+    let tally = match &result.tally {
+        Some(t) => t,
+        None => {
+            held = Tally::of(
+                &result.residuals,
+                files.len(),
+                display_factors(m, w),
+                s,
+                result.outlier_threshold,
+                result.cook_threshold,
+            );
+            &held
+        }
+    };
+    let outliers: Vec<Residual> = tally.outliers().iter().map(|r| residual(m, w, r)).collect();
+    let keep = result.rows <= MAX_RESIDUALS && result.residuals.len() == result.rows;
     FitReport {
         version: VERSION,
         machine: m.name.clone(),
@@ -442,12 +440,12 @@ pub fn build(
         rows: result.rows,
         dof: result.rows.saturating_sub(sol.rank),
         sigma: result.sigma / s,
-        rms: rms(&all),
-        max: all.iter().fold(0.0f64, |a, v| a.max(v.abs())),
+        rms: tally.all().rms(),
+        max: tally.all().max(),
         r2: result.r2,
         error_unit: m.units.error.name.clone(),
         tilt_unit: m.units.tilt.name.clone(),
-        files: summaries(m, w, files, &result.residuals, result.outlier_threshold),
+        files: summaries(m, files, tally),
         weights: stated_weights(m, options, result),
         params: params_text(m, &sol.beta, &nonlinear),
         stepwise: result
@@ -466,8 +464,19 @@ pub fn build(
         } else {
             Vec::new()
         },
-        residuals_omitted: if keep { 0 } else { result.residuals.len() },
-        validation: summaries(m, w, validate, &result.validation, f64::INFINITY),
+        residuals_omitted: if keep { 0 } else { result.rows },
+        validation: summaries(
+            m,
+            validate,
+            &Tally::of(
+                &result.validation,
+                validate.len(),
+                display_factors(m, w),
+                s,
+                f64::INFINITY,
+                f64::INFINITY,
+            ),
+        ),
         validation_residuals: result
             .validation
             .iter()

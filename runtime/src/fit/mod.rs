@@ -141,6 +141,34 @@ pub struct FitResult {
 /// Progress callback: rows done in the current pass, and the pass name.
 pub type Progress<'a> = &'a mut dyn FnMut(&'static str, usize);
 
+/// Pass 1 of a fit: the triangle of [X | y] over every row `visit` hands to its callback (the
+/// rows held in memory, or files read a block at a time), reporting the pass's progress.
+fn triangle(
+    columns: usize,
+    block: usize,
+    progress: Progress,
+    visit: impl FnOnce(&mut dyn FnMut(RowMeta, &[f64], f64)) -> Result<(), FitError>,
+) -> Result<Reduced, FitError> {
+    let mut acc = StreamingQr::new(columns, block);
+    let mut done = 0usize;
+    visit(&mut |_, x, y| {
+        acc.push(x, y);
+        done += 1;
+        if done.is_multiple_of(8192) {
+            progress("factorising", done);
+        }
+    })?;
+    progress("factorising", done);
+    let red = acc.finish();
+    if red.rows == 0 {
+        return Err(FitError::NoRows);
+    }
+    if !red.is_finite() {
+        return Err(FitError::Overflow);
+    }
+    Ok(red)
+}
+
 /// Fits `files` (and checks against `validate`).
 pub fn fit(
     compiled: &Compiled,
@@ -164,24 +192,9 @@ pub fn fit(
     };
     let states = design::states_with(m, files, &values)?;
 
-    // Pass 1: the triangle of [X | y].
-    let mut acc = StreamingQr::new(p, options.block);
-    let mut done = 0usize;
-    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
-        acc.push(x, y);
-        done += 1;
-        if done.is_multiple_of(8192) {
-            progress("factorising", done);
-        }
+    let red = triangle(p, options.block, &mut *progress, |row| {
+        Ok(design::for_each_row(engine, files, &states, &layout, row)?)
     })?;
-    progress("factorising", done);
-    let red = acc.finish();
-    if red.rows == 0 {
-        return Err(FitError::NoRows);
-    }
-    if !red.is_finite() {
-        return Err(FitError::Overflow);
-    }
 
     let Solved {
         solution,

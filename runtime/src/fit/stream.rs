@@ -18,8 +18,8 @@ use super::design::{self, judge_artifacts, DataSet, FileStates, Layout, ThinArti
 use super::report::MAX_RESIDUALS;
 use super::tally::Tally;
 use super::{
-    influence, solve_reduced, thresholds, Block, FitError, FitResult, Options, Progress,
-    ResidualRow, Solved, StreamingQr,
+    influence, solve_reduced, thresholds, triangle, Block, FitError, FitResult, Options, Progress,
+    ResidualRow, Solved,
 };
 use crate::data::{self, Groups, Observations, ReadOptions};
 use crate::engine::Evaluator;
@@ -49,7 +49,8 @@ pub struct Streamed {
 }
 
 /// Fits the files at `paths`, reading each a block of rows at a time in every pass. No
-/// validation files, no held-out rows: those go through [`super::fit`].
+/// validation files, no held-out rows, and unit weights (`options.noise` is not applied: a
+/// stated noise needs every kind of row checked first): those go through [`super::fit`].
 pub fn fit(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
@@ -79,31 +80,9 @@ pub fn fit_in_chunks(
     let p = layout.columns();
 
     // Pass 1: the triangle of [X | y].
-    let mut acc = StreamingQr::new(p, options.block);
-    let mut done = 0usize;
-    each_row(
-        compiled,
-        engine,
-        &source,
-        &files,
-        &values,
-        &layout,
-        |_, x, y| {
-            acc.push(x, y);
-            done += 1;
-            if done.is_multiple_of(8192) {
-                progress("factorising", done);
-            }
-        },
-    )?;
-    progress("factorising", done);
-    let red = acc.finish();
-    if red.rows == 0 {
-        return Err(FitError::NoRows);
-    }
-    if !red.is_finite() {
-        return Err(FitError::Overflow);
-    }
+    let red = triangle(p, options.block, &mut *progress, |row| {
+        each_row(compiled, engine, &source, &files, &values, &layout, row)
+    })?;
     let Solved {
         solution,
         selection,

@@ -129,7 +129,7 @@ pub fn stated_angle_noise(text: &str) -> Result<Spread, String> {
 /// `--color`: whether diagnostics on standard error are coloured.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Color {
-    /// Colour only when standard error is a terminal.
+    /// Colour only when standard error is a terminal and `NO_COLOR` is unset or empty.
     #[default]
     Auto,
     Always,
@@ -142,14 +142,30 @@ impl Color {
         match self {
             Color::Always => true,
             Color::Never => false,
-            Color::Auto => std::io::stderr().is_terminal(),
+            Color::Auto => {
+                !no_color(std::env::var_os("NO_COLOR")) && std::io::stderr().is_terminal()
+            }
         }
     }
+}
+
+/// The `NO_COLOR` convention (no-color.org): present and not empty turns automatic colour off;
+/// an explicit `--color always` still wins, as the convention asks.
+fn no_color(value: Option<std::ffi::OsString>) -> bool {
+    value.is_some_and(|v| !v.is_empty())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_color_counts_only_when_set_and_not_empty() {
+        assert!(!no_color(None));
+        assert!(!no_color(Some("".into())));
+        assert!(no_color(Some("1".into())));
+        assert!(no_color(Some("0".into())));
+    }
 
     #[test]
     fn fractions_and_levels_exclude_their_ends_and_non_numbers() {

@@ -12,6 +12,7 @@ mod fit;
 mod grid;
 mod iso;
 mod load;
+mod manual;
 mod render;
 mod report;
 mod rounds;
@@ -22,7 +23,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use args::{Color, Spread};
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
 
 #[derive(Parser)]
 #[command(
@@ -53,6 +54,10 @@ pub enum Format {
 #[derive(Subcommand)]
 enum Command {
     /// Type-check a machine: report every problem, or print a summary of the model.
+    #[command(after_help = "Examples:
+  kin check examples/bridge_cmm.kin
+  kin check examples/milling_5axis.kin --observe position --format json
+  kin check mill.kin --no-identify          # syntax, types and units only")]
     Check {
         file: PathBuf,
         #[arg(long, value_enum, default_value_t = Format::Human)]
@@ -76,6 +81,9 @@ enum Command {
     },
     /// Simulate measurements with a known truth: the machine's errors applied exactly
     /// (finite transforms), written in the measurement-file format.
+    #[command(after_help = "Examples:
+  kin simulate examples/bridge_cmm.kin --sample 2000 --noise 0.3um --seed 7 -o points.csv
+  kin simulate mill.kin --poses plan.csv --components pose -o measured.csv")]
     Simulate {
         machine: PathBuf,
         /// Parameter values (`params { … }` file); the machine's own `params` block otherwise.
@@ -117,6 +125,10 @@ enum Command {
         color: Color,
     },
     /// Fit the model's coefficients to measurement files by least squares.
+    #[command(after_help = "Examples:
+  kin fit examples/bridge_cmm.kin examples/data/bridge_cmm_points.csv -o fit.json
+  kin fit mill.kin laser_x.csv ballbar.csv --noise 0.5um -o fit.json
+  kin fit mill.kin points.csv --stepwise 1e-4 --holdout 0.2 -o fit.json")]
     Fit {
         machine: PathBuf,
         /// Point and length files (measurement files: spec/data.md). Files of 64 MiB or more
@@ -191,6 +203,10 @@ enum Command {
         color: Color,
     },
     /// Where the fitted model fails, and which physical effect is missing from it.
+    #[command(after_help = "Examples:
+  kin diagnose examples/bridge_cmm.kin examples/data/bridge_cmm_points.csv
+  kin diagnose mill.kin points.csv --noise 0.3um -o diagnose.json
+  kin diagnose mill.kin points.csv --apply 1 --dry-run     # show the line, change nothing")]
     Diagnose {
         machine: PathBuf,
         /// Point and length files (measurement files: spec/data.md).
@@ -240,6 +256,8 @@ enum Command {
         format: Format,
     },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
+    #[command(after_help = "Examples:
+  kin eval mill.kin poses.csv --params fit.json --uncertainty -o predicted.csv")]
     Eval {
         machine: PathBuf,
         /// A point or length file of poses; observed columns are not needed (spec/data.md).
@@ -266,6 +284,9 @@ enum Command {
     /// A self-contained HTML page about a fit: residuals along every axis, input and time, the residual
     /// spectrum and candidate effects (from `kin diagnose -o`), the history of the model's
     /// revisions, and the fitted parametric errors with their confidence bands.
+    #[command(after_help = "Examples:
+  kin report mill.kin --fit fit.json --diagnose diagnose.json -o report.html
+  kin report mill.kin --fit fit.json points.csv -o report.html   # data moved since the fit")]
     Report {
         machine: PathBuf,
         /// The fit report written by `kin fit -o`.
@@ -287,13 +308,16 @@ enum Command {
     /// Corrections of a positioning machine's axes that cancel its fitted errors (Soons 1993,
     /// §2.3.5), at commanded poses, or as controller tables.
     ///
-    /// Example: kin compensate mill.kin --fit FIT.json --grid X=0:500:50,Y=0:400:50,Z=-100
-    /// -o corrections.csv
-    ///
     /// The CSV holds per pose the predicted error (ex … erz), the correction to add to each
     /// axis command (corr_AXIS), the error the model predicts after it (rest_…: what the axes
     /// cannot correct) and the standard uncertainty of the prediction (u_…).
-    #[command(verbatim_doc_comment)]
+    #[command(
+        verbatim_doc_comment,
+        after_help = "Examples:
+  kin compensate mill.kin --fit fit.json --grid X=0:500:50,Y=0:400:50,Z=-100 -o corrections.csv
+  kin compensate mill.kin --fit fit.json --poses commanded.csv --correct position -o corrections.csv
+  kin compensate mill.kin --fit fit.json --grid X=0:500:25 --table linuxcnc -o tables/"
+    )]
     Compensate {
         machine: PathBuf,
         /// The fit report written by `kin fit -o` (a fit of another machine is refused).
@@ -361,6 +385,26 @@ enum Command {
         seconds: f64,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
+    },
+    /// Shell completion script on standard output (bash, zsh, fish, elvish, powershell).
+    ///
+    /// Example (bash): kin completions bash > ~/.local/share/bash-completion/completions/kin
+    /// Example (zsh):  kin completions zsh > ~/.zfunc/_kin
+    #[command(verbatim_doc_comment)]
+    Completions {
+        /// The shell the script is for.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Manual pages generated from this command line: `kin.1` on standard output, or one page
+    /// per command (kin.1, kin-fit.1, …) into the folder given with -o.
+    ///
+    /// Example: kin man -o ~/.local/share/man/man1 && man kin-fit
+    #[command(verbatim_doc_comment)]
+    Man {
+        /// A folder to write every page into (replaced atomically); standard output otherwise.
+        #[arg(short, long, value_name = "DIR")]
+        output: Option<PathBuf>,
     },
 }
 
@@ -584,5 +628,40 @@ fn main() -> ExitCode {
             color,
         } => bench::run(&machine, poses, seconds, color.enabled()),
         Command::Iso2302 { run, format } => iso::run(&run, format),
+        Command::Completions { shell } => manual::completions(Cli::command(), shell),
+        Command::Man { output } => manual::man(Cli::command(), output.as_deref()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every example line in `--help` (`kin …`, a `#` starting a comment) is a valid command line:
+    /// an option renamed or removed fails here before a user copies a stale example.
+    #[test]
+    fn every_example_in_help_parses() {
+        let cli = Cli::command();
+        let mut seen = 0;
+        for sub in cli.get_subcommands() {
+            let help = [sub.get_after_help(), sub.get_long_about(), sub.get_about()];
+            for text in help.into_iter().flatten() {
+                for line in text.to_string().lines() {
+                    let line = line.trim().trim_start_matches("Example:").trim();
+                    let line = line.split(" #").next().unwrap_or("");
+                    let line = line.split(" >").next().unwrap_or("");
+                    let line = line.split(" &&").next().unwrap_or("");
+                    if !line.starts_with("kin ") {
+                        continue;
+                    }
+                    let words: Vec<&str> = line.split_whitespace().collect();
+                    if let Err(e) = Cli::try_parse_from(&words) {
+                        panic!("`{line}` in the help of `kin {}`: {e}", sub.get_name());
+                    }
+                    seen += 1;
+                }
+            }
+        }
+        assert!(seen >= 12, "only {seen} examples found");
     }
 }

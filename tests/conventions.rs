@@ -1,0 +1,90 @@
+//! The command line's conventions (issue 17): completion scripts and manual pages generated
+//! from the same definition as `--help`, and a checked `--color`.
+
+use std::process::Command;
+
+fn kin(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(args)
+        .env_remove("NO_COLOR")
+        .output()
+        .expect("kin runs")
+}
+
+#[test]
+fn completion_scripts_name_every_command_for_each_shell() {
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let out = kin(&["completions", shell]);
+        assert!(out.status.success(), "{shell}: {out:?}");
+        let script = String::from_utf8(out.stdout).expect("utf-8");
+        for command in ["check", "fit", "diagnose", "compensate", "iso230-2", "man"] {
+            assert!(script.contains(command), "{shell} script lacks `{command}`");
+        }
+        // An option of one command, so the script completes options and not only commands.
+        assert!(
+            script.contains("noise-tilt"),
+            "{shell} script lacks --noise-tilt"
+        );
+    }
+    let out = kin(&["completions", "tcsh"]);
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
+fn manual_pages_are_roff_with_one_page_per_command() {
+    let out = kin(&["man"]);
+    assert!(out.status.success());
+    let page = String::from_utf8(out.stdout).expect("utf-8");
+    assert!(page.contains(".TH kin 1"), "{page}");
+    assert!(
+        page.contains("kin\\-fit(1)"),
+        "the main page lists the command pages"
+    );
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = dir.path().to_str().expect("utf-8 path");
+    let out = kin(&["man", "-o", d]);
+    assert!(out.status.success(), "{out:?}");
+    let fit = std::fs::read_to_string(dir.path().join("kin-fit.1")).expect("kin-fit.1");
+    assert!(fit.contains(".TH kin-fit 1"), "{fit}");
+    // The options' help and the examples reach the page.
+    assert!(fit.contains("noise\\-tilt"), "{fit}");
+    assert!(fit.contains("Examples:"), "{fit}");
+    assert!(!dir.path().join("kin-help.1").exists());
+
+    let missing = dir.path().join("no/such/folder");
+    let out = kin(&["man", "-o", missing.to_str().expect("utf-8")]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a folder"));
+}
+
+#[test]
+fn color_is_a_checked_choice_and_never_colours_a_pipe() {
+    let out = kin(&["check", "--color", "purple", "examples/bridge_cmm.kin"]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("auto") && err.contains("never"), "{err}");
+
+    // A model with an error: its diagnostic goes to standard error, a pipe here.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let bad = dir.path().join("bad.kin");
+    std::fs::write(
+        &bad,
+        "machine m {\n  axis X prismatic along x range 0..1 m\n  tool chain: Q\n}\n",
+    )
+    .expect("write");
+    let bad = bad.to_str().expect("utf-8");
+    let plain = kin(&["check", bad]);
+    assert_eq!(plain.status.code(), Some(1));
+    assert!(!plain.stderr.contains(&0x1b), "auto colours a pipe");
+    let forced = Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(["check", "--color", "always", bad])
+        .env("NO_COLOR", "1")
+        .output()
+        .expect("kin runs");
+    assert!(
+        forced.stderr.contains(&0x1b),
+        "--color always wins over NO_COLOR: {}",
+        String::from_utf8_lossy(&forced.stderr)
+    );
+}

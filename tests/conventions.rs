@@ -88,3 +88,41 @@ fn color_is_a_checked_choice_and_never_colours_a_pipe() {
         String::from_utf8_lossy(&forced.stderr)
     );
 }
+
+/// A row beyond an axis's declared range is read (the model is extrapolated there) and said
+/// once, with the file, the count and the first line; the fit's result is still written.
+#[test]
+fn rows_outside_an_axis_range_are_warned_about_once_with_their_line() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let text = std::fs::read_to_string("examples/data/bridge_cmm_points.csv").expect("data");
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    // Line 5 of the file (the second data row): X = 612 mm on an axis declared 0 .. 600 mm.
+    let mut cells: Vec<String> = lines[4].split(',').map(str::to_string).collect();
+    cells[1] = "612".into();
+    lines[4] = cells.join(",");
+    let data = dir.path().join("points.csv");
+    std::fs::write(&data, lines.join("\n") + "\n").expect("write");
+    let fit = dir.path().join("fit.json");
+    let out = kin(&[
+        "fit",
+        "examples/bridge_cmm.kin",
+        data.to_str().expect("utf-8"),
+        "-o",
+        fit.to_str().expect("utf-8"),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let warning =
+        "1 of 1000 rows put X outside its declared range 0 .. 600 mm (first at line 5: 612 mm";
+    assert_eq!(err.matches(warning).count(), 1, "{err}");
+    assert!(fit.exists());
+
+    // The bundled data are inside every range: no such warning.
+    let out = kin(&[
+        "fit",
+        "examples/bridge_cmm.kin",
+        "examples/data/bridge_cmm_points.csv",
+    ]);
+    assert!(out.status.success());
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("declared range"));
+}

@@ -254,8 +254,7 @@ pub fn check_range(m: &Machine, q: &[f64]) -> Result<(), CompensateError> {
             continue;
         }
         let [lo, hi] = axis.range;
-        let slack = 1e-9 * (hi - lo).abs().max(1e-12);
-        if !(v >= lo - slack && v <= hi + slack) {
+        if !crate::data::ranges::within(axis.range, v) {
             let unit = match axis.kind {
                 JointKind::Prismatic => &m.units.length,
                 JointKind::Revolute => &m.units.angle,

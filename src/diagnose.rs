@@ -23,6 +23,8 @@ pub struct DiagnoseArgs {
     /// The stated instrument noise on positions and on rotations.
     pub noise: Option<crate::args::Spread>,
     pub noise_tilt: Option<crate::args::Spread>,
+    /// The diagnosis as text, or as the DIAGNOSE.json document alone on standard output.
+    pub format: crate::Format,
 }
 
 pub fn run(a: DiagnoseArgs) -> ExitCode {
@@ -55,6 +57,16 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
+    if a.format == crate::Format::Json {
+        // Standard output holds the document alone (spec/json.md); `--apply` is refused with
+        // `--format json` by the command line.
+        let json = fitcmd::to_json(&diagnosis)?;
+        if let Some(out) = &a.output {
+            files::write(out, json.as_bytes())?;
+        }
+        println!("{json}");
+        return Ok(());
+    }
     let mut said = text(&diagnosis, fitted.report.sigma, fitted.report.rms);
     if let Some(note) = fitcmd::mixed_units(&fitted.report) {
         // σ̂ of rows in µm and µrad is in neither unit alone: say so under the header.
@@ -63,11 +75,7 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
     }
     print!("{said}");
     if let Some(out) = &a.output {
-        let json = serde_json::to_string_pretty(&diagnosis).map_err(|e| {
-            eprintln!("error: {e}");
-            Failed::USAGE
-        })?;
-        files::write(out, json.as_bytes())?;
+        files::write(out, fitcmd::to_json(&diagnosis)?.as_bytes())?;
         println!("wrote {}", out.display());
     }
     let Some(n) = a.apply else {

@@ -47,8 +47,38 @@ pub fn stated_noise(
     })
 }
 
-pub fn run(a: FitArgs) -> ExitCode {
-    Failed::exit(fit_command(&a).map(|_| ()))
+pub fn run(a: FitArgs, format: crate::Format) -> ExitCode {
+    Failed::exit(match format {
+        crate::Format::Human => fit_command(&a).map(|_| ()),
+        crate::Format::Json => fit_json(&a),
+    })
+}
+
+/// `kin fit --format json`: the fit as FIT.json on standard output and nothing else there
+/// (spec/json.md); the files and the history are written as by the human form, silently.
+fn fit_json(a: &FitArgs) -> Result<(), Failed> {
+    if let Some(out) = &a.output {
+        check_outputs(out, a)?;
+    }
+    let fitted = if streams(a) {
+        fit_streamed(a)?
+    } else {
+        fit_quietly(a)?
+    };
+    if let Some(out) = &a.output {
+        write_files(out, &fitted.report)?;
+    }
+    let _ = record_quietly(&a.machine, &fitted, None);
+    println!("{}", to_json(&fitted.report)?);
+    Ok(())
+}
+
+/// A document of spec/json.md as pretty-printed JSON.
+pub fn to_json<T: serde::Serialize>(document: &T) -> Result<String, Failed> {
+    serde_json::to_string_pretty(document).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed::USAGE
+    })
 }
 
 fn read_all(
@@ -421,15 +451,19 @@ pub fn write_report_files(path: &Path, rep: &report::FitReport) -> Result<(), Fa
 }
 
 fn write_report(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
-    let json = serde_json::to_string_pretty(rep).map_err(|e| {
-        eprintln!("error: {e}");
-        Failed::USAGE
-    })?;
-    crate::files::write(path, json.as_bytes())?;
-    let params = path.with_extension("params");
-    crate::files::write(&params, rep.params.as_bytes())?;
-    println!("wrote {} and {}", path.display(), params.display());
+    write_files(path, rep)?;
+    println!(
+        "wrote {} and {}",
+        path.display(),
+        path.with_extension("params").display()
+    );
     Ok(())
+}
+
+/// FIT.json and FIT.params, each replaced atomically.
+fn write_files(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
+    crate::files::write(path, to_json(rep)?.as_bytes())?;
+    crate::files::write(&path.with_extension("params"), rep.params.as_bytes())
 }
 
 /// The terminal summary: the fit, a table per observation file, a table per error component.

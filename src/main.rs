@@ -181,6 +181,9 @@ enum Command {
         /// The instrument's standard deviation on rotations, e.g. `1urad`.
         #[arg(long, value_name = "Q", value_parser = args::stated_angle_noise, allow_hyphen_values = true)]
         noise_tilt: Option<Spread>,
+        /// `json`: standard output holds FIT.json alone (spec/json.md), `-o` still writes it.
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -238,6 +241,9 @@ enum Command {
         /// The instrument's standard deviation on rotations, e.g. `1urad`.
         #[arg(long, value_name = "Q", value_parser = args::stated_angle_noise, allow_hyphen_values = true)]
         noise_tilt: Option<Spread>,
+        /// `json`: standard output holds DIAGNOSE.json alone (spec/json.md); not with --apply.
+        #[arg(long, value_enum, default_value_t = Format::Human, conflicts_with = "apply")]
+        format: Format,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -489,23 +495,27 @@ fn main() -> ExitCode {
             engine,
             ignore,
             color,
-        } => fit::run(fit::FitArgs {
-            machine,
-            data,
-            validate,
-            output,
-            solver,
-            tolerance,
-            min_norm,
-            stepwise,
-            enter,
-            holdout,
-            seed,
-            noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
-            engine,
-            ignore: ignore.columns,
-            color: color.enabled(),
-        }),
+            format,
+        } => fit::run(
+            fit::FitArgs {
+                machine,
+                data,
+                validate,
+                output,
+                solver,
+                tolerance,
+                min_norm,
+                stepwise,
+                enter,
+                holdout,
+                seed,
+                noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
+                engine,
+                ignore: ignore.columns,
+                color: color.enabled(),
+            },
+            format,
+        ),
         Command::Demo { dir, rounds, color } => demo::run(dir, rounds, color.enabled()),
         Command::Diagnose {
             machine,
@@ -520,6 +530,7 @@ fn main() -> ExitCode {
             engine,
             ignore,
             color,
+            format,
         } => diagnose::run(diagnose::DiagnoseArgs {
             fit: fit::FitArgs {
                 machine,
@@ -546,6 +557,7 @@ fn main() -> ExitCode {
             dry_run,
             noise,
             noise_tilt,
+            format,
         }),
         Command::Eval {
             machine,

@@ -1,0 +1,190 @@
+//! `--format json` and the documents of spec/json.md: standard output holds the document alone,
+//! it equals the file `-o` writes, and every field kin writes is documented (a field added
+//! without its line in spec/json.md fails here).
+
+use std::collections::BTreeSet;
+use std::path::Path;
+use std::process::Command;
+
+use serde_json::Value;
+
+const MODEL: &str = "examples/bridge_cmm.kin";
+const DATA: &str = "examples/data/bridge_cmm_points.csv";
+
+fn kin(args: &[&str]) -> (String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(args)
+        .output()
+        .expect("kin runs");
+    let (stdout, stderr) = (
+        String::from_utf8(out.stdout).expect("utf-8"),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    );
+    assert!(out.status.success(), "kin {args:?}: {stderr}");
+    (stdout, stderr)
+}
+
+/// The fields of one section of spec/json.md: the first cell of each table row, in backticks.
+fn documented(section: &str) -> BTreeSet<String> {
+    let spec = std::fs::read_to_string("spec/json.md").expect("spec/json.md");
+    let start = spec
+        .find(&format!("## {section}"))
+        .expect("section in spec/json.md");
+    let body = &spec[start + 3..];
+    let body = &body[..body.find("\n## ").unwrap_or(body.len())];
+    body.lines()
+        .filter_map(|l| l.strip_prefix("| `"))
+        .filter_map(|l| l.split('`').next())
+        .map(str::to_string)
+        .collect()
+}
+
+/// Every field path of `v` (`files[].components[].rms`), each array's elements merged.
+fn paths(v: &Value, prefix: &str, out: &mut BTreeSet<String>) {
+    match v {
+        Value::Object(map) => {
+            for (k, x) in map {
+                let p = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                out.insert(p.clone());
+                paths(x, &p, out);
+            }
+        }
+        Value::Array(items) => {
+            for x in items {
+                paths(x, &format!("{prefix}[]"), out);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// FIT.json's arrays of one kind share their fields, documented once (spec/json.md says which).
+fn fit_alias(path: &str) -> String {
+    for (from, to) in [
+        ("nonlinear[].note", "nonlinear[].note"),
+        ("nonlinear[]", "coefficients[]"),
+        ("nuisance[]", "coefficients[]"),
+        ("validation[]", "files[]"),
+        ("validation_residuals[]", "residuals[]"),
+        ("outliers[]", "residuals[]"),
+    ] {
+        if let Some(rest) = path.strip_prefix(from) {
+            return format!("{to}{rest}");
+        }
+    }
+    path.to_string()
+}
+
+fn undocumented(doc: &Value, section: &str, alias: fn(&str) -> String) -> Vec<String> {
+    let known = documented(section);
+    let mut found = BTreeSet::new();
+    paths(doc, "", &mut found);
+    found
+        .into_iter()
+        .map(|p| alias(&p))
+        .filter(|p| !known.contains(p))
+        .collect()
+}
+
+#[test]
+fn fit_prints_fit_json_alone_and_every_field_is_documented() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    // A fitted wavelength, so `nonlinear` is not empty.
+    let model = dir.path().join("cmm.kin");
+    let text = std::fs::read_to_string(MODEL).expect("model");
+    assert!(text.contains("wavelength 25.4 mm"), "the example changed");
+    let text = text.replacen("wavelength 25.4 mm", "wavelength fit 25.4 mm", 1);
+    std::fs::write(&model, text).expect("write model");
+    let model = model.to_str().expect("utf-8");
+    let out = dir.path().join("fit.json");
+    let out_s = out.to_str().expect("utf-8");
+    let mut seen = Vec::new();
+    for extra in [
+        vec!["--noise", "0.2um"],
+        vec!["--stepwise", "1e-4"],
+        vec!["--validate", DATA],
+    ] {
+        let mut args = vec!["fit", model, DATA, "--format", "json", "-o", out_s];
+        args.extend(extra.iter().copied());
+        let (stdout, _) = kin(&args);
+        let printed: Value = serde_json::from_str(&stdout).expect("stdout is one JSON document");
+        let written: Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).expect("FIT.json"))
+                .expect("FIT.json parses");
+        assert_eq!(printed, written, "{extra:?}: stdout and -o differ");
+        assert!(Path::new(&out.with_extension("params")).exists());
+        let missing = undocumented(&printed, "FIT.json", fit_alias);
+        assert!(
+            missing.is_empty(),
+            "{extra:?}: fields not in spec/json.md: {missing:?}"
+        );
+        seen.push(printed);
+    }
+    // And no documented field is stale: each was written by one of the runs (but the note of
+    // an undetermined wavelength, which these data determine).
+    let mut written = BTreeSet::new();
+    for doc in &seen {
+        let mut found = BTreeSet::new();
+        paths(doc, "", &mut found);
+        written.extend(found.iter().map(|p| fit_alias(p)));
+    }
+    let stale: Vec<String> = documented("FIT.json")
+        .into_iter()
+        .filter(|f| !written.contains(f) && f != "nonlinear[].note")
+        .collect();
+    assert!(stale.is_empty(), "documented but never written: {stale:?}");
+    // The runs did produce the optional parts the table documents.
+    assert!(seen[0]["weights"]["chi2"].is_number());
+    assert!(seen[1]["stepwise"]["steps"].is_array());
+    assert!(!seen[2]["validation"].as_array().expect("array").is_empty());
+    assert!(!seen[0]["nonlinear"].as_array().expect("array").is_empty());
+}
+
+#[test]
+fn diagnose_prints_diagnose_json_alone_and_every_field_is_documented() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("diagnose.json");
+    let (stdout, _) = kin(&[
+        "diagnose",
+        MODEL,
+        DATA,
+        "--noise",
+        "0.2um",
+        "--format",
+        "json",
+        "-o",
+        out.to_str().expect("utf-8"),
+    ]);
+    let printed: Value = serde_json::from_str(&stdout).expect("stdout is one JSON document");
+    let written: Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).expect("DIAGNOSE.json"))
+            .expect("parses");
+    assert_eq!(printed, written);
+    assert!(!printed["findings"].as_array().expect("array").is_empty());
+    let missing = undocumented(&printed, "DIAGNOSE.json", str::to_string);
+    assert!(
+        missing.is_empty(),
+        "fields not in spec/json.md: {missing:?}"
+    );
+
+    // `--apply` edits the model and refits: not a document on standard output.
+    let refused = Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(["diagnose", MODEL, DATA, "--format", "json", "--apply", "1"])
+        .output()
+        .expect("kin runs");
+    assert_eq!(refused.status.code(), Some(2));
+}
+
+/// The page's tables are read as this test expects (a changed layout must not pass vacuously).
+#[test]
+fn every_documented_section_is_found() {
+    for section in ["FIT.json", "DIAGNOSE.json"] {
+        let fields = documented(section);
+        assert!(fields.len() > 40, "{section}: {}", fields.len());
+        assert!(fields.iter().all(|f| !f.contains(' ')), "{fields:?}");
+    }
+}

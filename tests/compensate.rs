@@ -338,7 +338,7 @@ fn help_shows_an_example() {
     ok(&o);
     let help = text(&o.stdout);
     assert!(
-        help.contains("kin compensate mill.kin --fit FIT.json --grid"),
+        help.contains("kin compensate mill.kin --fit fit.json --grid"),
         "{help}"
     );
     assert!(help.contains("linuxcnc"), "{help}");

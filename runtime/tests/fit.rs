@@ -833,3 +833,101 @@ fn absurd_values_stop_the_fit_instead_of_overflowing_it() {
         }
     }
 }
+
+/// Counts the passes over the data (each begins by setting the non-linear values).
+struct Passes<'a> {
+    inner: Interpreter<'a>,
+    passes: usize,
+}
+
+impl kin_runtime::engine::Evaluator for Passes<'_> {
+    fn machine(&self) -> &kin_compiler::ir::Machine {
+        self.inner.machine()
+    }
+    fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), kin_runtime::interp::EvalError> {
+        self.passes += 1;
+        self.inner.set_nonlinear(values)
+    }
+    fn error(
+        &mut self,
+        state: &kin_runtime::interp::State,
+        beta: &[f64],
+    ) -> Result<[f64; 6], kin_runtime::interp::EvalError> {
+        self.inner.error(state, beta)
+    }
+    fn error_and_jacobian(
+        &mut self,
+        state: &kin_runtime::interp::State,
+        beta: &[f64],
+        err: &mut [f64; 6],
+        jac: &mut [f64],
+    ) -> Result<(), kin_runtime::interp::EvalError> {
+        self.inner.error_and_jacobian(state, beta, err, jac)
+    }
+    fn length_and_row(
+        &mut self,
+        s1: &kin_runtime::interp::State,
+        s2: &kin_runtime::interp::State,
+        beta: &[f64],
+        row: &mut [f64],
+    ) -> Result<f64, kin_runtime::interp::EvalError> {
+        self.inner.length_and_row(s1, s2, beta, row)
+    }
+}
+
+/// A design the data cannot solve is refused at the start values of the fitted wavelength,
+/// located as without it, after two passes over the data instead of the optimisation's dozens
+/// (moving λ changes its columns' values, not which combinations are invisible).
+#[test]
+fn a_deficient_design_with_a_fitted_wavelength_is_refused_before_optimising() {
+    let src = CMM.replace(
+        "X.tx = spline(X, knots 2)",
+        "X.tx = spline(X, knots 2) + const + periodic(X, wavelength fit 20 mm, knots 2)",
+    );
+    let c = machine(&src);
+    let beta = vec![1e-6; c.machine.coefficients.len()];
+    let data = simulated(&c, &beta, 300, 0.2e-6, 3, 2);
+    let mut engine = Passes {
+        inner: Interpreter::new(&c.machine).expect("interpreter"),
+        passes: 0,
+    };
+    let result = fit::fit(
+        &c,
+        &mut engine,
+        std::slice::from_ref(&data),
+        &[],
+        &Options::default(),
+        &mut |_, _| {},
+    );
+    match result {
+        Err(FitError::RankDeficient {
+            rank,
+            columns,
+            diagnostics,
+        }) => {
+            assert_eq!(columns - rank, 1, "one invisible direction");
+            assert!(diagnostics.iter().any(|d| d.message.contains("X.tx[")));
+        }
+        other => panic!(
+            "expected a rank-deficiency error, got {:?}",
+            other.map(|r| r.solution.rank)
+        ),
+    }
+    assert!(
+        engine.passes <= 2,
+        "{} passes before refusing",
+        engine.passes
+    );
+
+    // With --min-norm the wavelength is still fitted (the optimisation runs).
+    let mut engine = Passes {
+        inner: Interpreter::new(&c.machine).expect("interpreter"),
+        passes: 0,
+    };
+    let options = Options {
+        min_norm: true,
+        ..Options::default()
+    };
+    fit::fit(&c, &mut engine, &[data], &[], &options, &mut |_, _| {}).expect("min-norm fit");
+    assert!(engine.passes > 4, "{} passes", engine.passes);
+}

@@ -7,6 +7,7 @@
 
 mod design;
 pub mod nonlinear;
+mod projection;
 mod qr;
 pub mod report;
 mod solve;

@@ -12,6 +12,7 @@ use faer::Mat;
 use kin_compiler::Compiled;
 
 use super::design::{self, DataSet, Layout};
+use super::projection::{self, Split};
 use super::qr::{Reduced, StreamingQr};
 use super::{solve, FitError, Options, Solver};
 use crate::engine::Evaluator;
@@ -60,8 +61,9 @@ fn residuals(
     files: &[DataSet],
     values: &[f64],
     options: &Options,
+    split: Option<&Split>,
 ) -> Result<(Vec<f64>, usize), FitError> {
-    let (r, rank, _) = linear_fit(compiled, engine, files, values, options)?;
+    let (r, rank, _) = linear_fit(compiled, engine, files, values, options, split)?;
     Ok((r, rank))
 }
 
@@ -95,8 +97,82 @@ fn linear_fit(
     files: &[DataSet],
     values: &[f64],
     options: &Options,
+    split: Option<&Split>,
 ) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
-    masked_fit(compiled, engine, files, values, options, &[])
+    match split {
+        Some(split) => projected_fit(compiled, engine, files, values, options, split),
+        None => masked_fit(compiled, engine, files, values, options, &[]),
+    }
+}
+
+/// As [`linear_fit`], the fixed columns' triangle reused (see [`projection`]): one pass that
+/// evaluates the rows and accumulates the moving columns' products, one for the residuals.
+fn projected_fit(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    options: &Options,
+    split: &Split,
+) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
+    let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
+    let mut products = split.products();
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        split.push(&mut products, x, y)
+    })?;
+    let red = split.complete(&products);
+    if !red.is_finite() {
+        return Err(FitError::Overflow);
+    }
+    let sol = match solve::solve(&red, Solver::Svd, options.tolerance, true) {
+        Ok(s) | Err(s) => s,
+    };
+    let mut beta = vec![0.0; layout.columns()];
+    for (&j, b) in split.order.iter().zip(&sol.beta) {
+        if let Some(dst) = beta.get_mut(j) {
+            *dst = *b;
+        }
+    }
+    let mut r = Vec::with_capacity(red.rows);
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        r.push(y - x.iter().zip(&beta).map(|(a, b)| a * b).sum::<f64>());
+    })?;
+    Ok((r, sol.rank, beta))
+}
+
+/// The fixed columns' triangle for [`projected_fit`], from one pass over the rows; `None`
+/// when the plain path must be taken (a moving known term, dependent fixed columns, nothing
+/// moving).
+fn split_for(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    options: &Options,
+    fitted: &[usize],
+) -> Result<Option<Split>, FitError> {
+    let m = &compiled.machine;
+    let columns = Layout::new(m, files).columns();
+    let Some(moving) = projection::moving_columns(m, fitted, columns) else {
+        return Ok(None);
+    };
+    let fixed = moving.iter().filter(|&&b| !b).count();
+    if fixed == columns {
+        return Ok(None);
+    }
+    let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
+    let mut acc = StreamingQr::new(fixed, options.block);
+    let mut row = Vec::with_capacity(fixed);
+    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+        row.clear();
+        row.extend(x.iter().zip(&moving).filter(|(_, &m)| !m).map(|(v, _)| *v));
+        acc.push(&row, y)
+    })?;
+    let base = acc.finish();
+    if !base.is_finite() {
+        return Err(FitError::Overflow);
+    }
+    Ok(Split::new(&moving, base))
 }
 
 /// As [`linear_fit`], with the columns flagged in `without` left out (held at zero).
@@ -216,9 +292,10 @@ fn covariance(
     rss: f64,
     rank: usize,
     options: &Options,
+    split: Option<&Split>,
 ) -> Result<Vec<Option<f64>>, FitError> {
     let m = &compiled.machine;
-    let (_, _, beta) = linear_fit(compiled, engine, files, values, options)?;
+    let (_, _, beta) = linear_fit(compiled, engine, files, values, options, split)?;
     let k = fitted.len();
     let mut d: Vec<Vec<f64>> = Vec::with_capacity(k);
     for &i in fitted {
@@ -309,10 +386,13 @@ pub fn optimise(
         v
     };
     let mut phi: Vec<f64> = fitted.iter().map(|&i| values[i].ln()).collect();
-    let (mut r, mut rank) = residuals(compiled, engine, files, &values, options)?;
+    let (mut r, mut rank) = residuals(compiled, engine, files, &values, options, None)?;
     if !options.min_norm && rank < Layout::new(m, files).columns() {
         refuse_deficient(compiled, engine, files, &values, options)?;
     }
+    // The fixed columns' triangle, factored once for every evaluation below.
+    let split = split_for(compiled, engine, files, &values, options, &fitted)?;
+    let split = split.as_ref();
     let mut rss = sumsq(&r);
     let mut lambda = 1e-3;
     let mut iterations = 0;
@@ -324,7 +404,7 @@ pub fn optimise(
         for (c, _) in fitted.iter().enumerate() {
             let mut p = phi.clone();
             p[c] += h;
-            let (rp, _) = residuals(compiled, engine, files, &with(&values, &p), options)?;
+            let (rp, _) = residuals(compiled, engine, files, &with(&values, &p), options, split)?;
             for (i, (a, b)) in rp.iter().zip(&r).enumerate() {
                 jac[(i, c)] = (a - b) / h;
             }
@@ -349,7 +429,14 @@ pub fn optimise(
                 .zip(&step)
                 .map(|(p, d)| p + d.clamp(-2.0, 2.0))
                 .collect();
-            let (rt, rank_t) = residuals(compiled, engine, files, &with(&values, &trial), options)?;
+            let (rt, rank_t) = residuals(
+                compiled,
+                engine,
+                files,
+                &with(&values, &trial),
+                options,
+                split,
+            )?;
             let rss_t = sumsq(&rt);
             if rss_t < rss {
                 let gain = (rss - rss_t) / rss.max(f64::MIN_POSITIVE);
@@ -369,7 +456,7 @@ pub fn optimise(
     }
     values = with(&values, &phi);
     let se = covariance(
-        compiled, engine, files, &values, &fitted, rss, rank, options,
+        compiled, engine, files, &values, &fitted, rss, rank, options, split,
     )?;
     let mut verdicts = vec![None; m.nonlinear.len()];
     let dof = r.len().saturating_sub(rank + k).max(1) as f64;
@@ -378,7 +465,7 @@ pub fn optimise(
         // Held at its start value, the others at their optimum.
         let mut held = values.clone();
         held[i] = start;
-        let (rs, _) = residuals(compiled, engine, files, &held, options)?;
+        let (rs, _) = residuals(compiled, engine, files, &held, options, split)?;
         let moved = moved_columns(compiled, engine, files, &values, i, options)?;
         let without = moved.iter().filter(|&&b| b).count();
         let (rw, _, _) = masked_fit(compiled, engine, files, &values, options, &moved)?;
@@ -492,4 +579,113 @@ fn f_test_p(gain: f64, q: f64, rss: f64, dof: f64) -> f64 {
         FisherSnedecor::new(q, dof).map(|d| d.cdf(f)).ok()
     };
     cdf.map(|c| 1.0 - c).unwrap_or(f64::NAN)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::Observations;
+    use crate::simulate::{self, sample_points};
+
+    /// The optimiser's fits from the fixed columns' triangle equal the plain QR's, at values
+    /// away from the ones the triangle was made at.
+    #[test]
+    fn the_projected_fit_equals_the_plain_one() {
+        let src = r#"
+machine m {
+    task position
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 300 mm
+    tool chain {
+        X moving
+        Y moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = linear(X) + periodic(X, wavelength fit 20 mm, knots 2)
+        X.rz = const + linear(X)
+        Y.ty = spline(Y, knots 3)
+        Y.tx = fourier(Y, harmonics 1..2, wavelength fit 37 mm)
+    }
+}
+"#;
+        let out = kin_compiler::compile(src);
+        let Some(c) = out.compiled else {
+            panic!("{:?}", out.diagnostics)
+        };
+        let m = &c.machine;
+        let beta: Vec<f64> = (0..m.coefficients.len())
+            .map(|j| 1e-6 * (1.0 + j as f64).sin())
+            .collect();
+        let poses = Observations::Points(sample_points(m, 400, 2));
+        let options = simulate::Options {
+            noise: 0.3e-6,
+            seed: 3,
+            ..simulate::Options::default()
+        };
+        let obs = simulate::simulate(m, &beta, &poses, &options).expect("simulate");
+        let files = [DataSet {
+            path: "sim.csv".into(),
+            observations: obs,
+        }];
+        let mut engine = crate::interp::Interpreter::new(m).expect("interpreter");
+        let fitted = [0usize, 1];
+        let start: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+        let options = Options::default();
+        let split = split_for(&c, &mut engine, &files, &start, &options, &fitted)
+            .expect("passes")
+            .expect("a split: only the periodic and Fourier columns move");
+        assert_eq!(split.moving(), 2 + 4);
+        for values in [
+            start.clone(),
+            vec![20.3e-3, 36.0e-3],
+            vec![19.1e-3, 41.0e-3],
+        ] {
+            let (rp, rank_p, bp) =
+                linear_fit(&c, &mut engine, &files, &values, &options, Some(&split)).expect("fit");
+            let (rq, rank_q, bq) =
+                linear_fit(&c, &mut engine, &files, &values, &options, None).expect("fit");
+            assert_eq!(rank_p, rank_q);
+            let scale = rq.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let diff = rp
+                .iter()
+                .zip(&rq)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!(
+                diff <= 1e-8 * scale,
+                "{values:?}: residuals differ by {diff} of {scale}"
+            );
+            for (a, b) in bp.iter().zip(&bq) {
+                assert!((a - b).abs() <= 1e-7 * b.abs().max(1e-9), "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_known_term_that_moves_keeps_the_plain_path() {
+        let src = r#"
+machine m {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 500 mm
+    input T : temperature rise range 0 K .. 5 K
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = linear(X) + 2 um/K * lag(T, tau fit 30 min)
+    }
+}
+"#;
+        let out = kin_compiler::compile(src);
+        let Some(c) = out.compiled else {
+            panic!("{:?}", out.diagnostics)
+        };
+        let columns = c.machine.coefficients.len();
+        assert!(projection::moving_columns(&c.machine, &[0], columns).is_none());
+    }
 }

@@ -1,0 +1,341 @@
+//! The optimiser's linear fits, factored once (variable projection, Golub & Pereyra 1973).
+//!
+//! A fitted wavelength or time constant moves only the columns of the terms it shapes; every
+//! other column, the observations and the weights stay put. The triangle of the fixed columns
+//! and `y` is therefore computed once; each evaluation of the optimiser then accumulates only the
+//! products of the moving columns (`AᵀB`, `BᵀB`, `Bᵀy`: rows × fixed × moving operations instead
+//! of the rows × columns² of a new QR) and completes the triangle of `[A | B | y]` from them:
+//!
+//! ```text
+//! R = | R_A  S  z  |   R_Aᵀ S = AᵀB,  TᵀT = BᵀB − SᵀS,  Tᵀw = Bᵀy − Sᵀz,
+//!     |  0   T  w  |   ρ'² = ρ² − ‖w‖²   (RᵀR = [A B y]ᵀ[A B y]).
+//!     |  0   0  ρ' |
+//! ```
+//!
+//! Only the small `B` block is formed from normal equations, in unit-scaled columns, and only
+//! the optimiser's path uses it: the fit at the optimum is made from a new QR of every row.
+
+use faer::Mat;
+use kin_compiler::basis::{Basis, Wavelength};
+use kin_compiler::ir::{Machine, Scalar, Var};
+
+use super::qr::Reduced;
+
+/// Which columns move with the fitted non-linear parameters `fitted` (indices into
+/// `Machine::nonlinear`), for `columns` design columns (coefficients first, then nuisance
+/// parameters, which never move). `None` when a term without coefficients — a known error
+/// that enters the observations `y` — moves too: then `y` changes and nothing can be kept.
+pub fn moving_columns(m: &Machine, fitted: &[usize], columns: usize) -> Option<Vec<bool>> {
+    let moves_lag = |l: usize| {
+        m.lags
+            .get(l)
+            .is_some_and(|lag| fitted.contains(&lag.tau.index))
+    };
+    let mut moving = vec![false; columns];
+    for term in m.errors.iter().flat_map(|e| &e.terms) {
+        let by_factor = term.factors.iter().any(|f| {
+            matches!(f.var, Var::Lag(l) if moves_lag(l))
+                || match &f.basis {
+                    Basis::Fourier {
+                        wavelength: Some(Wavelength::Fitted(nl)),
+                        ..
+                    }
+                    | Basis::Periodic {
+                        wavelength: Wavelength::Fitted(nl),
+                        ..
+                    } => fitted.contains(&nl.index),
+                    _ => false,
+                }
+        });
+        if !(by_factor || scalar_moves(&term.scale, &moves_lag)) {
+            continue;
+        }
+        if term.coefficients == 0 {
+            return None;
+        }
+        let end = term.first.checked_add(term.coefficients)?;
+        moving.get_mut(term.first..end)?.fill(true);
+    }
+    Some(moving)
+}
+
+fn scalar_moves(s: &Scalar, moves_lag: &impl Fn(usize) -> bool) -> bool {
+    match s {
+        Scalar::Num(_) => false,
+        Scalar::Var(v) => matches!(v, Var::Lag(l) if moves_lag(*l)),
+        Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => scalar_moves(a, moves_lag),
+        Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+            scalar_moves(a, moves_lag) || scalar_moves(b, moves_lag)
+        }
+    }
+}
+
+/// The fixed part, factored: the triangle of `[A | y]` over the columns that do not move.
+#[derive(Debug, Clone)]
+pub struct Split {
+    /// Column indices of the design, fixed ones first then moving ones: the order of the
+    /// completed triangle.
+    pub order: Vec<usize>,
+    fixed: usize,
+    base: Reduced,
+}
+
+impl Split {
+    /// `base` is the triangle of the rows restricted to the columns `moving` marks false, in
+    /// column order, with `y`. `None` when the fixed columns are not independent to well above
+    /// rounding (a minimum-norm problem): the plain QR handles those.
+    pub fn new(moving: &[bool], base: Reduced) -> Option<Split> {
+        let fixed: Vec<usize> = (0..moving.len()).filter(|&j| !moving[j]).collect();
+        let na = fixed.len();
+        if base.r.nrows() != na + 1 {
+            return None;
+        }
+        let independent = (0..na).all(|j| {
+            let n = base.norms.get(j).copied().unwrap_or(0.0);
+            n > 0.0 && base.r[(j, j)].abs() > 1e-8 * n
+        });
+        if !independent {
+            return None;
+        }
+        let mut order = fixed;
+        order.extend((0..moving.len()).filter(|&j| moving[j]));
+        Some(Split {
+            order,
+            fixed: na,
+            base,
+        })
+    }
+
+    /// How many columns move.
+    pub fn moving(&self) -> usize {
+        self.order.len() - self.fixed
+    }
+
+    /// Accumulates one row's products (`x` in design column order).
+    pub fn push(&self, acc: &mut Products, x: &[f64], y: f64) {
+        let Products { ab, bb, by, b } = acc;
+        b.clear();
+        b.extend(
+            self.order[self.fixed..]
+                .iter()
+                .map(|&j| x.get(j).copied().unwrap_or(0.0)),
+        );
+        for (c, &bc) in b.iter().enumerate() {
+            // Most moving columns are zero on most rows (a lag of one input, one component).
+            if bc == 0.0 {
+                continue;
+            }
+            for (a, &j) in self.order[..self.fixed].iter().enumerate() {
+                ab[(a, c)] += x.get(j).copied().unwrap_or(0.0) * bc;
+            }
+            for (d, &bd) in b.iter().enumerate() {
+                bb[(c, d)] += bc * bd;
+            }
+            by[c] += bc * y;
+        }
+    }
+
+    /// Empty products for one evaluation.
+    pub fn products(&self) -> Products {
+        let nb = self.moving();
+        Products {
+            ab: Mat::zeros(self.fixed, nb),
+            bb: Mat::zeros(nb, nb),
+            by: vec![0.0; nb],
+            b: Vec::with_capacity(nb),
+        }
+    }
+
+    /// The triangle of `[A | B | y]` (columns in [`Split::order`]) from the fixed part and one
+    /// evaluation's products.
+    pub fn complete(&self, p: &Products) -> Reduced {
+        let (na, nb) = (self.fixed, self.moving());
+        let k = na + nb + 1;
+        let base = &self.base.r;
+        let mut r = Mat::<f64>::zeros(k, k);
+        for i in 0..na {
+            for j in i..na {
+                r[(i, j)] = base[(i, j)];
+            }
+            r[(i, k - 1)] = base[(i, na)];
+        }
+        // S = R_A⁻ᵀ AᵀB by forward substitution. A triangular solve's rounding does not depend
+        // on how the rows are scaled, so A's units need no care here.
+        for c in 0..nb {
+            for i in 0..na {
+                let mut v = p.ab[(i, c)];
+                for l in 0..i {
+                    v -= base[(l, i)] * r[(l, na + c)];
+                }
+                r[(i, na + c)] = v / base[(i, i)];
+            }
+        }
+        // T from the Schur complement BᵀB − SᵀS, in unit-scaled B columns so the zero-pivot
+        // test is relative: a column the others explain to rounding leaves a zero row, which
+        // the solver reads as a lost rank.
+        let norms: Vec<f64> = (0..nb).map(|c| p.bb[(c, c)].max(0.0).sqrt()).collect();
+        let scale = |c: usize| norms.get(c).copied().filter(|v| *v > 0.0).unwrap_or(1.0);
+        let mut t = Mat::<f64>::zeros(nb, nb);
+        let mut w = vec![0.0; nb];
+        for c in 0..nb {
+            for d in c..nb {
+                let mut v = p.bb[(c, d)];
+                for i in 0..na {
+                    v -= r[(i, na + c)] * r[(i, na + d)];
+                }
+                v /= scale(c) * scale(d);
+                for l in 0..c {
+                    v -= t[(l, c)] * t[(l, d)];
+                }
+                if d == c {
+                    if v <= PIVOT {
+                        break;
+                    }
+                    t[(c, c)] = v.sqrt();
+                } else {
+                    t[(c, d)] = v / t[(c, c)];
+                }
+            }
+            if t[(c, c)] == 0.0 {
+                continue;
+            }
+            // T̃ᵀw = D_B⁻¹(Bᵀy − Sᵀz).
+            let mut v = p.by[c];
+            for i in 0..na {
+                v -= r[(i, na + c)] * base[(i, na)];
+            }
+            v /= scale(c);
+            for l in 0..c {
+                v -= t[(l, c)] * w[l];
+            }
+            w[c] = v / t[(c, c)];
+        }
+        for c in 0..nb {
+            for d in c..nb {
+                r[(na + c, na + d)] = t[(c, d)] * scale(d);
+            }
+            r[(na + c, k - 1)] = w[c];
+        }
+        let rho2 = base[(na, na)].powi(2) - w.iter().map(|v| v * v).sum::<f64>();
+        r[(k - 1, k - 1)] = rho2.max(0.0).sqrt();
+        let mut all_norms: Vec<f64> = self.base.norms.iter().take(na).copied().collect();
+        all_norms.extend(norms);
+        Reduced {
+            r,
+            rows: self.base.rows,
+            norms: all_norms,
+            y_sum: self.base.y_sum,
+            y_sumsq: self.base.y_sumsq,
+        }
+    }
+}
+
+/// A moving column whose part outside the others' span has at most this squared length
+/// (relative to its own) counts as dependent: the normal equations of the moving block resolve
+/// no finer than about √ε of a column.
+const PIVOT: f64 = 1e-12;
+
+/// One evaluation's products of the moving columns.
+#[derive(Debug, Clone)]
+pub struct Products {
+    ab: Mat<f64>,
+    bb: Mat<f64>,
+    by: Vec<f64>,
+    /// The current row's moving values.
+    b: Vec<f64>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::qr::StreamingQr;
+    use rand::{Rng, SeedableRng};
+
+    /// Rows of `p` columns (scaled very differently, as units make them) and their y.
+    fn rows(m: usize, p: usize, seed: u64) -> Vec<(Vec<f64>, f64)> {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        (0..m)
+            .map(|_| {
+                let x: Vec<f64> = (0..p)
+                    .map(|j| rng.random_range(-1.0..1.0) * 10f64.powi(j as i32 % 5 - 2))
+                    .collect();
+                let y = rng.random_range(-1.0..1.0);
+                (x, y)
+            })
+            .collect()
+    }
+
+    fn split(rows: &[(Vec<f64>, f64)], moving: &[bool]) -> Option<(Split, Reduced)> {
+        let fixed = moving.iter().filter(|&&b| !b).count();
+        let mut acc = StreamingQr::new(fixed, 64);
+        for (x, y) in rows {
+            let a: Vec<f64> = x
+                .iter()
+                .zip(moving)
+                .filter(|(_, &m)| !m)
+                .map(|(v, _)| *v)
+                .collect();
+            acc.push(&a, *y);
+        }
+        let split = Split::new(moving, acc.finish())?;
+        let mut products = split.products();
+        for (x, y) in rows {
+            split.push(&mut products, x, *y);
+        }
+        let red = split.complete(&products);
+        Some((split, red))
+    }
+
+    #[test]
+    fn the_completed_triangle_squares_to_the_gram_matrix_of_every_column() {
+        let moving = [false, true, false, false, true, false, true];
+        let data = rows(500, moving.len(), 3);
+        let (split, red) = split(&data, &moving).expect("independent fixed columns");
+        let k = moving.len() + 1;
+        // Column c of the completed problem: design column order[c], y last.
+        let col = |row: &(Vec<f64>, f64), c: usize| split.order.get(c).map_or(row.1, |&j| row.0[j]);
+        for a in 0..k {
+            for b in 0..k {
+                let gram: f64 = data.iter().map(|r| col(r, a) * col(r, b)).sum();
+                let rtr: f64 = (0..k).map(|i| red.r[(i, a)] * red.r[(i, b)]).sum();
+                let scale = (data.iter().map(|r| col(r, a).powi(2)).sum::<f64>()
+                    * data.iter().map(|r| col(r, b).powi(2)).sum::<f64>())
+                .sqrt();
+                assert!(
+                    (gram - rtr).abs() <= 1e-12 * scale,
+                    "({a}, {b}): {gram} vs {rtr}"
+                );
+            }
+        }
+        // The residual sum of squares of the whole problem is the last diagonal entry squared.
+        let rss = red.r[(k - 1, k - 1)].powi(2);
+        let mut full = StreamingQr::new(moving.len(), 64);
+        for (x, y) in &data {
+            full.push(x, *y);
+        }
+        let full = full.finish();
+        assert!((rss - full.r[(k - 1, k - 1)].powi(2)).abs() <= 1e-10 * rss);
+    }
+
+    #[test]
+    fn a_moving_column_the_fixed_ones_explain_leaves_a_zero_row() {
+        let moving = [false, false, true];
+        let mut data = rows(200, 3, 5);
+        for r in &mut data {
+            r.0[2] = 2.0 * r.0[0] - 3.0 * r.0[1];
+        }
+        let (_, red) = split(&data, &moving).expect("split");
+        assert_eq!(red.r[(2, 2)], 0.0);
+        assert_eq!(red.r[(2, 3)], 0.0);
+    }
+
+    #[test]
+    fn dependent_fixed_columns_take_the_plain_path() {
+        let moving = [false, false, true];
+        let mut data = rows(200, 3, 7);
+        for r in &mut data {
+            r.0[1] = r.0[0];
+        }
+        assert!(split(&data, &moving).is_none());
+    }
+}

@@ -251,22 +251,12 @@ pub fn observations(
     };
     let obs = data::read_file(path, &compiled.machine, &options).map_err(read_failed)?;
     for o in data::ranges::outside(&compiled.machine, &obs) {
-        warn_once(format!("warning: {}: {o}", path.display()));
+        crate::warnings::say(
+            crate::warnings::OUTSIDE_RANGE,
+            &format!("{}: {o}", path.display()),
+        );
     }
     Ok(obs)
-}
-
-/// Prints a warning on standard error unless this run printed it already: a command that reads
-/// its files twice (`kin diagnose --apply` refits) says each thing once.
-pub fn warn_once(message: String) {
-    static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
-    let mut said = SAID
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
-    if !said.contains(&message) {
-        eprintln!("{message}");
-        said.push(message);
-    }
 }
 
 /// Prints a measurement file's read error (with a hint for unknown columns) and gives the exit

@@ -17,6 +17,7 @@ mod render;
 mod report;
 mod rounds;
 mod simulate;
+mod warnings;
 mod writeback;
 
 use std::path::PathBuf;
@@ -34,6 +35,13 @@ use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Do not print warnings of these codes, e.g. `--allow W0101,W0801` (spec/cli.md lists
+    /// them); errors are always printed.
+    #[arg(long, global = true, value_delimiter = ',', value_name = "CODE", value_parser = warnings::parse_code)]
+    allow: Vec<String>,
+    /// Print no warnings at all (errors and results as usual).
+    #[arg(short, long, global = true)]
+    quiet: bool,
 }
 
 /// `--ignore`, shared by every command that reads measurement files.
@@ -433,6 +441,7 @@ fn restore_default_sigpipe() {}
 fn main() -> ExitCode {
     restore_default_sigpipe();
     let cli = Cli::parse();
+    warnings::set(cli.allow, cli.quiet);
     match cli.command {
         Command::Check {
             file,

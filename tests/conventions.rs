@@ -126,3 +126,48 @@ fn rows_outside_an_axis_range_are_warned_about_once_with_their_line() {
     assert!(out.status.success());
     assert!(!String::from_utf8_lossy(&out.stderr).contains("declared range"));
 }
+
+/// `--allow CODE` silences one kind of warning, `-q` all of them; errors cannot be allowed.
+#[test]
+fn warnings_are_silenced_by_code_or_all_at_once() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let text = std::fs::read_to_string("examples/bridge_cmm.kin").expect("model");
+    let at = text.find("    axis X").expect("an axis line");
+    let model = dir.path().join("m.kin");
+    std::fs::write(
+        &model,
+        format!("{}    input unused : temperature rise\n{}", &text[..at], &text[at..]),
+    )
+    .expect("write");
+    let m = model.to_str().expect("utf-8");
+    let stderr = |args: &[&str]| {
+        let out = kin(args);
+        assert!(out.status.success(), "{args:?}: {out:?}");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let plain = stderr(&["check", "--no-identify", m]);
+    assert_eq!(plain.matches("W0101").count(), 1, "{plain}");
+    assert!(!stderr(&["check", "--no-identify", "--allow", "W0101", m]).contains("W0101"));
+    assert!(!stderr(&["check", "--no-identify", m, "--allow=w0101,W0801"]).contains("W0101"));
+    assert!(!stderr(&["-q", "check", "--no-identify", m]).contains("W0101"));
+    // Another code leaves this one alone.
+    assert!(stderr(&["check", "--no-identify", "--allow", "W0801", m]).contains("W0101"));
+    // The JSON report leaves allowed warnings out too.
+    let out = kin(&["check", "--no-identify", "--format", "json", "--allow", "W0101", m]);
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("W0101"));
+
+    for bad in ["E0601", "W01", "nonsense"] {
+        let out = kin(&["check", "--allow", bad, m]);
+        assert_eq!(out.status.code(), Some(2), "{bad}");
+    }
+
+    // The data warning has its code too.
+    let text = std::fs::read_to_string("examples/data/bridge_cmm_points.csv").expect("data");
+    let data = dir.path().join("points.csv");
+    std::fs::write(&data, text.replacen("\n276.14629506687504,", "\n-20,", 1)).expect("write");
+    let d = data.to_str().expect("utf-8");
+    let fit = stderr(&["fit", "examples/bridge_cmm.kin", d]);
+    assert!(fit.contains("warning[W0801]"), "{fit}");
+    assert!(fit.contains("put Y outside its declared range"), "{fit}");
+    assert!(!stderr(&["fit", "examples/bridge_cmm.kin", d, "--allow", "W0801"]).contains("W0801"));
+}

@@ -158,6 +158,14 @@ pub fn machine_source(
                 );
                 return Err(Failed::INPUT);
             }
+            same_revision(
+                p,
+                path,
+                source,
+                &compiled.machine,
+                &fit.model_hash,
+                &fit.coefficients,
+            )?;
             (fit.params.clone(), Some(fit))
         } else {
             (text, None)
@@ -191,11 +199,75 @@ pub fn machine_source(
     Ok(compiled)
 }
 
+/// The code of the warning that a fit was made of another text of the model with the same
+/// coefficients (spec/cli.md).
+pub const OTHER_TEXT: &str = "W0802";
+
+/// Accepts a fit (`FIT.json` at `fit_path`, of the model hashed `hash` with these coefficient
+/// names and labels) for the model `source` at `model_path`: as it is when the text is the one
+/// fitted; with warning W0802 when only the text changed (a comment, a layout, a start value)
+/// and the coefficients are the same; refused (exit 1) when the coefficients changed, since the
+/// fitted values would then be read into other terms or not at all.
+pub fn same_revision(
+    fit_path: &Path,
+    model_path: &Path,
+    source: &str,
+    m: &kin_compiler::ir::Machine,
+    hash: &str,
+    coefficients: &[(String, String)],
+) -> Result<(), Failed> {
+    let now = kin_runtime::fit::report::model_hash(source);
+    if hash == now {
+        return Ok(());
+    }
+    let model: Vec<(&str, &str)> = m
+        .coefficients
+        .iter()
+        .map(|c| (c.name.as_str(), c.label.as_str()))
+        .collect();
+    let fitted: Vec<(&str, &str)> = coefficients
+        .iter()
+        .map(|(n, l)| (n.as_str(), l.as_str()))
+        .collect();
+    if model == fitted {
+        crate::warnings::say(
+            OTHER_TEXT,
+            &format!(
+                "`{}` was fitted to another text of `{}` (model hash {hash}, now {now}) with the same coefficients; refit if a knot, a range or an offset changed",
+                fit_path.display(),
+                model_path.display()
+            ),
+        );
+        return Ok(());
+    }
+    let first = model
+        .iter()
+        .zip(&fitted)
+        .position(|(a, b)| a != b)
+        .unwrap_or(model.len().min(fitted.len()));
+    let describe = |c: Option<&(&str, &str)>| match c {
+        Some((n, l)) => format!("`{n}` ({l})"),
+        None => "nothing".to_string(),
+    };
+    eprintln!(
+        "error: `{}` is a fit of another revision of `{}`: the model has {} coefficients, the fit {}; the first that differs is {} in the model and {} in the fit. Fit the model as it is now (`kin fit`).",
+        fit_path.display(),
+        model_path.display(),
+        model.len(),
+        fitted.len(),
+        describe(model.get(first)),
+        describe(fitted.get(first))
+    );
+    Err(Failed::INPUT)
+}
+
 /// What a `FIT.json` given as `--params` says about where its values come from.
 struct FitOrigin {
     machine: String,
     model_hash: String,
     params: String,
+    /// The fitted coefficients' names and labels, in order.
+    coefficients: Vec<(String, String)>,
 }
 
 impl FitOrigin {
@@ -206,11 +278,22 @@ impl FitOrigin {
                 .as_ref()
                 .and_then(|v| v.get(name)?.as_str().map(str::to_string))
         };
+        let coefficients = value
+            .as_ref()
+            .and_then(|v| v.get("coefficients")?.as_array().cloned())
+            .unwrap_or_default()
+            .iter()
+            .map(|c| {
+                let text = |k: &str| c.get(k).and_then(|x| x.as_str()).unwrap_or("").to_string();
+                (text("name"), text("label"))
+            })
+            .collect();
         match (field("params"), field("machine"), field("model_hash")) {
             (Some(params), Some(machine), Some(model_hash)) => Ok(FitOrigin {
                 machine,
                 model_hash,
                 params,
+                coefficients,
             }),
             _ => {
                 eprintln!(

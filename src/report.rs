@@ -148,6 +148,12 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
         Some(p) => Some(read_json(p, "diagnosis (DIAGNOSE.json)").map_err(fail)?),
         None => None,
     };
+    let fitted: Vec<(String, String)> = fit
+        .coefficients
+        .iter()
+        .map(|c| (c.name.clone(), c.label.clone()))
+        .collect();
+    load::same_revision(&a.fit, &a.machine, &source, m, &fit.model_hash, &fitted)?;
     let mut notes = Vec::new();
     if model_hash(&source) != fit.model_hash {
         notes.push(format!(

@@ -136,7 +136,11 @@ fn warnings_are_silenced_by_code_or_all_at_once() {
     let model = dir.path().join("m.kin");
     std::fs::write(
         &model,
-        format!("{}    input unused : temperature rise\n{}", &text[..at], &text[at..]),
+        format!(
+            "{}    input unused : temperature rise\n{}",
+            &text[..at],
+            &text[at..]
+        ),
     )
     .expect("write");
     let m = model.to_str().expect("utf-8");
@@ -153,7 +157,15 @@ fn warnings_are_silenced_by_code_or_all_at_once() {
     // Another code leaves this one alone.
     assert!(stderr(&["check", "--no-identify", "--allow", "W0801", m]).contains("W0101"));
     // The JSON report leaves allowed warnings out too.
-    let out = kin(&["check", "--no-identify", "--format", "json", "--allow", "W0101", m]);
+    let out = kin(&[
+        "check",
+        "--no-identify",
+        "--format",
+        "json",
+        "--allow",
+        "W0101",
+        m,
+    ]);
     assert!(!String::from_utf8_lossy(&out.stdout).contains("W0101"));
 
     for bad in ["E0601", "W01", "nonsense"] {
@@ -170,4 +182,53 @@ fn warnings_are_silenced_by_code_or_all_at_once() {
     assert!(fit.contains("warning[W0801]"), "{fit}");
     assert!(fit.contains("put Y outside its declared range"), "{fit}");
     assert!(!stderr(&["fit", "examples/bridge_cmm.kin", d, "--allow", "W0801"]).contains("W0801"));
+}
+
+/// A fit of another revision of the model is an error wherever a fit is read, unless only the
+/// text changed and the coefficients are the same (then warning W0802).
+#[test]
+fn a_fit_of_another_revision_is_refused_everywhere() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = dir.path().join("m.kin");
+    let text = std::fs::read_to_string("examples/bridge_cmm.kin").expect("model");
+    std::fs::write(&model, &text).expect("write");
+    let (m, fit) = (model.to_str().expect("utf-8"), dir.path().join("fit.json"));
+    let f = fit.to_str().expect("utf-8");
+    let data = "examples/data/bridge_cmm_points.csv";
+    assert!(kin(&["fit", m, data, "-o", f]).status.success());
+    let out_of = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_string();
+    let (html, csv) = (out_of("r.html"), out_of("e.csv"));
+    let commands: [Vec<&str>; 3] = [
+        vec!["report", m, "--fit", f, "-o", &html],
+        vec!["eval", m, data, "--params", f, "-o", &csv],
+        vec!["correct", m, "--fit", f, data, "-o", &csv],
+    ];
+    // A comment: the same coefficients, a warning.
+    std::fs::write(&model, format!("{text}// checked again\n")).expect("write");
+    for args in &commands {
+        let out = kin(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{args:?}: {err}");
+        assert!(err.contains("warning[W0802]"), "{args:?}: {err}");
+    }
+    // Another knot: other coefficients, an error naming the first that differs.
+    assert!(
+        text.contains("X.tx = spline(X, knots 4)"),
+        "the example changed"
+    );
+    std::fs::write(
+        &model,
+        text.replace("X.tx = spline(X, knots 4)", "X.tx = spline(X, knots 5)"),
+    )
+    .expect("write");
+    for args in &commands {
+        let out = kin(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains("is a fit of another revision"),
+            "{args:?}: {err}"
+        );
+        assert!(err.contains("`X.tx[2]`"), "{args:?}: {err}");
+    }
 }

@@ -27,8 +27,9 @@
 //!   threads): Gram matrix 48 s, factorisation 28 s, condition estimate 22 s, 98 s in all;
 //!   on one core (`taskset -c 0`) 41 / 28 / 24 s, 94 s — at that load the second thread
 //!   found no free core. `kin check` no longer estimates the condition (it never showed it).
-//!   Now 93 s / 846 MB at load 9, 7 GFLOP/s where one core's large product reached 14
-//!   (the `reference` line); 1 000 coefficients 0.4 s / 28 MB.
+//!   Then 93 s / 846 MB at load 9, 7 GFLOP/s where one core's large product reached 14
+//!   (the `reference` line); 1 000 coefficients 0.4 s / 28 MB. Session 11 (load ≈ 3): 9.48 s /
+//!   846 MB at 70 GFLOP/s against a reference of 72.7; JIT compile 0.27 s / 33 MB.
 //! - Fit, 10⁷ observed values (41 coefficients): 101 s wall, 19 s CPU at load 11; 20 s at load
 //!   3; 1.1 GB peak (about 110 bytes per value held). 10⁸ values (load 3): `kin simulate`
 //!   89 s / 7.4 GB, `kin fit` 206 s / 10.7 GB — linear in time and memory. Streamed

@@ -126,6 +126,39 @@ pub fn stated_angle_noise(text: &str) -> Result<Spread, String> {
     stated(angle_spread(text)?)
 }
 
+/// How the measurement files of a command are read (`--ignore`, `--delimiter`).
+#[derive(Clone, Debug, Default)]
+pub struct DataOptions {
+    /// Columns to skip unread.
+    pub ignore: Vec<String>,
+    /// The field separator, when not detected from the header.
+    pub delimiter: Option<u8>,
+}
+
+impl DataOptions {
+    /// The reader's options; `poses`: observed columns may be absent.
+    pub fn read(&self, poses: bool) -> kin_runtime::data::ReadOptions {
+        kin_runtime::data::ReadOptions {
+            poses,
+            ignore: self.ignore.clone(),
+            delimiter: self.delimiter,
+        }
+    }
+}
+
+/// `--delimiter`: `,`, `;`, `tab` (or a tab character) — the separators spec/data.md allows.
+pub fn delimiter(text: &str) -> Result<u8, String> {
+    match text {
+        "," | "comma" => Ok(b','),
+        ";" | "semicolon" => Ok(b';'),
+        // A tab character, or `\t` as typed in a shell.
+        "\t" | "\\t" | "tab" => Ok(b'\t'),
+        _ => Err(format!(
+            "`{text}` is not a separator kin reads: `,`, `;` or `tab` (spec/data.md)"
+        )),
+    }
+}
+
 /// `--color`: whether diagnostics on standard error are coloured.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Color {
@@ -158,6 +191,18 @@ fn no_color(value: Option<std::ffi::OsString>) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn delimiters_are_the_three_the_format_allows() {
+        assert_eq!(delimiter(","), Ok(b','));
+        assert_eq!(delimiter(";"), Ok(b';'));
+        assert_eq!(delimiter("tab"), Ok(b'\t'));
+        assert_eq!(delimiter("\t"), Ok(b'\t'));
+        assert_eq!(delimiter("\\t"), Ok(b'\t'));
+        for bad in ["", "|", ",,", " "] {
+            assert!(delimiter(bad).is_err(), "{bad:?}");
+        }
+    }
 
     #[test]
     fn no_color_counts_only_when_set_and_not_empty() {

@@ -39,7 +39,7 @@ pub struct CompensateArgs {
     pub correct: Correct,
     pub table: Option<Table>,
     pub output: PathBuf,
-    pub ignore: Vec<String>,
+    pub ignore: crate::args::DataOptions,
     pub color: bool,
 }
 

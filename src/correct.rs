@@ -17,7 +17,7 @@ pub struct CorrectArgs {
     pub fit: PathBuf,
     pub points: PathBuf,
     pub output: PathBuf,
-    pub ignore: Vec<String>,
+    pub ignore: crate::args::DataOptions,
     pub color: bool,
 }
 

@@ -99,7 +99,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         seed: 0,
         noise: None,
         engine: kin_runtime::engine::Engine::default(),
-        ignore: Vec::new(),
+        ignore: Default::default(),
         color,
     };
     for round in 1..=rounds + 1 {
@@ -159,7 +159,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
                 diagnose: Some(diagnosis),
                 data: args.data.clone(),
                 output: html.clone(),
-                ignore: Vec::new(),
+                ignore: Default::default(),
                 color,
             })?;
             println!("open {} in a browser: residuals, spectra, candidates, the error history and the fitted error curves", html.display());

@@ -32,7 +32,7 @@ pub struct FitArgs {
     pub noise: Option<fit::Noise>,
     pub engine: kin_runtime::engine::Engine,
     /// Columns of the data files to skip unread.
-    pub ignore: Vec<String>,
+    pub ignore: crate::args::DataOptions,
     pub color: bool,
 }
 
@@ -84,7 +84,7 @@ pub fn to_json<T: serde::Serialize>(document: &T) -> Result<String, Failed> {
 fn read_all(
     paths: &[PathBuf],
     compiled: &kin_compiler::Compiled,
-    ignore: &[String],
+    ignore: &crate::args::DataOptions,
 ) -> Result<Vec<DataSet>, Failed> {
     paths
         .iter()
@@ -195,11 +195,7 @@ fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
     }
     let m = &compiled.machine;
     let options = options(a);
-    let read = kin_runtime::data::ReadOptions {
-        poses: false,
-        ignore: a.ignore.clone(),
-        ..kin_runtime::data::ReadOptions::default()
-    };
+    let read = a.ignore.read(false);
     // The rows are not counted before the fit (that would be one more pass over the files):
     // the progress shows the rows done in each pass.
     let bar = ProgressBar::new_spinner();

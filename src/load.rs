@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use kin_compiler::{bind_params, compile, Compiled, Diagnostic, Span};
 use kin_runtime::bounded_read;
-use kin_runtime::data::{self, Observations, ReadOptions};
+use kin_runtime::data::{self, Observations};
 
 use crate::render;
 
@@ -320,18 +320,14 @@ pub fn fit_report(path: &Path) -> Result<kin_runtime::fit::report::FitReport, Fa
 }
 
 /// Reads a measurement file (or, with `poses`, a file of poses whose observed columns may be
-/// absent), skipping the columns named in `ignore`.
+/// absent), as `data` says (columns to skip, the separator).
 pub fn observations(
     path: &Path,
     compiled: &Compiled,
     poses: bool,
-    ignore: &[String],
+    data: &crate::args::DataOptions,
 ) -> Result<Observations, Failed> {
-    let options = ReadOptions {
-        poses,
-        ignore: ignore.to_vec(),
-        ..ReadOptions::default()
-    };
+    let options = data.read(poses);
     let obs = data::read_file(path, &compiled.machine, &options).map_err(read_failed)?;
     for o in data::ranges::outside(&compiled.machine, &obs) {
         crate::warnings::say(

@@ -44,13 +44,26 @@ struct Cli {
     quiet: bool,
 }
 
-/// `--ignore`, shared by every command that reads measurement files.
+/// `--ignore` and `--delimiter`, shared by every command that reads measurement files.
 #[derive(clap::Args)]
 struct Ignore {
     /// Columns of the data files to skip unread, e.g. `--ignore operator,note` (an unknown
     /// column is an error otherwise).
     #[arg(long = "ignore", value_delimiter = ',', value_name = "COLUMN")]
     columns: Vec<String>,
+    /// The data files' separator: `,`, `;` or `tab` (detected from the header line otherwise;
+    /// with `;` or `tab` numbers may use a decimal comma; spec/data.md).
+    #[arg(long, value_name = "SEP", value_parser = args::delimiter)]
+    delimiter: Option<u8>,
+}
+
+impl Ignore {
+    fn options(self) -> args::DataOptions {
+        args::DataOptions {
+            ignore: self.columns,
+            delimiter: self.delimiter,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
@@ -484,7 +497,7 @@ fn main() -> ExitCode {
             artifact_rotation,
             artifact_length,
             components,
-            ignore: ignore.columns,
+            ignore: ignore.options(),
             color: color.enabled(),
         }),
         Command::Fit {
@@ -520,7 +533,7 @@ fn main() -> ExitCode {
                 seed,
                 noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
                 engine,
-                ignore: ignore.columns,
+                ignore: ignore.options(),
                 color: color.enabled(),
             },
             format,
@@ -556,7 +569,7 @@ fn main() -> ExitCode {
                 // The diagnosis judges unweighted residuals against the stated noise itself.
                 noise: None,
                 engine,
-                ignore: ignore.columns,
+                ignore: ignore.options(),
                 color: color.enabled(),
             },
             alpha,
@@ -585,7 +598,7 @@ fn main() -> ExitCode {
             output: output.as_deref(),
             components,
             engine,
-            ignore: &ignore.columns,
+            ignore: &ignore.options(),
             uncertainty,
             color: color.enabled(),
         }),
@@ -603,7 +616,7 @@ fn main() -> ExitCode {
             diagnose,
             data,
             output,
-            ignore: ignore.columns,
+            ignore: ignore.options(),
             color: color.enabled(),
         }),
         Command::Compensate {
@@ -624,7 +637,7 @@ fn main() -> ExitCode {
             correct,
             table,
             output,
-            ignore: ignore.columns,
+            ignore: ignore.options(),
             color: color.enabled(),
         }),
         Command::Correct {
@@ -639,7 +652,7 @@ fn main() -> ExitCode {
             fit,
             points,
             output,
-            ignore: ignore.columns,
+            ignore: ignore.options(),
             color: color.enabled(),
         }),
         Command::Bench {

@@ -16,7 +16,7 @@ use std::process::ExitCode;
 
 use kin_compiler::ir::{Machine, Var};
 use kin_compiler::units::Unit;
-use kin_runtime::data::{self, Observations, ReadOptions};
+use kin_runtime::data::{self, Observations};
 use kin_runtime::diagnose::{Diagnosis, Family};
 use kin_runtime::fit::report::{model_hash, FitReport, Residual};
 use kin_runtime::history::{self, Entry};
@@ -66,7 +66,7 @@ pub struct ReportArgs {
     pub data: Vec<PathBuf>,
     pub output: PathBuf,
     /// Columns of the data files to skip unread.
-    pub ignore: Vec<String>,
+    pub ignore: crate::args::DataOptions,
     pub color: bool,
 }
 
@@ -208,13 +208,10 @@ fn load_data(
     fit: &FitReport,
     fit_path: &Path,
     given: &[PathBuf],
-    ignore: &[String],
+    ignore: &crate::args::DataOptions,
     notes: &mut Vec<String>,
 ) -> Vec<Option<Observations>> {
-    let options = ReadOptions {
-        ignore: ignore.to_vec(),
-        ..ReadOptions::default()
-    };
+    let options = ignore.read(false);
     if !given.is_empty() && given.len() != fit.files.len() {
         notes.push(format!(
             "{} data files were given but the fit used {}; they are matched in order.",

@@ -42,7 +42,7 @@ pub struct SimulateArgs {
     pub artifact_length: Option<Spread>,
     pub components: Components,
     /// Columns of the poses file to skip unread.
-    pub ignore: Vec<String>,
+    pub ignore: crate::args::DataOptions,
     pub color: bool,
 }
 
@@ -55,7 +55,7 @@ pub struct EvalArgs<'a> {
     pub components: Components,
     pub engine: kin_runtime::engine::Engine,
     /// Columns of the poses file to skip unread.
-    pub ignore: &'a [String],
+    pub ignore: &'a crate::args::DataOptions,
     /// Add each prediction's standard uncertainty from the fit given as `params`.
     pub uncertainty: bool,
     pub color: bool,

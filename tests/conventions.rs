@@ -232,3 +232,46 @@ fn a_fit_of_another_revision_is_refused_everywhere() {
         assert!(err.contains("`X.tx[2]`"), "{args:?}: {err}");
     }
 }
+
+/// `--delimiter` fixes the separator every command reads its data files with.
+#[test]
+fn the_delimiter_option_overrides_detection() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let text = std::fs::read_to_string("examples/data/bridge_cmm_points.csv").expect("data");
+    // The same file with `;` separators and decimal commas, as a spreadsheet saves it.
+    let semi: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with('#') {
+                l.to_string()
+            } else {
+                l.replace(',', ";").replace('.', ",")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let data = dir.path().join("semi.csv");
+    std::fs::write(&data, semi + "\n").expect("write");
+    let d = data.to_str().expect("utf-8");
+    let m = "examples/bridge_cmm.kin";
+    let fit = |extra: &[&str]| {
+        let mut args = vec!["fit", m, d, "--format", "json"];
+        args.extend(extra);
+        kin(&args)
+    };
+    let json = |o: &std::process::Output| -> serde_json::Value {
+        assert!(o.status.success(), "{o:?}");
+        serde_json::from_slice(&o.stdout).expect("FIT.json on stdout")
+    };
+    let detected = json(&fit(&[]));
+    let given = json(&fit(&["--delimiter", ";"]));
+    assert_eq!(detected["coefficients"], given["coefficients"]);
+    assert_eq!(detected["rows"], 3000);
+    // Told the wrong separator, the reader says so at the header instead of guessing.
+    let wrong = fit(&["--delimiter", ","]);
+    assert_eq!(wrong.status.code(), Some(1), "{wrong:?}");
+    assert!(String::from_utf8_lossy(&wrong.stderr).contains("semi.csv"));
+    let bad = fit(&["--delimiter", "|"]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("`,`, `;` or `tab`"));
+}

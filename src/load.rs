@@ -179,7 +179,7 @@ pub fn machine_source(
         report(&name, &text, &diagnostics, color);
         if diagnostics.iter().any(Diagnostic::is_error) {
             if let Some(fit) = fit {
-                let now = kin_runtime::fit::report::model_hash(&source);
+                let now = kin_runtime::fit::report::model_hash(source);
                 if fit.model_hash != now {
                     eprintln!(
                         "note: `{}` was fitted to another revision of `{}` (model hash {}; the \

@@ -99,7 +99,8 @@ pub fn run(
     match format {
         Format::Human => {
             let mut stderr = std::io::stderr().lock();
-            if render::human(&name, &source, &out.diagnostics, color, &mut stderr).is_err() {
+            let shown = crate::warnings::shown(&name, &out.diagnostics);
+            if render::human(&name, &source, &shown, color, &mut stderr).is_err() {
                 return ExitCode::from(2);
             }
             if let Some(c) = &out.compiled {
@@ -110,10 +111,11 @@ pub fn run(
             }
         }
         Format::Json => {
+            let kept = crate::warnings::kept(&out.diagnostics);
             let report = JsonReport {
                 file: &name,
                 ok,
-                diagnostics: render::json_diagnostics(&name, &source, &out.diagnostics),
+                diagnostics: render::json_diagnostics(&name, &source, &kept),
                 summary: out.compiled.as_ref().map(|c| Summary::of(&c.machine)),
             };
             match serde_json::to_string_pretty(&report) {

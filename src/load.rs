@@ -99,10 +99,11 @@ pub fn read_text(path: &Path) -> Result<String, Failed> {
 
 fn report(path: &Path, source: &str, diagnostics: &[Diagnostic], color: bool) {
     let mut stderr = std::io::stderr().lock();
+    let name = path.display().to_string();
     let _ = render::human(
-        &path.display().to_string(),
+        &name,
         source,
-        diagnostics,
+        &crate::warnings::shown(&name, diagnostics),
         color,
         &mut stderr,
     );

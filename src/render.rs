@@ -16,7 +16,7 @@ pub fn human(
     out: &mut impl Write,
 ) -> std::io::Result<()> {
     let src = Source::from(source);
-    for d in shown(path, diagnostics) {
+    for d in diagnostics {
         let kind = match d.severity {
             Severity::Error => ReportKind::Error,
             Severity::Warning => ReportKind::Warning,
@@ -52,28 +52,6 @@ pub fn human(
     Ok(())
 }
 
-/// The diagnostics a run prints: every error; a warning once, unless its code is allowed.
-fn shown<'a>(path: &str, diagnostics: &'a [Diagnostic]) -> impl Iterator<Item = &'a Diagnostic> {
-    let path = path.to_string();
-    diagnostics.iter().filter(move |d| {
-        d.is_error()
-            || (!crate::warnings::allowed(d.code)
-                && crate::warnings::first_time(format!(
-                    "{path} {} {} {:?}",
-                    d.code,
-                    d.message,
-                    d.primary_span()
-                )))
-    })
-}
-
-/// As [`shown`], for a JSON document: repeats are kept (one document per run).
-fn kept(diagnostics: &[Diagnostic]) -> impl Iterator<Item = &Diagnostic> {
-    diagnostics
-        .iter()
-        .filter(|d| d.is_error() || !crate::warnings::allowed(d.code))
-}
-
 fn clamp(start: usize, end: usize, len: usize) -> std::ops::Range<usize> {
     let s = start.min(len);
     s..end.clamp(s, len)
@@ -95,7 +73,8 @@ pub fn json_diagnostics<'a>(
     source: &str,
     diagnostics: &'a [Diagnostic],
 ) -> Vec<JsonDiagnostic<'a>> {
-    kept(diagnostics)
+    diagnostics
+        .iter()
         .map(|d| {
             let (line, column) = line_column(source, d.primary_span().start);
             JsonDiagnostic {

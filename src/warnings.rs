@@ -3,6 +3,8 @@
 
 use std::sync::{Mutex, OnceLock, PoisonError};
 
+use kin_compiler::Diagnostic;
+
 /// The code of the data warning: rows outside a declared range (spec/cli.md).
 pub const OUTSIDE_RANGE: &str = "W0801";
 
@@ -38,6 +40,35 @@ pub fn first_time(key: String) -> bool {
         said.push(key);
         true
     }
+}
+
+/// The diagnostics a run prints of `diagnostics` (of the file `path`): every error; a warning
+/// once per run, unless its code is allowed. (The renderer itself stays free of this state:
+/// the fuzz targets build it on its own.)
+pub fn shown(path: &str, diagnostics: &[Diagnostic]) -> Vec<Diagnostic> {
+    diagnostics
+        .iter()
+        .filter(|d| {
+            d.is_error()
+                || (!allowed(d.code)
+                    && first_time(format!(
+                        "{path} {} {} {:?}",
+                        d.code,
+                        d.message,
+                        d.primary_span()
+                    )))
+        })
+        .cloned()
+        .collect()
+}
+
+/// As [`shown`], for a JSON report: every error and every warning not allowed.
+pub fn kept(diagnostics: &[Diagnostic]) -> Vec<Diagnostic> {
+    diagnostics
+        .iter()
+        .filter(|d| d.is_error() || !allowed(d.code))
+        .cloned()
+        .collect()
 }
 
 /// Prints a warning of `code` on standard error, once per run, unless it is allowed.

@@ -24,14 +24,10 @@ use proptest::prelude::*;
 use proptest::test_runner::Config;
 
 /// The CLI's renderer, compiled into this test. It depends only on crates the `kin` package
-/// depends on and on the warning filter beside it, so an integration test can build both as
-/// modules of its own.
+/// depends on, so an integration test can build it as a module of its own.
 #[allow(dead_code)]
 #[path = "../src/render.rs"]
 mod render;
-#[allow(dead_code)]
-#[path = "../src/warnings.rs"]
-mod warnings;
 
 fn config() -> Config {
     let cases = std::env::var("PROPTEST_CASES")

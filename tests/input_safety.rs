@@ -458,9 +458,10 @@ fn a_fit_of_another_model_says_so() {
     let out = kin(&["eval", path(&revised), path(&data), "--params", path(&fit)]);
     let stderr = text(&out.stderr);
     assert_eq!(code(&out), 1, "{stderr}");
-    assert!(stderr.contains("(its `params` text)"), "{stderr}");
+    // Refused before binding, naming the first coefficient that differs.
     assert!(
-        stderr.contains("was fitted to another revision of `m`"),
+        stderr.contains("is a fit of another revision of")
+            && stderr.contains("`X.rz[0]` (const) in the model and `X.ry[0]` (const) in the fit"),
         "{stderr}"
     );
 

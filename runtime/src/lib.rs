@@ -10,6 +10,7 @@ pub mod bench;
 pub mod bounded_read;
 pub mod compensate;
 pub mod data;
+pub mod design;
 pub mod diagnose;
 pub mod embed;
 pub mod engine;

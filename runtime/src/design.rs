@@ -1,0 +1,673 @@
+//! Planning a calibration: how well a set of observations determines a model, and which small
+//! subset of candidate observations determines it best (Soons §4.3–4.4).
+//!
+//! The unit of choice is a *unit*: one observation row, or a group of rows measured together
+//! (one ball-bar setup, one placement of an artifact). A unit's unknown nuisance parameters (an
+//! artifact's placement, a bar's unknown length) belong to it alone, so they are eliminated
+//! inside the unit: its rows are projected onto the complement of its nuisance columns. What
+//! remains is the information the unit carries about the machine's coefficients, and the
+//! determinant of the sum of those is the Ds-criterion (D-optimality for the coefficients with
+//! the nuisance parameters profiled out).
+//!
+//! Figures follow the thesis' Table 4.1: the covariance and the prediction variances are those
+//! of `n · (XᵀX)⁻¹` (unit noise, scaled by the number of observations `n`), so that designs of
+//! different sizes compare.
+
+use nalgebra::{DMatrix, DVector};
+use rand::{Rng, SeedableRng};
+use thiserror::Error;
+
+#[derive(Debug, Error, PartialEq)]
+pub enum DesignError {
+    #[error("no candidate observations")]
+    Empty,
+    #[error("the candidates hold values that are not finite numbers")]
+    NotFinite,
+    #[error("a design of {0} units was asked for; at least one is needed")]
+    Size(usize),
+    #[error(
+        "no subset of the candidates determines any coefficient: every candidate row is zero \
+         after its artifact's placement is taken out"
+    )]
+    Blind,
+    #[error("the plan does not determine the terms the candidates can determine ({missing} of {rank} directions are missing)")]
+    Deficient { missing: usize, rank: usize },
+}
+
+/// One candidate unit: `rows × p` values (row-major) after its nuisance parameters were
+/// eliminated, `p` the number of coefficients.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unit {
+    pub rows: Vec<f64>,
+    /// The number of observations of the unit (its rows before elimination).
+    pub observations: usize,
+}
+
+impl Unit {
+    /// A unit of `x` (`rows × (p + q)` row-major: `p` coefficient columns then `q` nuisance
+    /// columns of this unit alone), with the nuisance columns eliminated.
+    pub fn eliminated(x: &[f64], p: usize, q: usize) -> Unit {
+        let width = p + q;
+        let rows = x.len().checked_div(width).unwrap_or(0);
+        let mut b = DMatrix::from_row_slice(rows, p, &take_columns(x, width, 0, p));
+        if q > 0 && rows > 0 {
+            let z = DMatrix::from_row_slice(rows, q, &take_columns(x, width, p, q));
+            // An orthonormal basis of the nuisance columns' span (dropping dependent ones: a
+            // length error and a shift may coincide on a single row), then B − Q Qᵀ B.
+            let svd = z.svd(true, false);
+            if let Some(u) = svd.u {
+                let largest = svd.singular_values.max();
+                for (k, s) in svd.singular_values.iter().enumerate() {
+                    if *s > largest * 1e-10 && *s > 0.0 {
+                        let qk = u.column(k).into_owned();
+                        let proj = qk.transpose() * &b;
+                        b -= &qk * proj;
+                    }
+                }
+            }
+        }
+        let mut out = Vec::with_capacity(rows * p);
+        for r in 0..rows {
+            out.extend(b.row(r).iter());
+        }
+        Unit {
+            rows: out,
+            observations: rows,
+        }
+    }
+
+    fn matrix(&self, p: usize) -> DMatrix<f64> {
+        let rows = self.rows.len().checked_div(p).unwrap_or(0);
+        DMatrix::from_row_slice(rows, p, &self.rows)
+    }
+}
+
+fn take_columns(x: &[f64], width: usize, from: usize, count: usize) -> Vec<f64> {
+    x.chunks_exact(width.max(1))
+        .flat_map(|r| r.get(from..from + count).unwrap_or(&[]).iter().copied())
+        .collect()
+}
+
+/// The information `Σ UᵀU` of `units` chosen by index (repeats count twice).
+pub fn information(units: &[Unit], chosen: &[usize], p: usize) -> DMatrix<f64> {
+    let mut m = DMatrix::zeros(p, p);
+    for &i in chosen {
+        if let Some(u) = units.get(i) {
+            let a = u.matrix(p);
+            m += a.transpose() * a;
+        }
+    }
+    m
+}
+
+/// What a plan determines (thesis §4.3: estimability).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimability {
+    pub rank: usize,
+    /// Per coefficient: whether the plan determines it on its own.
+    pub determined: Vec<bool>,
+    /// Groups of coefficients the plan cannot separate, each with the combinations of them it
+    /// does determine (weights per member, largest magnitude 1).
+    pub groups: Vec<Group>,
+    /// Largest over smallest kept singular value of the column-scaled design.
+    pub condition: f64,
+    /// Per coefficient: the variance inflation against an orthogonal design with the same
+    /// column lengths, `(R⁻¹)ⱼⱼ` with `R` the scaled information (None when undetermined).
+    pub vif: Vec<Option<f64>>,
+    /// Per coefficient: its standard deviation per unit noise, `√(M⁺)ⱼⱼ` (None when
+    /// undetermined).
+    pub sigma: Vec<Option<f64>>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Group {
+    pub members: Vec<usize>,
+    /// Each determined combination: one weight per member.
+    pub combinations: Vec<Vec<f64>>,
+}
+
+/// Relative eigenvalue of the scaled information below which a direction counts as not
+/// observed. An eigenvalue of the information is only known to about 1e-16 of the largest
+/// (it is a square of the design's singular values), so the line is drawn at 1e-13: a
+/// direction seen less than 3e-7 as well as the best one is not determined in practice.
+const INVISIBLE: f64 = 1e-13;
+
+/// A weight below this (of the largest) in a null direction is rounding, not membership.
+const MEMBER: f64 = 1e-6;
+
+/// Analyses the information matrix `m` (`p × p`) of a plan.
+pub fn estimability(m: &DMatrix<f64>) -> Estimability {
+    let p = m.nrows();
+    let scale: Vec<f64> = (0..p)
+        .map(|j| {
+            let d = m[(j, j)];
+            if d > 0.0 && d.is_finite() {
+                d.sqrt()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let mut r = m.clone();
+    for i in 0..p {
+        for j in 0..p {
+            let s = scale[i] * scale[j];
+            r[(i, j)] = if s > 0.0 { r[(i, j)] / s } else { 0.0 };
+        }
+    }
+    let eig = r.clone().symmetric_eigen();
+    let largest = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let keep: Vec<usize> = (0..p)
+        .filter(|&k| eig.eigenvalues[k] > largest * INVISIBLE && largest > 0.0)
+        .collect();
+    let rank = keep.len();
+    let smallest = keep
+        .iter()
+        .map(|&k| eig.eigenvalues[k])
+        .fold(f64::INFINITY, f64::min);
+    let condition = if rank > 0 {
+        (largest / smallest).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    // Pseudo-inverse of the scaled information over the kept directions.
+    let mut rplus = DMatrix::zeros(p, p);
+    for &k in &keep {
+        let v = eig.eigenvectors.column(k);
+        rplus += (v * v.transpose()) / eig.eigenvalues[k];
+    }
+    let null: Vec<DVector<f64>> = (0..p)
+        .filter(|k| !keep.contains(k))
+        .map(|k| eig.eigenvectors.column(k).into_owned())
+        .collect();
+    // A coefficient is determined when no unobserved direction moves it (and it has an effect).
+    let determined: Vec<bool> = (0..p)
+        .map(|j| scale[j] > 0.0 && null.iter().all(|v| v[j].abs() <= MEMBER))
+        .collect();
+    let vif = (0..p)
+        .map(|j| determined[j].then(|| rplus[(j, j)]))
+        .collect();
+    let sigma = (0..p)
+        .map(|j| determined[j].then(|| rplus[(j, j)].sqrt() / scale[j]))
+        .collect();
+    Estimability {
+        rank,
+        groups: groups(&null, &scale, &determined),
+        determined,
+        condition,
+        vif,
+        sigma,
+    }
+}
+
+/// Joins coefficients that share an unobserved direction, and finds per group the combinations
+/// the plan determines: the directions within the group orthogonal to every unobserved one.
+fn groups(null: &[DVector<f64>], scale: &[f64], determined: &[bool]) -> Vec<Group> {
+    let p = determined.len();
+    let mut parent: Vec<usize> = (0..p).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for v in null {
+        let members: Vec<usize> = (0..p).filter(|&j| v[j].abs() > MEMBER).collect();
+        for w in members.windows(2) {
+            let (a, b) = (root(&mut parent, w[0]), root(&mut parent, w[1]));
+            parent[a] = b;
+        }
+    }
+    let mut out: Vec<Group> = Vec::new();
+    let mut seen = vec![false; p];
+    for j in 0..p {
+        if determined[j] || seen[j] {
+            continue;
+        }
+        let r = root(&mut parent, j);
+        let members: Vec<usize> = (0..p)
+            .filter(|&k| !determined[k] && root(&mut parent, k) == r)
+            .collect();
+        for &k in &members {
+            seen[k] = true;
+        }
+        // Null directions restricted to the group, then the complement of their span. In the
+        // scaled coordinates a determined combination is c with c ⊥ every null vector; a
+        // combination of the coefficients themselves carries weights c / scale.
+        let k = members.len();
+        let mut a = DMatrix::zeros(null.len(), k);
+        for (i, v) in null.iter().enumerate() {
+            for (c, &mbr) in members.iter().enumerate() {
+                a[(i, c)] = v[mbr];
+            }
+        }
+        let svd = a.clone().svd(false, true);
+        let mut combinations = Vec::new();
+        if let Some(vt) = svd.v_t {
+            let largest = svd.singular_values.iter().cloned().fold(0.0, f64::max);
+            let null_rank = svd
+                .singular_values
+                .iter()
+                .filter(|s| **s > largest * 1e-8)
+                .count();
+            // The rows of Vᵀ beyond the rank of A span its null space: the determined
+            // combinations. Vᵀ has min(rows, k) rows; complete it when A is wide or short.
+            let full = complete_basis(&vt, k);
+            for row in full.iter().skip(null_rank) {
+                let weights: Vec<f64> = members
+                    .iter()
+                    .zip(row)
+                    .map(|(&m, w)| if scale[m] > 0.0 { w * scale[m] } else { 0.0 })
+                    .collect();
+                let big = weights.iter().fold(0.0f64, |a, w| a.max(w.abs()));
+                if big > 0.0 {
+                    combinations.push(weights.iter().map(|w| clean(w / big)).collect());
+                }
+            }
+        }
+        out.push(Group {
+            members,
+            combinations,
+        });
+    }
+    out
+}
+
+/// Rounds weights that are rounding noise to zero so that `a + b` prints as such.
+fn clean(w: f64) -> f64 {
+    if w.abs() < 1e-9 {
+        0.0
+    } else {
+        w
+    }
+}
+
+/// An orthonormal basis of ℝᵏ whose first rows are the rows of `vt`.
+fn complete_basis(vt: &DMatrix<f64>, k: usize) -> Vec<Vec<f64>> {
+    let mut basis: Vec<DVector<f64>> = (0..vt.nrows())
+        .map(|r| vt.row(r).transpose().into_owned())
+        .collect();
+    for e in 0..k {
+        let mut v = DVector::zeros(k);
+        v[e] = 1.0;
+        for b in &basis {
+            let d = b.dot(&v);
+            v -= b * d;
+        }
+        let n = v.norm();
+        if n > 1e-8 {
+            basis.push(v / n);
+        }
+        if basis.len() >= k {
+            break;
+        }
+    }
+    basis.iter().map(|v| v.iter().copied().collect()).collect()
+}
+
+/// The figures of Table 4.1 for one design.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Score {
+    /// Observations in the design (`n`).
+    pub observations: usize,
+    /// Directions scored (`p`): the coefficients, or the directions the candidates determine.
+    pub directions: usize,
+    /// `det(n · (XᵀX)⁻¹)^(1/p)`: the geometric mean variance per unit noise.
+    pub det_root: f64,
+    /// Mean and maximum of `n · xᵀ(XᵀX)⁻¹x` over the prediction set.
+    pub average: f64,
+    pub maximum: f64,
+}
+
+/// Scores the design `chosen` (indices into `units`, repeats allowed) with the prediction
+/// variance taken over every row of `over`.
+pub fn score(
+    units: &[Unit],
+    chosen: &[usize],
+    over: &[Unit],
+    p: usize,
+) -> Result<Score, DesignError> {
+    let m = information(units, chosen, p);
+    let n: usize = chosen
+        .iter()
+        .filter_map(|&i| units.get(i))
+        .map(|u| u.observations)
+        .sum();
+    let inv = m.clone().cholesky().ok_or_else(|| {
+        let e = estimability(&m);
+        DesignError::Deficient {
+            missing: p - e.rank,
+            rank: p,
+        }
+    })?;
+    let nf = n as f64;
+    let det = inv.determinant();
+    let det_root = (nf.powi(p as i32) / det).powf(1.0 / p as f64);
+    let mi = inv.inverse();
+    let (mut sum, mut max, mut count) = (0.0, 0.0f64, 0usize);
+    for u in over {
+        for row in u.rows.chunks_exact(p.max(1)) {
+            let x = DVector::from_row_slice(row);
+            let d = nf * (x.transpose() * &mi * &x)[(0, 0)];
+            sum += d;
+            max = max.max(d);
+            count += 1;
+        }
+    }
+    Ok(Score {
+        observations: n,
+        directions: p,
+        det_root,
+        average: if count > 0 {
+            sum / count as f64
+        } else {
+            f64::NAN
+        },
+        maximum: max,
+    })
+}
+
+/// The outcome of [`select`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Selection {
+    /// Chosen units (indices into the candidates, sorted; repeats are replications).
+    pub chosen: Vec<usize>,
+    /// Exchanges made after the greedy start.
+    pub exchanges: usize,
+    /// What the whole candidate set determines: the design can do no better.
+    pub reach: Estimability,
+}
+
+/// Chooses `n` units from `units` (with replacement: a repeat is a replicated measurement) to
+/// maximise `det(XᵀX)` over the directions the candidates can determine, by a greedy start
+/// followed by DETMAX exchanges (add the best unit, drop the worst, until the one dropped is
+/// the one added; Mitchell 1974). `tick` is called once per step for a progress display.
+pub fn select(
+    units: &[Unit],
+    n: usize,
+    p: usize,
+    mut tick: impl FnMut(),
+) -> Result<Selection, DesignError> {
+    if units.is_empty() {
+        return Err(DesignError::Empty);
+    }
+    if n == 0 {
+        return Err(DesignError::Size(n));
+    }
+    if units.iter().any(|u| u.rows.iter().any(|v| !v.is_finite())) {
+        return Err(DesignError::NotFinite);
+    }
+    let all: Vec<usize> = (0..units.len()).collect();
+    let total = information(units, &all, p);
+    let reach = estimability(&total);
+    if reach.rank == 0 {
+        return Err(DesignError::Blind);
+    }
+    // Work in the coordinates of the directions the candidates determine (scaled by the
+    // column lengths so that the greedy start's ridge treats every coefficient alike).
+    let scale: Vec<f64> = (0..p).map(|j| total[(j, j)].max(0.0).sqrt()).collect();
+    let mut r = total.clone();
+    for i in 0..p {
+        for j in 0..p {
+            let s = scale[i] * scale[j];
+            r[(i, j)] = if s > 0.0 { r[(i, j)] / s } else { 0.0 };
+        }
+    }
+    let eig = r.symmetric_eigen();
+    let largest = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let keep: Vec<usize> = (0..p)
+        .filter(|&k| eig.eigenvalues[k] > largest * INVISIBLE)
+        .collect();
+    let q = keep.len();
+    let mut basis = DMatrix::zeros(p, q);
+    for (c, &k) in keep.iter().enumerate() {
+        for i in 0..p {
+            basis[(i, c)] = if scale[i] > 0.0 {
+                eig.eigenvectors[(i, k)] / scale[i]
+            } else {
+                0.0
+            };
+        }
+    }
+    let projected: Vec<DMatrix<f64>> = units.iter().map(|u| u.matrix(p) * &basis).collect();
+    // A small ridge lets the greedy start compare units before the design has full rank; it is
+    // dropped for the exchanges. The scaled information has trace q over all candidates.
+    let ridge = 1e-6 * q as f64 / units.len() as f64;
+    // DETMAX and Fedorov exchanges stop at local optima; a few starts, the first greedy from
+    // nothing and the others from a random seed set, keep the best design found.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(SEED);
+    let mut best: Option<(f64, Vec<usize>, usize)> = None;
+    for start in 0..STARTS {
+        let seeded: Vec<usize> = if start == 0 {
+            Vec::new()
+        } else {
+            (0..(q / 2).clamp(1, n))
+                .map(|_| rng.random_range(0..units.len()))
+                .collect()
+        };
+        let (chosen, m, exchanges) = run(&projected, seeded, n, q, ridge, &mut tick);
+        let logdet = m.cholesky().map_or(f64::NEG_INFINITY, |c| {
+            c.l().diagonal().iter().map(|d| 2.0 * d.ln()).sum()
+        });
+        if best.as_ref().is_none_or(|b| logdet > b.0 + 1e-9) {
+            best = Some((logdet, chosen, exchanges));
+        }
+    }
+    let (_, mut chosen, exchanges) = best.ok_or(DesignError::Blind)?;
+    chosen.sort_unstable();
+    Ok(Selection {
+        chosen,
+        exchanges,
+        reach,
+    })
+}
+
+/// Starts of the exchange algorithm (see [`select`]).
+const STARTS: usize = 6;
+/// The random starts are drawn from a fixed seed: the same candidates give the same design.
+const SEED: u64 = 0x6b69_6e14;
+
+/// One start: greedy completion of `seeded` to `n` units, then DETMAX, then Fedorov swaps.
+/// Returns the units, their information and the number of exchanges.
+fn run(
+    projected: &[DMatrix<f64>],
+    seeded: Vec<usize>,
+    n: usize,
+    q: usize,
+    ridge: f64,
+    tick: &mut impl FnMut(),
+) -> (Vec<usize>, DMatrix<f64>, usize) {
+    let mut m = DMatrix::identity(q, q) * ridge;
+    let mut chosen: Vec<usize> = Vec::with_capacity(n + 1);
+    for &i in seeded.iter().take(n) {
+        let a = &projected[i];
+        m += a.transpose() * a;
+        chosen.push(i);
+    }
+    while chosen.len() < n {
+        let inv = inverse(&m);
+        let best = best_addition(projected, &inv);
+        chosen.push(best);
+        let a = &projected[best];
+        m += a.transpose() * a;
+        tick();
+    }
+    m -= DMatrix::identity(q, q) * ridge;
+    let mut exchanges = 0;
+    // Each DETMAX step strictly increases the determinant; the cap only guards rounding loops.
+    let cap = 20 * n + 100;
+    for _ in 0..cap {
+        let inv = inverse(&(&m + DMatrix::identity(q, q) * (ridge * 1e-6)));
+        let add = best_addition(projected, &inv);
+        let a = &projected[add];
+        let grown = &m + a.transpose() * a;
+        chosen.push(add);
+        let inv = inverse(&grown);
+        let (drop_at, _) = chosen
+            .iter()
+            .enumerate()
+            .map(|(at, &i)| (at, removal_factor(&projected[i], &inv)))
+            .fold((0, f64::NEG_INFINITY), |best, c| {
+                if c.1 > best.1 + 1e-12 {
+                    c
+                } else {
+                    best
+                }
+            });
+        let dropped = chosen.swap_remove(drop_at);
+        tick();
+        if dropped == add {
+            break;
+        }
+        let d = &projected[dropped];
+        m = grown - d.transpose() * d;
+        exchanges += 1;
+    }
+    // DETMAX stops at designs no single add-then-drop improves; a pass of Fedorov exchanges
+    // (swap one member for one candidate, the best swap first) leaves the design at a point no
+    // single swap improves either.
+    for _ in 0..cap {
+        let inv = inverse(&(&m + DMatrix::identity(q, q) * (ridge * 1e-6)));
+        let mut best = (0, 0, 1.0 + 1e-9);
+        for (at, &i) in chosen.iter().enumerate() {
+            let a = &projected[i];
+            for (j, b) in projected.iter().enumerate() {
+                if j == i {
+                    continue;
+                }
+                let r = swap_ratio(a, b, &inv);
+                if r > best.2 {
+                    best = (at, j, r);
+                }
+            }
+        }
+        tick();
+        if best.2 <= 1.0 + 1e-9 {
+            break;
+        }
+        let (at, j, _) = best;
+        let Some(slot) = chosen.get_mut(at) else {
+            break;
+        };
+        let (a, b) = (&projected[*slot], &projected[j]);
+        m = &m - a.transpose() * a + b.transpose() * b;
+        *slot = j;
+        exchanges += 1;
+    }
+    (chosen, m, exchanges)
+}
+
+fn inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
+    match m.clone().cholesky() {
+        Some(c) => c.inverse(),
+        None => m
+            .clone()
+            .pseudo_inverse(1e-14)
+            .unwrap_or_else(|_| DMatrix::zeros(m.nrows(), m.ncols())),
+    }
+}
+
+/// The unit whose addition multiplies the determinant most: `det(I + A M⁻¹ Aᵀ)` (matrix
+/// determinant lemma, a rank-k update of `det M`).
+fn best_addition(units: &[DMatrix<f64>], inv: &DMatrix<f64>) -> usize {
+    let mut best = (0, f64::NEG_INFINITY);
+    for (i, a) in units.iter().enumerate() {
+        let w = a * inv * a.transpose();
+        let g = (DMatrix::identity(w.nrows(), w.nrows()) + w).determinant();
+        // Ties go to the earlier unit, so that the choice does not hang on rounding.
+        if i == 0 || g > best.1 * (1.0 + 1e-12) {
+            best = (i, g);
+        }
+    }
+    best.0
+}
+
+/// The factor by which swapping member `a` for candidate `b` multiplies the determinant:
+/// `det(I + S U M⁻¹ Uᵀ)` with `U = [b; a]` and `S = diag(+I, −I)`.
+fn swap_ratio(a: &DMatrix<f64>, b: &DMatrix<f64>, inv: &DMatrix<f64>) -> f64 {
+    let (kb, ka) = (b.nrows(), a.nrows());
+    let mut u = DMatrix::zeros(kb + ka, a.ncols());
+    u.rows_mut(0, kb).copy_from(b);
+    u.rows_mut(kb, ka).copy_from(a);
+    let mut w = &u * inv * u.transpose();
+    for r in kb..kb + ka {
+        w.row_mut(r).neg_mut();
+    }
+    (DMatrix::identity(kb + ka, kb + ka) + w).determinant()
+}
+
+/// How much of the determinant is kept when `a` is removed: `det(I − A M⁻¹ Aᵀ)`.
+fn removal_factor(a: &DMatrix<f64>, inv: &DMatrix<f64>) -> f64 {
+    let w = a * inv * a.transpose();
+    (DMatrix::identity(w.nrows(), w.nrows()) - w).determinant()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Thesis eq. 4.21: the row of a length L at angle α for squareness β₁, x scale β₂, y scale β₃.
+    fn bar(alpha_deg: f64) -> Unit {
+        let a = alpha_deg.to_radians();
+        let (s, c) = a.sin_cos();
+        let l = 400.0;
+        Unit {
+            rows: vec![l * c * s, -l * c * c, -l * s * s],
+            observations: 1,
+        }
+    }
+
+    #[test]
+    fn identical_columns_form_a_group_with_their_sum_determined() {
+        let mut m = DMatrix::zeros(3, 3);
+        for row in [[1.0, 1.0, 0.0], [2.0, 2.0, 1.0], [0.0, 0.0, 3.0]] {
+            let x = DVector::from_row_slice(&row);
+            m += &x * x.transpose();
+        }
+        let e = estimability(&m);
+        assert_eq!(e.rank, 2);
+        assert_eq!(e.determined, vec![false, false, true]);
+        assert_eq!(e.groups.len(), 1);
+        assert_eq!(e.groups[0].members, vec![0, 1]);
+        let c = &e.groups[0].combinations;
+        assert_eq!(c.len(), 1);
+        assert!((c[0][0] - c[0][1]).abs() < 1e-9, "{c:?}");
+        assert!(e.sigma[0].is_none() && e.sigma[2].is_some());
+    }
+
+    #[test]
+    fn an_artifact_length_is_eliminated_inside_its_unit() {
+        // Two rows of one bar with an unknown length: only their difference informs β.
+        let u = Unit::eliminated(&[1.0, 0.0, 1.0, 3.0, 0.0, 1.0], 2, 1);
+        assert!((u.rows[0] + 1.0).abs() < 1e-12 && (u.rows[2] - 1.0).abs() < 1e-12);
+        assert!(u.rows[1].abs() < 1e-12 && u.rows[3].abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_exchange_finds_a_design_as_good_as_any_in_a_small_exhaustive_search() {
+        let units: Vec<Unit> = (0..12).map(|k| bar(15.0 * k as f64)).collect();
+        let s = select(&units, 6, 3, || {}).expect("selects");
+        let best = information(&units, &s.chosen, 3).determinant();
+        // Every multiset of 6 of 12 orientations.
+        let mut top = 0.0f64;
+        let mut idx = [0usize; 6];
+        loop {
+            top = top.max(information(&units, &idx, 3).determinant());
+            let mut k = 5;
+            loop {
+                if idx[k] < 11 {
+                    idx[k] += 1;
+                    for j in k + 1..6 {
+                        idx[j] = idx[k];
+                    }
+                    break;
+                }
+                if k == 0 {
+                    return assert!(best >= top * (1.0 - 1e-9), "{best} < {top}");
+                }
+                k -= 1;
+            }
+        }
+    }
+}

@@ -6,6 +6,7 @@ mod check;
 mod compensate;
 mod correct;
 mod demo;
+mod design;
 mod diagnose;
 mod files;
 mod fit;
@@ -351,6 +352,32 @@ enum Command {
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
     /// A measurement on this computer, not a test.
+    /// Plan a calibration: choose N of the candidate measurements that determine the model best
+    /// (D-optimal, artifacts' placements as nuisance parameters), or score a plan (spec/design.md).
+    Design {
+        machine: PathBuf,
+        /// A point or length file of candidate measurements (error columns not needed); rows of
+        /// one `artifact` label are chosen together.
+        #[arg(long)]
+        candidates: Option<PathBuf>,
+        /// How many units (rows, or artifact labels) to choose; a unit may be chosen twice.
+        #[arg(short = 'n', value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+        n: Option<u64>,
+        /// The plan to write: the candidate file's header and the chosen lines.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Score this plan instead (prediction variances over --candidates when given).
+        #[arg(long, conflicts_with_all = ["n", "output"])]
+        evaluate: Option<PathBuf>,
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
+        #[command(flatten)]
+        ignore: Ignore,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
     Bench {
         machine: PathBuf,
         /// Poses sampled over the axis ranges, evaluated in turn (1 to 10⁸).
@@ -577,6 +604,27 @@ fn main() -> ExitCode {
             ignore: ignore.columns,
             color: color.enabled(),
         }),
+        Command::Design {
+            machine,
+            candidates,
+            n,
+            output,
+            evaluate,
+            format,
+            engine,
+            ignore,
+            color,
+        } => load::Failed::exit(design::run(design::DesignArgs {
+            machine,
+            candidates,
+            n: n.and_then(|v| usize::try_from(v).ok()),
+            output,
+            evaluate,
+            format,
+            engine,
+            ignore: ignore.columns,
+            color: color.enabled(),
+        })),
         Command::Bench {
             machine,
             poses,

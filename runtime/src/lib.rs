@@ -24,6 +24,7 @@ pub mod jit;
 pub mod kinematics;
 pub mod lag;
 pub mod output;
+pub mod plan;
 mod rank_update;
 pub mod simulate;
 pub mod states;

@@ -1,0 +1,316 @@
+//! `kin design`: choose a calibration plan from candidate measurements (D-optimality with the
+//! artifacts' placements as nuisance parameters), or score a plan (spec/design.md).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use kin_compiler::ir::Machine;
+use kin_runtime::design::{self, Estimability, Score};
+use kin_runtime::fit::DataSet;
+use kin_runtime::plan::{self, Plan};
+use serde::Serialize;
+
+use crate::load::{self, Failed};
+use crate::Format;
+
+pub struct DesignArgs {
+    pub machine: PathBuf,
+    pub candidates: Option<PathBuf>,
+    pub n: Option<usize>,
+    pub output: Option<PathBuf>,
+    pub evaluate: Option<PathBuf>,
+    pub format: Format,
+    pub engine: kin_runtime::engine::Engine,
+    pub ignore: Vec<String>,
+    pub color: bool,
+}
+
+#[derive(Serialize)]
+struct Figures {
+    observations: usize,
+    det_root: f64,
+    average_prediction_variance: f64,
+    maximum_prediction_variance: f64,
+    /// What the prediction variances are taken over.
+    over: String,
+}
+
+#[derive(Serialize)]
+struct Undetermined {
+    /// The coefficients no subset of the plan (or candidates) separates.
+    terms: Vec<String>,
+    /// The combinations of them that are determined, as text (`a + b`).
+    determined: Vec<String>,
+}
+
+#[derive(Serialize)]
+struct Report {
+    coefficients: usize,
+    candidates: Option<usize>,
+    /// Directions the candidates (or the plan) determine.
+    rank: usize,
+    condition: f64,
+    undetermined: Vec<Undetermined>,
+    chosen: Option<usize>,
+    exchanges: Option<usize>,
+    figures: Option<Figures>,
+}
+
+pub fn run(a: DesignArgs) -> Result<(), Failed> {
+    let compiled = load::machine(&a.machine, None, a.color)?;
+    let m = &compiled.machine;
+    let mut engine = kin_runtime::engine::make(m, a.engine).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed::INPUT
+    })?;
+    let mut units_of = |path: &Path| -> Result<Plan, Failed> {
+        let observations = load::observations(path, &compiled, true, &a.ignore)?;
+        let mut files = vec![DataSet {
+            path: path.to_path_buf(),
+            observations,
+        }];
+        plan::as_planned(&mut files);
+        plan::units(m, engine.as_mut(), &files).map_err(|e| {
+            eprintln!("error: {e}");
+            Failed::INPUT
+        })
+    };
+    let p = m.coefficients.len();
+    match (&a.candidates, &a.evaluate) {
+        (None, None) => {
+            eprintln!("error: give --candidates FILE (with -n and -o) or --evaluate PLAN");
+            Err(Failed::USAGE)
+        }
+        (candidates, Some(plan_path)) => {
+            let planned = units_of(plan_path)?;
+            let over = match candidates {
+                Some(c) => Some((units_of(c)?, c.clone())),
+                None => None,
+            };
+            let all: Vec<usize> = (0..planned.units.len()).collect();
+            let info = design::information(&planned.units, &all, p);
+            let reach = design::estimability(&info);
+            let (set, over_text) = match &over {
+                Some((c, path)) => (&c.units, format!("the rows of {}", path.display())),
+                None => (&planned.units, "the plan's own rows".to_string()),
+            };
+            let figures = figures(&planned, &all, set, p, &reach, over_text);
+            let report = Report {
+                coefficients: p,
+                candidates: over.as_ref().map(|(c, _)| c.units.len()),
+                rank: reach.rank,
+                condition: reach.condition,
+                undetermined: undetermined(m, &reach),
+                chosen: None,
+                exchanges: None,
+                figures,
+            };
+            print(&report, a.format, "the plan");
+            Ok(())
+        }
+        (Some(cands), None) => {
+            let (Some(n), Some(out)) = (a.n, &a.output) else {
+                eprintln!("error: choosing a plan needs -n N and -o PLAN.csv");
+                return Err(Failed::USAGE);
+            };
+            crate::files::check(out, &[&a.machine, cands])?;
+            let c = units_of(cands)?;
+            let bar = ProgressBar::new_spinner();
+            bar.set_style(
+                ProgressStyle::with_template("{msg} {spinner} {pos} steps")
+                    .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+            );
+            bar.set_message("exchanging");
+            let selection = design::select(&c.units, n, p, || bar.inc(1));
+            bar.finish_and_clear();
+            let selection = selection.map_err(|e| {
+                eprintln!("error: {e}");
+                Failed::INPUT
+            })?;
+            let text = load::read_text(cands)?;
+            files_write(out, &plan_text(&text, &c, &selection.chosen))?;
+            let figures = figures(
+                &c,
+                &selection.chosen,
+                &c.units,
+                p,
+                &selection.reach,
+                format!("the rows of {}", cands.display()),
+            );
+            let report = Report {
+                coefficients: p,
+                candidates: Some(c.units.len()),
+                rank: selection.reach.rank,
+                condition: selection.reach.condition,
+                undetermined: undetermined(m, &selection.reach),
+                chosen: Some(selection.chosen.len()),
+                exchanges: Some(selection.exchanges),
+                figures,
+            };
+            print(&report, a.format, "the candidates");
+            Ok(())
+        }
+    }
+}
+
+/// The Table 4.1 figures of `chosen`, or None (with the reason on stderr) when the plan does not
+/// determine every coefficient.
+fn figures(
+    plan: &Plan,
+    chosen: &[usize],
+    over: &[design::Unit],
+    p: usize,
+    reach: &Estimability,
+    over_text: String,
+) -> Option<Figures> {
+    if reach.rank < p {
+        eprintln!(
+            "note: {} of {p} coefficient directions cannot be determined; the figures are not computed",
+            p - reach.rank
+        );
+        return None;
+    }
+    match design::score(&plan.units, chosen, over, p) {
+        Ok(Score {
+            observations,
+            det_root,
+            average,
+            maximum,
+            ..
+        }) => Some(Figures {
+            observations,
+            det_root,
+            average_prediction_variance: average,
+            maximum_prediction_variance: maximum,
+            over: over_text,
+        }),
+        Err(e) => {
+            eprintln!("note: {e}; the figures are not computed");
+            None
+        }
+    }
+}
+
+fn undetermined(m: &Machine, e: &Estimability) -> Vec<Undetermined> {
+    let name = |j: usize| {
+        m.coefficients
+            .get(j)
+            .map_or_else(|| format!("#{j}"), |c| c.name.clone())
+    };
+    e.groups
+        .iter()
+        .map(|g| Undetermined {
+            terms: g.members.iter().map(|&j| name(j)).collect(),
+            determined: g
+                .combinations
+                .iter()
+                .map(|w| combination(&g.members, w, &name))
+                .collect(),
+        })
+        .collect()
+}
+
+/// `a + b`, `a − 0.5·b`: the weights as printed, largest 1.
+fn combination(members: &[usize], weights: &[f64], name: &dyn Fn(usize) -> String) -> String {
+    let mut out = String::new();
+    for (&j, &w) in members.iter().zip(weights) {
+        if w == 0.0 {
+            continue;
+        }
+        let sign = if w < 0.0 { "-" } else { "+" };
+        if out.is_empty() {
+            if w < 0.0 {
+                out.push('-');
+            }
+        } else {
+            let _ = write!(out, " {sign} ");
+        }
+        if (w.abs() - 1.0).abs() > 1e-9 {
+            let _ = write!(out, "{:.4}*", w.abs());
+        }
+        out.push_str(&name(j));
+    }
+    out
+}
+
+/// The plan file: the candidate file's comments and header, then the chosen units' lines (a
+/// unit chosen twice, a replicated measurement, appears twice).
+fn plan_text(text: &str, c: &Plan, chosen: &[usize]) -> String {
+    let lines: Vec<&str> = text.lines().collect();
+    let first_data = c
+        .lines
+        .iter()
+        .flat_map(|(_, l)| l.iter().copied())
+        .min()
+        .unwrap_or(1);
+    let mut out = String::new();
+    for l in lines.iter().take(first_data.saturating_sub(1)) {
+        out.push_str(l);
+        out.push('\n');
+    }
+    for &u in chosen {
+        if let Some((_, ls)) = c.lines.get(u) {
+            for &l in ls {
+                if let Some(t) = l.checked_sub(1).and_then(|i| lines.get(i)) {
+                    out.push_str(t);
+                    out.push('\n');
+                }
+            }
+        }
+    }
+    out
+}
+
+fn files_write(path: &Path, text: &str) -> Result<(), Failed> {
+    crate::files::write(path, text.as_bytes())
+}
+
+fn print(r: &Report, format: Format, what: &str) {
+    match format {
+        Format::Json => match serde_json::to_string_pretty(r) {
+            Ok(s) => println!("{s}"),
+            Err(e) => eprintln!("error: {e}"),
+        },
+        Format::Human => {
+            let mut out = String::new();
+            if let Some(c) = r.candidates {
+                let _ = writeln!(out, "candidates: {c} units");
+            }
+            let _ = writeln!(
+                out,
+                "{what} determine {} of {} coefficient directions (condition number {:.3e})",
+                r.rank, r.coefficients, r.condition
+            );
+            for u in &r.undetermined {
+                let _ = writeln!(
+                    out,
+                    "  cannot separate: {}; determined: {}",
+                    u.terms.join(", "),
+                    if u.determined.is_empty() {
+                        "nothing of them".to_string()
+                    } else {
+                        u.determined.join("; ")
+                    }
+                );
+            }
+            if let (Some(n), Some(x)) = (r.chosen, r.exchanges) {
+                let _ = writeln!(out, "chose {n} units ({x} exchanges)");
+            }
+            if let Some(f) = &r.figures {
+                let _ = writeln!(out, "observations          {}", f.observations);
+                let _ = writeln!(
+                    out,
+                    "det^(1/p) of n·Cov    {:.4e}  (unit noise, SI)",
+                    f.det_root
+                );
+                let _ = writeln!(
+                    out,
+                    "prediction variance   average {:.3}, maximum {:.3}  (n·xᵀCov x over {})",
+                    f.average_prediction_variance, f.maximum_prediction_variance, f.over
+                );
+            }
+            print!("{out}");
+        }
+    }
+}

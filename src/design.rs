@@ -44,6 +44,17 @@ struct Undetermined {
     determined: Vec<String>,
 }
 
+/// One coefficient as the plan determines it.
+#[derive(Serialize)]
+struct Term {
+    name: String,
+    determined: bool,
+    /// Standard deviation per unit noise (SI units of the coefficient per unit of the rows).
+    sigma_per_unit_noise: Option<f64>,
+    /// Variance inflation against an orthogonal plan with the same column lengths.
+    vif: Option<f64>,
+}
+
 #[derive(Serialize)]
 struct Report {
     coefficients: usize,
@@ -52,6 +63,7 @@ struct Report {
     rank: usize,
     condition: f64,
     undetermined: Vec<Undetermined>,
+    terms: Vec<Term>,
     chosen: Option<usize>,
     exchanges: Option<usize>,
     figures: Option<Figures>,
@@ -102,6 +114,7 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
                 rank: reach.rank,
                 condition: reach.condition,
                 undetermined: undetermined(m, &reach),
+                terms: terms(m, &reach),
                 chosen: None,
                 exchanges: None,
                 figures,
@@ -144,6 +157,7 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
                 rank: selection.reach.rank,
                 condition: selection.reach.condition,
                 undetermined: undetermined(m, &selection.reach),
+                terms: terms(m, &selection.reach),
                 chosen: Some(selection.chosen.len()),
                 exchanges: Some(selection.exchanges),
                 figures,
@@ -190,6 +204,19 @@ fn figures(
             None
         }
     }
+}
+
+fn terms(m: &Machine, e: &Estimability) -> Vec<Term> {
+    m.coefficients
+        .iter()
+        .enumerate()
+        .map(|(j, c)| Term {
+            name: c.name.clone(),
+            determined: e.determined.get(j).copied().unwrap_or(false),
+            sigma_per_unit_noise: e.sigma.get(j).copied().flatten(),
+            vif: e.vif.get(j).copied().flatten(),
+        })
+        .collect()
 }
 
 fn undetermined(m: &Machine, e: &Estimability) -> Vec<Undetermined> {
@@ -279,20 +306,39 @@ fn print(r: &Report, format: Format, what: &str) {
             }
             let _ = writeln!(
                 out,
-                "{what} determine {} of {} coefficient directions (condition number {:.3e})",
-                r.rank, r.coefficients, r.condition
+                "{what} determine{} {} of {} coefficient directions (condition number {:.3e})",
+                if what == "the plan" { "s" } else { "" },
+                r.rank,
+                r.coefficients,
+                r.condition
             );
             for u in &r.undetermined {
-                let _ = writeln!(
-                    out,
-                    "  cannot separate: {}; determined: {}",
-                    u.terms.join(", "),
-                    if u.determined.is_empty() {
-                        "nothing of them".to_string()
-                    } else {
+                if u.determined.is_empty() {
+                    let _ = writeln!(out, "  not determined at all: {}", u.terms.join(", "));
+                } else {
+                    let _ = writeln!(
+                        out,
+                        "  cannot separate {}; determined: {}",
+                        u.terms.join(", "),
                         u.determined.join("; ")
+                    );
+                }
+            }
+            let _ = writeln!(
+                out,
+                "  {:<24} {:>14} {:>10}",
+                "coefficient", "σ / unit noise", "VIF"
+            );
+            for t in &r.terms {
+                match (t.sigma_per_unit_noise, t.vif) {
+                    (Some(s), Some(v)) => {
+                        let _ = writeln!(out, "  {:<24} {s:>14.4e} {v:>10.3}", t.name);
                     }
-                );
+                    _ => {
+                        let _ =
+                            writeln!(out, "  {:<24} {:>14} {:>10}", t.name, "undetermined", "-");
+                    }
+                }
             }
             if let (Some(n), Some(x)) = (r.chosen, r.exchanges) {
                 let _ = writeln!(out, "chose {n} units ({x} exchanges)");

@@ -529,14 +529,22 @@ fn run(
     // single swap improves either.
     for _ in 0..cap {
         let inv = inverse(&(&m + DMatrix::identity(q, q) * (ridge * 1e-6)));
+        // Per candidate B M⁻¹ and B M⁻¹ Bᵀ once per pass; a pair then costs only its cross
+        // term B M⁻¹ Aᵀ (k_b · k_a · q), not a product with M⁻¹.
+        let w: Vec<DMatrix<f64>> = projected.iter().map(|b| b * &inv).collect();
+        let own: Vec<DMatrix<f64>> = w
+            .iter()
+            .zip(projected)
+            .map(|(wb, b)| wb * b.transpose())
+            .collect();
         let mut best = (0, 0, 1.0 + 1e-9);
         for (at, &i) in chosen.iter().enumerate() {
             let a = &projected[i];
-            for (j, b) in projected.iter().enumerate() {
+            for j in 0..projected.len() {
                 if j == i {
                     continue;
                 }
-                let r = swap_ratio(a, b, &inv);
+                let r = swap_ratio(&own[j], &own[i], &(&w[j] * a.transpose()));
                 if r > best.2 {
                     best = (at, j, r);
                 }
@@ -584,16 +592,20 @@ fn best_addition(units: &[DMatrix<f64>], inv: &DMatrix<f64>) -> usize {
 }
 
 /// The factor by which swapping member `a` for candidate `b` multiplies the determinant:
-/// `det(I + S U M⁻¹ Uᵀ)` with `U = [b; a]` and `S = diag(+I, −I)`.
-fn swap_ratio(a: &DMatrix<f64>, b: &DMatrix<f64>, inv: &DMatrix<f64>) -> f64 {
-    let (kb, ka) = (b.nrows(), a.nrows());
-    let mut u = DMatrix::zeros(kb + ka, a.ncols());
-    u.rows_mut(0, kb).copy_from(b);
-    u.rows_mut(kb, ka).copy_from(a);
-    let mut w = &u * inv * u.transpose();
-    for r in kb..kb + ka {
-        w.row_mut(r).neg_mut();
+/// `det(I + S U M⁻¹ Uᵀ)` with `U = [b; a]` and `S = diag(+I, −I)`, from the blocks
+/// `bb = B M⁻¹ Bᵀ`, `aa = A M⁻¹ Aᵀ` and `ba = B M⁻¹ Aᵀ`.
+fn swap_ratio(bb: &DMatrix<f64>, aa: &DMatrix<f64>, ba: &DMatrix<f64>) -> f64 {
+    let (kb, ka) = (bb.nrows(), aa.nrows());
+    if kb == 1 && ka == 1 {
+        // The rank-one case (Fedorov's Δ): (1 + d_b)(1 − d_a) + d_ab².
+        let (b, a, x) = (bb[(0, 0)], aa[(0, 0)], ba[(0, 0)]);
+        return (1.0 + b) * (1.0 - a) + x * x;
     }
+    let mut w = DMatrix::zeros(kb + ka, kb + ka);
+    w.view_mut((0, 0), (kb, kb)).copy_from(bb);
+    w.view_mut((0, kb), (kb, ka)).copy_from(ba);
+    w.view_mut((kb, 0), (ka, kb)).copy_from(&(-ba.transpose()));
+    w.view_mut((kb, kb), (ka, ka)).copy_from(&(-aa));
     (DMatrix::identity(kb + ka, kb + ka) + w).determinant()
 }
 

@@ -369,6 +369,21 @@ enum Command {
         /// Score this plan instead (prediction variances over --candidates when given).
         #[arg(long, conflicts_with_all = ["n", "output"])]
         evaluate: Option<PathBuf>,
+        /// Write candidates for an artifact to -o instead: `ballbar` (bars in a plane).
+        #[arg(long, value_parser = ["ballbar"], conflicts_with_all = ["candidates", "evaluate", "n"])]
+        generate: Option<String>,
+        /// Ball bar: its length.
+        #[arg(long, value_parser = args::length_spread, default_value = "400mm")]
+        length: Spread,
+        /// Ball bar: the grid step of the first sphere.
+        #[arg(long, value_parser = args::length_spread, default_value = "50mm")]
+        step: Spread,
+        /// Ball bar: the step of its orientation.
+        #[arg(long, value_parser = args::angle_spread, default_value = "15deg")]
+        angle_step: Spread,
+        /// Ball bar: the two prismatic axes of its plane, e.g. `--plane X,Y` (default: the first two).
+        #[arg(long, value_delimiter = ',')]
+        plane: Vec<String>,
         #[arg(long, value_enum, default_value_t = Format::Human)]
         format: Format,
         #[arg(long, default_value = "jit")]
@@ -610,11 +625,22 @@ fn main() -> ExitCode {
             n,
             output,
             evaluate,
+            generate,
+            length,
+            step,
+            angle_step,
+            plane,
             format,
             engine,
             ignore,
             color,
         } => load::Failed::exit(design::run(design::DesignArgs {
+            generate: generate.map(|_| design::Generate {
+                length: length.si,
+                step: step.si,
+                angle_step: angle_step.si,
+                plane,
+            }),
             machine,
             candidates,
             n: n.and_then(|v| usize::try_from(v).ok()),

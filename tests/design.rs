@@ -176,7 +176,7 @@ fn a_plan_that_cannot_separate_terms_says_which_and_what_it_determines() {
     ]);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(out.contains("determine 1 of 3"), "{out}");
+    assert!(out.contains("determines 1 of 3"), "{out}");
     assert!(out.contains("Y.ty") && out.contains("Y.rz"), "{out}");
     assert!(!out.contains("det^(1/p)"), "{out}");
 }
@@ -188,4 +188,45 @@ fn design_without_candidates_or_plan_is_a_usage_error() {
     std::fs::write(&machine, CMM).expect("write");
     let o = kin(&["design", machine.to_str().expect("utf8")]);
     assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn generated_ball_bar_candidates_are_the_thesis_grid() {
+    let d = dir("generate");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let out = d.join("gen.csv");
+    let o = kin(&[
+        "design",
+        machine.to_str().expect("utf8"),
+        "--generate",
+        "ballbar",
+        "--plane",
+        "X,Y",
+        "--length",
+        "400mm",
+        "--step",
+        "50mm",
+        "--angle-step",
+        "15deg",
+        "-o",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(&out).expect("written");
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .skip(2)
+        .map(|l| l.split(',').map(|v| v.parse().expect("number")).collect())
+        .collect();
+    assert_eq!(rows.len(), candidates().len());
+    for r in &rows {
+        // X_1, Y_1, X_2, Y_2 in the machine's declared axis order (Y first): a 400 mm bar.
+        let (dy, dx) = (r[2] - r[0], r[3] - r[1]);
+        assert!((dx.hypot(dy) - 400.0).abs() < 1e-6, "{r:?}");
+        assert!(
+            r.iter().all(|v| (-1e-9..=500.0 + 1e-9).contains(v)),
+            "{r:?}"
+        );
+    }
 }

@@ -84,6 +84,58 @@ struct Report {
     figures: Option<Figures>,
 }
 
+/// `kin check MACHINE --plan FILE…`: what the plan made of `files` (together) determines.
+pub fn check_plan(
+    machine: &Path,
+    files: &[PathBuf],
+    format: Format,
+    engine: kin_runtime::engine::Engine,
+    color: bool,
+) -> Result<(), Failed> {
+    let compiled = load::machine(machine, None, color)?;
+    let m = &compiled.machine;
+    let mut engine = kin_runtime::engine::make(m, engine).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed::INPUT
+    })?;
+    let mut sets = Vec::with_capacity(files.len());
+    for path in files {
+        sets.push(DataSet {
+            path: path.clone(),
+            observations: load::observations(path, &compiled, true, &[])?,
+        });
+    }
+    plan::as_planned(&mut sets);
+    let planned = plan::units(m, engine.as_mut(), &sets).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed::INPUT
+    })?;
+    let p = m.coefficients.len();
+    let all: Vec<usize> = (0..planned.units.len()).collect();
+    let reach = design::estimability(&design::information(&planned.units, &all, p));
+    let figures = figures(
+        &planned,
+        &all,
+        &planned.units,
+        p,
+        &reach,
+        "the plan's own rows".to_string(),
+    );
+    let report = Report {
+        coefficients: p,
+        candidates: None,
+        rank: reach.rank,
+        condition: reach.condition,
+        undetermined: undetermined(m, &reach),
+        terms: terms(m, &reach),
+        chosen: None,
+        exchanges: None,
+        figures,
+    };
+    print(&report, format, "the plan");
+    Ok(())
+}
+
 pub fn run(a: DesignArgs) -> Result<(), Failed> {
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
@@ -267,8 +319,14 @@ fn undetermined(m: &Machine, e: &Estimability) -> Vec<Undetermined> {
 
 /// `a + b`, `a − 0.5·b`: the weights as printed, largest 1.
 fn combination(members: &[usize], weights: &[f64], name: &dyn Fn(usize) -> String) -> String {
+    // A combination and its negative are determined alike: print the first weight positive.
+    let flip = weights
+        .iter()
+        .find(|w| **w != 0.0)
+        .is_some_and(|w| *w < 0.0);
+    let weights: Vec<f64> = weights.iter().map(|w| if flip { -w } else { *w }).collect();
     let mut out = String::new();
-    for (&j, &w) in members.iter().zip(weights) {
+    for (&j, &w) in members.iter().zip(&weights) {
         if w == 0.0 {
             continue;
         }

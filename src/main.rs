@@ -71,6 +71,10 @@ enum Command {
         /// Skip the identifiability analysis.
         #[arg(long)]
         no_identify: bool,
+        /// Instead of sampled poses, analyse this plan: point or length files (error columns
+        /// not needed), together; reports what it determines (spec/design.md).
+        #[arg(long, num_args = 1.., value_name = "FILE")]
+        plan: Vec<PathBuf>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -433,9 +437,13 @@ fn main() -> ExitCode {
             observe,
             aligned,
             no_identify,
+            plan,
             engine,
         } => {
             let color = color.enabled();
+            if !plan.is_empty() {
+                return load::Failed::exit(design::check_plan(&file, &plan, format, engine, color));
+            }
             let identify = (!no_identify).then_some((observe, aligned));
             check::run(&file, format, color, identify, engine)
         }

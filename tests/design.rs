@@ -230,3 +230,55 @@ fn generated_ball_bar_candidates_are_the_thesis_grid() {
         );
     }
 }
+
+#[test]
+fn check_plan_takes_artifacts_placement_and_length_out() {
+    let d = dir("check-plan");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let m = machine.to_str().expect("utf8");
+    // One bar of unknown length along x, then along y: only the difference of the two scales
+    // is seen; the squareness is not seen at all.
+    let bar = d.join("bar.csv");
+    std::fs::write(
+        &bar,
+        "X_1[mm],Y_1[mm],X_2[mm],Y_2[mm],artifact\n0,0,400,0,bar\n0,0,0,400,bar\n",
+    )
+    .expect("write");
+    let o = kin(&["check", m, "--plan", bar.to_str().expect("utf8")]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("determines 1 of 3"), "{out}");
+    assert!(
+        out.contains("cannot separate X.tx[0], Y.ty[0]; determined: X.tx[0] - Y.ty[0]"),
+        "{out}"
+    );
+    assert!(out.contains("not determined at all: Y.rz[0]"), "{out}");
+    assert!(
+        !out.contains("e-1 "),
+        "an undetermined coefficient has no σ: {out}"
+    );
+    // A plate of unknown placement at four corners: scales and squareness are all seen.
+    let plate = d.join("plate.csv");
+    std::fs::write(
+        &plate,
+        "X[mm],Y[mm],artifact\n0,0,p\n400,0,p\n0,400,p\n400,400,p\n",
+    )
+    .expect("write");
+    let v = json(&kin(&[
+        "check",
+        m,
+        "--plan",
+        plate.to_str().expect("utf8"),
+        "--format",
+        "json",
+    ]));
+    assert_eq!(v["rank"], 3);
+    assert_eq!(v["figures"]["observations"], 12);
+    for t in v["terms"].as_array().expect("terms") {
+        assert!(
+            t["sigma_per_unit_noise"].as_f64().is_some_and(|s| s > 0.0),
+            "{t}"
+        );
+    }
+}

@@ -491,7 +491,10 @@ pub fn summary(r: &report::FitReport) -> String {
             } else {
                 format!(" {}", c.unit)
             };
-            if c.kept {
+            if c.note.is_some() {
+                // A minimum-norm fit's undetermined coefficient: no value ± error is printed.
+                parts.push("undetermined".to_string());
+            } else if c.kept {
                 parts.push(format!("{:.3}±{:.3}{own}", c.value, c.se));
             } else {
                 parts.push("—".to_string());

@@ -534,7 +534,9 @@ fn main() -> ExitCode {
                 output: None,
                 solver: fit::SolverArg::Qr,
                 tolerance: 1e-10,
-                min_norm: false,
+                // A model the data do not fully determine is diagnosed on its determined part
+                // (its undetermined coefficients are marked so), not refused.
+                min_norm: true,
                 stepwise: None,
                 enter: None,
                 holdout: None,

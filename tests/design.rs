@@ -282,3 +282,74 @@ fn check_plan_takes_artifacts_placement_and_length_out() {
         );
     }
 }
+
+#[test]
+fn a_min_norm_fit_marks_undetermined_coefficients_and_diagnose_accepts_the_model() {
+    let d = dir("min-norm");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let m = machine.to_str().expect("utf8");
+    // Bars along x only (one repeated): the y scale and the squareness are not observed.
+    let poses = d.join("poses.csv");
+    std::fs::write(
+        &poses,
+        bars(&[
+            (0.0, 0.0, 0.0),
+            (50.0, 100.0, 0.0),
+            (0.0, 200.0, 0.0),
+            (100.0, 300.0, 0.0),
+            (0.0, 0.0, 0.0),
+        ]),
+    )
+    .expect("write");
+    let truth = d.join("truth.params");
+    std::fs::write(
+        &truth,
+        "params {\n X.tx[0] = 3\n Y.ty[0] = 2\n Y.rz[0] = 5\n}\n",
+    )
+    .expect("write");
+    let data = d.join("data.csv");
+    let o = kin(&[
+        "simulate",
+        m,
+        "--poses",
+        poses.to_str().expect("utf8"),
+        "--params",
+        truth.to_str().expect("utf8"),
+        "--noise",
+        "0.1um",
+        "-o",
+        data.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = d.join("fit.json");
+    let data = data.to_str().expect("utf8");
+    let o = kin(&[
+        "fit",
+        m,
+        data,
+        "--min-norm",
+        "-o",
+        report.to_str().expect("utf8"),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("Y.ty             [um] undetermined"), "{out}");
+    assert!(
+        out.contains("Y.rz             [urad] undetermined"),
+        "{out}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    for c in v["coefficients"].as_array().expect("coefficients") {
+        let seen = c["name"] == "X.tx[0]";
+        assert_eq!(c["se"].is_null(), !seen, "{c}");
+        assert_eq!(c["note"].is_null(), seen, "{c}");
+    }
+    let o = kin(&["diagnose", m, data]);
+    assert!(
+        o.status.success(),
+        "diagnose refused: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

@@ -303,6 +303,10 @@ pub fn rms(v: &[f64]) -> f64 {
 
 /// Builds the report of a fit.
 #[allow(clippy::too_many_arguments)]
+/// A null-space weight (unit vectors in scaled coordinates) above this makes its coefficient
+/// undetermined; rounding leaves weights near 1e-16.
+const UNDETERMINED: f64 = 1e-6;
+
 pub fn build(
     m: &Machine,
     source: &str,
@@ -359,21 +363,39 @@ pub fn build(
     let sigma2 = result.sigma * result.sigma;
     let var = solve::variances(&sol.g, sigma2);
     let n = m.coefficients.len();
+    // A minimum-norm fit of a deficient problem: a coefficient that an unobserved direction
+    // moves has no estimate (its min-norm value is one choice among infinitely many, and the
+    // variance of that choice is not the uncertainty of the coefficient). Its value stays in
+    // `value` for predictions (which the null space does not change); `se` is NaN and `note`
+    // says why, so no report prints it as a value with a standard error.
+    let undetermined =
+        |j: usize| (0..sol.null.ncols()).any(|k| sol.null[(j, k)].abs() > UNDETERMINED);
     let coefficients: Vec<Estimate> = m
         .coefficients
         .iter()
         .enumerate()
-        .map(|(j, c)| Estimate {
-            name: c.name.clone(),
-            label: c.label.clone(),
-            unit: c.unit.name.clone(),
-            value: sol.beta.get(j).copied().unwrap_or(0.0) / c.unit.scale,
-            se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / c.unit.scale,
-            kept: result
-                .selection
-                .as_ref()
-                .is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
-            note: None,
+        .map(|(j, c)| {
+            let blind = undetermined(j);
+            Estimate {
+                name: c.name.clone(),
+                label: c.label.clone(),
+                unit: c.unit.name.clone(),
+                value: sol.beta.get(j).copied().unwrap_or(0.0) / c.unit.scale,
+                se: if blind {
+                    f64::NAN
+                } else {
+                    var.get(j).copied().unwrap_or(f64::NAN).sqrt() / c.unit.scale
+                },
+                kept: result
+                    .selection
+                    .as_ref()
+                    .is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
+                note: blind.then(|| {
+                    "undetermined: the data do not separate it from other terms (its value is \
+                     the minimum-norm choice)"
+                        .to_string()
+                }),
+            }
         })
         .collect();
     let nuisance: Vec<Estimate> = result

@@ -433,6 +433,8 @@ pub fn select(
     let projected: Vec<DMatrix<f64>> = units.iter().map(|u| u.matrix(p) * &basis).collect();
     // A small ridge lets the greedy start compare units before the design has full rank; it is
     // dropped for the exchanges. The scaled information has trace q over all candidates.
+    let stack = Stack::new(&projected, q);
+    drop(projected);
     let ridge = 1e-6 * q as f64 / units.len() as f64;
     // DETMAX and Fedorov exchanges stop at local optima; a few starts, the first greedy from
     // nothing and the others from a random seed set, keep the best design found.
@@ -446,7 +448,7 @@ pub fn select(
                 .map(|_| rng.random_range(0..units.len()))
                 .collect()
         };
-        let (chosen, m, exchanges) = run(&projected, seeded, n, q, ridge, &mut tick);
+        let (chosen, m, exchanges) = run(&stack, seeded, n, q, ridge, &mut tick);
         let logdet = m.cholesky().map_or(f64::NEG_INFINITY, |c| {
             c.l().diagonal().iter().map(|d| 2.0 * d.ln()).sum()
         });
@@ -468,46 +470,92 @@ const STARTS: usize = 6;
 /// The random starts are drawn from a fixed seed: the same candidates give the same design.
 const SEED: u64 = 0x6b69_6e14;
 
+/// Every candidate's rows stacked in one matrix, so that the products with `M⁻¹` that every
+/// step needs are one matrix product over all candidates, not one small product per unit.
+struct Stack {
+    rows: DMatrix<f64>,
+    /// Per unit: its first row and its number of rows.
+    at: Vec<(usize, usize)>,
+}
+
+impl Stack {
+    fn new(projected: &[DMatrix<f64>], q: usize) -> Stack {
+        let total: usize = projected.iter().map(|u| u.nrows()).sum();
+        let mut rows = DMatrix::zeros(total, q);
+        let mut at = Vec::with_capacity(projected.len());
+        let mut r = 0;
+        for u in projected {
+            rows.view_mut((r, 0), (u.nrows(), q)).copy_from(u);
+            at.push((r, u.nrows()));
+            r += u.nrows();
+        }
+        Stack { rows, at }
+    }
+
+    fn unit(&self, i: usize) -> DMatrix<f64> {
+        let (r, k) = self.at.get(i).copied().unwrap_or((0, 0));
+        self.rows.rows(r, k).into_owned()
+    }
+
+    /// `Σ` of unit `i`'s rows of `a` times its rows of `b`, transposed: the k×k block
+    /// `A_i B_iᵀ` when `a = X` and `b = X M⁻¹`.
+    fn block(&self, a: &DMatrix<f64>, b: &DMatrix<f64>, i: usize) -> DMatrix<f64> {
+        let (r, k) = self.at.get(i).copied().unwrap_or((0, 0));
+        DMatrix::from_fn(k, k, |x, y| a.row(r + x).dot(&b.row(r + y)))
+    }
+
+    fn information(&self, i: usize) -> DMatrix<f64> {
+        let u = self.unit(i);
+        u.transpose() * u
+    }
+}
+
 /// One start: greedy completion of `seeded` to `n` units, then DETMAX, then Fedorov swaps.
 /// Returns the units, their information and the number of exchanges.
 fn run(
-    projected: &[DMatrix<f64>],
+    stack: &Stack,
     seeded: Vec<usize>,
     n: usize,
     q: usize,
     ridge: f64,
     tick: &mut impl FnMut(),
 ) -> (Vec<usize>, DMatrix<f64>, usize) {
+    let units = stack.at.len();
     let mut m = DMatrix::identity(q, q) * ridge;
     let mut chosen: Vec<usize> = Vec::with_capacity(n + 1);
     for &i in seeded.iter().take(n) {
-        let a = &projected[i];
-        m += a.transpose() * a;
+        m += stack.information(i);
         chosen.push(i);
     }
     while chosen.len() < n {
-        let inv = inverse(&m);
-        let best = best_addition(projected, &inv);
+        let w = &stack.rows * inverse(&m);
+        let best = best_addition(stack, &w);
         chosen.push(best);
-        let a = &projected[best];
-        m += a.transpose() * a;
+        m += stack.information(best);
         tick();
     }
     m -= DMatrix::identity(q, q) * ridge;
+    let guard = DMatrix::identity(q, q) * (ridge * 1e-6);
     let mut exchanges = 0;
     // Each DETMAX step strictly increases the determinant; the cap only guards rounding loops.
     let cap = 20 * n + 100;
     for _ in 0..cap {
-        let inv = inverse(&(&m + DMatrix::identity(q, q) * (ridge * 1e-6)));
-        let add = best_addition(projected, &inv);
-        let a = &projected[add];
-        let grown = &m + a.transpose() * a;
+        let w = &stack.rows * inverse(&(&m + &guard));
+        let add = best_addition(stack, &w);
+        let grown = &m + stack.information(add);
         chosen.push(add);
         let inv = inverse(&grown);
         let (drop_at, _) = chosen
             .iter()
             .enumerate()
-            .map(|(at, &i)| (at, removal_factor(&projected[i], &inv)))
+            .map(|(at, &i)| {
+                let a = stack.unit(i);
+                let g = &a * &inv * a.transpose();
+                (
+                    at,
+                    (DMatrix::identity(g.nrows(), g.nrows()) - g).determinant(),
+                )
+            })
             .fold((0, f64::NEG_INFINITY), |best, c| {
                 if c.1 > best.1 + 1e-12 {
                     c
@@ -520,48 +568,52 @@ fn run(
         if dropped == add {
             break;
         }
-        let d = &projected[dropped];
-        m = grown - d.transpose() * d;
+        m = grown - stack.information(dropped);
         exchanges += 1;
     }
-    // DETMAX stops at designs no single add-then-drop improves; a pass of Fedorov exchanges
-    // (swap one member for one candidate, the best swap first) leaves the design at a point no
-    // single swap improves either.
+    // DETMAX stops at designs no single add-then-drop improves; Fedorov swaps (each member in
+    // turn swapped for the candidate that raises the determinant most, when one does; Cook and
+    // Nachtsheim's modified Fedorov) leave it where no single swap improves either.
+    // `X M⁻¹` changes only when a swap is made.
+    let mut w = &stack.rows * inverse(&(&m + &guard));
     for _ in 0..cap {
-        let inv = inverse(&(&m + DMatrix::identity(q, q) * (ridge * 1e-6)));
-        // Per candidate B M⁻¹ and B M⁻¹ Bᵀ once per pass; a pair then costs only its cross
-        // term B M⁻¹ Aᵀ (k_b · k_a · q), not a product with M⁻¹.
-        let w: Vec<DMatrix<f64>> = projected.iter().map(|b| b * &inv).collect();
-        let own: Vec<DMatrix<f64>> = w
-            .iter()
-            .zip(projected)
-            .map(|(wb, b)| wb * b.transpose())
-            .collect();
-        let mut best = (0, 0, 1.0 + 1e-9);
-        for (at, &i) in chosen.iter().enumerate() {
-            let a = &projected[i];
-            for j in 0..projected.len() {
+        let mut swapped = false;
+        for at in 0..chosen.len() {
+            let Some(&i) = chosen.get(at) else { break };
+            let a = stack.unit(i);
+            let aa = {
+                let (r, k) = stack.at.get(i).copied().unwrap_or((0, 0));
+                a.clone() * w.rows(r, k).transpose()
+            };
+            // B_j M⁻¹ Aᵀ for every candidate j at once.
+            let cross = &w * a.transpose();
+            let mut best = (i, 1.0 + 1e-9);
+            for j in 0..units {
                 if j == i {
                     continue;
                 }
-                let r = swap_ratio(&own[j], &own[i], &(&w[j] * a.transpose()));
-                if r > best.2 {
-                    best = (at, j, r);
+                let (r, kb) = stack.at.get(j).copied().unwrap_or((0, 0));
+                let bb = stack.block(&stack.rows, &w, j);
+                let ba = cross.rows(r, kb).into_owned();
+                let ratio = swap_ratio(&bb, &aa, &ba);
+                if ratio > best.1 {
+                    best = (j, ratio);
                 }
+            }
+            if best.0 != i {
+                m = &m - stack.information(i) + stack.information(best.0);
+                w = &stack.rows * inverse(&(&m + &guard));
+                if let Some(slot) = chosen.get_mut(at) {
+                    *slot = best.0;
+                }
+                exchanges += 1;
+                swapped = true;
             }
         }
         tick();
-        if best.2 <= 1.0 + 1e-9 {
+        if !swapped {
             break;
         }
-        let (at, j, _) = best;
-        let Some(slot) = chosen.get_mut(at) else {
-            break;
-        };
-        let (a, b) = (&projected[*slot], &projected[j]);
-        m = &m - a.transpose() * a + b.transpose() * b;
-        *slot = j;
-        exchanges += 1;
     }
     (chosen, m, exchanges)
 }
@@ -577,15 +629,15 @@ fn inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
 }
 
 /// The unit whose addition multiplies the determinant most: `det(I + A M⁻¹ Aᵀ)` (matrix
-/// determinant lemma, a rank-k update of `det M`).
-fn best_addition(units: &[DMatrix<f64>], inv: &DMatrix<f64>) -> usize {
+/// determinant lemma, a rank-k update of `det M`), with `w = X M⁻¹` for all candidates.
+fn best_addition(stack: &Stack, w: &DMatrix<f64>) -> usize {
     let mut best = (0, f64::NEG_INFINITY);
-    for (i, a) in units.iter().enumerate() {
-        let w = a * inv * a.transpose();
-        let g = (DMatrix::identity(w.nrows(), w.nrows()) + w).determinant();
+    for i in 0..stack.at.len() {
+        let g = stack.block(&stack.rows, w, i);
+        let gain = (DMatrix::identity(g.nrows(), g.nrows()) + g).determinant();
         // Ties go to the earlier unit, so that the choice does not hang on rounding.
-        if i == 0 || g > best.1 * (1.0 + 1e-12) {
-            best = (i, g);
+        if i == 0 || gain > best.1 * (1.0 + 1e-12) {
+            best = (i, gain);
         }
     }
     best.0
@@ -607,12 +659,6 @@ fn swap_ratio(bb: &DMatrix<f64>, aa: &DMatrix<f64>, ba: &DMatrix<f64>) -> f64 {
     w.view_mut((kb, 0), (ka, kb)).copy_from(&(-ba.transpose()));
     w.view_mut((kb, kb), (ka, ka)).copy_from(&(-aa));
     (DMatrix::identity(kb + ka, kb + ka) + w).determinant()
-}
-
-/// How much of the determinant is kept when `a` is removed: `det(I − A M⁻¹ Aᵀ)`.
-fn removal_factor(a: &DMatrix<f64>, inv: &DMatrix<f64>) -> f64 {
-    let w = a * inv * a.transpose();
-    (DMatrix::identity(w.nrows(), w.nrows()) - w).determinant()
 }
 
 #[cfg(test)]

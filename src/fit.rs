@@ -503,6 +503,22 @@ pub fn summary(r: &report::FitReport) -> String {
         }
         s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
     }
+    if let Some(e) = &r.estimability {
+        for g in &e.groups {
+            if g.determined.is_empty() {
+                s.push_str(&format!(
+                    "  not determined at all: {}\n",
+                    g.members.join(", ")
+                ));
+            } else {
+                s.push_str(&format!(
+                    "  cannot separate {}; determined: {}\n",
+                    g.members.join(", "),
+                    g.determined.join("; ")
+                ));
+            }
+        }
+    }
     for n in &r.nonlinear {
         match (&n.note, n.label.as_str()) {
             (Some(note), "undetermined") => {

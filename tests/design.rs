@@ -346,6 +346,10 @@ fn a_min_norm_fit_marks_undetermined_coefficients_and_diagnose_accepts_the_model
         assert_eq!(c["se"].is_null(), !seen, "{c}");
         assert_eq!(c["note"].is_null(), seen, "{c}");
     }
+    assert_eq!(v["estimability"]["rank"], 1);
+    let groups = v["estimability"]["groups"].as_array().expect("groups");
+    assert_eq!(groups.len(), 2, "{groups:?}");
+    assert!(out.contains("not determined at all: Y.ty[0]"), "{out}");
     let o = kin(&["diagnose", m, data]);
     assert!(
         o.status.success(),

@@ -200,6 +200,52 @@ pub fn estimability(m: &DMatrix<f64>) -> Estimability {
     }
 }
 
+/// The groups of columns that unobserved directions `null` (unit vectors in coordinates scaled
+/// by `scale`) join, with the combinations of each group that are determined (see
+/// [`Estimability::groups`]): for a fit's null space.
+pub fn groups_of(null: &[DVector<f64>], scale: &[f64]) -> Vec<Group> {
+    let determined: Vec<bool> = (0..scale.len())
+        .map(|j| {
+            null.iter()
+                .all(|v| v.get(j).is_none_or(|w| w.abs() <= MEMBER))
+        })
+        .collect();
+    // The combinations are in the columns' own units: weights in scaled coordinates divided by
+    // the scale, which `groups` does by multiplying with the inverse scale.
+    let inverse: Vec<f64> = scale
+        .iter()
+        .map(|s| if *s > 0.0 { 1.0 / s } else { 0.0 })
+        .collect();
+    groups(null, &inverse, &determined)
+}
+
+/// `a + b`, `a - 0.5*b`: a determined combination as text, the first weight positive.
+pub fn combination_text(names: &[String], weights: &[f64]) -> String {
+    let flip = weights
+        .iter()
+        .find(|w| **w != 0.0)
+        .is_some_and(|w| *w < 0.0);
+    let mut out = String::new();
+    for (name, &w) in names.iter().zip(weights) {
+        let w = if flip { -w } else { w };
+        if w == 0.0 {
+            continue;
+        }
+        if out.is_empty() {
+            if w < 0.0 {
+                out.push('-');
+            }
+        } else {
+            out.push_str(if w < 0.0 { " - " } else { " + " });
+        }
+        if (w.abs() - 1.0).abs() > 1e-9 {
+            out.push_str(&format!("{:.4}*", w.abs()));
+        }
+        out.push_str(name);
+    }
+    out
+}
+
 /// Joins coefficients that share an unobserved direction, and finds per group the combinations
 /// the plan determines: the directions within the group orthogonal to every unobserved one.
 fn groups(null: &[DVector<f64>], scale: &[f64], determined: &[bool]) -> Vec<Group> {
@@ -473,7 +519,9 @@ const SEED: u64 = 0x6b69_6e14;
 /// Every candidate's rows stacked in one matrix, so that the products with `M⁻¹` that every
 /// step needs are one matrix product over all candidates, not one small product per unit.
 struct Stack {
-    rows: DMatrix<f64>,
+    /// `q × rows`: each candidate row is a column, so that the dot products a step takes per
+    /// unit run over contiguous memory.
+    cols: DMatrix<f64>,
     /// Per unit: its first row and its number of rows.
     at: Vec<(usize, usize)>,
 }
@@ -481,32 +529,70 @@ struct Stack {
 impl Stack {
     fn new(projected: &[DMatrix<f64>], q: usize) -> Stack {
         let total: usize = projected.iter().map(|u| u.nrows()).sum();
-        let mut rows = DMatrix::zeros(total, q);
+        let mut cols = DMatrix::zeros(q, total);
         let mut at = Vec::with_capacity(projected.len());
         let mut r = 0;
         for u in projected {
-            rows.view_mut((r, 0), (u.nrows(), q)).copy_from(u);
+            cols.view_mut((0, r), (q, u.nrows()))
+                .copy_from(&u.transpose());
             at.push((r, u.nrows()));
             r += u.nrows();
         }
-        Stack { rows, at }
+        Stack { cols, at }
     }
 
     fn unit(&self, i: usize) -> DMatrix<f64> {
         let (r, k) = self.at.get(i).copied().unwrap_or((0, 0));
-        self.rows.rows(r, k).into_owned()
+        self.cols.columns(r, k).transpose()
     }
 
-    /// `Σ` of unit `i`'s rows of `a` times its rows of `b`, transposed: the k×k block
-    /// `A_i B_iᵀ` when `a = X` and `b = X M⁻¹`.
-    fn block(&self, a: &DMatrix<f64>, b: &DMatrix<f64>, i: usize) -> DMatrix<f64> {
+    /// `M⁻¹ Xᵀ` for every candidate row (`M⁻¹` is symmetric).
+    fn times(&self, inv: &DMatrix<f64>) -> DMatrix<f64> {
+        inv * &self.cols
+    }
+
+    /// The k×k block `A_i M⁻¹ A_iᵀ` of unit `i`, from `w = M⁻¹ Xᵀ`.
+    fn block(&self, w: &DMatrix<f64>, i: usize) -> DMatrix<f64> {
         let (r, k) = self.at.get(i).copied().unwrap_or((0, 0));
-        DMatrix::from_fn(k, k, |x, y| a.row(r + x).dot(&b.row(r + y)))
+        DMatrix::from_fn(k, k, |x, y| self.cols.column(r + x).dot(&w.column(r + y)))
     }
 
     fn information(&self, i: usize) -> DMatrix<f64> {
         let u = self.unit(i);
         u.transpose() * u
+    }
+}
+
+/// `M⁻¹` and `W = M⁻¹ Xᵀ` for the current design, kept up to date by rank-k updates
+/// (Woodbury) when a unit comes in or goes out: `k · q · rows` work instead of a new product
+/// `q² · rows`, the cost that dominates a step.
+struct Current {
+    inv: DMatrix<f64>,
+    w: DMatrix<f64>,
+}
+
+impl Current {
+    fn new(stack: &Stack, m: &DMatrix<f64>) -> Current {
+        let inv = inverse(m);
+        let w = stack.times(&inv);
+        Current { inv, w }
+    }
+
+    /// Adds (`sign` +1) or removes (−1) unit `i`: `M⁻¹ ∓ M⁻¹Aᵀ (I ± A M⁻¹ Aᵀ)⁻¹ A M⁻¹`.
+    fn update(&mut self, stack: &Stack, i: usize, sign: f64) {
+        let a = stack.unit(i);
+        let ia = &self.inv * a.transpose(); // q × k
+        let mut s = &a * &ia * sign;
+        for d in 0..s.nrows() {
+            s[(d, d)] += 1.0;
+        }
+        let Some(s_inv) = s.clone().try_inverse() else {
+            return;
+        };
+        let k = &ia * s_inv * sign; // q × k
+        let aw = &a * &self.w; // k × rows
+        self.w -= &k * aw;
+        self.inv -= &k * ia.transpose();
     }
 }
 
@@ -527,30 +613,30 @@ fn run(
         m += stack.information(i);
         chosen.push(i);
     }
+    let mut cur = Current::new(stack, &m);
     while chosen.len() < n {
-        let w = &stack.rows * inverse(&m);
-        let best = best_addition(stack, &w);
+        let best = best_addition(stack, &cur.w);
         chosen.push(best);
         m += stack.information(best);
+        cur.update(stack, best, 1.0);
         tick();
     }
     m -= DMatrix::identity(q, q) * ridge;
     let guard = DMatrix::identity(q, q) * (ridge * 1e-6);
+    // A fresh inverse without the start's ridge (the updates below keep it current).
+    let mut cur = Current::new(stack, &(&m + &guard));
     let mut exchanges = 0;
     // Each DETMAX step strictly increases the determinant; the cap only guards rounding loops.
     let cap = 20 * n + 100;
     for _ in 0..cap {
-        let w = &stack.rows * inverse(&(&m + &guard));
-        let add = best_addition(stack, &w);
-        let grown = &m + stack.information(add);
+        let add = best_addition(stack, &cur.w);
         chosen.push(add);
-        let inv = inverse(&grown);
+        cur.update(stack, add, 1.0);
         let (drop_at, _) = chosen
             .iter()
             .enumerate()
             .map(|(at, &i)| {
-                let a = stack.unit(i);
-                let g = &a * &inv * a.transpose();
+                let g = stack.block(&cur.w, i);
                 (
                     at,
                     (DMatrix::identity(g.nrows(), g.nrows()) - g).determinant(),
@@ -564,45 +650,47 @@ fn run(
                 }
             });
         let dropped = chosen.swap_remove(drop_at);
+        cur.update(stack, dropped, -1.0);
         tick();
         if dropped == add {
             break;
         }
-        m = grown - stack.information(dropped);
+        m = m + stack.information(add) - stack.information(dropped);
         exchanges += 1;
     }
     // DETMAX stops at designs no single add-then-drop improves; Fedorov swaps (each member in
     // turn swapped for the candidate that raises the determinant most, when one does; Cook and
     // Nachtsheim's modified Fedorov) leave it where no single swap improves either.
-    // `X M⁻¹` changes only when a swap is made.
-    let mut w = &stack.rows * inverse(&(&m + &guard));
+    let mut cur = Current::new(stack, &(&m + &guard));
+    let mut own: Vec<DMatrix<f64>> = (0..units).map(|j| stack.block(&cur.w, j)).collect();
     for _ in 0..cap {
         let mut swapped = false;
         for at in 0..chosen.len() {
             let Some(&i) = chosen.get(at) else { break };
             let a = stack.unit(i);
-            let aa = {
-                let (r, k) = stack.at.get(i).copied().unwrap_or((0, 0));
-                a.clone() * w.rows(r, k).transpose()
-            };
-            // B_j M⁻¹ Aᵀ for every candidate j at once.
-            let cross = &w * a.transpose();
+            // A M⁻¹ B_jᵀ for every candidate j at once (k_a × rows).
+            let cross = &a * &cur.w;
+            let aa = own
+                .get(i)
+                .cloned()
+                .unwrap_or_else(|| stack.block(&cur.w, i));
             let mut best = (i, 1.0 + 1e-9);
-            for j in 0..units {
+            for (j, bb) in own.iter().enumerate() {
                 if j == i {
                     continue;
                 }
                 let (r, kb) = stack.at.get(j).copied().unwrap_or((0, 0));
-                let bb = stack.block(&stack.rows, &w, j);
-                let ba = cross.rows(r, kb).into_owned();
-                let ratio = swap_ratio(&bb, &aa, &ba);
+                let ba = cross.columns(r, kb).transpose();
+                let ratio = swap_ratio(bb, &aa, &ba);
                 if ratio > best.1 {
                     best = (j, ratio);
                 }
             }
             if best.0 != i {
                 m = &m - stack.information(i) + stack.information(best.0);
-                w = &stack.rows * inverse(&(&m + &guard));
+                cur.update(stack, best.0, 1.0);
+                cur.update(stack, i, -1.0);
+                own = (0..units).map(|j| stack.block(&cur.w, j)).collect();
                 if let Some(slot) = chosen.get_mut(at) {
                     *slot = best.0;
                 }
@@ -629,11 +717,11 @@ fn inverse(m: &DMatrix<f64>) -> DMatrix<f64> {
 }
 
 /// The unit whose addition multiplies the determinant most: `det(I + A M⁻¹ Aᵀ)` (matrix
-/// determinant lemma, a rank-k update of `det M`), with `w = X M⁻¹` for all candidates.
+/// determinant lemma, a rank-k update of `det M`), with `w = M⁻¹ Xᵀ` for all candidates.
 fn best_addition(stack: &Stack, w: &DMatrix<f64>) -> usize {
     let mut best = (0, f64::NEG_INFINITY);
     for i in 0..stack.at.len() {
-        let g = stack.block(&stack.rows, w, i);
+        let g = stack.block(w, i);
         let gain = (DMatrix::identity(g.nrows(), g.nrows()) + g).determinant();
         // Ties go to the earlier unit, so that the choice does not hang on rounding.
         if i == 0 || gain > best.1 * (1.0 + 1e-12) {

@@ -502,7 +502,13 @@ pub fn select(
             best = Some((logdet, chosen, exchanges));
         }
     }
-    let (_, mut chosen, exchanges) = best.ok_or(DesignError::Blind)?;
+    let (_, chosen, detmax) = best.ok_or(DesignError::Blind)?;
+    // Fedorov swaps polish the best DETMAX design only: they cost `n` passes over the
+    // candidates per sweep, and the starts have already spread the search.
+    let m = information_of(&stack, &chosen, q);
+    let guard = DMatrix::identity(q, q) * (ridge * 1e-6);
+    let (mut chosen, _, swaps) = fedorov(&stack, chosen, m, &guard, &mut tick);
+    let exchanges = detmax + swaps;
     chosen.sort_unstable();
     Ok(Selection {
         chosen,
@@ -563,6 +569,13 @@ impl Stack {
     }
 }
 
+/// The information of `chosen` in the search's coordinates.
+fn information_of(stack: &Stack, chosen: &[usize], q: usize) -> DMatrix<f64> {
+    chosen
+        .iter()
+        .fold(DMatrix::zeros(q, q), |m, &i| m + stack.information(i))
+}
+
 /// `M⁻¹` and `W = M⁻¹ Xᵀ` for the current design, kept up to date by rank-k updates
 /// (Woodbury) when a unit comes in or goes out: `k · q · rows` work instead of a new product
 /// `q² · rows`, the cost that dominates a step.
@@ -606,7 +619,6 @@ fn run(
     ridge: f64,
     tick: &mut impl FnMut(),
 ) -> (Vec<usize>, DMatrix<f64>, usize) {
-    let units = stack.at.len();
     let mut m = DMatrix::identity(q, q) * ridge;
     let mut chosen: Vec<usize> = Vec::with_capacity(n + 1);
     for &i in seeded.iter().take(n) {
@@ -658,10 +670,25 @@ fn run(
         m = m + stack.information(add) - stack.information(dropped);
         exchanges += 1;
     }
+    (chosen, m, exchanges)
+}
+
+/// Fedorov swaps on a design (`chosen`, information `m`): returns the swapped design, its
+/// information and the number of swaps.
+fn fedorov(
+    stack: &Stack,
+    mut chosen: Vec<usize>,
+    mut m: DMatrix<f64>,
+    guard: &DMatrix<f64>,
+    tick: &mut impl FnMut(),
+) -> (Vec<usize>, DMatrix<f64>, usize) {
+    let units = stack.at.len();
+    let cap = 20 * chosen.len() + 100;
+    let mut exchanges = 0;
     // DETMAX stops at designs no single add-then-drop improves; Fedorov swaps (each member in
     // turn swapped for the candidate that raises the determinant most, when one does; Cook and
     // Nachtsheim's modified Fedorov) leave it where no single swap improves either.
-    let mut cur = Current::new(stack, &(&m + &guard));
+    let mut cur = Current::new(stack, &(&m + guard));
     let mut own: Vec<DMatrix<f64>> = (0..units).map(|j| stack.block(&cur.w, j)).collect();
     for _ in 0..cap {
         let mut swapped = false;

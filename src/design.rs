@@ -306,44 +306,18 @@ fn undetermined(m: &Machine, e: &Estimability) -> Vec<Undetermined> {
     };
     e.groups
         .iter()
-        .map(|g| Undetermined {
-            terms: g.members.iter().map(|&j| name(j)).collect(),
-            determined: g
-                .combinations
-                .iter()
-                .map(|w| combination(&g.members, w, &name))
-                .collect(),
+        .map(|g| {
+            let names: Vec<String> = g.members.iter().map(|&j| name(j)).collect();
+            Undetermined {
+                terms: names.clone(),
+                determined: g
+                    .combinations
+                    .iter()
+                    .map(|w| design::combination_text(&names, w))
+                    .collect(),
+            }
         })
         .collect()
-}
-
-/// `a + b`, `a − 0.5·b`: the weights as printed, largest 1.
-fn combination(members: &[usize], weights: &[f64], name: &dyn Fn(usize) -> String) -> String {
-    // A combination and its negative are determined alike: print the first weight positive.
-    let flip = weights
-        .iter()
-        .find(|w| **w != 0.0)
-        .is_some_and(|w| *w < 0.0);
-    let weights: Vec<f64> = weights.iter().map(|w| if flip { -w } else { *w }).collect();
-    let mut out = String::new();
-    for (&j, &w) in members.iter().zip(&weights) {
-        if w == 0.0 {
-            continue;
-        }
-        let sign = if w < 0.0 { "-" } else { "+" };
-        if out.is_empty() {
-            if w < 0.0 {
-                out.push('-');
-            }
-        } else {
-            let _ = write!(out, " {sign} ");
-        }
-        if (w.abs() - 1.0).abs() > 1e-9 {
-            let _ = write!(out, "{:.4}*", w.abs());
-        }
-        out.push_str(&name(j));
-    }
-    out
 }
 
 /// The plan file: the candidate file's comments and header, then the chosen units' lines (a

@@ -4,7 +4,6 @@
 
 use kin_compiler::{compile, Compiled};
 use kin_runtime::data::{Groups, LengthData, Observations};
-use kin_runtime::engine::Evaluator;
 use kin_runtime::fit::{self, DataSet, Options};
 use kin_runtime::interp::Interpreter;
 use kin_runtime::simulate;

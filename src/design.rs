@@ -110,28 +110,7 @@ pub fn check_plan(
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
-    let p = m.coefficients.len();
-    let all: Vec<usize> = (0..planned.units.len()).collect();
-    let reach = design::estimability(&design::information(&planned.units, &all, p));
-    let figures = figures(
-        &planned,
-        &all,
-        &planned.units,
-        p,
-        &reach,
-        "the plan's own rows".to_string(),
-    );
-    let report = Report {
-        coefficients: p,
-        candidates: None,
-        rank: reach.rank,
-        condition: reach.condition,
-        undetermined: undetermined(m, &reach),
-        terms: terms(m, &reach),
-        chosen: None,
-        exchanges: None,
-        figures,
-    };
+    let report = assess(m, &planned, None);
     print(&report, format, "the plan");
     Ok(())
 }
@@ -179,25 +158,11 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
                 Some(c) => Some((units_of(c)?, c.clone())),
                 None => None,
             };
-            let all: Vec<usize> = (0..planned.units.len()).collect();
-            let info = design::information(&planned.units, &all, p);
-            let reach = design::estimability(&info);
-            let (set, over_text) = match &over {
-                Some((c, path)) => (&c.units, format!("the rows of {}", path.display())),
-                None => (&planned.units, "the plan's own rows".to_string()),
-            };
-            let figures = figures(&planned, &all, set, p, &reach, over_text);
-            let report = Report {
-                coefficients: p,
-                candidates: over.as_ref().map(|(c, _)| c.units.len()),
-                rank: reach.rank,
-                condition: reach.condition,
-                undetermined: undetermined(m, &reach),
-                terms: terms(m, &reach),
-                chosen: None,
-                exchanges: None,
-                figures,
-            };
+            let report = assess(
+                m,
+                &planned,
+                over.as_ref().map(|(c, path)| (c, path.as_path())),
+            );
             print(&report, a.format, "the plan");
             Ok(())
         }
@@ -282,6 +247,30 @@ fn figures(
             eprintln!("note: {e}; the figures are not computed");
             None
         }
+    }
+}
+
+/// What `planned` determines, and its figures with prediction variances over `over` (the
+/// candidates and their path) or over its own rows.
+fn assess(m: &Machine, planned: &Plan, over: Option<(&Plan, &Path)>) -> Report {
+    let p = m.coefficients.len();
+    let all: Vec<usize> = (0..planned.units.len()).collect();
+    let reach = design::estimability(&design::information(&planned.units, &all, p));
+    let (set, over_text) = match over {
+        Some((c, path)) => (&c.units, format!("the rows of {}", path.display())),
+        None => (&planned.units, "the plan's own rows".to_string()),
+    };
+    let figures = figures(planned, &all, set, p, &reach, over_text);
+    Report {
+        coefficients: p,
+        candidates: over.map(|(c, _)| c.units.len()),
+        rank: reach.rank,
+        condition: reach.condition,
+        undetermined: undetermined(m, &reach),
+        terms: terms(m, &reach),
+        chosen: None,
+        exchanges: None,
+        figures,
     }
 }
 

@@ -521,7 +521,10 @@ pub fn summary(r: &report::FitReport) -> String {
             } else {
                 format!(" {}", c.unit)
             };
-            if c.kept {
+            if c.note.is_some() {
+                // A minimum-norm fit's undetermined coefficient: no value ± error is printed.
+                parts.push("undetermined".to_string());
+            } else if c.kept {
                 parts.push(format!("{:.3}±{:.3}{own}", c.value, c.se));
             } else {
                 parts.push("—".to_string());
@@ -529,6 +532,22 @@ pub fn summary(r: &report::FitReport) -> String {
             i += 1;
         }
         s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
+    }
+    if let Some(e) = &r.estimability {
+        for g in &e.groups {
+            if g.determined.is_empty() {
+                s.push_str(&format!(
+                    "  not determined at all: {}\n",
+                    g.members.join(", ")
+                ));
+            } else {
+                s.push_str(&format!(
+                    "  cannot separate {}; determined: {}\n",
+                    g.members.join(", "),
+                    g.determined.join("; ")
+                ));
+            }
+        }
     }
     for n in &r.nonlinear {
         match (&n.note, n.label.as_str()) {

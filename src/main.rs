@@ -6,6 +6,7 @@ mod check;
 mod compensate;
 mod correct;
 mod demo;
+mod design;
 mod diagnose;
 mod files;
 mod fit;
@@ -96,6 +97,10 @@ enum Command {
         /// Skip the identifiability analysis.
         #[arg(long)]
         no_identify: bool,
+        /// Instead of sampled poses, analyse this plan: point or length files (error columns
+        /// not needed), together; reports what it determines (spec/design.md).
+        #[arg(long, num_args = 1.., value_name = "FILE")]
+        plan: Vec<PathBuf>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -402,6 +407,47 @@ enum Command {
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
     /// A measurement on this computer, not a test.
+    /// Plan a calibration: choose N of the candidate measurements that determine the model best
+    /// (D-optimal, artifacts' placements as nuisance parameters), or score a plan (spec/design.md).
+    Design {
+        machine: PathBuf,
+        /// A point or length file of candidate measurements (error columns not needed); rows of
+        /// one `artifact` label are chosen together.
+        #[arg(long)]
+        candidates: Option<PathBuf>,
+        /// How many units (rows, or artifact labels) to choose; a unit may be chosen twice.
+        #[arg(short = 'n', value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+        n: Option<u64>,
+        /// The plan to write: the candidate file's header and the chosen lines.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Score this plan instead (prediction variances over --candidates when given).
+        #[arg(long, conflicts_with_all = ["n", "output"])]
+        evaluate: Option<PathBuf>,
+        /// Write candidates for an artifact to -o instead: `ballbar` (bars in a plane).
+        #[arg(long, value_parser = ["ballbar"], conflicts_with_all = ["candidates", "evaluate", "n"])]
+        generate: Option<String>,
+        /// Ball bar: its length.
+        #[arg(long, value_parser = args::length_spread, default_value = "400mm")]
+        length: Spread,
+        /// Ball bar: the grid step of the first sphere.
+        #[arg(long, value_parser = args::length_spread, default_value = "50mm")]
+        step: Spread,
+        /// Ball bar: the step of its orientation.
+        #[arg(long, value_parser = args::angle_spread, default_value = "15deg")]
+        angle_step: Spread,
+        /// Ball bar: the two prismatic axes of its plane, e.g. `--plane X,Y` (default: the first two).
+        #[arg(long, value_delimiter = ',')]
+        plane: Vec<String>,
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
+        #[command(flatten)]
+        ignore: Ignore,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
     Bench {
         machine: PathBuf,
         /// Poses sampled over the axis ranges, evaluated in turn (1 to 10⁸).
@@ -463,9 +509,13 @@ fn main() -> ExitCode {
             observe,
             aligned,
             no_identify,
+            plan,
             engine,
         } => {
             let color = color.enabled();
+            if !plan.is_empty() {
+                return load::Failed::exit(design::check_plan(&file, &plan, format, engine, color));
+            }
             let identify = (!no_identify).then_some((observe, aligned));
             check::run(&file, format, color, identify, engine)
         }
@@ -561,7 +611,9 @@ fn main() -> ExitCode {
                 output: None,
                 solver: fit::SolverArg::Qr,
                 tolerance: 1e-10,
-                min_norm: false,
+                // A model the data do not fully determine is diagnosed on its determined part
+                // (its undetermined coefficients are marked so), not refused.
+                min_norm: true,
                 stepwise: None,
                 enter: None,
                 holdout: None,
@@ -655,6 +707,38 @@ fn main() -> ExitCode {
             ignore: ignore.options(),
             color: color.enabled(),
         }),
+        Command::Design {
+            machine,
+            candidates,
+            n,
+            output,
+            evaluate,
+            generate,
+            length,
+            step,
+            angle_step,
+            plane,
+            format,
+            engine,
+            ignore,
+            color,
+        } => load::Failed::exit(design::run(design::DesignArgs {
+            generate: generate.map(|_| design::Generate {
+                length: length.si,
+                step: step.si,
+                angle_step: angle_step.si,
+                plane,
+            }),
+            machine,
+            candidates,
+            n: n.and_then(|v| usize::try_from(v).ok()),
+            output,
+            evaluate,
+            format,
+            engine,
+            ignore: ignore.options(),
+            color: color.enabled(),
+        })),
         Command::Bench {
             machine,
             poses,

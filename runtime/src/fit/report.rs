@@ -75,6 +75,9 @@ pub struct FitReport {
     pub validation_residuals: Vec<Residual>,
     /// Messages naming what a minimum-norm fit of a deficient problem constrained.
     pub constrained: Vec<String>,
+    /// What the data determine (spec/design.md): absent in reports of earlier versions.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub estimability: Option<FitEstimability>,
     /// The stepwise selection: its steps, and which regressors of each term survived.
     pub stepwise: Option<StepwiseReport>,
     /// The fitted values as a `params { … }` block.
@@ -125,6 +128,25 @@ pub struct StepReport {
     pub f: f64,
     #[serde(deserialize_with = "nan_if_null")]
     pub p: f64,
+}
+
+/// The estimability of a fit's unknowns (coefficients, then nuisance parameters).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FitEstimability {
+    pub rank: usize,
+    pub columns: usize,
+    /// Per coefficient: its standard error per unit of σ̂ (coefficient unit per error unit);
+    /// null when the data do not determine it.
+    #[serde(deserialize_with = "nans_if_null")]
+    pub se_per_sigma: Vec<f64>,
+    /// Groups of unknowns the data cannot separate, with the combinations they determine.
+    pub groups: Vec<FitGroup>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FitGroup {
+    pub members: Vec<String>,
+    pub determined: Vec<String>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -303,6 +325,10 @@ pub fn rms(v: &[f64]) -> f64 {
 
 /// Builds the report of a fit.
 #[allow(clippy::too_many_arguments)]
+/// A null-space weight (unit vectors in scaled coordinates) above this makes its coefficient
+/// undetermined; rounding leaves weights near 1e-16.
+const UNDETERMINED: f64 = 1e-6;
+
 pub fn build(
     m: &Machine,
     source: &str,
@@ -359,21 +385,39 @@ pub fn build(
     let sigma2 = result.sigma * result.sigma;
     let var = solve::variances(&sol.g, sigma2);
     let n = m.coefficients.len();
+    // A minimum-norm fit of a deficient problem: a coefficient that an unobserved direction
+    // moves has no estimate (its min-norm value is one choice among infinitely many, and the
+    // variance of that choice is not the uncertainty of the coefficient). Its value stays in
+    // `value` for predictions (which the null space does not change); `se` is NaN and `note`
+    // says why, so no report prints it as a value with a standard error.
+    let undetermined =
+        |j: usize| (0..sol.null.ncols()).any(|k| sol.null[(j, k)].abs() > UNDETERMINED);
     let coefficients: Vec<Estimate> = m
         .coefficients
         .iter()
         .enumerate()
-        .map(|(j, c)| Estimate {
-            name: c.name.clone(),
-            label: c.label.clone(),
-            unit: c.unit.name.clone(),
-            value: sol.beta.get(j).copied().unwrap_or(0.0) / c.unit.scale,
-            se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / c.unit.scale,
-            kept: result
-                .selection
-                .as_ref()
-                .is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
-            note: None,
+        .map(|(j, c)| {
+            let blind = undetermined(j);
+            Estimate {
+                name: c.name.clone(),
+                label: c.label.clone(),
+                unit: c.unit.name.clone(),
+                value: sol.beta.get(j).copied().unwrap_or(0.0) / c.unit.scale,
+                se: if blind {
+                    f64::NAN
+                } else {
+                    var.get(j).copied().unwrap_or(f64::NAN).sqrt() / c.unit.scale
+                },
+                kept: result
+                    .selection
+                    .as_ref()
+                    .is_none_or(|s| s.kept.get(j).copied().unwrap_or(true)),
+                note: blind.then(|| {
+                    "undetermined: the data do not separate it from other terms (its value is \
+                     the minimum-norm choice)"
+                        .to_string()
+                }),
+            }
         })
         .collect();
     let nuisance: Vec<Estimate> = result
@@ -427,7 +471,45 @@ pub fn build(
     };
     let outliers: Vec<Residual> = tally.outliers().iter().map(|r| residual(m, w, r)).collect();
     let keep = result.rows <= MAX_RESIDUALS && result.residuals.len() == result.rows;
+    let estimability = {
+        let names: Vec<String> = coefficients
+            .iter()
+            .chain(&nuisance)
+            .map(|e| e.name.clone())
+            .collect();
+        let null: Vec<nalgebra::DVector<f64>> = (0..sol.null.ncols())
+            .map(|k| nalgebra::DVector::from_fn(sol.null.nrows(), |j, _| sol.null[(j, k)]))
+            .collect();
+        let ratio = result.sigma / s;
+        FitEstimability {
+            rank: sol.rank,
+            columns: result.layout.columns(),
+            se_per_sigma: coefficients
+                .iter()
+                .map(|e| if ratio > 0.0 { e.se / ratio } else { f64::NAN })
+                .collect(),
+            groups: crate::design::groups_of(&null, &sol.scale)
+                .into_iter()
+                .map(|g| {
+                    let members: Vec<String> = g
+                        .members
+                        .iter()
+                        .map(|&j| names.get(j).cloned().unwrap_or_default())
+                        .collect();
+                    FitGroup {
+                        determined: g
+                            .combinations
+                            .iter()
+                            .map(|w| crate::design::combination_text(&members, w))
+                            .collect(),
+                        members,
+                    }
+                })
+                .collect(),
+        }
+    };
     FitReport {
+        estimability: Some(estimability),
         version: VERSION,
         machine: m.name.clone(),
         model_hash: model_hash(source),

@@ -1,0 +1,359 @@
+//! `kin design` end to end: the thesis' 2-D CMM (§4.4, Table 4.1) with 400 mm ball bars.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+const CMM: &str = "machine cmm2d {
+    task measure
+    units { length mm, angle deg, error um, tilt urad }
+    axis Y prismatic along y range 0 mm .. 500 mm
+    axis X prismatic along x range 0 mm .. 500 mm
+    tool chain {
+        Y moving
+        X moving
+        tool probe
+    }
+    workpiece chain {
+        workpiece
+    }
+    errors {
+        X.tx = linear(X)     // scale error of X
+        Y.ty = linear(Y)     // scale error of Y
+        Y.rz = const         // squareness of X to Y
+    }
+}
+";
+
+fn kin(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(args)
+        .output()
+        .expect("kin runs")
+}
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("kin-design-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+/// A length file of 400 mm bars given by first sphere and angle.
+fn bars(bars: &[(f64, f64, f64)]) -> String {
+    let mut s = String::from("X_1[mm],Y_1[mm],X_2[mm],Y_2[mm]\n");
+    for &(x, y, a) in bars {
+        let (sn, cs) = a.to_radians().sin_cos();
+        let _ = writeln!(s, "{x},{y},{:.9},{:.9}", x + 400.0 * cs, y + 400.0 * sn);
+    }
+    s
+}
+
+/// The thesis' candidates: first sphere on a 50 mm grid, 15° steps, both spheres inside.
+fn candidates() -> Vec<(f64, f64, f64)> {
+    let mut out = Vec::new();
+    for i in 0..=10 {
+        for j in 0..=10 {
+            for k in 0..24 {
+                let (x, y, a) = (50.0 * i as f64, 50.0 * j as f64, 15.0 * k as f64);
+                let (s, c) = a.to_radians().sin_cos();
+                let inside = |v: f64| (-1e-9..=500.0 + 1e-9).contains(&v);
+                if inside(x + 400.0 * c) && inside(y + 400.0 * s) {
+                    out.push((x, y, a));
+                }
+            }
+        }
+    }
+    out
+}
+
+fn json(o: &Output) -> serde_json::Value {
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).expect("json")
+}
+
+fn fig(v: &serde_json::Value, name: &str) -> f64 {
+    v["figures"][name].as_f64().expect(name)
+}
+
+#[test]
+fn design_chooses_a_d_optimal_plan_and_scores_the_thesis_designs() {
+    let d = dir("table41");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let cands = d.join("candidates.csv");
+    std::fs::write(&cands, bars(&candidates())).expect("write");
+    let plan = d.join("plan.csv");
+    let m = machine.to_str().expect("utf8");
+    let c = cands.to_str().expect("utf8");
+    let p = plan.to_str().expect("utf8");
+
+    let chosen = json(&kin(&[
+        "design",
+        m,
+        "--candidates",
+        c,
+        "-n",
+        "6",
+        "-o",
+        p,
+        "--format",
+        "json",
+    ]));
+    assert_eq!(chosen["rank"], 3);
+    assert_eq!(chosen["chosen"], 6);
+    // A D-optimal design's largest prediction variance is the number of coefficients.
+    assert!((fig(&chosen, "maximum_prediction_variance") - 3.0).abs() < 1e-6);
+    let written = std::fs::read_to_string(&plan).expect("plan");
+    assert_eq!(written.lines().count(), 7, "{written}");
+
+    // Scoring the written plan gives the same figures.
+    let again = json(&kin(&[
+        "design",
+        m,
+        "--evaluate",
+        p,
+        "--candidates",
+        c,
+        "--format",
+        "json",
+    ]));
+    let best = fig(&again, "det_root");
+    assert!((best - fig(&chosen, "det_root")).abs() < 1e-9 * best);
+
+    // Designs 1 and 2 of Table 4.1: their det^(1/3) relative to the optimum is the thesis'
+    // 2.98/2.50 and 2.60/2.50 (the absolute value depends on the coefficients' units), and
+    // their maximum prediction variances are 9.00 and 4.00.
+    let score = |angles: &[(f64, f64, f64)]| {
+        let f = d.join("d.csv");
+        std::fs::write(&f, bars(angles)).expect("write");
+        json(&kin(&[
+            "design",
+            m,
+            "--evaluate",
+            f.to_str().expect("utf8"),
+            "--candidates",
+            c,
+            "--format",
+            "json",
+        ]))
+    };
+    let d1 = score(&[
+        (50.0, 250.0, 0.0),
+        (50.0, 250.0, 0.0),
+        (100.0, 100.0, 45.0),
+        (100.0, 100.0, 45.0),
+        (250.0, 50.0, 90.0),
+        (250.0, 50.0, 90.0),
+    ]);
+    let d2 = score(&[
+        (50.0, 250.0, 0.0),
+        (50.0, 250.0, 0.0),
+        (100.0, 100.0, 45.0),
+        (100.0, 400.0, 315.0),
+        (250.0, 50.0, 90.0),
+        (250.0, 50.0, 90.0),
+    ]);
+    let round2 = |v: f64| (v * 100.0).round() / 100.0;
+    assert_eq!(round2(2.50 * fig(&d1, "det_root") / best), 2.98);
+    assert_eq!(round2(2.50 * fig(&d2, "det_root") / best), 2.60);
+    assert_eq!(round2(fig(&d1, "maximum_prediction_variance")), 9.00);
+    assert_eq!(round2(fig(&d2, "maximum_prediction_variance")), 4.00);
+}
+
+#[test]
+fn a_plan_that_cannot_separate_terms_says_which_and_what_it_determines() {
+    let d = dir("blind");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    // Bars along x only: the x scale is determined, the y scale and squareness are not seen.
+    let f = d.join("x_only.csv");
+    std::fs::write(&f, bars(&[(0.0, 0.0, 0.0), (50.0, 100.0, 0.0)])).expect("write");
+    let o = kin(&[
+        "design",
+        machine.to_str().expect("utf8"),
+        "--evaluate",
+        f.to_str().expect("utf8"),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("determines 1 of 3"), "{out}");
+    assert!(out.contains("Y.ty") && out.contains("Y.rz"), "{out}");
+    assert!(!out.contains("det^(1/p)"), "{out}");
+}
+
+#[test]
+fn design_without_candidates_or_plan_is_a_usage_error() {
+    let d = dir("usage");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let o = kin(&["design", machine.to_str().expect("utf8")]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn generated_ball_bar_candidates_are_the_thesis_grid() {
+    let d = dir("generate");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let out = d.join("gen.csv");
+    let o = kin(&[
+        "design",
+        machine.to_str().expect("utf8"),
+        "--generate",
+        "ballbar",
+        "--plane",
+        "X,Y",
+        "--length",
+        "400mm",
+        "--step",
+        "50mm",
+        "--angle-step",
+        "15deg",
+        "-o",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(&out).expect("written");
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .skip(2)
+        .map(|l| l.split(',').map(|v| v.parse().expect("number")).collect())
+        .collect();
+    assert_eq!(rows.len(), candidates().len());
+    for r in &rows {
+        // X_1, Y_1, X_2, Y_2 in the machine's declared axis order (Y first): a 400 mm bar.
+        let (dy, dx) = (r[2] - r[0], r[3] - r[1]);
+        assert!((dx.hypot(dy) - 400.0).abs() < 1e-6, "{r:?}");
+        assert!(
+            r.iter().all(|v| (-1e-9..=500.0 + 1e-9).contains(v)),
+            "{r:?}"
+        );
+    }
+}
+
+#[test]
+fn check_plan_takes_artifacts_placement_and_length_out() {
+    let d = dir("check-plan");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let m = machine.to_str().expect("utf8");
+    // One bar of unknown length along x, then along y: only the difference of the two scales
+    // is seen; the squareness is not seen at all.
+    let bar = d.join("bar.csv");
+    std::fs::write(
+        &bar,
+        "X_1[mm],Y_1[mm],X_2[mm],Y_2[mm],artifact\n0,0,400,0,bar\n0,0,0,400,bar\n",
+    )
+    .expect("write");
+    let o = kin(&["check", m, "--plan", bar.to_str().expect("utf8")]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("determines 1 of 3"), "{out}");
+    assert!(
+        out.contains("cannot separate X.tx[0], Y.ty[0]; determined: X.tx[0] - Y.ty[0]"),
+        "{out}"
+    );
+    assert!(out.contains("not determined at all: Y.rz[0]"), "{out}");
+    assert!(
+        !out.contains("e-1 "),
+        "an undetermined coefficient has no σ: {out}"
+    );
+    // A plate of unknown placement at four corners: scales and squareness are all seen.
+    let plate = d.join("plate.csv");
+    std::fs::write(
+        &plate,
+        "X[mm],Y[mm],artifact\n0,0,p\n400,0,p\n0,400,p\n400,400,p\n",
+    )
+    .expect("write");
+    let v = json(&kin(&[
+        "check",
+        m,
+        "--plan",
+        plate.to_str().expect("utf8"),
+        "--format",
+        "json",
+    ]));
+    assert_eq!(v["rank"], 3);
+    assert_eq!(v["figures"]["observations"], 12);
+    for t in v["terms"].as_array().expect("terms") {
+        assert!(
+            t["sigma_per_unit_noise"].as_f64().is_some_and(|s| s > 0.0),
+            "{t}"
+        );
+    }
+}
+
+#[test]
+fn a_min_norm_fit_marks_undetermined_coefficients_and_diagnose_accepts_the_model() {
+    let d = dir("min-norm");
+    let machine = d.join("cmm2d.kin");
+    std::fs::write(&machine, CMM).expect("write");
+    let m = machine.to_str().expect("utf8");
+    // Bars along x only (one repeated): the y scale and the squareness are not observed.
+    let poses = d.join("poses.csv");
+    std::fs::write(
+        &poses,
+        bars(&[
+            (0.0, 0.0, 0.0),
+            (50.0, 100.0, 0.0),
+            (0.0, 200.0, 0.0),
+            (100.0, 300.0, 0.0),
+            (0.0, 0.0, 0.0),
+        ]),
+    )
+    .expect("write");
+    let truth = d.join("truth.params");
+    std::fs::write(
+        &truth,
+        "params {\n X.tx[0] = 3\n Y.ty[0] = 2\n Y.rz[0] = 5\n}\n",
+    )
+    .expect("write");
+    let data = d.join("data.csv");
+    let o = kin(&[
+        "simulate",
+        m,
+        "--poses",
+        poses.to_str().expect("utf8"),
+        "--params",
+        truth.to_str().expect("utf8"),
+        "--noise",
+        "0.1um",
+        "-o",
+        data.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = d.join("fit.json");
+    let data = data.to_str().expect("utf8");
+    let o = kin(&[
+        "fit",
+        m,
+        data,
+        "--min-norm",
+        "-o",
+        report.to_str().expect("utf8"),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("Y.ty             [um] undetermined"), "{out}");
+    assert!(
+        out.contains("Y.rz             [urad] undetermined"),
+        "{out}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    for c in v["coefficients"].as_array().expect("coefficients") {
+        let seen = c["name"] == "X.tx[0]";
+        assert_eq!(c["se"].is_null(), !seen, "{c}");
+        assert_eq!(c["note"].is_null(), seen, "{c}");
+    }
+    assert_eq!(v["estimability"]["rank"], 1);
+    let groups = v["estimability"]["groups"].as_array().expect("groups");
+    assert_eq!(groups.len(), 2, "{groups:?}");
+    assert!(out.contains("not determined at all: Y.ty[0]"), "{out}");
+    let o = kin(&["diagnose", m, data]);
+    assert!(
+        o.status.success(),
+        "diagnose refused: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

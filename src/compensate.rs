@@ -404,10 +404,24 @@ fn linuxcnc(
             unit.name,
         );
     }
-    for t in &tables {
-        crate::files::write(&path_of(t.axis), t.linuxcnc(unit_of(m, t.axis)).as_bytes())?;
-    }
-    crate::files::write(&note_path, note.as_bytes())?;
+    // The tables and their note are one result: all are replaced or none (a full disk halfway
+    // must not leave one axis's new table beside another's old one).
+    let mut set: Vec<(PathBuf, Vec<u8>)> = tables
+        .iter()
+        .map(|t| (path_of(t.axis), t.linuxcnc(unit_of(m, t.axis)).into_bytes()))
+        .collect();
+    set.push((note_path.clone(), note.clone().into_bytes()));
+    let refs: Vec<(&Path, &[u8])> = set
+        .iter()
+        .map(|(p, c)| (p.as_path(), c.as_slice()))
+        .collect();
+    kin_runtime::output::replace_all(&refs).map_err(|e| {
+        eprintln!(
+            "error: cannot write the tables into `{}`: {e}",
+            a.output.display()
+        );
+        Failed::USAGE
+    })?;
     eprint!("{note}");
     Ok(())
 }

@@ -84,6 +84,37 @@ fn directory_of(path: &Path) -> PathBuf {
 /// the user may not write is refused as an in-place write would be; a symbolic link is
 /// followed, so the file it points to is replaced and the link stays.
 pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
+    stage(path, contents)?.commit()
+}
+
+/// Replaces several files as one set, as far as a file system allows: every file's bytes are
+/// written and flushed to its temporary file first, and only when all of them are on disk are
+/// they renamed over their targets, one after the other. A failure while writing (a full disk,
+/// a read-only target) replaces none of them; what can still interleave is only the renames.
+pub fn replace_all(files: &[(&Path, &[u8])]) -> io::Result<()> {
+    let staged = files
+        .iter()
+        .map(|(path, contents)| stage(path, contents))
+        .collect::<io::Result<Vec<Staged>>>()?;
+    staged.into_iter().try_for_each(Staged::commit)
+}
+
+/// A file's new contents on disk beside it, not yet renamed over it; dropped, it is removed.
+struct Staged {
+    temp: tempfile::NamedTempFile,
+    target: PathBuf,
+    dir: PathBuf,
+}
+
+impl Staged {
+    fn commit(self) -> io::Result<()> {
+        self.temp.persist(&self.target).map_err(|e| e.error)?;
+        sync_directory(&self.dir)
+    }
+}
+
+/// The first half of [`replace`]: the temporary file written and flushed.
+fn stage(path: &Path, contents: &[u8]) -> io::Result<Staged> {
     let target = match std::fs::symlink_metadata(path) {
         Ok(m) if m.file_type().is_symlink() => path.canonicalize()?,
         _ => path.to_path_buf(),
@@ -116,8 +147,7 @@ pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
     }
     temp.write_all(contents)?;
     temp.as_file().sync_all()?;
-    temp.persist(&target).map_err(|e| e.error)?;
-    sync_directory(&dir)
+    Ok(Staged { temp, target, dir })
 }
 
 /// Gives the new file the replaced file's owner and group where the system allows it (root
@@ -223,6 +253,27 @@ mod tests {
         let expected = if writable { "new" } else { "old" };
         assert_eq!(std::fs::read_to_string(&p).unwrap(), expected);
         assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn a_set_is_replaced_whole_or_not_at_all() {
+        let d = dir();
+        let (a, b) = (d.path().join("X.comp"), d.path().join("Y.comp"));
+        std::fs::write(&a, "old X").expect("write");
+        std::fs::write(&b, "old Y").expect("write");
+        replace_all(&[(&a, b"new X"), (&b, b"new Y")]).expect("both");
+        assert_eq!(std::fs::read_to_string(&a).expect("read"), "new X");
+        assert_eq!(std::fs::read_to_string(&b).expect("read"), "new Y");
+        // The second cannot be written (its folder is missing): the first stays as it was.
+        let missing = d.path().join("gone").join("Z.comp");
+        assert!(replace_all(&[(&a, b"newer X"), (&missing, b"Z")]).is_err());
+        assert_eq!(std::fs::read_to_string(&a).expect("read"), "new X");
+        let left: Vec<_> = std::fs::read_dir(d.path())
+            .expect("list")
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+            .collect();
+        assert!(left.is_empty(), "temporary files left: {left:?}");
     }
 
     #[test]

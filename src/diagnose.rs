@@ -45,6 +45,16 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         noise_tilt: a.noise_tilt.as_ref().map(|n| n.si),
         ..Settings::default()
     };
+    // The scan reports no steps of its own yet: a spinner with the elapsed time shows it is
+    // alive (drawn on a terminal only; 45 s at 3·10⁵ observations).
+    let bar = indicatif::ProgressBar::new_spinner();
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} testing the candidate effects ({elapsed})",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let diagnosis = diagnose::diagnose(
         &fitted.compiled,
         &fitted.source,
@@ -52,8 +62,9 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         &fitted.result,
         &fitted.options,
         &settings,
-    )
-    .map_err(|e| {
+    );
+    bar.finish_and_clear();
+    let diagnosis = diagnosis.map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;

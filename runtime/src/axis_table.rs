@@ -87,6 +87,106 @@ pub fn axis_table(
     Ok(table)
 }
 
+/// The full compensation (every axis free) at positions of one axis, the others, the tool and
+/// the inputs as in a reference pose: what a controller's own-axis tables (the diagonal) and
+/// its cross-axis ("sag") tables (the correction of another axis as a function of this one)
+/// hold. Corrections are indexed like `Machine::axes`, in SI.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sweep {
+    /// Index into `Machine::axes` of the swept axis.
+    pub axis: usize,
+    /// Its nominal positions, ascending.
+    pub nominal: Vec<f64>,
+    /// The corrections of every axis at each position, the swept axis moving in + …
+    pub forward: Vec<Vec<f64>>,
+    /// … and moving in −.
+    pub reverse: Vec<Vec<f64>>,
+    /// The same at the midpoints between positions (for the interpolation error).
+    pub mid_forward: Vec<Vec<f64>>,
+    pub mid_reverse: Vec<Vec<f64>>,
+}
+
+/// Compensates `reference` with axis `axis` at each of `nodes` and at their midpoints, in
+/// both directions of that axis.
+pub fn sweep(
+    comp: &mut Compensator<'_>,
+    reference: &State,
+    axis: usize,
+    nodes: &[f64],
+) -> Result<Sweep, CompensateError> {
+    let mut q = reference.q.to_vec();
+    let mut dirs = reference.dirs.to_vec();
+    let mut correction = |position: f64, dir: f64| -> Result<Vec<f64>, CompensateError> {
+        if let Some(slot) = q.get_mut(axis) {
+            *slot = position;
+        }
+        if let Some(slot) = dirs.get_mut(axis) {
+            *slot = dir;
+        }
+        let state = State {
+            q: &q,
+            dirs: &dirs,
+            ..*reference
+        };
+        Ok(comp.compensate(&state)?.dq)
+    };
+    let mids: Vec<f64> = nodes.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+    let mut run = |points: &[f64], dir: f64| -> Result<Vec<Vec<f64>>, CompensateError> {
+        points.iter().map(|&p| correction(p, dir)).collect()
+    };
+    Ok(Sweep {
+        axis,
+        nominal: nodes.to_vec(),
+        forward: run(nodes, 1.0)?,
+        reverse: run(nodes, -1.0)?,
+        mid_forward: run(&mids, 1.0)?,
+        mid_reverse: run(&mids, -1.0)?,
+    })
+}
+
+impl Sweep {
+    /// The correction of axis `output` along the swept axis as a table over the swept axis's
+    /// positions. `cross: None` keeps the two directions (the swept axis's own table, where a
+    /// backlash shows); `Some(offset)` gives a table of either direction, the mean of both less
+    /// `offset` (the output's correction at the reference pose, which its own table already
+    /// holds), as a cross-axis table adds to the output's own.
+    pub fn table(&self, output: usize, cross: Option<f64>) -> AxisTable {
+        let pick = |rows: &[Vec<f64>]| -> Vec<f64> {
+            rows.iter()
+                .map(|r| r.get(output).copied().unwrap_or(0.0))
+                .collect()
+        };
+        let (mut forward, mut reverse) = (pick(&self.forward), pick(&self.reverse));
+        let (mut mid_f, mut mid_r) = (pick(&self.mid_forward), pick(&self.mid_reverse));
+        if let Some(offset) = cross {
+            let mean = |a: &mut Vec<f64>, b: &mut Vec<f64>| {
+                for (x, y) in a.iter_mut().zip(b.iter_mut()) {
+                    let m = 0.5 * (*x + *y) - offset;
+                    *x = m;
+                    *y = m;
+                }
+            };
+            mean(&mut forward, &mut reverse);
+            mean(&mut mid_f, &mut mid_r);
+        }
+        let mut interpolation_error = 0.0_f64;
+        for (values, mids) in [(&forward, &mid_f), (&reverse, &mid_r)] {
+            for (k, model) in mids.iter().enumerate() {
+                let lo = values.get(k).copied().unwrap_or(0.0);
+                let hi = values.get(k + 1).copied().unwrap_or(0.0);
+                interpolation_error = interpolation_error.max((model - 0.5 * (lo + hi)).abs());
+            }
+        }
+        AxisTable {
+            axis: self.axis,
+            nominal: self.nominal.clone(),
+            forward,
+            reverse,
+            interpolation_error,
+        }
+    }
+}
+
 impl AxisTable {
     /// The table's correction at `position` for direction `dir` (≥ 0 forward), interpolated
     /// linearly and held at the end values outside the table.

@@ -490,6 +490,17 @@ impl Sensitivities {
         self.tool
     }
 
+    /// The axes of a chain frame in the base frame at the evaluated pose (the rotation of
+    /// `G_{k−1} S_k J_k` when moving, `G_{k−1} S_k` when fixed); `None` for the end frames and
+    /// frames that do not exist. Controller tables state errors in machine (base) axes.
+    pub fn base_rotation(&self, frame: FrameRef) -> Option<Matrix3<f64>> {
+        match frame {
+            FrameRef::Tool(k) => self.tool_frames.get(k).map(|f| f.rotation),
+            FrameRef::Workpiece(k) => self.workpiece_frames.get(k).map(|f| f.rotation),
+            FrameRef::ToolEnd(_) | FrameRef::WorkpieceEnd => None,
+        }
+    }
+
     /// F-matrices of the tool-chain frames, in chain order (sign +, eq. 2.24).
     pub fn tool_chain(&self) -> &[Matrix6<f64>] {
         &self.tool_chain

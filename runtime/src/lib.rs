@@ -9,6 +9,8 @@ pub mod axis_table;
 pub mod bench;
 pub mod bounded_read;
 pub mod compensate;
+pub mod component_errors;
+pub mod controller_tables;
 pub mod data;
 pub mod design;
 pub mod diagnose;

@@ -348,7 +348,9 @@ enum Command {
         after_help = "Examples:
   kin compensate mill.kin --fit fit.json --grid X=0:500:50,Y=0:400:50,Z=-100 -o corrections.csv
   kin compensate mill.kin --fit fit.json --poses commanded.csv --correct position -o corrections.csv
-  kin compensate mill.kin --fit fit.json --grid X=0:500:25 --table linuxcnc -o tables/"
+  kin compensate mill.kin --fit fit.json --grid X=0:500:25 --table linuxcnc -o tables/
+  kin compensate mill.kin --fit fit.json --grid X=0:500:25,Y=0:400:25,Z=-100 --table sinumerik -o sinumerik/
+  kin compensate mill.kin --fit fit.json --grid X=0:500:10,Y=0:400:10,Z=-300:0:10 --table volcomp -o volcomp/"
     )]
     Compensate {
         machine: PathBuf,
@@ -367,10 +369,17 @@ enum Command {
         /// What the corrections minimise: the whole tool location or its position only.
         #[arg(long, value_enum, default_value_t = compensate::Correct::Pose)]
         correct: compensate::Correct,
-        /// Write controller tables instead of the CSV: `linuxcnc` writes AXIS.comp (LinuxCNC
-        /// COMP_FILE, COMP_FILE_TYPE = 0) for every axis --grid ranges over, evaluated with the
-        /// other axes at the middle of their grid values, into the folder -o, with
-        /// kin-compensation.txt saying what the tables cannot hold.
+        /// Write controller tables instead of the CSV, into the folder -o, for every axis --grid
+        /// ranges over (the grid's STEP is the table's spacing), evaluated with the other axes at
+        /// the middle of their grid values; kin-compensation.txt and standard error say what the
+        /// tables cannot hold, each table's interpolation error and the error left over the
+        /// grid. `linuxcnc`: AXIS.comp (COMP_FILE, COMP_FILE_TYPE = 0), both directions, in the
+        /// model's units. `sinumerik`: AX_EEC.INI ($AA_ENC_COMP leadscrew tables) and NC_CEC.INI
+        /// ($AN_CEC tables of one axis's correction along another, and per-direction tables
+        /// where the model has backlash), mm/deg, equidistant grid. `isg-lsec`: AXIS.lis (ISG
+        /// kw.ssfk bilateral leadscrew lists, 0.1 um). `volcomp`: AXIS.csv (ISG CSV, the ISO
+        /// 230-1 component errors X EXX EYX EZX EAX EBX ECX of axes named X Y Z A B C, mm and
+        /// rad).
         #[arg(long, value_enum, requires = "grid")]
         table: Option<compensate::Table>,
         /// The CSV (a folder with --table); never one of the inputs, replaced atomically.

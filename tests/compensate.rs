@@ -332,6 +332,382 @@ fn bad_requests_are_refused_before_anything_is_written() {
     assert!(!t.join("X.comp").exists());
 }
 
+/// The truth of the fixture, by hand (see `corrections_cancel_the_position_error_and_leave_the_pitch`):
+/// the correction of X moving in `dir`, and of Y (its straightness less the head's pitch seen
+/// through the 150 mm tool), in µm.
+fn truth_dx(x: f64, dir: f64) -> f64 {
+    20.0 * (2.0 * x / 500.0 - 1.0) + 3.0 * dir
+}
+fn truth_dy(y: f64) -> f64 {
+    -10.0 * (2.0 * y / 400.0 - 1.0) - 1.2
+}
+
+/// A SINUMERIK part program as Siemens' K3 manual defines it: a first line `%_N_NAME_INI`,
+/// `;` comments, `CHANDATA(1)`, then one assignment `$VARIABLE[indices]=value` per line, the
+/// last line `M17`. Returns the name and the assignments (variable, indices, value text).
+fn read_sinumerik(path: &Path) -> (String, Vec<(String, Vec<String>, String)>) {
+    let s = std::fs::read_to_string(path).expect("part program");
+    let mut lines = s
+        .lines()
+        .map(|l| l.split(';').next().unwrap_or("").trim())
+        .filter(|l| !l.is_empty());
+    let name = lines.next().expect("name line");
+    assert!(name.starts_with("%_N_") && name.ends_with("_INI"), "{name}");
+    assert_eq!(lines.next(), Some("CHANDATA(1)"));
+    let mut out = Vec::new();
+    let mut ended = false;
+    for line in lines {
+        assert!(!ended, "after M17: {line}");
+        if line == "M17" {
+            ended = true;
+            continue;
+        }
+        let (lhs, value) = line.split_once('=').unwrap_or_else(|| panic!("{line}"));
+        let (var, rest) = lhs.split_once('[').unwrap_or_else(|| panic!("{line}"));
+        assert!(var.starts_with('$'), "{line}");
+        let indices = rest
+            .strip_suffix(']')
+            .unwrap_or_else(|| panic!("{line}"))
+            .split(',')
+            .map(|t| t.trim().to_string())
+            .collect();
+        out.push((var.to_string(), indices, value.trim().to_string()));
+    }
+    assert!(ended, "no M17");
+    (name.to_string(), out)
+}
+
+fn number(text: &str) -> f64 {
+    text.parse()
+        .unwrap_or_else(|_| panic!("not a number: {text:?}"))
+}
+
+#[test]
+fn sinumerik_programs_hold_leadscrew_backlash_and_agree_with_the_model() {
+    let (d, machine, fit) = fitted("sinumerik");
+    let tables = d.join("sinumerik");
+    let o = kin(&[
+        "compensate",
+        machine.to_str().unwrap(),
+        "--fit",
+        fit.to_str().unwrap(),
+        "--grid",
+        "X=0:500:50,Y=0:400:100,Z=-100",
+        "--table",
+        "sinumerik",
+        "-o",
+        tables.to_str().unwrap(),
+    ]);
+    ok(&o);
+    // Leadscrew tables: Y only (X has backlash, so it goes to direction-dependent CEC tables).
+    let (name, lec) = read_sinumerik(&tables.join("AX_EEC.INI"));
+    assert_eq!(name, "%_N_AX_EEC_INI");
+    let get = |var: &str, idx: &[&str]| -> f64 {
+        let hit = lec
+            .iter()
+            .find(|(v, i, _)| v == var && i.iter().map(String::as_str).eq(idx.iter().copied()))
+            .unwrap_or_else(|| panic!("no {var}{idx:?}"));
+        number(&hit.2)
+    };
+    assert!(
+        lec.iter()
+            .all(|(_, i, _)| i.last().map(String::as_str) == Some("Y")),
+        "{lec:?}"
+    );
+    let (min, step, max) = (
+        get("$AA_ENC_COMP_MIN", &["0", "Y"]),
+        get("$AA_ENC_COMP_STEP", &["0", "Y"]),
+        get("$AA_ENC_COMP_MAX", &["0", "Y"]),
+    );
+    assert_eq!((min, step, max), (0.0, 100.0, 400.0));
+    assert_eq!(get("$AA_ENC_COMP_IS_MODULO", &["0", "Y"]), 0.0);
+    for n in 0..5 {
+        let y = min + step * n as f64;
+        // The value is the axis's error: a positive one moves the axis the negative way, so it
+        // is minus the correction, in mm.
+        let v = get("$AA_ENC_COMP", &["0", &n.to_string(), "Y"]);
+        let expect = -truth_dy(y) * 1e-3;
+        assert!((v - expect).abs() < 5e-5, "Y={y}: {v} vs {expect}");
+    }
+    // Sag / cross-error tables: X onto itself, one per direction; no cross table (no error of
+    // one axis here depends on another's position).
+    let (name, cec) = read_sinumerik(&tables.join("NC_CEC.INI"));
+    assert_eq!(name, "%_N_NC_CEC_INI");
+    let table = |var: &str, t: usize| -> String {
+        cec.iter()
+            .find(|(v, i, _)| v == var && i.len() == 1 && i[0] == t.to_string())
+            .unwrap_or_else(|| panic!("no {var}[{t}]"))
+            .2
+            .clone()
+    };
+    let count = cec
+        .iter()
+        .filter(|(v, _, _)| v == "$AN_CEC_INPUT_AXIS")
+        .count();
+    assert_eq!(count, 2, "{cec:?}");
+    for t in 0..2 {
+        assert_eq!(table("$AN_CEC_INPUT_AXIS", t), "(X)");
+        assert_eq!(table("$AN_CEC_OUTPUT_AXIS", t), "(X)");
+        let dir = number(&table("$AN_CEC_DIRECTION", t));
+        assert!(dir == 1.0 || dir == -1.0);
+        let (min, step) = (
+            number(&table("$AN_CEC_MIN", t)),
+            number(&table("$AN_CEC_STEP", t)),
+        );
+        assert_eq!((min, step), (0.0, 50.0));
+        assert_eq!(number(&table("$AN_CEC_MAX", t)), 500.0);
+        let values: Vec<f64> = cec
+            .iter()
+            .filter(|(v, i, _)| v == "$AN_CEC" && i[0] == t.to_string())
+            .map(|(_, _, value)| number(value))
+            .collect();
+        assert_eq!(values.len(), 11);
+        for (n, v) in values.iter().enumerate() {
+            let x = min + step * n as f64;
+            let expect = -truth_dx(x, dir) * 1e-3;
+            assert!(
+                (v - expect).abs() < 2e-5,
+                "X={x} dir {dir}: {v} vs {expect}"
+            );
+        }
+    }
+    let note = std::fs::read_to_string(tables.join("kin-compensation.txt")).expect("note");
+    assert!(note.contains("backlash"), "{note}");
+    assert!(note.contains("interpolation"), "{note}");
+    assert!(text(&o.stderr).contains("with these tables"));
+}
+
+/// An ISG compensation list as ISG documents it: `name value` lines, `#` comment lines,
+/// `/* … */` comments, `End` last; here the `kw.ssfk` leadscrew entries, integers.
+fn read_isg_list(path: &Path) -> std::collections::HashMap<String, String> {
+    let s = std::fs::read_to_string(path).expect("list");
+    let mut map = std::collections::HashMap::new();
+    let mut ended = false;
+    for raw in s.lines() {
+        let line = match raw.find("/*") {
+            Some(k) => &raw[..k],
+            None => raw,
+        }
+        .trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        assert!(!ended, "after End: {line}");
+        if line == "End" {
+            ended = true;
+            continue;
+        }
+        let mut it = line.split_whitespace();
+        let (Some(name), Some(value), None) = (it.next(), it.next(), it.next()) else {
+            panic!("not `name value`: {line:?}");
+        };
+        assert!(
+            map.insert(name.to_string(), value.to_string()).is_none(),
+            "{name} twice"
+        );
+    }
+    map
+}
+
+#[test]
+fn isg_lists_hold_both_directions_in_tenths_of_a_micrometre() {
+    let (d, machine, fit) = fitted("isg");
+    let tables = d.join("isg");
+    let o = kin(&[
+        "compensate",
+        machine.to_str().unwrap(),
+        "--fit",
+        fit.to_str().unwrap(),
+        "--grid",
+        "X=0:500:50,Y=0:400:100,Z=-100",
+        "--table",
+        "isg-lsec",
+        "-o",
+        tables.to_str().unwrap(),
+    ]);
+    ok(&o);
+    let list = read_isg_list(&tables.join("X.lis"));
+    let int = |name: &str| -> i64 {
+        list.get(name)
+            .unwrap_or_else(|| panic!("no {name}"))
+            .parse()
+            .unwrap_or_else(|_| panic!("{name} is not an integer"))
+    };
+    assert_eq!(
+        list.get("kopf.log_achs_name").map(String::as_str),
+        Some("X")
+    );
+    assert_eq!(int("kw.ssfk.unit"), 1);
+    assert_eq!(int("kw.ssfk.bilateral"), 1);
+    assert_eq!(int("kw.ssfk.interval"), 0);
+    let n = int("kw.ssfk.kw_nr_max");
+    assert_eq!(n, 11);
+    assert_eq!(int("kw.ssfk.kw_startpos"), int("kw.ssfk.table[0].setpoint"));
+    for i in 0..n {
+        let setpoint = int(&format!("kw.ssfk.table[{i}].setpoint"));
+        let x = setpoint as f64 * 1e-4; // 0.1 µm → mm
+        assert!((x - 50.0 * i as f64).abs() < 1e-9, "{x}");
+        // actual − setpoint, in 0.1 µm: minus the correction.
+        for (entry, dir) in [("pos", 1.0), ("neg", -1.0)] {
+            let v = int(&format!("kw.ssfk.table[{i}].{entry}"));
+            let expect = -truth_dx(x, dir) * 10.0;
+            assert!(
+                (v as f64 - expect).abs() <= 1.0,
+                "X={x} {entry}: {v} vs {expect}"
+            );
+        }
+    }
+    assert!(tables.join("Y.lis").exists());
+    assert!(!tables.join("Z.lis").exists());
+}
+
+/// ISG CSV as ISG documents it: `//` comment lines, a header of argument and parameter names,
+/// records of white-space separated numbers. Returns the header and the records.
+fn read_isg_csv(path: &Path) -> (Vec<String>, Vec<Vec<f64>>) {
+    let s = std::fs::read_to_string(path).expect("csv");
+    let mut lines = s
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("//"));
+    let header: Vec<String> = lines
+        .next()
+        .expect("header")
+        .split_whitespace()
+        .map(String::from)
+        .collect();
+    let records: Vec<Vec<f64>> = lines
+        .map(|l| {
+            assert!(!l.starts_with('#'), "a second block: {l}");
+            let r: Vec<f64> = l.split_whitespace().map(number).collect();
+            assert_eq!(r.len(), header.len(), "{l}");
+            r
+        })
+        .collect();
+    (header, records)
+}
+
+#[test]
+fn volcomp_files_hold_the_iso_component_errors_of_each_axis() {
+    let (d, machine, fit) = fitted("volcomp");
+    let tables = d.join("volcomp");
+    let o = kin(&[
+        "compensate",
+        machine.to_str().unwrap(),
+        "--fit",
+        fit.to_str().unwrap(),
+        "--grid",
+        "X=0:500:50,Y=0:400:100,Z=-300:0:100",
+        "--table",
+        "volcomp",
+        "-o",
+        tables.to_str().unwrap(),
+    ]);
+    ok(&o);
+    let (header, x) = read_isg_csv(&tables.join("X.csv"));
+    assert_eq!(header, ["X", "EXX", "EYX", "EZX", "EAX", "EBX", "ECX"]);
+    assert_eq!(x.len(), 11);
+    for r in &x {
+        // X moves the workpiece along −x: its carriage's error X.tx (mean of both directions)
+        // is seen by the tool relative to the workpiece with the opposite sign, in mm.
+        let expect = -20.0 * (2.0 * r[0] / 500.0 - 1.0) * 1e-3;
+        assert!(
+            (r[1] - expect).abs() < 2e-5,
+            "X={}: {} vs {expect}",
+            r[0],
+            r[1]
+        );
+        for v in &r[2..] {
+            assert!(v.abs() < 1e-9, "{r:?}");
+        }
+    }
+    let (header, y) = read_isg_csv(&tables.join("Y.csv"));
+    assert_eq!(header[1], "EXY");
+    for r in &y {
+        let expect = 10.0 * (2.0 * r[0] / 400.0 - 1.0) * 1e-3;
+        assert!(
+            (r[2] - expect).abs() < 2e-5,
+            "Y={}: {} vs {expect}",
+            r[0],
+            r[2]
+        );
+    }
+    let (_, z) = read_isg_csv(&tables.join("Z.csv"));
+    assert_eq!(z.len(), 4);
+    for r in &z {
+        // The head's pitch: 8 µrad about x, on the tool side, in rad.
+        assert!((r[4] - 8e-6).abs() < 5e-8, "{r:?}");
+    }
+    let note = std::fs::read_to_string(tables.join("kin-compensation.txt")).expect("note");
+    assert!(note.contains("workpiece_axes 0"), "{note}");
+    assert!(note.contains("backlash"), "{note}");
+}
+
+#[test]
+fn formats_refuse_what_they_cannot_state() {
+    let (d, machine, fit) = fitted("format-refusals");
+    let m = machine.to_str().unwrap();
+    let f = fit.to_str().unwrap();
+    let run = |grid: &str, format: &str, out: &Path| {
+        kin(&[
+            "compensate",
+            m,
+            "--fit",
+            f,
+            "--grid",
+            grid,
+            "--table",
+            format,
+            "-o",
+            out.to_str().unwrap(),
+        ])
+    };
+    // SINUMERIK tables are equidistant: 0, 30, …, 480, 500 is not.
+    let out = d.join("s");
+    let r = run("X=0:500:30", "sinumerik", &out);
+    assert_eq!(r.status.code(), Some(2), "{}", text(&r.stderr));
+    assert!(
+        text(&r.stderr).contains("equidistant"),
+        "{}",
+        text(&r.stderr)
+    );
+    assert!(!out.join("NC_CEC.INI").exists() && !out.join("AX_EEC.INI").exists());
+    // ISG lists state positions in whole 0.1 µm.
+    let out = d.join("i");
+    let r = run("X=0:500:33.33333333", "isg-lsec", &out);
+    assert_eq!(r.status.code(), Some(2), "{}", text(&r.stderr));
+    assert!(text(&r.stderr).contains("0.1 um"), "{}", text(&r.stderr));
+    assert!(!out.join("X.lis").exists());
+    // VolComp names axes X Y Z A B C: a fourth axis U (a quill along x) has no ISO letter.
+    let with_u = MILL
+        .replace(
+            "axis Z prismatic",
+            "axis U prismatic along x range 0 mm .. 100 mm\n    axis Z prismatic",
+        )
+        .replace("tool chain {", "tool chain {\n        U moving");
+    let (_, machine_u, fit_u) = fitted_source("format-refusals-u", &with_u);
+    let out = d.join("v");
+    let r = kin(&[
+        "compensate",
+        machine_u.to_str().unwrap(),
+        "--fit",
+        fit_u.to_str().unwrap(),
+        "--grid",
+        "X=0:500:50,U=0:100:50",
+        "--table",
+        "volcomp",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(r.status.code(), Some(1), "{}", text(&r.stderr));
+    assert!(
+        text(&r.stderr).contains("ISO 230-1 letters"),
+        "{}",
+        text(&r.stderr)
+    );
+    assert!(!out.join("X.csv").exists());
+    assert!(!out.join("U.csv").exists());
+}
+
 #[test]
 fn help_shows_an_example() {
     let o = kin(&["compensate", "--help"]);
@@ -341,7 +717,9 @@ fn help_shows_an_example() {
         help.contains("kin compensate mill.kin --fit fit.json --grid"),
         "{help}"
     );
-    assert!(help.contains("linuxcnc"), "{help}");
+    for format in ["linuxcnc", "sinumerik", "isg-lsec", "volcomp"] {
+        assert!(help.contains(format), "{format}: {help}");
+    }
 }
 
 #[test]

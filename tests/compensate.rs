@@ -709,6 +709,34 @@ fn formats_refuse_what_they_cannot_state() {
 }
 
 #[test]
+fn a_table_set_that_cannot_be_written_leaves_the_old_set_whole() {
+    let (d, machine, fit) = fitted("unwritable");
+    let out = d.join("volcomp");
+    std::fs::create_dir_all(out.join("Y.csv")).unwrap();
+    std::fs::write(out.join("X.csv"), "old\n").unwrap();
+    let o = kin(&[
+        "compensate",
+        machine.to_str().unwrap(),
+        "--fit",
+        fit.to_str().unwrap(),
+        "--grid",
+        "X=0:500:100,Y=0:400:100,Z=-100",
+        "--table",
+        "volcomp",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("it is a folder"),
+        "{}",
+        text(&o.stderr)
+    );
+    assert_eq!(std::fs::read_to_string(out.join("X.csv")).unwrap(), "old\n");
+    assert!(!out.join("kin-compensation.txt").exists());
+}
+
+#[test]
 fn help_shows_an_example() {
     let o = kin(&["compensate", "--help"]);
     ok(&o);

@@ -84,12 +84,16 @@ fn fitted(name: &str) -> (PathBuf, PathBuf, PathBuf) {
 }
 
 fn fitted_source(name: &str, source: &str) -> (PathBuf, PathBuf, PathBuf) {
+    fitted_truth(name, source, TRUTH)
+}
+
+fn fitted_truth(name: &str, source: &str, truth_text: &str) -> (PathBuf, PathBuf, PathBuf) {
     let d = dir().join(name);
     std::fs::create_dir_all(&d).expect("dir");
     let machine = d.join("mill3.kin");
     let truth = d.join("truth.params");
     std::fs::write(&machine, source).expect("write");
-    std::fs::write(&truth, TRUTH).expect("write");
+    std::fs::write(&truth, truth_text).expect("write");
     let sim = d.join("sim.csv");
     let fit = d.join("fit.json");
     let s = |p: &Path| p.to_str().expect("utf-8 path").to_string();
@@ -475,6 +479,150 @@ fn sinumerik_programs_hold_leadscrew_backlash_and_agree_with_the_model() {
     assert!(note.contains("backlash"), "{note}");
     assert!(note.contains("interpolation"), "{note}");
     assert!(text(&o.stderr).contains("with these tables"));
+}
+
+/// The SINUMERIK tables of `dir` evaluated as K3 describes the controller doing it: for a
+/// machine axis, its leadscrew value plus every cross table whose output it is and whose
+/// direction matches `dir` (0 both, ±1 one), each linearly interpolated at its input axis's
+/// position (held at the ends). `positions` gives each axis's position by name, in mm.
+fn sinumerik_total(
+    lec: &[(String, Vec<String>, String)],
+    cec: &[(String, Vec<String>, String)],
+    axis: &str,
+    dir: f64,
+    positions: &dyn Fn(&str) -> f64,
+) -> f64 {
+    let interpolate = |min: f64, step: f64, values: &[f64], at: f64| -> f64 {
+        let u = ((at - min) / step).clamp(0.0, (values.len() - 1) as f64);
+        let k = (u.floor() as usize).min(values.len().saturating_sub(2));
+        let t = u - k as f64;
+        values[k] + t * (values.get(k + 1).copied().unwrap_or(values[k]) - values[k])
+    };
+    let mut total = 0.0;
+    let lec_values: Vec<f64> = lec
+        .iter()
+        .filter(|(v, i, _)| v == "$AA_ENC_COMP" && i.len() == 3 && i[2] == axis)
+        .map(|(_, _, x)| number(x))
+        .collect();
+    if !lec_values.is_empty() {
+        let scalar = |var: &str| {
+            number(
+                &lec.iter()
+                    .find(|(v, i, _)| v == var && i.len() == 2 && i[1] == axis)
+                    .expect("table parameter")
+                    .2,
+            )
+        };
+        total += interpolate(
+            scalar("$AA_ENC_COMP_MIN"),
+            scalar("$AA_ENC_COMP_STEP"),
+            &lec_values,
+            positions(axis),
+        );
+    }
+    let tables = cec
+        .iter()
+        .filter(|(v, _, _)| v == "$AN_CEC_INPUT_AXIS")
+        .count();
+    for t in 0..tables {
+        let scalar = |var: &str| -> String {
+            cec.iter()
+                .find(|(v, i, _)| v == var && i.len() == 1 && i[0] == t.to_string())
+                .expect("table parameter")
+                .2
+                .clone()
+        };
+        if scalar("$AN_CEC_OUTPUT_AXIS") != format!("({axis})") {
+            continue;
+        }
+        let direction = number(&scalar("$AN_CEC_DIRECTION"));
+        if direction != 0.0 && direction != dir {
+            continue;
+        }
+        let input = scalar("$AN_CEC_INPUT_AXIS");
+        let input = input.trim_matches(|c| c == '(' || c == ')');
+        let values: Vec<f64> = cec
+            .iter()
+            .filter(|(v, i, _)| v == "$AN_CEC" && i[0] == t.to_string())
+            .map(|(_, _, x)| number(x))
+            .collect();
+        total += interpolate(
+            number(&scalar("$AN_CEC_MIN")),
+            number(&scalar("$AN_CEC_STEP")),
+            &values,
+            positions(input),
+        );
+    }
+    total
+}
+
+#[test]
+fn sinumerik_cross_tables_hold_a_squareness_with_the_leadscrew_tables() {
+    // The fixture plus an X–Y squareness: a constant yaw of the X table's frame, which turns
+    // X's motion and the part against Y's motion (a yaw of Y's own fixed frame would turn the
+    // whole workpiece side together: a constant error, no squareness).
+    let source = MILL.replace("Z.rx = const", "Z.rx = const\n        X.rz = const");
+    let truth = TRUTH.replace("}", "    X.rz = [40] urad\n}");
+    let (d, machine, fit) = fitted_truth("sinumerik-cross", &source, &truth);
+    let (m, f) = (machine.to_str().unwrap(), fit.to_str().unwrap());
+    let grid = "X=0:500:100,Y=0:400:100,Z=-100";
+    let tables = d.join("tables");
+    let o = kin(&[
+        "compensate",
+        m,
+        "--fit",
+        f,
+        "--grid",
+        grid,
+        "--table",
+        "sinumerik",
+        "-o",
+        tables.to_str().unwrap(),
+    ]);
+    ok(&o);
+    let (_, lec) = read_sinumerik(&tables.join("AX_EEC.INI"));
+    let (_, cec) = read_sinumerik(&tables.join("NC_CEC.INI"));
+    let crossing = cec
+        .iter()
+        .filter(|(v, _, value)| v == "$AN_CEC_INPUT_AXIS" && value == "(Y)")
+        .count();
+    assert!(crossing >= 1, "no table along Y: {cec:?}");
+    // The full compensation of every grid pose, by the CSV path.
+    let csv = d.join("full.csv");
+    ok(&kin(&[
+        "compensate",
+        m,
+        "--fit",
+        f,
+        "--grid",
+        grid,
+        "-o",
+        csv.to_str().unwrap(),
+    ]));
+    let (x, y) = (column(&csv, "X"), column(&csv, "Y"));
+    let (corr_x, corr_y) = (column(&csv, "corr_X"), column(&csv, "corr_Y"));
+    let mut largest = 0.0_f64;
+    for r in 0..x.len() {
+        let at = |name: &str| match name {
+            "X" => x[r],
+            "Y" => y[r],
+            _ => -100.0,
+        };
+        // Table values are the axes' errors in mm: minus the corrections (µm).
+        for (axis, corr) in [("X", corr_x[r]), ("Y", corr_y[r])] {
+            let total = sinumerik_total(&lec, &cec, axis, 1.0, &at);
+            let miss = (total + corr * 1e-3).abs();
+            largest = largest.max(corr.abs());
+            assert!(
+                miss < 1e-5,
+                "{axis} at X={} Y={}: tables {total} mm, full −{corr} um",
+                x[r],
+                y[r]
+            );
+        }
+    }
+    // The squareness makes the corrections of X vary with Y by about 40 µrad × 400 mm.
+    assert!(largest > 10.0, "{largest}");
 }
 
 /// An ISG compensation list as ISG documents it: `name value` lines, `#` comment lines,

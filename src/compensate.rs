@@ -1,5 +1,5 @@
 //! `kin compensate`: the joint corrections of a positioning machine at commanded poses (a poses
-//! file or a grid), as a CSV, or per-axis controller tables (`--table linuxcnc`).
+//! file or a grid), as a CSV, or per-axis controller tables (`--table linuxcnc|sinumerik|isg-lsec|volcomp`).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

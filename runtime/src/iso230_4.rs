@@ -233,10 +233,13 @@ fn direction(cell: &str, dialect: Dialect) -> Option<bool> {
         "cw" | "-" | "\u{2212}" => return Some(false),
         _ => {}
     }
-    match number(&cell.replace('\u{2212}', "-"), dialect)? {
-        v if v == 1.0 => Some(true),
-        v if v == -1.0 => Some(false),
-        _ => None,
+    let v = number(&cell.replace('\u{2212}', "-"), dialect)?;
+    if v == 1.0 {
+        Some(true)
+    } else if v == -1.0 {
+        Some(false)
+    } else {
+        None
     }
 }
 

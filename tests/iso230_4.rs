@@ -408,3 +408,62 @@ fn iso230_2_plot_and_lack_of_fit_of_a_model() {
         text(&out.stdout)
     );
 }
+
+/// The bundled example (`examples/data/ballbar_xy.csv`, README): its figures are those of its
+/// simulated truth, and its lengths fit back to that truth.
+#[test]
+fn the_bundled_ball_bar_example_gives_its_truth() {
+    let dir = scratch("example");
+    let out = kin(&[
+        "iso230-4",
+        "examples/data/ballbar_xy.csv",
+        "--format",
+        "json",
+    ]);
+    ok(&out, "example");
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    // Squareness 20 µrad and X scale 8 µm/m on R = 150 mm: an oval of half-heights 1.5 µm
+    // (sin 2θ) and 0.6 µm (cos 2θ), G = 2·√(1.5² + 0.6²) = 3.23 µm, radius error 0.6 µm; the
+    // 0.15 µm noise widens G by at most some 6σ.
+    let g = number(&json, &["runs", "0", "both", "g"]);
+    assert!((3.23e-6..3.23e-6 + 6.0 * 0.15e-6).contains(&g), "G {g}");
+    let c = number(&json, &["runs", "0", "both", "radius_error"]);
+    assert!((c - 0.6e-6).abs() < 0.05e-6, "radius error {c}");
+    let bars = dir.join("bars.csv");
+    ok(
+        &kin(&[
+            "iso230-4",
+            "examples/data/ballbar_xy.csv",
+            "--lengths",
+            bars.to_str().expect("utf-8"),
+            "--centre",
+            "X=250mm,Y=250mm",
+        ]),
+        "lengths",
+    );
+    let out = kin(&[
+        "fit",
+        "examples/xy_table.kin",
+        bars.to_str().expect("utf-8"),
+        "--format",
+        "json",
+    ]);
+    ok(&out, "fit");
+    let fit: serde_json::Value = serde_json::from_slice(&out.stdout).expect("FIT.json");
+    for (name, truth) in [("Y.rz", 20.0), ("X.tx", 2.0)] {
+        let c = fit["coefficients"]
+            .as_array()
+            .expect("coefficients")
+            .iter()
+            .find(|c| c["name"].as_str().is_some_and(|n| n.starts_with(name)))
+            .unwrap_or_else(|| panic!("no {name}"));
+        let (v, se) = (
+            c["value"].as_f64().expect("v"),
+            c["se"].as_f64().expect("se"),
+        );
+        assert!(
+            (v - truth).abs() < 4.0 * se,
+            "{name}: {v} ± {se}, truth {truth}"
+        );
+    }
+}

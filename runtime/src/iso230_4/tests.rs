@@ -239,3 +239,49 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    /// Any bytes, and any file made of the format's own words, read and evaluate to figures or
+    /// to located problems: never a panic, never a non-finite figure.
+    #[test]
+    fn no_input_panics(
+        bytes in proptest::collection::vec(any::<u8>(), 0..200),
+        cells in proptest::collection::vec(
+            prop_oneof![
+                Just("0".to_string()), Just("90".to_string()), Just("360".to_string()),
+                Just("1e300".to_string()), Just("-0,5".to_string()), Just("nan".to_string()),
+                Just("ccw".to_string()), Just("cw".to_string()), Just("+1".to_string()),
+                Just("".to_string()), Just("\"a,b\"".to_string()), Just("x".to_string()),
+                (-400.0f64..400.0).prop_map(|v| format!("{v}")),
+            ],
+            0..60,
+        ),
+        header in prop_oneof![
+            Just("angle,deviation,direction"),
+            Just("angle[rad];deviation[mm];direction;run"),
+            Just("angle[deg],deviation[in],direction,run"),
+            Just("# radius: 0\nangle,deviation,direction"),
+        ],
+    ) {
+        let path = Path::new("p.csv");
+        let _ = read(&bytes, path).map(|r| evaluate(&r, path));
+        let width = header.lines().last().map_or(3, |h| h.split([',', ';']).count());
+        let sep = if header.contains(';') { ";" } else { "," };
+        let mut text = format!("{header}\n");
+        for row in cells.chunks(width) {
+            text.push_str(&row.join(sep));
+            text.push('\n');
+        }
+        if let Ok(run) = read(text.as_bytes(), path) {
+            if let Ok(e) = evaluate(&run, path) {
+                for r in &e.runs {
+                    for f in [&r.ccw, &r.cw, &r.both].into_iter().flatten() {
+                        prop_assert!(f.g.is_finite() && f.g >= 0.0);
+                        prop_assert!(f.circle.radius_error.is_finite());
+                    }
+                    prop_assert!(r.h.is_none_or(|h| h.is_finite() && h >= 0.0));
+                }
+            }
+        }
+    }
+}

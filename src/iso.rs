@@ -257,13 +257,20 @@ fn lof_text(l: &Lof, unit: &kin_compiler::units::Unit) -> String {
         Some(t) => {
             let _ = writeln!(
                 s,
-                "  σ from replicates {:.4} {}, F = {:.3} on ({}, {}) degrees of freedom, p = {:.3e}",
+                "  σ from replicates {:.4} {}, F = {:.3} on ({}, {}) degrees of freedom, p = {}",
                 t.sigma_pure / unit.scale,
                 unit.name,
                 t.f,
                 t.dof_lack,
                 t.dof_pure,
-                t.p
+                // Below double precision's resolution of 1 − CDF the digits would mean nothing.
+                if t.p < 1e-16 {
+                    "< 1e-16".to_string()
+                } else if t.p < 1e-3 {
+                    format!("{:.1e}", t.p)
+                } else {
+                    format!("{:.3}", t.p)
+                }
             );
             let _ = writeln!(
                 s,

@@ -257,7 +257,7 @@ fn lof_text(l: &Lof, unit: &kin_compiler::units::Unit) -> String {
         Some(t) => {
             let _ = writeln!(
                 s,
-                "  σ from replicates {:.4} {}, F = {:.3} on ({}, {}) degrees of freedom, p = {}",
+                "  σ from replicates {:.4} {}, F = {:.3} on ({}, {}) degrees of freedom, p {}",
                 t.sigma_pure / unit.scale,
                 unit.name,
                 t.f,
@@ -267,9 +267,9 @@ fn lof_text(l: &Lof, unit: &kin_compiler::units::Unit) -> String {
                 if t.p < 1e-16 {
                     "< 1e-16".to_string()
                 } else if t.p < 1e-3 {
-                    format!("{:.1e}", t.p)
+                    format!("= {:.1e}", t.p)
                 } else {
-                    format!("{:.3}", t.p)
+                    format!("= {:.3}", t.p)
                 }
             );
             let _ = writeln!(

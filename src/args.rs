@@ -96,6 +96,16 @@ fn spread(text: &str, dim: Dim) -> Result<Spread, String> {
     })
 }
 
+/// A circle's nominal radius: a length above 0 and at most 10 km (`kin iso230-4 --radius`).
+pub fn radius(text: &str) -> Result<f64, String> {
+    let v = crate::load::quantity(text, Dim::LENGTH)?;
+    if v.is_finite() && v > 0.0 && v <= 1e4 {
+        Ok(v)
+    } else {
+        Err(format!("`{text}`: a radius is above 0 and at most 10 km"))
+    }
+}
+
 /// A length standard deviation, finite and ≥ 0 (`--noise 0.3um`, `--artifact-shift`,
 /// `--artifact-length`).
 pub fn length_spread(text: &str) -> Result<Spread, String> {

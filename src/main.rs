@@ -12,6 +12,7 @@ mod files;
 mod fit;
 mod grid;
 mod iso;
+mod iso_html;
 mod load;
 mod manual;
 mod render;
@@ -280,12 +281,89 @@ enum Command {
     },
     /// ISO 230-2 figures of a bidirectional positioning run along one axis: per target the
     /// mean deviations, standard uncertainties and reversal value; E, M, B, R and A.
-    #[command(name = "iso230-2")]
+    #[command(
+        name = "iso230-2",
+        after_help = "Examples:
+  kin iso230-2 run.csv
+  kin iso230-2 run.csv --html run.html          # the standard's plot of x̄ ± 2s per direction
+  kin iso230-2 run.csv --model mill.kin --fit fit.json --axis X --at Y=0mm,Z=-100mm"
+    )]
     Iso2302 {
         /// The run: columns target, deviation, direction (+1/-1), cycle (spec/iso230-2.md).
         run: PathBuf,
         #[arg(long, value_enum, default_value_t = Format::Human)]
         format: Format,
+        /// Write an HTML page with the figures and the plot of the mean deviations ± 2s per
+        /// direction; never the run, replaced atomically.
+        #[arg(long, value_name = "OUT.html")]
+        html: Option<PathBuf>,
+        /// Test this model's predicted errors against the run: the lack-of-fit F-test against
+        /// the scatter of the replicates at each target and direction (spec/iso230-2.md).
+        #[arg(long, requires = "axis")]
+        model: Option<PathBuf>,
+        /// With --model: the model's parameters (FIT.json or a params file); its own otherwise.
+        #[arg(long, requires = "model")]
+        fit: Option<PathBuf>,
+        /// With --model: the axis the run moved.
+        #[arg(long, requires = "model")]
+        axis: Option<String>,
+        /// With --model: where the other axes stood, e.g. `Y=0mm,Z=-100mm` (the middle of their
+        /// ranges otherwise).
+        #[arg(long, value_delimiter = ',', value_name = "AXIS=Q", value_parser = axis_value, requires = "model")]
+        at: Vec<(String, String)>,
+        /// With --model: the error component the run measured, `ex` … `erz`, `-ex` to flip its
+        /// sign (default: the one along the axis).
+        #[arg(long, requires = "model", allow_hyphen_values = true)]
+        component: Option<String>,
+        /// With --model: significance level of the test (0 < A < 1).
+        #[arg(long, default_value_t = 0.01, value_parser = args::level, allow_hyphen_values = true)]
+        alpha: f64,
+        /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
+    /// ISO 230-4 figures of circular tests (a ball bar): per direction the circular deviation
+    /// G, radial deviation F, least-squares centre offset and radius error; the bidirectional G
+    /// and the circular hysteresis H; a polar plot; the samples as lengths for a fit.
+    #[command(
+        name = "iso230-4",
+        after_help = "Examples:
+  kin iso230-4 ballbar.csv
+  kin iso230-4 ballbar.csv --html ballbar.html   # the polar plot of both directions
+  kin iso230-4 ballbar.csv --radius 150mm --plane X,Y --lengths bars.csv --centre X=250mm,Y=250mm,Z=-100mm"
+    )]
+    Iso2304 {
+        /// The test: columns angle, deviation, direction (ccw/cw), optionally run; the radius,
+        /// plane and feed in `# key: value` lines before the header (spec/iso230-4.md).
+        run: PathBuf,
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
+        /// The nominal radius, e.g. `150mm` (overrides the file's `# radius:` line).
+        #[arg(long, value_name = "Q", value_parser = args::radius)]
+        radius: Option<f64>,
+        /// The plane's two axes, first to second counter-clockwise, e.g. `X,Y` (overrides the
+        /// file's `# plane:` line).
+        #[arg(long, value_name = "A,B", value_parser = plane_arg)]
+        plane: Option<[String; 2]>,
+        /// Write an HTML page with the figures and the polar plot of each run; never the test
+        /// file, replaced atomically.
+        #[arg(long, value_name = "OUT.html")]
+        html: Option<PathBuf>,
+        /// Write the samples as a length file for `kin fit` (spec/data.md): the pivot at the
+        /// centre pose, the circle point, one artifact per run; needs --centre, the radius and
+        /// the plane.
+        #[arg(long, value_name = "OUT.csv", requires = "centre")]
+        lengths: Option<PathBuf>,
+        /// With --lengths: the centre pose, every axis of the machine, e.g.
+        /// `X=250mm,Y=250mm,Z=-100mm`.
+        #[arg(long, value_delimiter = ',', value_name = "AXIS=Q", value_parser = axis_value, requires = "lengths")]
+        centre: Vec<(String, String)>,
+        /// With --lengths: the machine is a measuring machine (`task measure`): dL is the
+        /// reading with its sign flipped (spec/iso230-4.md).
+        #[arg(long, requires = "lengths")]
+        measure: bool,
     },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     #[command(after_help = "Examples:
@@ -754,10 +832,67 @@ fn main() -> ExitCode {
             seconds,
             color,
         } => bench::run(&machine, poses, seconds, color.enabled()),
-        Command::Iso2302 { run, format } => iso::run(&run, format),
+        Command::Iso2302 {
+            run,
+            format,
+            html,
+            model,
+            fit,
+            axis,
+            at,
+            component,
+            alpha,
+            engine,
+            color,
+        } => iso::run(iso::Iso2302Args {
+            run,
+            format,
+            html,
+            model,
+            fit,
+            axis,
+            at,
+            component,
+            alpha,
+            engine,
+            color: color.enabled(),
+        }),
+        Command::Iso2304 {
+            run,
+            format,
+            radius,
+            plane,
+            html,
+            lengths,
+            centre,
+            measure,
+        } => iso::run_circular(iso::Iso2304Args {
+            run,
+            format,
+            radius,
+            plane,
+            html,
+            lengths,
+            centre,
+            measure,
+        }),
         Command::Completions { shell } => manual::completions(Cli::command(), shell),
         Command::Man { output } => manual::man(Cli::command(), output.as_deref()),
     }
+}
+
+/// `AXIS=QUANTITY` of `--at` and `--centre` (the quantity is checked against the axis later).
+fn axis_value(text: &str) -> Result<(String, String), String> {
+    match text.split_once('=') {
+        Some((a, q)) if !a.trim().is_empty() && !q.trim().is_empty() => {
+            Ok((a.trim().to_string(), q.trim().to_string()))
+        }
+        _ => Err(format!("`{text}`: expected AXIS=VALUE, e.g. X=250mm")),
+    }
+}
+
+fn plane_arg(text: &str) -> Result<[String; 2], String> {
+    kin_runtime::iso230_4::plane(text)
 }
 
 #[cfg(test)]

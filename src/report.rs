@@ -7,7 +7,7 @@
 //! no scripts, no fonts or images fetched from anywhere.
 
 mod curves;
-mod plot;
+pub(crate) mod plot;
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -260,7 +260,7 @@ pub struct Inputs<'a> {
     pub notes: Vec<String>,
 }
 
-const CSS: &str = r#"
+pub(crate) const CSS: &str = r#"
 *{box-sizing:border-box}
 body{margin:0;background:#eef0f3;color:#1d2330;font:15px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,"Helvetica Neue",Arial,sans-serif}
 main{max-width:1320px;margin:0 auto;padding:28px 36px 56px;background:#fff;min-height:100vh}

@@ -16,7 +16,7 @@ use thiserror::Error;
 use crate::data::csv::{self, Cell, Dialect};
 
 /// At most this many problems are listed per file.
-const MAX_PROBLEMS: usize = 20;
+pub(crate) const MAX_PROBLEMS: usize = 20;
 
 /// One thing wrong with a run file; lines and columns are 1-based, columns in characters.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -50,9 +50,9 @@ pub enum Iso2302Error {
     },
 }
 
-struct Listing<'a> {
-    path: &'a Path,
-    problems: &'a [RunProblem],
+pub(crate) struct Listing<'a> {
+    pub(crate) path: &'a Path,
+    pub(crate) problems: &'a [RunProblem],
 }
 
 impl fmt::Display for Listing<'_> {
@@ -174,12 +174,12 @@ const COLUMNS: [(&str, Role); 4] = [
     ("cycle", Role::Cycle),
 ];
 
-fn column_of(line: &str, byte: usize) -> usize {
+pub(crate) fn column_of(line: &str, byte: usize) -> usize {
     1 + line.get(..byte).map_or(0, |s| s.chars().count())
 }
 
 /// A length unit of a header: kin's units and the inch units of measurement files.
-fn length_unit(text: &str) -> Result<Unit, String> {
+pub(crate) fn length_unit(text: &str) -> Result<Unit, String> {
     let unit = match crate::data::inch_unit(text) {
         Some(u) => u,
         None => Unit::parse(text).map_err(|e| e.to_string())?,
@@ -191,7 +191,7 @@ fn length_unit(text: &str) -> Result<Unit, String> {
     }
 }
 
-fn push(problems: &mut Vec<RunProblem>, p: RunProblem) {
+pub(crate) fn push(problems: &mut Vec<RunProblem>, p: RunProblem) {
     if problems.len() < MAX_PROBLEMS {
         problems.push(p);
     }
@@ -454,7 +454,7 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<Run, Iso2302Error> {
     }
 }
 
-fn number(cell: &str, dialect: Dialect) -> Option<f64> {
+pub(crate) fn number(cell: &str, dialect: Dialect) -> Option<f64> {
     match cell.parse::<f64>() {
         Ok(v) if v.is_finite() => Some(v),
         Ok(_) => None,
@@ -598,6 +598,36 @@ pub fn evaluate(run: &Run, path: &Path) -> Result<Evaluation, Iso2302Error> {
         axis,
         cycles,
     })
+}
+
+/// The pure-error lack-of-fit test of a model's predicted deviations against the run: every
+/// (target, direction) is a group of replicates whose scatter about its own mean is the
+/// machine's repeatability (pure error); what remains of the residuals `deviation − predicted`
+/// is lack of fit. `predicted` is in the order of `run.samples`; `fitted` is how many degrees of
+/// freedom a fit to this run's own deviations took (0 when the prediction comes from other
+/// data, which makes the test exact). The F-test is the one `kin diagnose` applies to repeated
+/// poses ([`crate::diagnose::lack_of_fit`]).
+pub fn lack_of_fit(
+    run: &Run,
+    predicted: &[f64],
+    fitted: f64,
+    alpha: f64,
+) -> Option<crate::diagnose::LackOfFit> {
+    let mut groups: std::collections::BTreeMap<(u64, bool), (usize, f64, f64)> =
+        std::collections::BTreeMap::new();
+    let mut rss = 0.0;
+    for (s, p) in run.samples.iter().zip(predicted) {
+        let r = s.deviation - p;
+        let g = groups
+            .entry((s.target.to_bits(), s.up))
+            .or_insert((0, 0.0, 0.0));
+        g.0 += 1;
+        g.1 += r;
+        g.2 += r * r;
+        rss += r * r;
+    }
+    let n = run.samples.len().min(predicted.len()) as f64;
+    crate::diagnose::lack_of_fit(groups.into_values(), rss, n - fitted, alpha)
 }
 
 #[cfg(test)]

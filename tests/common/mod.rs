@@ -94,3 +94,102 @@ pub fn simulate(model: &str, params: &str, n: usize, seed: u64, extra: &[&str], 
     args.extend_from_slice(extra);
     ok(&kin(&args));
 }
+
+/// A Chromium to render with: `/usr/bin/chromium`, or one of the usual names on `PATH`.
+pub fn browser() -> Option<PathBuf> {
+    let fixed = PathBuf::from("/usr/bin/chromium");
+    if fixed.is_file() {
+        return Some(fixed);
+    }
+    let path = std::env::var_os("PATH")?;
+    [
+        "chromium",
+        "chromium-browser",
+        "google-chrome",
+        "google-chrome-stable",
+    ]
+    .iter()
+    .flat_map(|name| std::env::split_paths(&path).map(move |d| d.join(name)))
+    .find(|p| p.is_file())
+}
+
+/// Renders `page` headless at 1280 × `height` and checks the screenshot is a real picture of
+/// it (a PNG of that size, larger than `min_bytes`: a blank or error page compresses to a few
+/// kB). Skipped, saying so, without a browser. `KIN_SCREENSHOT_DIR` keeps the picture.
+pub fn screenshot(page: &std::path::Path, dir: &std::path::Path, height: u32, min_bytes: usize) {
+    use std::process::Stdio;
+    use std::time::{Duration, Instant};
+    let Some(chromium) = browser() else {
+        println!("browser check skipped: no chromium at /usr/bin/chromium or on PATH");
+        return;
+    };
+    let name = page
+        .file_stem()
+        .map_or("page".into(), |s| s.to_string_lossy().to_string());
+    let png = dir.join(format!("{name}.png"));
+    let profile = dir.join("chromium-profile");
+    let page = page.canonicalize().expect("page path");
+    let mut child = Command::new(&chromium)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+            &format!("--user-data-dir={}", profile.display()),
+            &format!("--screenshot={}", png.display()),
+            &format!("--window-size=1280,{height}"),
+            &format!("file://{}", page.display()),
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("chromium starts");
+    // A browser that hangs must not hang the test suite.
+    let start = Instant::now();
+    loop {
+        match child.try_wait().expect("wait for chromium") {
+            Some(_) => break,
+            None if start.elapsed() > Duration::from_secs(180) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!(
+                    "{} did not finish the screenshot in 180 s",
+                    chromium.display()
+                );
+            }
+            None => std::thread::sleep(Duration::from_millis(100)),
+        }
+    }
+    let bytes = std::fs::read(&png)
+        .unwrap_or_else(|e| panic!("no screenshot from {}: {e}", chromium.display()));
+    assert!(bytes.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
+    // IHDR: width and height, big-endian, right after the signature and chunk header.
+    let dim =
+        |at: usize| u32::from_be_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]);
+    assert_eq!((dim(16), dim(20)), (1280, height));
+    assert!(
+        bytes.len() > min_bytes,
+        "screenshot is only {} bytes",
+        bytes.len()
+    );
+    println!(
+        "browser check: {} rendered {}, screenshot {} ({} bytes)",
+        chromium.display(),
+        page.display(),
+        png.display(),
+        bytes.len()
+    );
+    if let Some(keep) = std::env::var_os("KIN_SCREENSHOT_DIR") {
+        let _ = std::fs::create_dir_all(&keep);
+        std::fs::copy(
+            &png,
+            std::path::Path::new(&keep).join(png.file_name().unwrap_or_default()),
+        )
+        .expect("keep the screenshot");
+    }
+}

@@ -193,15 +193,36 @@ fn noise_check(m: &Machine, rows: &[Located], base: &FitResult, settings: &Setti
         g.1 += r.residual;
         g.2 += r.residual * r.residual;
     }
-    let repeated: Vec<&(usize, f64, f64)> = groups.values().filter(|g| g.0 > 1).collect();
+    let rss: f64 = used.iter().map(|r| r.residual * r.residual).sum();
+    let lack_of_fit = lack_of_fit(groups.values().copied(), rss, n * keep, settings.alpha);
+    NoiseCheck {
+        stated: settings.noise.map(|v| v / m.units.error.scale),
+        stated_tilt: settings.noise_tilt.map(|v| v / m.units.tilt.scale),
+        chi2,
+        lack_of_fit,
+    }
+}
+
+/// The pure-error lack-of-fit F-test. `groups` holds, for each set of replicated rows, (rows,
+/// Σr, Σr²) of their residuals (groups of one row are passed over); `rss` is the residual sum
+/// of squares of all `rows` residuals the test covers, of which the fit took
+/// `rows − residual_dof` degrees of freedom (none when the prediction is independent of them).
+/// The scatter within groups is pure error; the rest of `rss` is lack of fit. `None` when either
+/// part has no degree of freedom or the replicates agree exactly.
+pub fn lack_of_fit(
+    groups: impl Iterator<Item = (usize, f64, f64)>,
+    rss: f64,
+    residual_dof: f64,
+    alpha: f64,
+) -> Option<LackOfFit> {
+    let repeated: Vec<(usize, f64, f64)> = groups.filter(|g| g.0 > 1).collect();
     let dof_pure: f64 = repeated.iter().map(|g| (g.0 - 1) as f64).sum();
     let ss_pure: f64 = repeated
         .iter()
         .map(|g| (g.2 - g.1 * g.1 / g.0 as f64).max(0.0))
         .sum();
-    let rss: f64 = used.iter().map(|r| r.residual * r.residual).sum();
-    let dof_lack = n * keep - dof_pure;
-    let lack_of_fit = (dof_pure >= 1.0 && dof_lack >= 1.0 && ss_pure > 0.0).then(|| {
+    let dof_lack = residual_dof - dof_pure;
+    (dof_pure >= 1.0 && dof_lack >= 1.0 && ss_pure > 0.0).then(|| {
         let f = ((rss - ss_pure).max(0.0) / dof_lack) / (ss_pure / dof_pure);
         let p = FisherSnedecor::new(dof_lack, dof_pure)
             .map(|d| 1.0 - d.cdf(f))
@@ -214,15 +235,9 @@ fn noise_check(m: &Machine, rows: &[Located], base: &FitResult, settings: &Setti
             sigma_pure: (ss_pure / dof_pure).sqrt(),
             f,
             p,
-            consistent: p >= settings.alpha,
+            consistent: p >= alpha,
         }
-    });
-    NoiseCheck {
-        stated: settings.noise.map(|v| v / m.units.error.scale),
-        stated_tilt: settings.noise_tilt.map(|v| v / m.units.tilt.scale),
-        chi2,
-        lack_of_fit,
-    }
+    })
 }
 
 fn available(m: &Machine, files: &[DataSet]) -> Available {

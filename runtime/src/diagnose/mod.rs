@@ -237,4 +237,4 @@ mod motions;
 mod periodic;
 mod refit;
 
-pub use analyse::{diagnose, DiagnoseError, Settings};
+pub use analyse::{diagnose, lack_of_fit, DiagnoseError, Settings};

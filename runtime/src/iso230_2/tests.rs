@@ -142,3 +142,64 @@ fn bad_runs_are_located() {
         "{ps:?}"
     );
 }
+
+/// A run with a known systematic error (a pitch error of 3 µm per 100 mm plus a 2 µm reversal)
+/// and 0.5 µm of repeatability noise, 11 targets × 5 cycles × 2 directions.
+fn simulated_run(seed: u64) -> Run {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let mut gauss = move || rng.sample::<f64, _>(rand_distr::StandardNormal);
+    let mut samples = Vec::new();
+    for cycle in 1..=5 {
+        for i in 0..=10 {
+            for up in [true, false] {
+                let target = i as f64 * 0.05;
+                let deviation = truth(target, up) + 0.5e-6 * gauss();
+                samples.push(Sample {
+                    target,
+                    up,
+                    cycle: cycle.to_string(),
+                    deviation,
+                    line: samples.len() + 2,
+                });
+            }
+        }
+    }
+    Run {
+        samples,
+        target_unit: Unit::parse("mm").unwrap_or_else(|e| panic!("{e}")),
+        deviation_unit: Unit::parse("um").unwrap_or_else(|e| panic!("{e}")),
+    }
+}
+
+fn truth(target: f64, up: bool) -> f64 {
+    3e-5 * target + if up { 1e-6 } else { -1e-6 }
+}
+
+#[test]
+fn lack_of_fit_accepts_the_true_model_and_rejects_a_wrong_one() {
+    let mut accepted = 0;
+    for seed in 0..20 {
+        let run = simulated_run(seed);
+        let right: Vec<f64> = run.samples.iter().map(|s| truth(s.target, s.up)).collect();
+        let lof = lack_of_fit(&run, &right, 0.0, 0.01).unwrap_or_else(|| panic!("a test"));
+        assert_eq!(lof.groups, 22);
+        assert_eq!((lof.dof_pure, lof.dof_lack), (88.0, 22.0));
+        // σ from the replicates alone is the simulated 0.5 µm.
+        assert!(
+            (lof.sigma_pure - 0.5e-6).abs() < 0.15e-6,
+            "{}",
+            lof.sigma_pure
+        );
+        accepted += usize::from(lof.consistent);
+        // The pitch error without the reversal: 2 µm of lack of fit against 0.5 µm of noise.
+        let no_reversal: Vec<f64> = run.samples.iter().map(|s| 3e-5 * s.target).collect();
+        let lof = lack_of_fit(&run, &no_reversal, 0.0, 0.01).unwrap_or_else(|| panic!("a test"));
+        assert!(lof.p < 1e-10 && !lof.consistent, "p = {}", lof.p);
+    }
+    // At α = 1 % the true model is rejected about once in a hundred runs.
+    assert!(
+        accepted >= 18,
+        "the true model accepted in {accepted} of 20 runs"
+    );
+}

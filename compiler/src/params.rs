@@ -61,7 +61,18 @@ impl Bound {
 
 fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, sink: &mut Sink) {
     let path: Vec<&str> = def.path.iter().map(|n| n.node.as_str()).collect();
-    let full = canonical(machine, &path);
+    let (full, sign) = match canonical(machine, &path) {
+        Ok(found) => found,
+        Err(e) => {
+            let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
+            sink.push(
+                Diagnostic::error("E0107", e.to_string(), first)
+                    .with_label("an ISO 230-1 location name this machine cannot carry")
+                    .with_help(e.help()),
+            );
+            return;
+        }
+    };
     let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
     let last = def.path.last().map(|n| n.span).unwrap_or(def.span);
     let path_span = first.to(last);
@@ -152,7 +163,7 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                 .unwrap_or_else(Unit::dimensionless);
             if let Some(v) = scalar_value(value, &unit, sink) {
                 if let Some(b) = machine.beta.get_mut(k) {
-                    *b = v;
+                    *b = sign * v;
                 }
             }
         }
@@ -206,7 +217,7 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                     None => coef.unit.clone(),
                 };
                 if let Some(b) = machine.beta.get_mut(*k) {
-                    *b = unit.to_si(*v);
+                    *b = sign * unit.to_si(*v);
                 }
             }
         }
@@ -239,10 +250,11 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
     }
 }
 
-/// The name `path` stands for: itself when the machine has parameters of that name, else with
-/// an ISO 230-1 or VDI 2617 alias in front expanded (`EAX[0]` is `X.rx[0]`, `xtx.wavelength`
-/// is `X.tx.wavelength`), as the `errors` block accepts them.
-fn canonical(machine: &ir::Machine, path: &[&str]) -> String {
+/// The name `path` stands for, and the sign its values take there: itself when the machine has
+/// parameters of that name, else with an ISO 230-1 or VDI 2617 alias in front expanded
+/// (`EAX[0]` is `X.rx[0]`, `xtx.wavelength` is `X.tx.wavelength`, `EC0Y[0]` may be
+/// `−X.rz[0]`), as the `errors` block accepts them.
+fn canonical(machine: &ir::Machine, path: &[&str]) -> Result<(String, f64), ir::AliasError> {
     let given = path.join(".");
     let known = |name: &str| {
         machine.nonlinear.iter().any(|p| {
@@ -256,18 +268,23 @@ fn canonical(machine: &ir::Machine, path: &[&str]) -> String {
             .any(|c| c.name.rsplit_once('[').map(|(base, _)| base) == Some(name))
     };
     if known(&given) {
-        return given;
+        return Ok((given, 1.0));
     }
-    match path.split_first() {
-        Some((first, rest)) => match ir::alias(first, &machine.axes) {
-            Some((axis, component)) => std::iter::once(format!("{axis}.{}", component.name()))
-                .chain(rest.iter().map(|s| s.to_string()))
-                .collect::<Vec<_>>()
-                .join("."),
-            None => given,
+    Ok(match path.split_first() {
+        Some((first, rest)) => match ir::alias(first, machine.layout())? {
+            Some(a) => (
+                std::iter::once(format!("{}.{}", a.axis, a.component.name()))
+                    .chain(rest.iter().map(|s| s.to_string()))
+                    .collect::<Vec<_>>()
+                    .join("."),
+                // A non-linear parameter (`tau`, `wavelength`) is a time or length whatever the
+                // component's sense; only coefficients change sign.
+                if rest.is_empty() { a.sign } else { 1.0 },
+            ),
+            None => (given, 1.0),
         },
-        None => given,
-    }
+        None => (given, 1.0),
+    })
 }
 
 fn unit_mismatch(name: &str, expected: &Unit, given: &Unit, span: Span) -> Diagnostic {
@@ -371,5 +388,29 @@ mod tests {
         let (_, errors) = bound("params { EAY[0] = 1 urad }");
         assert_eq!(errors.len(), 1, "{errors:?}");
         assert!(errors[0].contains("EAY"), "{errors:?}");
+    }
+
+    #[test]
+    fn a_squareness_name_binds_its_component_with_its_sign() {
+        let mut m = crate::compile(
+            "machine m { task position
+                units { tilt urad }
+                axis Y prismatic along y range 0 mm .. 500 mm
+                axis X prismatic along x range 0 mm .. 500 mm
+                workpiece chain { Y moving  X moving }
+                tool chain { tool t }
+                errors { Y.rz = const } }",
+        )
+        .compiled
+        .expect("the machine compiles")
+        .machine;
+        // Y moving carries X: Y's constant yaw turns X against Y, i.e. Y against X the other
+        // way: EC0Y is −Y.rz.
+        let diagnostics = crate::bind_params(&mut m, "params { EC0Y[0] = 12 urad }");
+        assert!(diagnostics.is_empty(), "{diagnostics:?}");
+        assert!((m.beta[0] + 12e-6).abs() < 1e-18, "{:?}", m.beta);
+        let diagnostics = crate::bind_params(&mut m, "params { EY0X[0] = 1 um }");
+        assert_eq!(diagnostics.len(), 1);
+        assert_eq!(diagnostics[0].code, "E0107", "{diagnostics:?}");
     }
 }

@@ -340,6 +340,13 @@ impl Machine {
     }
 }
 
+/// Whether `name` has the form of an ISO 230-1 location name (`EC0Y`, `EX0C`): `E`, a
+/// direction, `0`. Axis names start with a letter, so no component error looks like one.
+pub fn is_location(name: &str) -> bool {
+    let mut c = name.chars();
+    c.next() == Some('E') && c.next().is_some() && c.next() == Some('0')
+}
+
 /// The machine direction (x, y, z) an ISO 230-1 error letter refers to: `X Y Z` translations,
 /// `A B C` rotations about x, y, z (right-handed).
 fn letter(d: char) -> Option<(bool, usize)> {

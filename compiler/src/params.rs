@@ -61,7 +61,7 @@ impl Bound {
 
 fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, sink: &mut Sink) {
     let path: Vec<&str> = def.path.iter().map(|n| n.node.as_str()).collect();
-    let (full, sign) = match canonical(machine, &path) {
+    let (full, location) = match canonical(machine, &path) {
         Ok(found) => found,
         Err(e) => {
             let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
@@ -161,6 +161,7 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                 .get(k)
                 .map(|c| c.unit.clone())
                 .unwrap_or_else(Unit::dimensionless);
+            let sign = location.map_or(1.0, |s| s * scale_sign(machine, k));
             if let Some(v) = scalar_value(value, &unit, sink) {
                 if let Some(b) = machine.beta.get_mut(k) {
                     *b = sign * v;
@@ -216,6 +217,7 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                     }
                     None => coef.unit.clone(),
                 };
+                let sign = location.map_or(1.0, |s| s * scale_sign(machine, *k));
                 if let Some(b) = machine.beta.get_mut(*k) {
                     *b = sign * unit.to_si(*v);
                 }
@@ -250,11 +252,15 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
     }
 }
 
-/// The name `path` stands for, and the sign its values take there: itself when the machine has
+/// The name `path` stands for, and for a location name the sign relating its value to the
+/// component's (`None` for any other name): itself when the machine has
 /// parameters of that name, else with an ISO 230-1 or VDI 2617 alias in front expanded
 /// (`EAX[0]` is `X.rx[0]`, `xtx.wavelength` is `X.tx.wavelength`, `EC0Y[0]` may be
 /// `−X.rz[0]`), as the `errors` block accepts them.
-fn canonical(machine: &ir::Machine, path: &[&str]) -> Result<(String, f64), ir::AliasError> {
+fn canonical(
+    machine: &ir::Machine,
+    path: &[&str],
+) -> Result<(String, Option<f64>), ir::AliasError> {
     let given = path.join(".");
     let known = |name: &str| {
         machine.nonlinear.iter().any(|p| {
@@ -268,7 +274,7 @@ fn canonical(machine: &ir::Machine, path: &[&str]) -> Result<(String, f64), ir::
             .any(|c| c.name.rsplit_once('[').map(|(base, _)| base) == Some(name))
     };
     if known(&given) {
-        return Ok((given, 1.0));
+        return Ok((given, None));
     }
     Ok(match path.split_first() {
         Some((first, rest)) => match ir::alias(first, machine.layout())? {
@@ -277,14 +283,34 @@ fn canonical(machine: &ir::Machine, path: &[&str]) -> Result<(String, f64), ir::
                     .chain(rest.iter().map(|s| s.to_string()))
                     .collect::<Vec<_>>()
                     .join("."),
-                // A non-linear parameter (`tau`, `wavelength`) is a time or length whatever the
-                // component's sense; only coefficients change sign.
-                if rest.is_empty() { a.sign } else { 1.0 },
+                // A component alias binds coefficients as they are; only a location name binds
+                // an error value (see `scale_sign`), and never a non-linear parameter.
+                (rest.is_empty() && ir::is_location(first)).then_some(a.sign),
             ),
-            None => (given, 1.0),
+            None => (given, None),
         },
-        None => (given, 1.0),
+        None => (given, None),
     })
+}
+
+/// The sign of the plain-number scale of coefficient `k`'s term, +1 for any other: a location
+/// name binds the error's value, `scale × β`, and `EC0Y = const` written where `EC0Y` is
+/// `−X.rz` makes a term of scale −1 whose coefficient is EC0Y itself.
+fn scale_sign(machine: &ir::Machine, k: usize) -> f64 {
+    machine
+        .coefficients
+        .get(k)
+        .and_then(|c| machine.errors.get(c.error))
+        .and_then(|e| {
+            e.terms
+                .iter()
+                .find(|t| t.first <= k && k < t.first + t.coefficients)
+        })
+        .map(|t| match t.scale {
+            ir::Scalar::Num(v) if v < 0.0 => -1.0,
+            _ => 1.0,
+        })
+        .unwrap_or(1.0)
 }
 
 fn unit_mismatch(name: &str, expected: &Unit, given: &Unit, span: Span) -> Diagnostic {
@@ -409,6 +435,22 @@ mod tests {
         let diagnostics = crate::bind_params(&mut m, "params { EC0Y[0] = 12 urad }");
         assert!(diagnostics.is_empty(), "{diagnostics:?}");
         assert!((m.beta[0] + 12e-6).abs() < 1e-18, "{:?}", m.beta);
+        // Written through the alias, the term has scale −1 and its coefficient is EC0Y itself.
+        let mut m = crate::compile(
+            "machine m { task position
+                units { tilt urad }
+                axis Y prismatic along y range 0 mm .. 500 mm
+                axis X prismatic along x range 0 mm .. 500 mm
+                workpiece chain { Y moving  X moving }
+                tool chain { tool t }
+                errors { EC0Y = const } }",
+        )
+        .compiled
+        .expect("the machine compiles")
+        .machine;
+        let diagnostics = crate::bind_params(&mut m, "params { EC0Y[0] = 12 urad }");
+        assert!(diagnostics.is_empty(), "{diagnostics:?}");
+        assert!((m.beta[0] - 12e-6).abs() < 1e-18, "{:?}", m.beta);
         let diagnostics = crate::bind_params(&mut m, "params { EY0X[0] = 1 um }");
         assert_eq!(diagnostics.len(), 1);
         assert_eq!(diagnostics[0].code, "E0107", "{diagnostics:?}");

@@ -216,6 +216,28 @@ fn a_fitted_positioning_error_at_stations_covers_the_truth() {
         worst = worst.max((v - t).abs() / u);
     }
     assert!(worst > 0.0, "the fit is not the truth itself");
+
+    // The report shows the same table under both names.
+    let html = dir.path().join("report.html");
+    let out = kin(&[
+        "report",
+        m_s,
+        "--fit",
+        f_s,
+        d_s,
+        "-o",
+        html.to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{out:?}");
+    let page = std::fs::read_to_string(&html).expect("report");
+    assert!(
+        page.contains("Errors at stations along their axis"),
+        "no stations section"
+    );
+    assert!(
+        page.contains("<code>X.tx</code> · <code>EXX</code> along X"),
+        "no ISO name"
+    );
 }
 
 #[test]

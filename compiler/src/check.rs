@@ -332,7 +332,7 @@ impl Checker<'_> {
                 Ok(None) => {
                     let mut d = Diagnostic::error("E0101", format!("`{}` is not an error component", t.frame.node), t.span)
                         .with_label("expected `FRAME.COMPONENT`")
-                        .with_note("write e.g. `X.tx`, an ISO 230-1 name such as `EXX`/`EBX`, or a VDI 2617 name such as `xtx`/`xry`");
+                        .with_note("write e.g. `X.tx`, an ISO 230-1 name such as `EXX`/`EBX` (component) or `EC0Y`/`EX0C` (location), or a VDI 2617 name such as `xtx`/`xry`");
                     if let Some(s) =
                         suggest(&t.frame.node, self.st.axes.iter().map(|a| a.name.as_str()))
                     {

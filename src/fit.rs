@@ -512,6 +512,16 @@ pub fn summary(r: &report::FitReport) -> String {
             .map(|(b, _)| b.to_string())
             .unwrap_or_default();
         let unit = r.coefficients[i].unit.clone();
+        // The component's ISO 230-1 name (`EXX`), beside kin's; a constant that is a location
+        // or squareness error carries that name on its own value (`(-EC0Y)`).
+        let is_location = |n: &str| n.trim_start_matches('-').chars().nth(2) == Some('0');
+        let iso = r.coefficients[i..]
+            .iter()
+            .take_while(|c| c.name.starts_with(&format!("{base}[")))
+            .filter_map(|c| c.iso.as_deref())
+            .find(|n| !is_location(n))
+            .map(|n| format!(" {n}"))
+            .unwrap_or_default();
         let mut parts = Vec::new();
         while i < r.coefficients.len() && r.coefficients[i].name.starts_with(&format!("{base}[")) {
             let c = &r.coefficients[i];
@@ -525,13 +535,53 @@ pub fn summary(r: &report::FitReport) -> String {
                 // A minimum-norm fit's undetermined coefficient: no value ± error is printed.
                 parts.push("undetermined".to_string());
             } else if c.kept {
-                parts.push(format!("{:.3}±{:.3}{own}", c.value, c.se));
+                let location = match c.iso.as_deref() {
+                    Some(n) if is_location(n) => format!(" ({n})"),
+                    _ => String::new(),
+                };
+                parts.push(format!("{:.3}±{:.3}{own}{location}", c.value, c.se));
             } else {
                 parts.push("—".to_string());
             }
             i += 1;
         }
-        s.push_str(&format!("  {base:<16} [{unit}] {}\n", parts.join("  ")));
+        let named = format!("{base}{iso}");
+        s.push_str(&format!("  {named:<16} [{unit}] {}\n", parts.join("  ")));
+    }
+    if !r.stations.is_empty() {
+        s.push_str("\n  errors at stations along their axis (value ± standard uncertainty)\n");
+        for t in &r.stations {
+            let iso = t
+                .iso
+                .as_deref()
+                .map(|n| format!(" {n}"))
+                .unwrap_or_default();
+            let named = format!("{}{iso}", t.error);
+            let values: Vec<String> = t
+                .positions
+                .iter()
+                .zip(t.values.iter().zip(&t.u))
+                .map(|(p, (v, u))| {
+                    if u.is_nan() {
+                        format!("{p}: {v:.3}±?")
+                    } else {
+                        format!("{p}: {v:.3}±{u:.3}")
+                    }
+                })
+                .collect();
+            s.push_str(&format!(
+                "  {named:<16} [{}] along {} [{}]{}: {}\n",
+                t.unit,
+                t.axis,
+                t.position_unit,
+                if t.partial {
+                    " (its terms of this axis only)"
+                } else {
+                    ""
+                },
+                values.join("  ")
+            ));
+        }
     }
     if let Some(e) = &r.estimability {
         for g in &e.groups {

@@ -340,6 +340,7 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
     }
     history_section(&mut s, inp)?;
     curves_section(&mut s, inp)?;
+    stations_section(&mut s, fit);
     coefficients(&mut s, fit);
     let _ = write!(s, "<footer>kin {} · a self-contained page: no scripts, no external resources.</footer>\n</main>\n</body>\n</html>\n", env!("CARGO_PKG_VERSION"));
     Ok(s)
@@ -1433,13 +1434,63 @@ fn curves_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
     Ok(())
 }
 
+/// Every error that varies along one axis, at stations along it (FIT.json `stations`): the
+/// numbers a laser run along the axis would be compared with.
+fn stations_section(s: &mut String, f: &FitReport) {
+    if f.stations.is_empty() {
+        return;
+    }
+    s.push_str("<section id=\"stations\">\n<h2>Errors at stations along their axis</h2>\n<p>Each error that varies along one axis, evaluated at the ends of the axis' range and at round steps between, with its standard uncertainty (eq. 4.12), under kin's name and ISO 230-1's. Where a component has other terms (backlash, inputs, another axis), only its terms of this axis are included, as marked.</p>\n");
+    for t in &f.stations {
+        let iso = t
+            .iso
+            .as_deref()
+            .map(|n| format!(" · <code>{}</code>", esc(n)))
+            .unwrap_or_default();
+        let partial = if t.partial {
+            " (its terms of this axis only)"
+        } else {
+            ""
+        };
+        let _ = write!(
+            s,
+            "<h3><code>{}</code>{iso} along {}{partial}</h3>\n<table>\n<tr><th class=\"l\">{} [{}]</th>",
+            esc(&t.error),
+            esc(&t.axis),
+            esc(&t.axis),
+            esc(&t.position_unit)
+        );
+        for p in &t.positions {
+            let _ = write!(s, "<th>{}</th>", num(*p, 4));
+        }
+        let _ = write!(
+            s,
+            "</tr>\n<tr><td class=\"l\">value [{}]</td>",
+            esc(&t.unit)
+        );
+        for v in &t.values {
+            let _ = write!(s, "<td>{}</td>", num(*v, 3));
+        }
+        let _ = write!(s, "</tr>\n<tr><td class=\"l\">standard uncertainty</td>");
+        for u in &t.u {
+            let _ = write!(s, "<td>{}</td>", num(*u, 2));
+        }
+        s.push_str("</tr>\n</table>\n");
+    }
+    s.push_str("</section>\n");
+}
+
 fn coefficients(s: &mut String, f: &FitReport) {
-    let _ = writeln!(s, "<details>\n<summary>All {} coefficients</summary>\n<table>\n<tr><th class=\"l\">name</th><th class=\"l\">multiplies</th><th>value</th><th>standard error</th><th class=\"l\">unit</th><th class=\"l\">kept</th></tr>", f.coefficients.len() + f.nonlinear.len());
+    let _ = writeln!(s, "<details>\n<summary>All {} coefficients</summary>\n<table>\n<tr><th class=\"l\">name</th><th class=\"l\">ISO 230-1</th><th class=\"l\">multiplies</th><th>value</th><th>standard error</th><th class=\"l\">unit</th><th class=\"l\">kept</th></tr>", f.coefficients.len() + f.nonlinear.len());
     for c in f.coefficients.iter().chain(&f.nonlinear) {
         let _ = writeln!(
             s,
-            "<tr><td class=\"l\"><code>{}</code></td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td></tr>",
+            "<tr><td class=\"l\"><code>{}</code></td><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td></tr>",
             esc(&c.name),
+            c.iso
+                .as_deref()
+                .map(|n| format!("<code>{}</code>", esc(n)))
+                .unwrap_or_default(),
             esc(&c.label),
             num(c.value, 5),
             num(c.se, 3),

@@ -110,7 +110,7 @@ struct Checker<'a> {
 
 impl Checker<'_> {
     fn definition(&mut self, def: &ast::ErrorDef, sink: &mut Sink) {
-        let Some((frame, component, display)) = self.target(&def.target, sink) else {
+        let Some((frame, component, display, sign)) = self.target(&def.target, sink) else {
             return;
         };
         self.current = display.clone();
@@ -151,9 +151,19 @@ impl Checker<'_> {
                 index
             }
         };
-        let Some(terms) = self.expand(&def.value, sink) else {
+        let Some(mut terms) = self.expand(&def.value, sink) else {
             return;
         };
+        // A location or squareness name carried with the opposite sign (`EC0Y = const` on a
+        // frame where it is `−X.rz`): the model is the component's, negated.
+        if sign < 0.0 {
+            for t in &mut terms {
+                t.scale = match &t.scale {
+                    Scalar::Num(v) => Scalar::Num(-v),
+                    other => Scalar::Neg(Box::new(other.clone())),
+                };
+            }
+        }
         let component_unit = if component.is_rotation() {
             &self.st.units.tilt
         } else {
@@ -287,16 +297,42 @@ impl Checker<'_> {
         }
     }
 
-    /// Resolves `X.tx`, `probe.rz`, `tool.tz`, `workpiece.rx`, `EXX` or `xtx`.
-    fn target(&self, t: &ast::Target, sink: &mut Sink) -> Option<(FrameRef, Component, String)> {
-        let (frame_name, comp_name, comp_span) = match &t.component {
-            Some(c) => (t.frame.node.clone(), c.node.clone(), c.span),
-            None => match ir::alias(&t.frame.node, &self.st.axes) {
-                Some((axis, comp)) => (axis.to_string(), comp.name().to_string(), t.frame.span),
-                None => {
+    /// Resolves `X.tx`, `probe.rz`, `tool.tz`, `workpiece.rx`, `EXX`, `xtx` or `EC0Y`, with
+    /// the sign the model takes on that component (−1 only for a location or squareness name
+    /// carried by a frame with the opposite sense).
+    fn target(
+        &self,
+        t: &ast::Target,
+        sink: &mut Sink,
+    ) -> Option<(FrameRef, Component, String, f64)> {
+        let layout = ir::Layout {
+            axes: &self.st.axes,
+            tool_chain: &self.st.tool_chain,
+            workpiece_chain: &self.st.workpiece_chain,
+        };
+        let (frame_name, comp_name, comp_span, sign) = match &t.component {
+            Some(c) => (t.frame.node.clone(), c.node.clone(), c.span, 1.0),
+            None => match ir::alias(&t.frame.node, layout) {
+                Ok(Some(a)) => (
+                    a.axis.to_string(),
+                    a.component.name().to_string(),
+                    t.frame.span,
+                    a.sign,
+                ),
+                // Reported where the chains are resolved (E0401).
+                Err(ir::AliasError::Unplaced { .. }) => return None,
+                Err(e) => {
+                    sink.push(
+                        Diagnostic::error("E0107", e.to_string(), t.frame.span)
+                            .with_label("an ISO 230-1 location name this machine cannot carry")
+                            .with_help(e.help()),
+                    );
+                    return None;
+                }
+                Ok(None) => {
                     let mut d = Diagnostic::error("E0101", format!("`{}` is not an error component", t.frame.node), t.span)
                         .with_label("expected `FRAME.COMPONENT`")
-                        .with_note("write e.g. `X.tx`, an ISO 230-1 name such as `EXX`/`EBX`, or a VDI 2617 name such as `xtx`/`xry`");
+                        .with_note("write e.g. `X.tx`, an ISO 230-1 name such as `EXX`/`EBX` (component) or `EC0Y`/`EX0C` (location), or a VDI 2617 name such as `xtx`/`xry`");
                     if let Some(s) =
                         suggest(&t.frame.node, self.st.axes.iter().map(|a| a.name.as_str()))
                     {
@@ -368,6 +404,7 @@ impl Checker<'_> {
             frame,
             component,
             format!("{frame_name}.{}", component.name()),
+            sign,
         ))
     }
 

@@ -116,10 +116,14 @@ impl Component {
     }
 }
 
-/// The axis and component an ISO 230-1 name (`EXX`, `EBZ`: E, error direction, axis) or a
-/// VDI 2617 name (`xtx`, `yrz`: axis, translation/rotation, direction) of an axis error stands
-/// for; `None` when `name` is neither, for these `axes`.
-pub fn alias<'a>(name: &str, axes: &'a [Axis]) -> Option<(&'a str, Component)> {
+/// What a one-word target stands for: an ISO 230-1 component error (`EXX`, `EBZ`: E, error
+/// direction, axis), a VDI 2617 name (`xtx`, `yrz`: axis, translation/rotation, direction), or
+/// an ISO 230-1 location or squareness error (`EC0Y`, `EX0C`: E, direction, 0, axis; spec/
+/// semantics.md, "Location and squareness"). `Ok(None)` when `name` is none of these for this
+/// machine; `Err` when it is a location name the structure cannot carry. The `errors` block and
+/// `params` files both resolve through here, so they always agree.
+pub fn alias<'a>(name: &str, layout: Layout<'a>) -> Result<Option<Aliased<'a>>, AliasError> {
+    let axes = layout.axes;
     let component = |kind: char, dir: char| -> Option<Component> {
         Some(match (kind, dir) {
             ('t', 'x') => Component::Tx,
@@ -130,6 +134,11 @@ pub fn alias<'a>(name: &str, axes: &'a [Axis]) -> Option<(&'a str, Component)> {
             ('r', 'z') => Component::Rz,
             _ => return None,
         })
+    };
+    let plain = |axis: &'a str, component: Component| Aliased {
+        axis,
+        component,
+        sign: 1.0,
     };
     let mut chars = name.chars();
     if let (Some('E'), Some(d)) = (chars.next(), chars.next()) {
@@ -143,18 +152,465 @@ pub fn alias<'a>(name: &str, axes: &'a [Axis]) -> Option<(&'a str, Component)> {
                 'B' => component('r', 'y'),
                 'C' => component('r', 'z'),
                 _ => None,
-            }?;
-            return Some((axis.name.as_str(), c));
+            };
+            return Ok(c.map(|c| plain(axis.name.as_str(), c)));
+        }
+        if let Some(found) = location(name, layout)? {
+            return Ok(Some(found));
         }
     }
     let chars: Vec<char> = name.chars().collect();
     if let [a, k, d] = chars.as_slice() {
-        let axis = axes
+        let Some(axis) = axes
             .iter()
-            .find(|ax| ax.name.to_lowercase() == a.to_string())?;
-        return Some((axis.name.as_str(), component(*k, *d)?));
+            .find(|ax| ax.name.to_lowercase() == a.to_string())
+        else {
+            return Ok(None);
+        };
+        return Ok(component(*k, *d).map(|c| plain(axis.name.as_str(), c)));
     }
-    None
+    Ok(None)
+}
+
+/// The axes and chains an alias is resolved against: a location or squareness name
+/// (`EC0Y`, `EX0C`) means a different frame and sign in different structures.
+#[derive(Debug, Clone, Copy)]
+pub struct Layout<'a> {
+    pub axes: &'a [Axis],
+    pub tool_chain: &'a [Element],
+    pub workpiece_chain: &'a [Element],
+}
+
+/// What an alias stands for: `sign ×` the component `component` of the frame of `axis`.
+/// A component error (`EXX`, `xtx`) always has sign +1; a location or squareness error may be
+/// carried by another axis' frame with sign −1 (spec/semantics.md, "Location and squareness").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aliased<'a> {
+    pub axis: &'a str,
+    pub component: Component,
+    pub sign: f64,
+}
+
+/// Why an ISO 230-1 location or squareness name cannot be placed in a machine.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AliasError {
+    /// The axis sits in no chain (reported as `E0401` where the chains are resolved).
+    #[error("`{axis}` is in no chain")]
+    Unplaced { axis: String },
+    #[error("`{name}`: a linear axis has no location error, only a direction; `{axis}` moving its line along {dir} changes nothing but a constant offset")]
+    LinearLocation {
+        name: String,
+        axis: String,
+        dir: char,
+    },
+    #[error("`{name}`: `{axis}` moves along {dir}; a rotation about {dir} does not change its direction")]
+    ParallelRotation {
+        name: String,
+        axis: String,
+        dir: char,
+    },
+    #[error(
+        "`{name}`: `{axis}` turns about {dir}; shifting its line along {dir} does not move it"
+    )]
+    AlongLine {
+        name: String,
+        axis: String,
+        dir: char,
+    },
+    #[error("`{name}`: the frame of `{axis}` is moving, so its constant errors turn with it and cannot place its line")]
+    MovingRevolute { name: String, axis: String },
+    #[error("`{name}`: no frame of this machine turns `{axis}` about {dir} without turning {others} too")]
+    NoSeparatingFrame {
+        name: String,
+        axis: String,
+        dir: char,
+        others: String,
+    },
+    #[error("`{name}`: the axes of `{frame}`'s frame are not aligned with the machine's x, y, z")]
+    NotAligned { name: String, frame: String },
+}
+
+impl AliasError {
+    /// What the user can do about it, for the diagnostic's help line.
+    pub fn help(&self) -> String {
+        match self {
+            AliasError::Unplaced { .. } => String::new(),
+            AliasError::LinearLocation { axis, .. } => format!(
+                "ISO 230-1 names a linear axis' location by its squareness to the others (`EC0Y`, `EB0Z`, `EA0Z`); a constant offset of `{axis}` is e.g. `{axis}.tx = const`"
+            ),
+            AliasError::ParallelRotation { axis, .. } => format!(
+                "the squareness of `{axis}` is a rotation about one of the two other directions"
+            ),
+            AliasError::AlongLine { axis, .. } => format!(
+                "the location of `{axis}`'s line is given by the two directions across it"
+            ),
+            AliasError::MovingRevolute { axis, .. } => format!(
+                "declare `{axis} fixed` in its chain: a revolute axis' line is placed by the errors of its fixed frame (thesis §2.4)"
+            ),
+            AliasError::NoSeparatingFrame { axis, .. } => format!(
+                "a squareness needs a frame between `{axis}` and the axes it is measured against: give one of them a frame the other does not ride on (`moving` or `fixed`, spec/kinematics.md), or write the rotation on a frame's component directly"
+            ),
+            AliasError::NotAligned { frame, .. } => format!(
+                "write the error on a component of `{frame}` directly (its axes are rotated by `rot` in the chain)"
+            ),
+        }
+    }
+}
+
+impl Machine {
+    pub fn layout(&self) -> Layout<'_> {
+        Layout {
+            axes: &self.axes,
+            tool_chain: &self.tool_chain,
+            workpiece_chain: &self.workpiece_chain,
+        }
+    }
+
+    /// The ISO 230-1 name of each coefficient, as printed beside kin's: a `const` term of a
+    /// component that carries a location or squareness error is that error, with the sign
+    /// relating the two (`-EC0Y`: the coefficient is −EC0Y); any other coefficient of an axis'
+    /// component is of that component error (`EXX`). `None` for tool and workpiece frames.
+    pub fn iso_names(&self) -> Vec<Option<String>> {
+        let layout = self.layout();
+        let frames = placed(&layout);
+        // Every location and squareness name the structure can carry, with what it stands for
+        // and whether it is the standard's first choice: a squareness measured against the
+        // axis of the lower direction (`EC0Y` against X, not `EC0X` against Y), as ISO 230-1
+        // takes X, then Y, as the reference.
+        let mut locations: Vec<(String, Aliased<'_>, bool)> = Vec::new();
+        for (j, axis) in self.axes.iter().enumerate() {
+            let own = frames.iter().find(|p| p.axis == j).map(|p| {
+                let d = apply(&p.rotation, axis.direction);
+                (0..3)
+                    .max_by(|&a, &b| d[a].abs().total_cmp(&d[b].abs()))
+                    .unwrap_or(0)
+            });
+            for (r, d) in ['X', 'Y', 'Z', 'A', 'B', 'C'].into_iter().enumerate() {
+                let name = format!("E{d}0{}", axis.name);
+                if let Ok(Some(a)) = alias(&name, layout) {
+                    let preferred = match (axis.kind, own) {
+                        (JointKind::Prismatic, Some(jd)) if r >= 3 && r - 3 != jd => {
+                            // The third direction, the reference's: 0 + 1 + 2 = 3.
+                            3 - (r - 3) - jd < jd
+                        }
+                        _ => true,
+                    };
+                    locations.push((name, a, preferred));
+                }
+            }
+        }
+        self.coefficients
+            .iter()
+            .enumerate()
+            .map(|(j, c)| {
+                let model = self.errors.get(c.error)?;
+                let element = match model.frame {
+                    FrameRef::Tool(k) => self.tool_chain.get(k)?,
+                    FrameRef::Workpiece(k) => self.workpiece_chain.get(k)?,
+                    _ => return None,
+                };
+                let axis = self.axes.get(element.axis)?;
+                let term = model
+                    .terms
+                    .iter()
+                    .find(|t| t.first <= j && j < t.first + t.coefficients)?;
+                let constant = term.factors.iter().all(|f| matches!(f.basis, Basis::Const));
+                let scale = match term.scale {
+                    Scalar::Num(v) if v.abs() == 1.0 => Some(v),
+                    _ => None,
+                };
+                if let (true, Some(scale)) = (constant, scale) {
+                    // Prefer a name of the axis itself (`EC0Y` on Y's frame) over one another
+                    // axis' squareness places here.
+                    let found = locations
+                        .iter()
+                        .filter(|(_, a, _)| a.axis == axis.name && a.component == model.component)
+                        .min_by_key(|(n, _, preferred)| {
+                            (!preferred, !n.ends_with(&format!("0{}", axis.name)))
+                        });
+                    if let Some((name, a, _)) = found {
+                        let sign = if a.sign * scale < 0.0 { "-" } else { "" };
+                        return Some(format!("{sign}{name}"));
+                    }
+                }
+                let d = ['X', 'Y', 'Z', 'A', 'B', 'C'][model.component.index()];
+                Some(format!("E{d}{}", axis.name))
+            })
+            .collect()
+    }
+}
+
+/// Whether `name` has the form of an ISO 230-1 location name (`EC0Y`, `EX0C`): `E`, a
+/// direction, `0`. Axis names start with a letter, so no component error looks like one.
+pub fn is_location(name: &str) -> bool {
+    let mut c = name.chars();
+    c.next() == Some('E') && c.next().is_some() && c.next() == Some('0')
+}
+
+/// The machine direction (x, y, z) an ISO 230-1 error letter refers to: `X Y Z` translations,
+/// `A B C` rotations about x, y, z (right-handed).
+fn letter(d: char) -> Option<(bool, usize)> {
+    Some(match d {
+        'X' => (false, 0),
+        'Y' => (false, 1),
+        'Z' => (false, 2),
+        'A' => (true, 0),
+        'B' => (true, 1),
+        'C' => (true, 2),
+        _ => return None,
+    })
+}
+
+/// `Rot_x(rx) · Rot_y(ry) · Rot_z(rz)` of a shape (spec/kinematics.md, "Elementary transforms").
+fn shape_rotation(s: &Shape) -> [[f64; 3]; 3] {
+    let [a, b, c] = s.rotation;
+    let (sa, ca) = a.sin_cos();
+    let (sb, cb) = b.sin_cos();
+    let (sc, cc) = c.sin_cos();
+    let rx = [[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]];
+    let ry = [[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]];
+    let rz = [[cc, -sc, 0.0], [sc, cc, 0.0], [0.0, 0.0, 1.0]];
+    matmul(&matmul(&rx, &ry), &rz)
+}
+
+fn matmul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    let mut out = [[0.0; 3]; 3];
+    for (i, row) in out.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+        }
+    }
+    out
+}
+
+fn apply(r: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| (0..3).map(|k| r[i][k] * v[k]).sum())
+}
+
+fn cross_norm(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let c = [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ];
+    (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()
+}
+
+/// Directions closer than this (in sin of the angle) count as parallel: nominal directions are
+/// exact or come from `rot` angles, so anything in between is a deliberate oblique axis.
+const PARALLEL: f64 = 1e-9;
+
+/// One frame of a chain, at the home position (every joint at 0), in the base's axes.
+struct Placed {
+    /// `true` for the tool chain.
+    tool: bool,
+    index: usize,
+    axis: usize,
+    kind: FrameKind,
+    /// Frame k's axes in the base's: `R(0 → k)` at home, the product of the shapes' rotations
+    /// (a joint at 0 is the identity, whichever side of it the frame sits).
+    rotation: [[f64; 3]; 3],
+}
+
+fn placed(layout: &Layout<'_>) -> Vec<Placed> {
+    let mut out = Vec::new();
+    for (tool, chain) in [(true, layout.tool_chain), (false, layout.workpiece_chain)] {
+        let mut r = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        for (index, e) in chain.iter().enumerate() {
+            r = matmul(&r, &shape_rotation(&e.shape));
+            out.push(Placed {
+                tool,
+                index,
+                axis: e.axis,
+                kind: e.frame,
+                rotation: r,
+            });
+        }
+    }
+    out
+}
+
+/// Which of the frame's components points along machine direction `dir`, and with which sign:
+/// `Rᵀ e_dir` must be a unit vector of the frame.
+fn aligned(p: &Placed, dir: usize, rotation: bool) -> Option<(Component, f64)> {
+    let local = [0, 1, 2].map(|i| p.rotation[dir][i]);
+    let i = (0..3).find(|&i| (local[i].abs() - 1.0).abs() < PARALLEL)?;
+    let c = Component::ALL[i + if rotation { 3 } else { 0 }];
+    Some((c, local[i].signum()))
+}
+
+/// A member of the structural loop a constant error can separate: an axis, or the workpiece
+/// (whose frame defines the coordinates observations are in).
+#[derive(Clone, Copy, PartialEq)]
+enum Member {
+    Axis(usize),
+    Workpiece,
+}
+
+/// Whether a constant error of frame `p` moves `m` relative to the base: the frame's own joint
+/// when the frame is fixed (the error sits before the joint, eq. 2.36–2.38), every element
+/// after it in its chain, and for the workpiece chain the workpiece at its end.
+fn carried(layout: &Layout<'_>, p: &Placed, m: Member) -> bool {
+    let chain = if p.tool {
+        layout.tool_chain
+    } else {
+        layout.workpiece_chain
+    };
+    match m {
+        Member::Workpiece => !p.tool,
+        Member::Axis(a) => chain.iter().enumerate().any(|(k, e)| {
+            e.axis == a && (k > p.index || (k == p.index && p.kind == FrameKind::Fixed))
+        }),
+    }
+}
+
+/// Resolves an ISO 230-1 location or squareness name `E` + direction + `0` + axis
+/// (spec/semantics.md, "Location and squareness"): `Ok(None)` when `name` is not of that form.
+fn location<'a>(name: &str, layout: Layout<'a>) -> Result<Option<Aliased<'a>>, AliasError> {
+    let mut chars = name.chars();
+    let (Some('E'), Some(d), Some('0')) = (chars.next(), chars.next(), chars.next()) else {
+        return Ok(None);
+    };
+    let rest = chars.as_str();
+    let Some((rotation, dir)) = letter(d) else {
+        return Ok(None);
+    };
+    let Some(j) = layout.axes.iter().position(|a| a.name == rest) else {
+        return Ok(None);
+    };
+    let Some(axis) = layout.axes.get(j) else {
+        return Ok(None);
+    };
+    let frames = placed(&layout);
+    let Some(own) = frames.iter().find(|p| p.axis == j) else {
+        return Err(AliasError::Unplaced {
+            axis: axis.name.clone(),
+        });
+    };
+    let dir_char = ['x', 'y', 'z'][dir];
+    let mut e = [0.0; 3];
+    e[dir] = 1.0;
+    let direction = |p: &Placed| {
+        apply(
+            &p.rotation,
+            layout
+                .axes
+                .get(p.axis)
+                .map(|a| a.direction)
+                .unwrap_or_default(),
+        )
+    };
+    let parallel = cross_norm(direction(own), e) < PARALLEL;
+    let not_aligned = |p: &Placed| AliasError::NotAligned {
+        name: name.to_string(),
+        frame: layout
+            .axes
+            .get(p.axis)
+            .map(|a| a.name.clone())
+            .unwrap_or_default(),
+    };
+    let at = |p: &Placed, sign: f64| -> Result<Option<Aliased<'a>>, AliasError> {
+        let (component, s) = aligned(p, dir, rotation).ok_or_else(|| not_aligned(p))?;
+        let axis = layout
+            .axes
+            .get(p.axis)
+            .map(|a| a.name.as_str())
+            .unwrap_or_default();
+        Ok(Some(Aliased {
+            axis,
+            component,
+            sign: sign * s,
+        }))
+    };
+    match (axis.kind, rotation) {
+        (JointKind::Prismatic, false) => Err(AliasError::LinearLocation {
+            name: name.to_string(),
+            axis: axis.name.clone(),
+            dir: dir_char,
+        }),
+        (JointKind::Prismatic, true) if parallel => Err(AliasError::ParallelRotation {
+            name: name.to_string(),
+            axis: axis.name.clone(),
+            dir: dir_char,
+        }),
+        (JointKind::Revolute, false) if parallel => Err(AliasError::AlongLine {
+            name: name.to_string(),
+            axis: axis.name.clone(),
+            dir: dir_char,
+        }),
+        // The zero of a revolute axis: a rotation about its own line commutes with the joint,
+        // so either side of it will do.
+        (JointKind::Revolute, true) if parallel => at(own, 1.0),
+        (JointKind::Revolute, _) => {
+            if own.kind == FrameKind::Moving {
+                return Err(AliasError::MovingRevolute {
+                    name: name.to_string(),
+                    axis: axis.name.clone(),
+                });
+            }
+            at(own, 1.0)
+        }
+        (JointKind::Prismatic, true) => {
+            // The other linear axes this rotation turns: the squareness is J's direction
+            // relative to theirs; with none, relative to the workpiece's coordinates.
+            let others: Vec<Member> = frames
+                .iter()
+                .filter(|p| p.axis != j)
+                .filter(|p| {
+                    layout.axes.get(p.axis).map(|a| a.kind) == Some(JointKind::Prismatic)
+                        && cross_norm(direction(p), e) >= PARALLEL
+                })
+                .map(|p| Member::Axis(p.axis))
+                .collect();
+            let reference = if others.is_empty() {
+                vec![Member::Workpiece]
+            } else {
+                others.clone()
+            };
+            // J's own frame first, then those of the reference axes, then any other.
+            let mut order: Vec<&Placed> = vec![own];
+            order.extend(
+                frames
+                    .iter()
+                    .filter(|p| others.contains(&Member::Axis(p.axis))),
+            );
+            order.extend(
+                frames
+                    .iter()
+                    .filter(|p| p.axis != j && !others.contains(&Member::Axis(p.axis))),
+            );
+            for p in order {
+                let moves_j = carried(&layout, p, Member::Axis(j));
+                let side = if moves_j && reference.iter().all(|&m| !carried(&layout, p, m)) {
+                    1.0
+                } else if !moves_j && reference.iter().all(|&m| carried(&layout, p, m)) {
+                    -1.0
+                } else {
+                    continue;
+                };
+                if aligned(p, dir, true).is_some() {
+                    return at(p, side);
+                }
+            }
+            let names: Vec<String> = others
+                .iter()
+                .filter_map(|m| match m {
+                    Member::Axis(a) => layout.axes.get(*a).map(|a| format!("`{}`", a.name)),
+                    Member::Workpiece => None,
+                })
+                .collect();
+            Err(AliasError::NoSeparatingFrame {
+                name: name.to_string(),
+                axis: axis.name.clone(),
+                dir: dir_char,
+                others: if names.is_empty() {
+                    "the workpiece".to_string()
+                } else {
+                    names.join(", ")
+                },
+            })
+        }
+    }
 }
 
 /// The frame a parametric error belongs to.
@@ -290,4 +746,174 @@ pub struct DisplayUnits {
     pub time: Unit,
     pub temperature: Unit,
     pub force: Unit,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{alias, AliasError, Aliased, Component, Machine};
+
+    /// A bridge CMM: Y carries X carries Z, every frame moving (examples/bridge_cmm.kin).
+    const BRIDGE: &str = "machine bridge {
+        task measure
+        axis Y prismatic along y range 0 mm .. 700 mm
+        axis X prismatic along x range 0 mm .. 600 mm
+        axis Z prismatic along z range -450 mm .. 0 mm
+        tool chain { Y moving  X moving  Z moving  tool probe at (0, 0, -120) mm }
+    }";
+
+    /// A table-table mill: Y, X, A, C carry the part (fixed frames), Z the spindle.
+    const MILL: &str = "machine mill {
+        task position
+        axis Y prismatic along -y range 0 mm .. 500 mm
+        axis X prismatic along -x range 0 mm .. 650 mm
+        axis Z prismatic along z range -450 mm .. 0 mm
+        axis A revolute about x range -120 deg .. 30 deg
+        axis C revolute about z continuous
+        workpiece chain { Y fixed  X fixed  A fixed at (0, 0, 230) mm  C fixed }
+        tool chain { Z moving at (0, 0, 760) mm  tool t }
+    }";
+
+    fn machine(src: &str) -> Machine {
+        crate::compile(src).compiled.expect("compiles").machine
+    }
+
+    fn resolve(m: &Machine, name: &str) -> Result<Option<(String, Component, f64)>, AliasError> {
+        Ok(alias(name, m.layout())?.map(
+            |Aliased {
+                 axis,
+                 component,
+                 sign,
+             }| (axis.to_string(), component, sign),
+        ))
+    }
+
+    #[test]
+    fn squareness_names_land_on_the_frame_between_the_two_axes() {
+        let m = machine(BRIDGE);
+        let r = |n| resolve(&m, n).expect(n).expect(n);
+        // X rides on Y: Y's constant yaw turns X (and Z, along the axis of the rotation) against
+        // Y, which is Y turned the other way against X.
+        assert_eq!(r("EC0Y"), ("Y".into(), Component::Rz, -1.0));
+        assert_eq!(r("EC0X"), ("Y".into(), Component::Rz, 1.0));
+        assert_eq!(r("EB0Z"), ("X".into(), Component::Ry, 1.0));
+        assert_eq!(r("EA0Z"), ("Y".into(), Component::Rx, 1.0));
+        // Component errors keep their meaning.
+        assert_eq!(r("ECY"), ("Y".into(), Component::Rz, 1.0));
+
+        let m = machine(MILL);
+        let r = |n| resolve(&m, n).expect(n).expect(n);
+        assert_eq!(r("EC0Y"), ("X".into(), Component::Rz, -1.0));
+        assert_eq!(r("EB0Z"), ("X".into(), Component::Ry, -1.0));
+        assert_eq!(r("EA0Z"), ("Y".into(), Component::Rx, -1.0));
+        // Location of the rotary axes: their fixed frames.
+        assert_eq!(r("EX0C"), ("C".into(), Component::Tx, 1.0));
+        assert_eq!(r("EY0C"), ("C".into(), Component::Ty, 1.0));
+        assert_eq!(r("EA0C"), ("C".into(), Component::Rx, 1.0));
+        assert_eq!(r("EB0C"), ("C".into(), Component::Ry, 1.0));
+        assert_eq!(r("EC0C"), ("C".into(), Component::Rz, 1.0));
+        assert_eq!(r("EY0A"), ("A".into(), Component::Ty, 1.0));
+        assert_eq!(r("EC0A"), ("A".into(), Component::Rz, 1.0));
+    }
+
+    #[test]
+    fn names_the_structure_cannot_carry_say_why() {
+        let m = machine(MILL);
+        assert!(matches!(
+            resolve(&m, "EA0X"),
+            Err(AliasError::ParallelRotation { .. })
+        ));
+        assert!(matches!(
+            resolve(&m, "EY0X"),
+            Err(AliasError::LinearLocation { .. })
+        ));
+        assert!(matches!(
+            resolve(&m, "EZ0C"),
+            Err(AliasError::AlongLine { .. })
+        ));
+        assert_eq!(resolve(&m, "EQ0C"), Ok(None));
+        assert_eq!(resolve(&m, "EC0W"), Ok(None));
+        // Y fixed carries X, X moving carries nothing between them: no frame separates them.
+        let m = machine(
+            "machine m { task position
+                axis Y prismatic along y range 0 mm .. 500 mm
+                axis X prismatic along x range 0 mm .. 500 mm
+                workpiece chain { Y fixed  X moving }
+                tool chain { tool t } }",
+        );
+        assert!(matches!(
+            resolve(&m, "EC0Y"),
+            Err(AliasError::NoSeparatingFrame { .. })
+        ));
+        // A moving rotary frame turns its errors with the table: no location there.
+        let m = machine(
+            "machine m { task position
+                axis C revolute about z continuous
+                workpiece chain { C moving }
+                tool chain { tool t } }",
+        );
+        assert!(matches!(
+            resolve(&m, "EX0C"),
+            Err(AliasError::MovingRevolute { .. })
+        ));
+        assert_eq!(
+            resolve(&m, "EC0C").expect("zero of C").map(|a| a.2),
+            Some(1.0)
+        );
+    }
+
+    #[test]
+    fn a_frame_turned_by_rot_maps_with_its_own_axes() {
+        // C's frame is turned 180° about x: its z points down, so EA0C and EC0C change sign.
+        let m = machine(
+            "machine m { task position
+                axis C revolute about z continuous
+                workpiece chain { C fixed rot (180, 0, 0) deg }
+                tool chain { tool t } }",
+        );
+        let r = |n| resolve(&m, n).expect(n).expect(n);
+        assert_eq!(r("EX0C"), ("C".into(), Component::Tx, 1.0));
+        assert_eq!(r("EY0C"), ("C".into(), Component::Ty, -1.0));
+        assert_eq!(r("EC0C"), ("C".into(), Component::Rz, -1.0));
+    }
+
+    #[test]
+    fn coefficients_are_named_by_iso_too() {
+        let m = machine(
+            "machine mill {
+                task position
+                axis Y prismatic along -y range 0 mm .. 500 mm
+                axis X prismatic along -x range 0 mm .. 650 mm
+                axis Z prismatic along z range -450 mm .. 0 mm
+                axis C revolute about z continuous
+                workpiece chain { Y fixed  X fixed  C fixed }
+                tool chain { Z moving  tool t }
+                errors {
+                    X.rz = const + spline(X, knots 2)
+                    EC0Y += const
+                    EX0C = const
+                    Z.tz = const
+                }
+            }",
+        );
+        let names: Vec<(String, Option<String>)> = m
+            .coefficients
+            .iter()
+            .map(|c| c.name.clone())
+            .zip(m.iso_names())
+            .collect();
+        let get = |n: &str| {
+            names
+                .iter()
+                .find(|(c, _)| c == n)
+                .and_then(|(_, i)| i.clone())
+                .unwrap_or_default()
+        };
+        let last = names.iter().filter(|(c, _)| c.starts_with("X.rz[")).count() - 1;
+        // `const` on X.rz is −EC0Y; `EC0Y += const` wrote −const there, so it is EC0Y.
+        assert_eq!(get("X.rz[0]"), "-EC0Y");
+        assert_eq!(get("X.rz[1]"), "ECX");
+        assert_eq!(get(&format!("X.rz[{last}]")), "EC0Y");
+        assert_eq!(get("C.tx[0]"), "EX0C");
+        assert_eq!(get("Z.tz[0]"), "EZZ");
+    }
 }

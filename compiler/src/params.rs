@@ -61,7 +61,18 @@ impl Bound {
 
 fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, sink: &mut Sink) {
     let path: Vec<&str> = def.path.iter().map(|n| n.node.as_str()).collect();
-    let full = canonical(machine, &path);
+    let (full, location) = match canonical(machine, &path) {
+        Ok(found) => found,
+        Err(e) => {
+            let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
+            sink.push(
+                Diagnostic::error("E0107", e.to_string(), first)
+                    .with_label("an ISO 230-1 location name this machine cannot carry")
+                    .with_help(e.help()),
+            );
+            return;
+        }
+    };
     let first = def.path.first().map(|n| n.span).unwrap_or(def.span);
     let last = def.path.last().map(|n| n.span).unwrap_or(def.span);
     let path_span = first.to(last);
@@ -150,9 +161,10 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                 .get(k)
                 .map(|c| c.unit.clone())
                 .unwrap_or_else(Unit::dimensionless);
+            let sign = location.map_or(1.0, |s| s * scale_sign(machine, k));
             if let Some(v) = scalar_value(value, &unit, sink) {
                 if let Some(b) = machine.beta.get_mut(k) {
-                    *b = v;
+                    *b = sign * v;
                 }
             }
         }
@@ -205,8 +217,9 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                     }
                     None => coef.unit.clone(),
                 };
+                let sign = location.map_or(1.0, |s| s * scale_sign(machine, *k));
                 if let Some(b) = machine.beta.get_mut(*k) {
-                    *b = unit.to_si(*v);
+                    *b = sign * unit.to_si(*v);
                 }
             }
         }
@@ -239,10 +252,15 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
     }
 }
 
-/// The name `path` stands for: itself when the machine has parameters of that name, else with
-/// an ISO 230-1 or VDI 2617 alias in front expanded (`EAX[0]` is `X.rx[0]`, `xtx.wavelength`
-/// is `X.tx.wavelength`), as the `errors` block accepts them.
-fn canonical(machine: &ir::Machine, path: &[&str]) -> String {
+/// The name `path` stands for, and for a location name the sign relating its value to the
+/// component's (`None` for any other name): itself when the machine has
+/// parameters of that name, else with an ISO 230-1 or VDI 2617 alias in front expanded
+/// (`EAX[0]` is `X.rx[0]`, `xtx.wavelength` is `X.tx.wavelength`, `EC0Y[0]` may be
+/// `−X.rz[0]`), as the `errors` block accepts them.
+fn canonical(
+    machine: &ir::Machine,
+    path: &[&str],
+) -> Result<(String, Option<f64>), ir::AliasError> {
     let given = path.join(".");
     let known = |name: &str| {
         machine.nonlinear.iter().any(|p| {
@@ -256,18 +274,43 @@ fn canonical(machine: &ir::Machine, path: &[&str]) -> String {
             .any(|c| c.name.rsplit_once('[').map(|(base, _)| base) == Some(name))
     };
     if known(&given) {
-        return given;
+        return Ok((given, None));
     }
-    match path.split_first() {
-        Some((first, rest)) => match ir::alias(first, &machine.axes) {
-            Some((axis, component)) => std::iter::once(format!("{axis}.{}", component.name()))
-                .chain(rest.iter().map(|s| s.to_string()))
-                .collect::<Vec<_>>()
-                .join("."),
-            None => given,
+    Ok(match path.split_first() {
+        Some((first, rest)) => match ir::alias(first, machine.layout())? {
+            Some(a) => (
+                std::iter::once(format!("{}.{}", a.axis, a.component.name()))
+                    .chain(rest.iter().map(|s| s.to_string()))
+                    .collect::<Vec<_>>()
+                    .join("."),
+                // A component alias binds coefficients as they are; only a location name binds
+                // an error value (see `scale_sign`), and never a non-linear parameter.
+                (rest.is_empty() && ir::is_location(first)).then_some(a.sign),
+            ),
+            None => (given, None),
         },
-        None => given,
-    }
+        None => (given, None),
+    })
+}
+
+/// The sign of the plain-number scale of coefficient `k`'s term, +1 for any other: a location
+/// name binds the error's value, `scale × β`, and `EC0Y = const` written where `EC0Y` is
+/// `−X.rz` makes a term of scale −1 whose coefficient is EC0Y itself.
+fn scale_sign(machine: &ir::Machine, k: usize) -> f64 {
+    machine
+        .coefficients
+        .get(k)
+        .and_then(|c| machine.errors.get(c.error))
+        .and_then(|e| {
+            e.terms
+                .iter()
+                .find(|t| t.first <= k && k < t.first + t.coefficients)
+        })
+        .map(|t| match t.scale {
+            ir::Scalar::Num(v) if v < 0.0 => -1.0,
+            _ => 1.0,
+        })
+        .unwrap_or(1.0)
 }
 
 fn unit_mismatch(name: &str, expected: &Unit, given: &Unit, span: Span) -> Diagnostic {
@@ -371,5 +414,45 @@ mod tests {
         let (_, errors) = bound("params { EAY[0] = 1 urad }");
         assert_eq!(errors.len(), 1, "{errors:?}");
         assert!(errors[0].contains("EAY"), "{errors:?}");
+    }
+
+    #[test]
+    fn a_squareness_name_binds_its_component_with_its_sign() {
+        let mut m = crate::compile(
+            "machine m { task position
+                units { tilt urad }
+                axis Y prismatic along y range 0 mm .. 500 mm
+                axis X prismatic along x range 0 mm .. 500 mm
+                workpiece chain { Y moving  X moving }
+                tool chain { tool t }
+                errors { Y.rz = const } }",
+        )
+        .compiled
+        .expect("the machine compiles")
+        .machine;
+        // Y moving carries X: Y's constant yaw turns X against Y, i.e. Y against X the other
+        // way: EC0Y is −Y.rz.
+        let diagnostics = crate::bind_params(&mut m, "params { EC0Y[0] = 12 urad }");
+        assert!(diagnostics.is_empty(), "{diagnostics:?}");
+        assert!((m.beta[0] + 12e-6).abs() < 1e-18, "{:?}", m.beta);
+        // Written through the alias, the term has scale −1 and its coefficient is EC0Y itself.
+        let mut m = crate::compile(
+            "machine m { task position
+                units { tilt urad }
+                axis Y prismatic along y range 0 mm .. 500 mm
+                axis X prismatic along x range 0 mm .. 500 mm
+                workpiece chain { Y moving  X moving }
+                tool chain { tool t }
+                errors { EC0Y = const } }",
+        )
+        .compiled
+        .expect("the machine compiles")
+        .machine;
+        let diagnostics = crate::bind_params(&mut m, "params { EC0Y[0] = 12 urad }");
+        assert!(diagnostics.is_empty(), "{diagnostics:?}");
+        assert!((m.beta[0] - 12e-6).abs() < 1e-18, "{:?}", m.beta);
+        let diagnostics = crate::bind_params(&mut m, "params { EY0X[0] = 1 um }");
+        assert_eq!(diagnostics.len(), 1);
+        assert_eq!(diagnostics[0].code, "E0107", "{diagnostics:?}");
     }
 }

@@ -11,6 +11,7 @@ mod projection;
 mod qr;
 pub mod report;
 mod solve;
+pub mod stations;
 pub mod stepwise;
 pub mod stream;
 pub mod tally;

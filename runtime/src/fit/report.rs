@@ -18,7 +18,7 @@ fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> 
 }
 
 /// As [`nan_if_null`], for every element of an array.
-fn nans_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+pub(crate) fn nans_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
     Ok(Vec::<Option<f64>>::deserialize(d)?
         .into_iter()
         .map(|x| x.unwrap_or(f64::NAN))
@@ -87,6 +87,10 @@ pub struct FitReport {
     /// residuals and the per-file and per-component summaries stay in display units.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub weights: Option<StatedWeights>,
+    /// Every error component that varies along one axis, as values at stations along it with
+    /// their standard uncertainties (spec/json.md); absent in reports of earlier versions.
+    #[serde(default)]
+    pub stations: Vec<super::stations::StationTable>,
 }
 
 /// The weights of a fit by a stated noise (`kin fit --noise`).
@@ -173,6 +177,10 @@ pub struct Estimate {
     /// `not significant`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// The coefficient's ISO 230-1 name (`EXX`, or `-EC0Y` for a constant that is minus that
+    /// squareness), when its frame is an axis'; absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iso: Option<String>,
 }
 
 fn yes() -> bool {
@@ -378,6 +386,7 @@ pub fn build(
                 se: se / p.unit.scale,
                 kept: true,
                 note,
+                iso: None,
             }
         })
         .collect();
@@ -392,6 +401,7 @@ pub fn build(
     // says why, so no report prints it as a value with a standard error.
     let undetermined =
         |j: usize| (0..sol.null.ncols()).any(|k| sol.null[(j, k)].abs() > UNDETERMINED);
+    let iso = m.iso_names();
     let coefficients: Vec<Estimate> = m
         .coefficients
         .iter()
@@ -417,6 +427,7 @@ pub fn build(
                      the minimum-norm choice)"
                         .to_string()
                 }),
+                iso: iso.get(j).cloned().flatten(),
             }
         })
         .collect();
@@ -443,6 +454,7 @@ pub fn build(
                 se: var.get(j).copied().unwrap_or(f64::NAN).sqrt() / unit.scale,
                 kept: true,
                 note: None,
+                iso: None,
             }
         })
         .collect();
@@ -508,7 +520,8 @@ pub fn build(
                 .collect(),
         }
     };
-    FitReport {
+    let mut report = FitReport {
+        stations: Vec::new(),
         estimability: Some(estimability),
         version: VERSION,
         machine: m.name.clone(),
@@ -569,7 +582,21 @@ pub fn build(
             .iter()
             .map(|d| d.message.clone())
             .collect(),
-    }
+    };
+    let nonlinear_si: Vec<f64> = m
+        .nonlinear
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            result
+                .nonlinear
+                .as_ref()
+                .and_then(|n| n.values.get(i).copied())
+                .unwrap_or(p.value)
+        })
+        .collect();
+    report.stations = super::stations::tables(m, &sol.beta, &nonlinear_si, &report);
+    report
 }
 
 /// The stated noise and the χ² test of the fit against it: with rows divided by their σ, the

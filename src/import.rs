@@ -46,7 +46,11 @@ fn import_urdf(args: Urdf<'_>) -> Result<(), Failed> {
         imported.base,
         imported.tip,
         if imported.fixed > 0 {
-            format!(" ({} fixed joints folded into the shapes)", imported.fixed)
+            format!(
+                " ({} fixed joint{} folded into the shapes)",
+                imported.fixed,
+                if imported.fixed == 1 { "" } else { "s" }
+            )
         } else {
             String::new()
         },

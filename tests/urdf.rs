@@ -275,6 +275,7 @@ fn a_ur5_imports_with_the_urdf_forward_kinematics_to_1e_9() {
     let kin_text = std::fs::read_to_string(&out).unwrap();
     let urdf = read_urdf(&std::fs::read_to_string(repo("examples/urdf/ur5.urdf")).unwrap());
     let (dp, dr) = compare(&kin_text, &urdf, "base_link", "tool0", identity(), 2000);
+    eprintln!("UR5, 2000 joint vectors: largest difference {dp:e} m, {dr:e} rad");
     assert!(
         dp <= 1e-9 && dr <= 1e-9,
         "position {dp:e} m, rotation {dr:e} rad\n{kin_text}"
@@ -655,4 +656,24 @@ fn the_command_keeps_its_exit_codes_and_its_input() {
     let model = String::from_utf8(run.stdout).unwrap();
     assert!(kin_compiler::compile(&model).compiled.is_some(), "{model}");
     assert!(String::from_utf8_lossy(&run.stderr).contains("imported robot `r`"));
+}
+
+#[test]
+fn the_command_has_help_with_examples_and_a_manual_page() {
+    let help = kin().args(["import", "urdf", "--help"]).output().unwrap();
+    assert!(help.status.success());
+    let text = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        text.contains("Examples:") && text.contains("--tip"),
+        "{text}"
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let run = kin().arg("man").arg("-o").arg(dir.path()).output().unwrap();
+    assert!(run.status.success(), "{run:?}");
+    let page = std::fs::read_to_string(dir.path().join("kin-import-urdf.1")).unwrap();
+    assert!(
+        page.contains(".TH kin-import-urdf 1") && page.contains("Examples:"),
+        "{page}"
+    );
 }

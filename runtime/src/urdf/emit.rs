@@ -514,17 +514,21 @@ fn source(s: &Source<'_>) -> String {
         s.elements.iter().map(|e| e.folded.len()).sum::<usize>() + s.tool_folded.len();
     let _ = writeln!(
         o,
-        "// Imported by `kin import urdf` from {file} (robot `{}`): the chain of links from `{}`\n\
-         // to `{}`, {} moving joints{}. URDF's metres and radians are written in mm and deg.\n\
-         // Each element's frame is the URDF frame of the link its joint moves (the joint's child\n\
-         // link), unless its comment says the frame is turned to make the joint axis its z.\n\
-         // The tool is the tip link; the base link is the machine's base (the workpiece frame).",
+        "// Imported by `kin import urdf` from {file} (robot `{}`): the chain of links from\n\
+         // `{}` to `{}`, {} moving joints{}.\n\
+         // URDF's metres and radians are written in mm and deg. Each element's frame is the URDF\n\
+         // frame of the link its joint moves (the joint's child link), unless its comment says\n\
+         // the frame is turned to make the joint axis its z. The tool is the tip link; the base\n\
+         // link is the machine's base (the workpiece frame).",
         s.robot.name,
         s.chain.base,
         s.chain.tip,
         s.elements.len(),
         if fixed > 0 {
-            format!(", {fixed} fixed joints folded into the shapes")
+            format!(
+                ", {fixed} fixed joint{} folded into the shapes",
+                if fixed == 1 { "" } else { "s" }
+            )
         } else {
             String::new()
         }

@@ -677,3 +677,20 @@ fn the_command_has_help_with_examples_and_a_manual_page() {
         "{page}"
     );
 }
+
+/// spec/urdf.md's SCARA example is what the importer writes for its URDF.
+#[test]
+fn the_spec_example_is_the_importers_output() {
+    let spec = std::fs::read_to_string(repo("spec/urdf.md")).unwrap();
+    let block = |fence: &str| {
+        let start = spec.find(fence).unwrap() + fence.len();
+        let end = start + spec[start..].find("```").unwrap();
+        spec[start..end].to_string()
+    };
+    let xml = block("```xml\n");
+    let kin_text = block("```kin check\n");
+    let i = urdf::import(&xml, Path::new("scara.urdf"), &Options::default()).unwrap();
+    assert_eq!(i.source, kin_text);
+    let (dp, dr) = compare(&i.source, &read_urdf(&xml), "base", "tcp", identity(), 500);
+    assert!(dp <= 1e-9 && dr <= 1e-9, "{dp:e} m, {dr:e} rad");
+}

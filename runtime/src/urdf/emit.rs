@@ -482,12 +482,18 @@ fn placement(shape: &Matrix4<f64>) -> String {
     s
 }
 
-fn quoted(names: &[String]) -> String {
-    names
+/// "fixed joint `a`" or "fixed joints `a`, `b`".
+fn fixed_joints(names: &[String]) -> String {
+    let list = names
         .iter()
         .map(|n| format!("`{n}`"))
         .collect::<Vec<_>>()
-        .join(", ")
+        .join(", ");
+    if names.len() == 1 {
+        format!("fixed joint {list}")
+    } else {
+        format!("fixed joints {list}")
+    }
 }
 
 struct Source<'a> {
@@ -586,7 +592,7 @@ fn source(s: &Source<'_>) -> String {
             e.child
         );
         if !e.folded.is_empty() {
-            let _ = write!(o, ", after fixed joints {}", quoted(&e.folded));
+            let _ = write!(o, ", after {}", fixed_joints(&e.folded));
         }
         if let Direction::Turned(u) = e.direction {
             let _ = write!(
@@ -607,7 +613,7 @@ fn source(s: &Source<'_>) -> String {
         s.chain.tip
     );
     if !s.tool_folded.is_empty() {
-        let _ = write!(o, ", through fixed joints {}", quoted(s.tool_folded));
+        let _ = write!(o, ", through {}", fixed_joints(s.tool_folded));
     }
     let _ = writeln!(o, "\n    }}\n");
 

@@ -694,3 +694,25 @@ fn the_spec_example_is_the_importers_output() {
     let (dp, dr) = compare(&i.source, &read_urdf(&xml), "base", "tcp", identity(), 500);
     assert!(dp <= 1e-9 && dr <= 1e-9, "{dp:e} m, {dr:e} rad");
 }
+
+/// Damaged files — cut anywhere, a character changed — are refused or imported, never a panic.
+#[test]
+fn damaged_files_never_panic() {
+    let text = std::fs::read_to_string(repo("examples/urdf/ur5.urdf")).unwrap();
+    let path = Path::new("damaged.urdf");
+    for cut in (0..text.len()).step_by(41) {
+        if text.is_char_boundary(cut) {
+            let _ = urdf::import(&text[..cut], path, &Options::default());
+        }
+    }
+    for at in (0..text.len()).step_by(97) {
+        for c in ['"', '<', '/', '-', '9', ' ', 'e', '>'] {
+            if !text.is_char_boundary(at) || !text.is_char_boundary(at + 1) {
+                continue;
+            }
+            let mut damaged = text.clone();
+            damaged.replace_range(at..at + 1, &c.to_string());
+            let _ = urdf::import(&damaged, path, &Options::default());
+        }
+    }
+}

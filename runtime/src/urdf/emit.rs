@@ -496,6 +496,9 @@ fn fixed_joints(names: &[String]) -> String {
     }
 }
 
+/// A titled group of the errors block and the terms that belong to it.
+type Section<'a> = (String, Box<dyn Fn(&Term) -> bool + 'a>);
+
 struct Source<'a> {
     file: &'a Path,
     robot: &'a Robot,
@@ -641,7 +644,7 @@ fn source(s: &Source<'_>) -> String {
         Frame::Joint(k) => s.elements.get(k).is_some_and(|e| zero_offset(e) == t.1),
         _ => false,
     };
-    let mut sections: Vec<(String, Box<dyn Fn(&Term) -> bool + '_>)> = vec![(
+    let mut sections: Vec<Section<'_>> = vec![(
         "zero offsets: each joint's error in its own motion (encoder zero)".to_string(),
         Box::new(zero),
     )];

@@ -11,6 +11,7 @@ mod diagnose;
 mod files;
 mod fit;
 mod grid;
+mod import;
 mod iso;
 mod iso_html;
 mod load;
@@ -279,6 +280,9 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// Turn another format's machine description into a `.kin` model.
+    #[command(subcommand)]
+    Import(ImportCommand),
     /// ISO 230-2 figures of a bidirectional positioning run along one axis: per target the
     /// mean deviations, standard uncertainties and reversal value; E, M, B, R and A.
     #[command(
@@ -584,6 +588,36 @@ fn restore_default_sigpipe() {
 #[cfg(not(unix))]
 fn restore_default_sigpipe() {}
 
+/// The formats `kin import` reads.
+#[derive(Subcommand)]
+enum ImportCommand {
+    /// A URDF robot description (ROS): the serial chain from a base link to a tip link as a
+    /// `.kin` machine (joints, axes, origins, limits) with a default error model for calibration
+    /// (spec/urdf.md).
+    #[command(after_help = "Examples:
+  kin import urdf examples/urdf/ur5.urdf -o ur5.kin
+  kin import urdf arm.urdf --tip tool0 --observe position -o arm.kin
+  kin import urdf arm.urdf --base base_link --tip camera_link     # print the model")]
+    Urdf {
+        /// The URDF file (plain URDF: expand a xacro file first).
+        file: PathBuf,
+        /// Output `.kin` file (standard output when absent); never the input, replaced atomically.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// The link the chain starts from, the machine's base (default: the tree's root link).
+        #[arg(long, value_name = "LINK")]
+        base: Option<String>,
+        /// The link the chain ends at, the tool (default: the only leaf below the base, or the
+        /// one leaf with the most moving joints above it).
+        #[arg(long, value_name = "LINK")]
+        tip: Option<String>,
+        /// What the default error model is made identifiable for: the full tool pose, or
+        /// positions only (a laser tracker), or lengths (as `kin check --observe`).
+        #[arg(long, value_enum, default_value_t = check::ObserveArg::Pose)]
+        observe: check::ObserveArg,
+    },
+}
+
 fn main() -> ExitCode {
     restore_default_sigpipe();
     let cli = Cli::parse();
@@ -875,6 +909,19 @@ fn main() -> ExitCode {
             lengths,
             centre,
             measure,
+        }),
+        Command::Import(ImportCommand::Urdf {
+            file,
+            output,
+            base,
+            tip,
+            observe,
+        }) => import::urdf(import::Urdf {
+            file: &file,
+            output: output.as_deref(),
+            base,
+            tip,
+            observe,
         }),
         Command::Completions { shell } => manual::completions(Cli::command(), shell),
         Command::Man { output } => manual::man(Cli::command(), output.as_deref()),

@@ -38,6 +38,16 @@ fn pages(cli: clap::Command, dir: &Path) -> Result<(), Failed> {
             .name(name.clone())
             .bin_name(format!("kin {}", sub.get_name()));
         written.push((format!("{name}.1"), render(&page)?));
+        // A command of commands (`kin import urdf`): a page for each, `kin-import-urdf`.
+        for inner in sub.get_subcommands().filter(|s| s.get_name() != "help") {
+            let inner_name = format!("{name}-{}", inner.get_name());
+            let page = inner.clone().name(inner_name.clone()).bin_name(format!(
+                "kin {} {}",
+                sub.get_name(),
+                inner.get_name()
+            ));
+            written.push((format!("{inner_name}.1"), render(&page)?));
+        }
     }
     for (file, page) in &written {
         let path = dir.join(file);

@@ -31,6 +31,7 @@ pub mod plan;
 mod rank_update;
 pub mod simulate;
 pub mod states;
+pub mod urdf;
 
 pub use embed::{Model, RowsBuf, StateBuf};
 pub use engine::Engine;

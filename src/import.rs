@@ -1,0 +1,79 @@
+//! `kin import urdf`: a robot description turned into a `.kin` machine (spec/urdf.md).
+
+use std::path::Path;
+use std::process::ExitCode;
+
+use kin_runtime::urdf::{self, Options};
+
+use crate::check::ObserveArg;
+use crate::load::Failed;
+
+pub struct Urdf<'a> {
+    pub file: &'a Path,
+    pub output: Option<&'a Path>,
+    pub base: Option<String>,
+    pub tip: Option<String>,
+    pub observe: ObserveArg,
+}
+
+pub fn urdf(args: Urdf<'_>) -> ExitCode {
+    Failed::exit(import_urdf(args))
+}
+
+fn import_urdf(args: Urdf<'_>) -> Result<(), Failed> {
+    if let Some(out) = args.output {
+        crate::files::check(out, &[args.file])?;
+    }
+    let options = Options {
+        base: args.base,
+        tip: args.tip,
+        observe: args.observe.into(),
+    };
+    let imported = urdf::import_file(args.file, &options).map_err(|e| {
+        eprintln!("error: {e}");
+        if e.is_usage() {
+            Failed::USAGE
+        } else {
+            eprintln!("note: what kin reads from a URDF file is described in spec/urdf.md");
+            Failed::INPUT
+        }
+    })?;
+    let summary = format!(
+        "imported robot `{}`: {} moving joints from link `{}` to link `{}`{}, {} coefficients in \
+         the default error model{}",
+        imported.robot,
+        imported.joints.len(),
+        imported.base,
+        imported.tip,
+        if imported.fixed > 0 {
+            format!(
+                " ({} fixed joint{} folded into the shapes)",
+                imported.fixed,
+                if imported.fixed == 1 { "" } else { "s" }
+            )
+        } else {
+            String::new()
+        },
+        imported.coefficients,
+        if imported.redundant.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " ({} redundant terms left out: {})",
+                imported.redundant.len(),
+                imported.redundant.join(", ")
+            )
+        }
+    );
+    match args.output {
+        Some(out) => {
+            crate::files::write(out, imported.source.as_bytes())?;
+            println!("{summary}\nwrote {}", out.display());
+        }
+        None => {
+            print!("{}", imported.source);
+            eprintln!("{summary}");
+        }
+    }
+    Ok(())
+}

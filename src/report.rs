@@ -1490,7 +1490,7 @@ fn compensation_section(
         "<p class=\"note\">What stays after compensation is what the axes cannot correct: a position error where the joints cannot move the tool that way, and the orientation error of a machine with fewer than three rotary axes. It is the model's prediction; the fit's own uncertainty comes on top.</p>\n<div class=\"legend\">{}</div>\n<div class=\"grid\">",
         keys(&[
             Key::line(plot::ORANGE, "before compensation"),
-            Key::line(plot::BLUE, "after compensation"),
+            Key::dashed(plot::BLUE, "after compensation"),
         ])
     );
     for sw in &v.sweeps {
@@ -1510,12 +1510,15 @@ fn compensation_section(
                 (420, 290),
             );
             chart.y_zero = true;
-            for (values, color) in [(before, plot::ORANGE), (after, plot::BLUE)] {
+            // "After" dashed: where nothing is corrected it lies on "before", and both show.
+            for (values, color, dashed) in
+                [(before, plot::ORANGE, false), (after, plot::BLUE, true)]
+            {
                 chart.series.push(Series::Line {
                     points: sw.x.iter().copied().zip(values.iter().copied()).collect(),
                     color,
                     width: 2,
-                    dashed: false,
+                    dashed,
                 });
             }
             let _ = writeln!(s, "<figure>{}</figure>", chart.svg()?);

@@ -499,6 +499,16 @@ fn the_report_shows_the_error_before_and_after_compensation() {
         "-o",
         d.join("cmm.html").to_str().unwrap(),
     ]);
-    // The fit was of the positioning model: a fit of another revision is refused first (1).
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    // The same coefficients, another text: a warning (W0802), and the page says why there is
+    // no compensation.
+    ok(&o);
+    let html = std::fs::read_to_string(d.join("cmm.html")).expect("report written");
+    let start = html.find("<section id=\"compensation\">").expect("the section");
+    let section = &html[start..];
+    let section = &section[..section.find("</section>").expect("closed")];
+    assert!(
+        section.contains("No compensation") && section.contains("measuring machine"),
+        "{section}"
+    );
+    assert_eq!(section.matches("<svg").count(), 0);
 }

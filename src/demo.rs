@@ -161,6 +161,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
                 output: html.clone(),
                 ignore: Default::default(),
                 color,
+                compensation: false,
             })?;
             println!("open {} in a browser: residuals, spectra, candidates, the error history and the fitted error curves", html.display());
             return Ok(());

@@ -400,7 +400,8 @@ enum Command {
     /// revisions, and the fitted parametric errors with their confidence bands.
     #[command(after_help = "Examples:
   kin report mill.kin --fit fit.json --diagnose diagnose.json -o report.html
-  kin report mill.kin --fit fit.json points.csv -o report.html   # data moved since the fit")]
+  kin report mill.kin --fit fit.json points.csv -o report.html   # data moved since the fit
+  kin report mill.kin --fit fit.json --compensation -o report.html")]
     Report {
         machine: PathBuf,
         /// The fit report written by `kin fit -o`.
@@ -414,6 +415,10 @@ enum Command {
         /// The HTML page to write; never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: PathBuf,
+        /// Add a section with the predicted error before and after compensation along each
+        /// axis (a positioning machine; as `kin compensate` computes it) and what stays.
+        #[arg(long)]
+        compensation: bool,
         #[command(flatten)]
         ignore: Ignore,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
@@ -781,6 +786,7 @@ fn main() -> ExitCode {
             diagnose,
             data,
             output,
+            compensation,
             ignore,
             color,
         } => report::run(report::ReportArgs {
@@ -791,6 +797,7 @@ fn main() -> ExitCode {
             output,
             ignore: ignore.options(),
             color: color.enabled(),
+            compensation,
         }),
         Command::Compensate {
             machine,

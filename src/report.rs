@@ -6,6 +6,7 @@
 //! Self-contained means a file a user can mail or archive: inline CSS, inline SVG (plotters),
 //! no scripts, no fonts or images fetched from anywhere.
 
+mod compensation;
 mod curves;
 pub(crate) mod plot;
 
@@ -68,6 +69,9 @@ pub struct ReportArgs {
     /// Columns of the data files to skip unread.
     pub ignore: crate::args::DataOptions,
     pub color: bool,
+    /// Add the compensation section (a positioning machine's error before and after
+    /// compensation along each axis, and what stays).
+    pub compensation: bool,
 }
 
 pub fn run(a: ReportArgs) -> ExitCode {
@@ -179,6 +183,15 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
             Vec::new()
         }
     };
+    let compensation = if a.compensation {
+        // The model with the fit's values bound, as `kin compensate` reads it.
+        let fitted = load::machine(&a.machine, Some(&a.fit), a.color)?;
+        let ranges = data_ranges_of(&data);
+        let held = |v: Var| ranges.get(&v).map(|(lo, hi)| 0.5 * (lo + hi));
+        Some(compensation::sweeps(&fitted.machine, &held))
+    } else {
+        None
+    };
     let inputs = Inputs {
         machine: m,
         model_path: a.machine.display().to_string(),
@@ -188,6 +201,7 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
         history,
         history_path: history::path_for(&a.machine).display().to_string(),
         notes,
+        compensation,
     };
     let page = html(&inputs).map_err(fail)?;
     kin_runtime::output::replace(&a.output, page.as_bytes()).map_err(|source| {
@@ -258,6 +272,8 @@ pub struct Inputs<'a> {
     pub history_path: String,
     /// Warnings shown at the top of the page.
     pub notes: Vec<String>,
+    /// The compensation section's sweeps (`--compensation`), or why there are none.
+    pub compensation: Option<Result<compensation::View, String>>,
 }
 
 pub(crate) const CSS: &str = r#"
@@ -328,7 +344,11 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
     if inp.diagnosis.is_some() {
         s.push_str("<a href=\"#spectrum\">Spectrum</a><a href=\"#candidates\">Candidates</a>");
     }
-    s.push_str("<a href=\"#history\">History</a><a href=\"#curves\">Parametric errors</a></nav>\n");
+    s.push_str("<a href=\"#history\">History</a><a href=\"#curves\">Parametric errors</a>");
+    if inp.compensation.is_some() {
+        s.push_str("<a href=\"#compensation\">Compensation</a>");
+    }
+    s.push_str("</nav>\n");
     for n in &inp.notes {
         let _ = writeln!(s, "<div class=\"warn\">{}</div>", esc(n));
     }
@@ -341,6 +361,9 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
     history_section(&mut s, inp)?;
     curves_section(&mut s, inp)?;
     stations_section(&mut s, fit);
+    if let Some(c) = &inp.compensation {
+        compensation_section(&mut s, c)?;
+    }
     coefficients(&mut s, fit);
     let _ = write!(s, "<footer>kin {} · a self-contained page: no scripts, no external resources.</footer>\n</main>\n</body>\n</html>\n", env!("CARGO_PKG_VERSION"));
     Ok(s)
@@ -1307,6 +1330,11 @@ fn history_section(s: &mut String, inp: &Inputs) -> Result<(), ReportError> {
 
 /// The ranges of the inputs and of time over the data, for the curves' axes.
 fn data_ranges(inp: &Inputs) -> curves::Ranges {
+    data_ranges_of(&inp.data)
+}
+
+/// The span of every input and of time over the fitted files.
+fn data_ranges_of(data: &[Option<Observations>]) -> curves::Ranges {
     let mut out = curves::Ranges::new();
     let mut add = |v: Var, values: &[f64]| {
         for &x in values.iter().filter(|x| x.is_finite()) {
@@ -1315,7 +1343,7 @@ fn data_ranges(inp: &Inputs) -> curves::Ranges {
             e.1 = e.1.max(x);
         }
     };
-    for o in inp.data.iter().flatten() {
+    for o in data.iter().flatten() {
         let rows = o.rows();
         for (i, col) in rows.inputs.iter().enumerate() {
             if let Some(col) = col {
@@ -1478,6 +1506,91 @@ fn stations_section(s: &mut String, f: &FitReport) {
         s.push_str("</tr>\n</table>\n");
     }
     s.push_str("</section>\n");
+/// Before and after compensation along each axis (`--compensation`).
+fn compensation_section(
+    s: &mut String,
+    c: &Result<compensation::View, String>,
+) -> Result<(), ReportError> {
+    s.push_str(
+        "<section id=\"compensation\">\n<h2>Compensation: predicted error before and after</h2>\n",
+    );
+    let v = match c {
+        Ok(v) => v,
+        Err(why) => {
+            let _ = writeln!(
+                s,
+                "<div class=\"warn\">No compensation: {}</div>\n</section>",
+                esc(why)
+            );
+            return Ok(());
+        }
+    };
+    let _ = writeln!(
+        s,
+        "<p>The fitted model's predicted error of the tool, before software compensation and after it (thesis §2.3.5, as <code>kin compensate</code> computes it: corrections added to the axis commands, re-checked with the exact transforms). Each axis is swept over its range; the others are held at: {}.</p>",
+        esc(&v.reference.join(", "))
+    );
+    let _ = writeln!(
+        s,
+        "<p class=\"note\">What stays after compensation is what the axes cannot correct: a position error where the joints cannot move the tool that way, and the orientation error of a machine with fewer than three rotary axes. It is the model's prediction; the fit's own uncertainty comes on top.</p>\n<div class=\"legend\">{}</div>\n<div class=\"grid\">",
+        keys(&[
+            Key::line(plot::ORANGE, "before compensation"),
+            Key::dashed(plot::BLUE, "after compensation"),
+        ])
+    );
+    for sw in &v.sweeps {
+        for (what, unit, before, after) in [
+            ("position error", &v.error_unit, &sw.before, &sw.after),
+            (
+                "orientation error",
+                &v.tilt_unit,
+                &sw.tilt_before,
+                &sw.tilt_after,
+            ),
+        ] {
+            let mut chart = Chart::new(
+                format!("{what} along {}", sw.axis),
+                format!("{} [{}]", sw.axis, sw.unit),
+                format!("|{what}| [{unit}]"),
+                (420, 290),
+            );
+            chart.y_zero = true;
+            // "After" dashed: where nothing is corrected it lies on "before", and both show.
+            for (values, color, dashed) in
+                [(before, plot::ORANGE, false), (after, plot::BLUE, true)]
+            {
+                chart.series.push(Series::Line {
+                    points: sw.x.iter().copied().zip(values.iter().copied()).collect(),
+                    color,
+                    width: 2,
+                    dashed,
+                });
+            }
+            let _ = writeln!(s, "<figure>{}</figure>", chart.svg()?);
+        }
+    }
+    s.push_str("</div>\n<table>\n<tr><th class=\"l\">axis swept</th>");
+    let _ = write!(
+        s,
+        "<th>max position error before [{0}]</th><th>after [{0}]</th><th>max orientation error before [{1}]</th><th>after [{1}]</th><th>rank</th></tr>\n",
+        esc(&v.error_unit),
+        esc(&v.tilt_unit)
+    );
+    let max = |x: &[f64]| x.iter().copied().fold(0.0_f64, f64::max);
+    for sw in &v.sweeps {
+        let _ = writeln!(
+            s,
+            "<tr><td class=\"l\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            esc(&sw.axis),
+            num(max(&sw.before), 3),
+            num(max(&sw.after), 3),
+            num(max(&sw.tilt_before), 3),
+            num(max(&sw.tilt_after), 3),
+            sw.rank
+        );
+    }
+    s.push_str("</table>\n<p class=\"note\">Rank: how many of the six error components the axes can move (the fewest along the sweep).</p>\n</section>\n");
+    Ok(())
 }
 
 fn coefficients(s: &mut String, f: &FitReport) {

@@ -965,3 +965,104 @@ fn correct_takes_the_predicted_error_off_measured_coordinates() {
         text(&r.stderr)
     );
 }
+
+/// `kin report --compensation`: the error along each axis before and after compensation, and
+/// what stays (the head's pitch, which no axis of a 3-axis machine turns).
+#[test]
+fn the_report_shows_the_error_before_and_after_compensation() {
+    let (d, machine, fit) = fitted("report");
+    let page = d.join("report.html");
+    ok(&kin(&[
+        "report",
+        machine.to_str().unwrap(),
+        "--fit",
+        fit.to_str().unwrap(),
+        "--compensation",
+        "-o",
+        page.to_str().unwrap(),
+        "--color",
+        "never",
+    ]));
+    let html = std::fs::read_to_string(&page).expect("report written");
+    let start = html
+        .find("<section id=\"compensation\">")
+        .expect("the section");
+    let section = &html[start..];
+    let section = &section[..section.find("</section>").expect("closed")];
+    // Three axes, a position and an orientation plot each.
+    assert_eq!(section.matches("<svg").count(), 6, "{section}");
+    assert_eq!(section.matches("</svg>").count(), 6);
+    for axis in ["X", "Y", "Z"] {
+        assert!(section.contains(&format!("position error along {axis}")));
+    }
+    // The table: per swept axis, max position before/after (µm), orientation before/after
+    // (µrad), rank.
+    let rows: Vec<Vec<String>> = section
+        .split("<tr><td class=\"l\">")
+        .skip(1)
+        .map(|r| {
+            r.split("</td><td>")
+                .map(|c| c.replace("</td></tr>", "").trim().to_string())
+                .collect()
+        })
+        .collect();
+    assert_eq!(rows.len(), 3, "{section}");
+    assert!(
+        rows.iter()
+            .any(|r| r[1].parse::<f64>().is_ok_and(|v| v > 10.0)),
+        "tens of µm along some axis: {rows:?}"
+    );
+    let number = |c: &str| -> f64 {
+        c.split('\n')
+            .next()
+            .unwrap_or(c)
+            .replace('−', "-")
+            .trim()
+            .parse()
+            .unwrap_or_else(|_| panic!("a number: {c:?}"))
+    };
+    for r in &rows {
+        let (before, after) = (number(&r[1]), number(&r[2]));
+        let (tilt_before, tilt_after) = (number(&r[3]), number(&r[4]));
+        assert!(before > 1.0, "the errors are µm: {r:?}");
+        assert!(after < 0.01, "the position is corrected: {r:?}");
+        // The pitch of the head (8 µrad) stays: no correction turns the tool.
+        assert!(
+            tilt_after > 7.0 && (tilt_after - tilt_before).abs() < 0.5,
+            "{r:?}"
+        );
+        assert_eq!(number(&r[5]), 3.0, "{r:?}");
+    }
+    // A measuring machine has no compensation: the section says so, the page is still written.
+    let cmm = d.join("cmm.kin");
+    std::fs::write(
+        &cmm,
+        std::fs::read_to_string(&machine).expect("model").replacen(
+            "task position",
+            "task measure",
+            1,
+        ),
+    )
+    .expect("write");
+    let o = kin(&[
+        "report",
+        cmm.to_str().unwrap(),
+        "--fit",
+        fit.to_str().unwrap(),
+        "--compensation",
+        "-o",
+        d.join("cmm.html").to_str().unwrap(),
+    ]);
+    // The same coefficients, another text: a warning (W0802), and the page says why there is
+    // no compensation.
+    ok(&o);
+    let html = std::fs::read_to_string(d.join("cmm.html")).expect("report written");
+    let start = html.find("<section id=\"compensation\">").expect("the section");
+    let section = &html[start..];
+    let section = &section[..section.find("</section>").expect("closed")];
+    assert!(
+        section.contains("No compensation") && section.contains("measuring machine"),
+        "{section}"
+    );
+    assert_eq!(section.matches("<svg").count(), 0);
+}

@@ -48,6 +48,11 @@ extern "C" {
 #define KIN_ERR_PANIC 9   /* a bug in kin: please report the message */
 #define KIN_ERR_VALUE 10  /* a value is not allowed (not finite, a direction not -1/0/+1), or the result overflows */
 #define KIN_ERR_OVERLAP 11 /* output buffers overlap each other or an input */
+#define KIN_ERR_RANGE 12   /* a commanded joint position is outside its axis's declared range */
+#define KIN_ERR_MACHINE 13 /* no compensator for this machine: it measures, or has too many axes */
+
+/* Most axes a compensator takes. */
+#define KIN_COMPENSATOR_MAX_AXES 16
 
 /* Which name kin_model_name() returns. */
 #define KIN_NAME_AXIS 0
@@ -164,6 +169,32 @@ int kin_nominal_jacobian(const kin_model *model, const kin_state *state, double 
  * the errors. Stops at the first row that cannot be evaluated (the message names it). */
 int kin_eval_batch(const kin_model *model, const kin_rows *rows, const double *beta, size_t n_beta,
                    double *err, size_t n_err, double *jac, size_t n_jac);
+
+/* A compiled compensation function (thesis section 2.3.5): the joint corrections that cancel a
+ * positioning machine's predicted tool-location error, for a controller's servo cycle. */
+typedef struct kin_compensator kin_compensator;
+
+/* Makes the compensator of model with its bound values (it keeps its own copy of the model).
+ * weights (n_weights = 6; NULL and 0 for every component, a rotation weighed as the fit weighs
+ * it) weigh ex, ey, ez, erx, ery, erz in SI, 0 leaving a component out; iterations bounds the
+ * linear solves per call (0: the default, 4). KIN_ERR_MACHINE for a measuring machine or more
+ * than KIN_COMPENSATOR_MAX_AXES axes, KIN_ERR_VALUE for weights that are negative, not finite
+ * or all 0. Free with kin_compensator_free. */
+int kin_compensator_new(const kin_model *model, const double *weights, size_t n_weights,
+                        size_t iterations, kin_compensator **out);
+
+/* Frees a compensator; NULL is ignored. Not while another thread uses it. */
+void kin_compensator_free(kin_compensator *comp);
+
+/* The correction of the commanded pose state: dq (n_dq = axes) receives what to add to the
+ * commanded joint positions (m, rad); before and after (6 each, or NULL and 0) the predicted error
+ * at the commanded pose and that of the compensated pose (what the joints cannot correct); rank
+ * (or NULL) how many independent combinations of the weighted components the joints can move.
+ * The first-order model's error at the moved pose, applied to the exact nominal kinematics, at
+ * most `iterations` Gauss-Newton solves. KIN_ERR_RANGE for a command outside an axis's declared
+ * range. Allocates nothing on success, takes no lock: many threads may call it at once. */
+int kin_compensate(const kin_compensator *comp, const kin_state *state, double *dq, size_t n_dq,
+                   double *before, size_t n_before, double *after, size_t n_after, size_t *rank);
 
 #ifdef __cplusplus
 }

@@ -52,6 +52,19 @@ pub const KIN_ERR_VALUE: c_int = 10;
 /// Output buffers overlap each other or an input: results would overwrite values still to be
 /// read (or each other).
 pub const KIN_ERR_OVERLAP: c_int = 11;
+/// A commanded joint position is outside its axis's declared range (`kin_compensate`).
+pub const KIN_ERR_RANGE: c_int = 12;
+/// The model is not one a compensator applies to: a measuring machine (`task measure`) or more
+/// axes than `KIN_COMPENSATOR_MAX_AXES`.
+pub const KIN_ERR_MACHINE: c_int = 13;
+
+/// Most axes a compensator takes (its scratch is on the stack).
+pub const KIN_COMPENSATOR_MAX_AXES: usize = kin_runtime::compensate::MAX_SERVO_AXES;
+
+/// A compiled compensation function (opaque to C): see `kin_compensator_new`.
+pub struct kin_compensator {
+    comp: kin_runtime::embed::ServoCompensator,
+}
 
 /// A compiled model (opaque to C).
 pub struct kin_model {
@@ -517,6 +530,45 @@ unsafe fn beta(model: &Model, beta: *const f64, n_beta: usize) -> Result<&[f64],
     let b = unsafe { slice(beta, n_beta, "beta")? };
     check("beta", model.coefficients(), b.len())?;
     Ok(b)
+}
+
+fn compensate_error(e: kin_runtime::compensate::CompensateError) -> Fail {
+    use kin_runtime::compensate::CompensateError as E;
+    match e {
+        E::Measuring(_) | E::TooManyAxes(_) => Fail(KIN_ERR_MACHINE, e.to_string()),
+        E::Weights => Fail(KIN_ERR_VALUE, e.to_string()),
+        E::OutOfRange { .. } => Fail(KIN_ERR_RANGE, e.to_string()),
+        E::Eval(e) => eval_error(e),
+        E::Kinematics(_) | E::Solve => Fail(KIN_ERR_EVAL, e.to_string()),
+    }
+}
+
+fn servo_error(m: &Model, e: kin_runtime::compensate::ServoError) -> Fail {
+    use kin_runtime::compensate::ServoError as E;
+    match e {
+        E::Size { .. } => Fail(KIN_ERR_SIZE, e.to_string()),
+        E::Value { .. } | E::NotFinite(_) => Fail(KIN_ERR_VALUE, e.to_string()),
+        E::OutOfRange {
+            axis,
+            value,
+            lo,
+            hi,
+        } => {
+            let name = m
+                .machine()
+                .axes
+                .get(axis)
+                .map_or(String::new(), |a| a.name.clone());
+            Fail(
+                KIN_ERR_RANGE,
+                format!(
+                    "axis {name} (index {axis}) is commanded to {value} (SI), outside its declared range {lo} .. {hi}"
+                ),
+            )
+        }
+        E::Eval(e) => eval_error(e),
+        E::Solve => Fail(KIN_ERR_EVAL, e.to_string()),
+    }
 }
 
 /// The library's version, e.g. `"0.1.0"` (a static string).
@@ -1717,6 +1769,116 @@ mod tests {
     }
 
     #[test]
+    fn a_compensator_refuses_what_it_cannot_do() {
+        let model = compile(SRC).expect("compiles");
+        let mut comp = null_mut();
+        // SAFETY: valid pointers and lengths throughout.
+        unsafe {
+            assert_eq!(
+                kin_compensator_new(
+                    model,
+                    [1.0, -1.0, 0.0, 0.0, 0.0, 0.0].as_ptr(),
+                    6,
+                    0,
+                    &mut comp
+                ),
+                KIN_ERR_VALUE
+            );
+            assert_eq!(
+                kin_compensator_new(model, null(), 0, 0, null_mut()),
+                KIN_ERR_POINTER
+            );
+            assert_eq!(kin_compensator_new(model, null(), 0, 0, &mut comp), KIN_OK);
+            let q = [0.25];
+            let dirs = [1.0];
+            let state = kin_state {
+                q: q.as_ptr(),
+                n_q: 1,
+                inputs: null(),
+                n_inputs: 0,
+                lags: null(),
+                n_lags: 0,
+                dirs: dirs.as_ptr(),
+                n_dirs: 1,
+                time: f64::NAN,
+                tool: 0,
+            };
+            let mut dq = [0.0];
+            let mut two = [0.0; 2];
+            let mut rank = 0usize;
+            let call = |dq: *mut f64, n: usize, rank: *mut usize| {
+                kin_compensate(comp, &state, dq, n, null_mut(), 0, null_mut(), 0, rank)
+            };
+            assert_eq!(call(dq.as_mut_ptr(), 1, &mut rank), KIN_OK);
+            assert_eq!(rank, 1);
+            assert_eq!(call(two.as_mut_ptr(), 2, null_mut()), KIN_ERR_SIZE);
+            assert_eq!(call(null_mut(), 1, null_mut()), KIN_ERR_POINTER);
+            assert_eq!(
+                kin_compensate(
+                    null(),
+                    &state,
+                    dq.as_mut_ptr(),
+                    1,
+                    null_mut(),
+                    0,
+                    null_mut(),
+                    0,
+                    null_mut()
+                ),
+                KIN_ERR_POINTER
+            );
+            let far = [0.7];
+            let outside = kin_state {
+                q: far.as_ptr(),
+                ..state
+            };
+            assert_eq!(
+                kin_compensate(
+                    comp,
+                    &outside,
+                    dq.as_mut_ptr(),
+                    1,
+                    null_mut(),
+                    0,
+                    null_mut(),
+                    0,
+                    null_mut()
+                ),
+                KIN_ERR_RANGE
+            );
+            let nan = [f64::NAN];
+            let bad = kin_state {
+                q: nan.as_ptr(),
+                ..state
+            };
+            assert_eq!(
+                kin_compensate(
+                    comp,
+                    &bad,
+                    dq.as_mut_ptr(),
+                    1,
+                    null_mut(),
+                    0,
+                    null_mut(),
+                    0,
+                    null_mut()
+                ),
+                KIN_ERR_VALUE
+            );
+            kin_compensator_free(comp);
+            kin_model_free(model);
+            let cmm = compile(&SRC.replace("task position", "task measure")).expect("compiles");
+            let mut none = null_mut();
+            assert_eq!(
+                kin_compensator_new(cmm, null(), 0, 0, &mut none),
+                KIN_ERR_MACHINE
+            );
+            assert!(none.is_null());
+            kin_model_free(cmm);
+        }
+    }
+
+    #[test]
     fn the_header_declares_every_function() {
         let header = include_str!("../include/kin.h");
         let source = include_str!("lib.rs");
@@ -1737,9 +1899,14 @@ mod tests {
             }
         }
         assert!(count >= 15, "{count}");
+        assert!(header.contains(&format!(
+            "#define KIN_COMPENSATOR_MAX_AXES {KIN_COMPENSATOR_MAX_AXES}\n"
+        )));
         for line in source.lines() {
             if let Some(rest) = line.strip_prefix("pub const KIN_") {
-                let (name, value) = rest.split_once(": c_int = ").expect("a status");
+                let Some((name, value)) = rest.split_once(": c_int = ") else {
+                    continue;
+                };
                 let value = value.trim_end_matches(';');
                 assert!(
                     header.contains(&format!("#define KIN_{name} {value}")),
@@ -1748,4 +1915,139 @@ mod tests {
             }
         }
     }
+}
+
+/// Makes the compensation function of a positioning machine with the model's bound values
+/// (thesis §2.3.5): the joint corrections that cancel the predicted tool-location error. The
+/// compensator keeps its own copy of the model (later changes to `model` do not reach it).
+/// `weights` (`n_weights` = 6, or NULL and 0 for every component with a rotation weighed as the
+/// fit weighs it) weigh `(ex, ey, ez, erx, ery, erz)` in SI; 0 leaves a component out.
+/// `iterations` bounds the linear solves per call (0: the default, 4).
+///
+/// # Safety
+///
+/// `model` is a live model, `weights` valid for `n_weights` doubles, `out` valid for writing.
+#[no_mangle]
+pub unsafe extern "C" fn kin_compensator_new(
+    model: *const kin_model,
+    weights: *const f64,
+    n_weights: usize,
+    iterations: usize,
+    out: *mut *mut kin_compensator,
+) -> c_int {
+    guard(|| {
+        if out.is_null() {
+            return Err(Fail(KIN_ERR_POINTER, "`out` is NULL".into()));
+        }
+        if !out.is_aligned() {
+            return Err(Fail(KIN_ERR_POINTER, "`out` is not aligned".into()));
+        }
+        // SAFETY: caller's contract.
+        let m = unsafe { self::model(model)? };
+        let mut options = kin_runtime::compensate::Options::pose(m.machine());
+        if !(weights.is_null() && n_weights == 0) {
+            // SAFETY: caller's contract.
+            let w = unsafe { slice(weights, n_weights, "weights")? };
+            check("weights", 6, w.len())?;
+            options.weights.copy_from_slice(w);
+        }
+        if iterations > 0 {
+            options.iterations = iterations;
+        }
+        let comp = m.compensator(options).map_err(compensate_error)?;
+        // SAFETY: checked above; valid for writing (caller's contract).
+        unsafe { *out = Box::into_raw(Box::new(kin_compensator { comp })) };
+        Ok(())
+    })
+}
+
+/// Frees a compensator; NULL is ignored.
+///
+/// # Safety
+///
+/// `comp` is NULL or a live compensator no other thread is using; it is invalid afterwards.
+#[no_mangle]
+pub unsafe extern "C" fn kin_compensator_free(comp: *mut kin_compensator) {
+    if !comp.is_null() {
+        let _ = catch_unwind(AssertUnwindSafe(|| {
+            // SAFETY: from `Box::into_raw` in this library, not freed before (caller's contract).
+            drop(unsafe { Box::from_raw(comp) });
+        }));
+    }
+}
+
+/// The correction of the commanded pose `state`: `dq` (`n_dq` = axes) receives the values to add
+/// to the commanded joint positions (m, rad). `before` and `after` (6 each, or NULL and 0)
+/// receive the predicted error at the commanded pose and that of the compensated pose (what the
+/// joints cannot correct); `rank` (or NULL) how many independent combinations of the weighted
+/// components the joints can move. Allocates nothing on success and takes no lock: many threads
+/// may call it on one compensator at once.
+///
+/// # Safety
+///
+/// `comp` is a live compensator, `state` a valid `kin_state`, each output valid for its length.
+#[no_mangle]
+pub unsafe extern "C" fn kin_compensate(
+    comp: *const kin_compensator,
+    state: *const kin_state,
+    dq: *mut f64,
+    n_dq: usize,
+    before: *mut f64,
+    n_before: usize,
+    after: *mut f64,
+    n_after: usize,
+    rank: *mut usize,
+) -> c_int {
+    guard(|| {
+        if comp.is_null() {
+            return Err(Fail(KIN_ERR_POINTER, "the compensator is NULL".into()));
+        }
+        // SAFETY: caller's contract.
+        let st = unsafe { read_state(state)? };
+        disjoint(
+            &[
+                region(dq.cast_const(), n_dq, "dq"),
+                region(before.cast_const(), n_before, "before"),
+                region(after.cast_const(), n_after, "after"),
+                region(rank.cast_const(), usize::from(!rank.is_null()), "rank"),
+            ],
+            &state_regions(state, &st),
+        )?;
+        if !rank.is_null() && !rank.is_aligned() {
+            return Err(Fail(KIN_ERR_POINTER, "`rank` is not aligned".into()));
+        }
+        // SAFETY: a live compensator (caller's contract); the outputs overlap nothing.
+        let (c, s, dq, before, after) = unsafe {
+            (
+                &(*comp).comp,
+                self::state(state)?,
+                slice_mut(dq, n_dq, "dq")?,
+                slice_mut(before, n_before, "before")?,
+                slice_mut(after, n_after, "after")?,
+            )
+        };
+        for (what, n) in [("before", before.len()), ("after", after.len())] {
+            if n != 0 && n != 6 {
+                return Err(Fail(
+                    KIN_ERR_SIZE,
+                    format!("`{what}` has length {n}, 6 (or 0 with NULL) are needed"),
+                ));
+            }
+        }
+        check_state(&s)?;
+        let done = c
+            .compensate(&s, dq)
+            .map_err(|e| servo_error(c.model(), e))?;
+        if before.len() == 6 {
+            before.copy_from_slice(&done.before);
+        }
+        if after.len() == 6 {
+            after.copy_from_slice(&done.after);
+        }
+        if !rank.is_null() {
+            // SAFETY: non-NULL, aligned, valid for writing (caller's contract).
+            unsafe { *rank = done.rank };
+        }
+        Ok(())
+    })
 }

@@ -23,10 +23,18 @@ fn library_dir() -> Option<PathBuf> {
         std::env::consts::DLL_PREFIX,
         std::env::consts::DLL_SUFFIX
     );
+    // `cargo build` copies the library up from `deps`, `cargo test` builds it in `deps` only:
+    // the newer of the two is this build's.
+    let modified = |d: &Path| {
+        std::fs::metadata(d.join(&name))
+            .and_then(|m| m.modified())
+            .ok()
+    };
     let found = [deps.parent()?, deps]
         .into_iter()
-        .find(|d| d.join(&name).exists())
-        .map(Path::to_path_buf);
+        .filter_map(|d| Some((modified(d)?, d)))
+        .max_by_key(|(t, _)| *t)
+        .map(|(_, d)| d.to_path_buf());
     found
 }
 
@@ -203,4 +211,118 @@ fn the_c_example_matches_the_rust_api() {
         }
     }
     eprintln!("the C example's {compared} numbers agree with the Rust API to 1e-12");
+}
+
+/// `examples/compensate.c`: the compiled compensation function through the C ABI gives the
+/// Rust API's corrections, and refuses a command outside the range and an overlapping output.
+#[test]
+fn the_c_compensation_example_matches_the_rust_api() {
+    let Some(cc) = c_compiler() else {
+        eprintln!(
+            "SKIPPED: no C compiler (cc, gcc or $CC) on the PATH, so the C example is not built"
+        );
+        return;
+    };
+    let lib = library_dir().expect("libkin_capi next to the test binary");
+    let out_dir = std::env::temp_dir().join(format!("kin-capi-compensate-{}", std::process::id()));
+    std::fs::create_dir_all(&out_dir).expect("temp dir");
+    let exe = out_dir.join("compensate");
+    let capi = root().join("capi");
+    let build = Command::new(&cc)
+        .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-O1"])
+        .arg(capi.join("examples/compensate.c"))
+        .arg("-I")
+        .arg(capi.join("include"))
+        .arg("-L")
+        .arg(&lib)
+        .arg("-lkin_capi")
+        .arg(format!("-Wl,-rpath,{}", lib.display()))
+        .arg("-o")
+        .arg(&exe)
+        .output()
+        .expect("runs the C compiler");
+    assert!(
+        build.status.success(),
+        "{cc} failed:\n{}",
+        String::from_utf8_lossy(&build.stderr)
+    );
+    let machine = root().join("examples/milling_5axis.kin");
+    let run = Command::new(&exe)
+        .arg(&machine)
+        .output()
+        .expect("runs the example");
+    let _ = std::fs::remove_dir_all(&out_dir);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        run.status.success(),
+        "the example failed:\n{stdout}\n{stderr}"
+    );
+    assert!(
+        stderr.contains("outside the range: status 12") && stderr.contains("dq over q: status 11"),
+        "{stderr}"
+    );
+
+    let source = std::fs::read_to_string(&machine).expect("machine");
+    let mut model = Model::compile(&source).expect("compiles");
+    let n = model.coefficients();
+    let beta: Vec<f64> = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
+    model.set_beta(&beta).expect("β");
+    let m = model.machine().clone();
+    let comp = model
+        .compensator(kin_runtime::compensate::Options::pose(&m))
+        .expect("compensator");
+    let mut compared = 0;
+    for k in 0..4 {
+        let t = (k as f64 + 1.0) / 5.0;
+        let mut s = model.state();
+        for (a, axis) in m.axes.iter().enumerate() {
+            s.q[a] = axis.range[0] + t * (axis.range[1] - axis.range[0]);
+            s.dirs[a] = if (k + a) % 2 == 1 { -1.0 } else { 1.0 };
+        }
+        for (i, input) in m.inputs.iter().enumerate() {
+            let [lo, hi] = match input.range {
+                Some(r) => r,
+                None if input.absolute => [291.15, 295.15],
+                None => [0.0, 4.0],
+            };
+            s.inputs[i] = lo + t * (hi - lo);
+        }
+        for (l, lag) in m.lags.iter().enumerate() {
+            s.lags[l] = s.inputs[lag.input];
+        }
+        s.time = 60.0 * k as f64;
+        s.tool = k % model.tools();
+        let mut dq = vec![0.0; model.axes()];
+        let done = comp.compensate(&s.get(), &mut dq).expect("compensates");
+        for (tag, expected) in [
+            ("dq", dq.clone()),
+            ("before", done.before.to_vec()),
+            ("after", done.after.to_vec()),
+            ("rank", vec![done.rank as f64]),
+        ] {
+            let line = stdout
+                .lines()
+                .find(|l| l.starts_with(&format!("{tag} {k} ")))
+                .unwrap_or_else(|| panic!("no `{tag} {k}` in\n{stdout}"));
+            let values: Vec<f64> = line
+                .split_whitespace()
+                .skip(2)
+                .map(|w| w.parse().expect("number"))
+                .collect();
+            assert_eq!(values.len(), expected.len(), "{line}");
+            for (a, b) in values.iter().zip(&expected) {
+                assert!(
+                    close(*a, *b),
+                    "{tag} {k}: C printed {a:e}, Rust gives {b:e}"
+                );
+                compared += 1;
+            }
+        }
+        assert!(
+            dq.iter().any(|d| d.abs() > 1e-7),
+            "a real correction: {dq:?}"
+        );
+    }
+    eprintln!("the C compensation example's {compared} numbers agree with the Rust API");
 }

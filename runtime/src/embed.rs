@@ -12,6 +12,8 @@
 //! - [`Model::nominal_jacobian`]: the nominal tool location and its joint Jacobian;
 //! - [`Model::eval_rows`] and [`Model::eval_jacobian_rows`]: the same over many states at once
 //!   ([`StateRows`], row-major arrays, e.g. from a [`RowsBuf`]), into buffers the caller reuses;
+//! - [`Model::compensator`]: a [`ServoCompensator`], the joint corrections of a commanded pose
+//!   (thesis §2.3.5) for a controller's servo cycle: native code, no allocation, no lock;
 //! - [`Model::evaluator`]: an [`Evaluator`] (what the fit uses), JIT by default or the
 //!   interpreter with [`Model::evaluator_with`]`(`[`Engine::Interp`]`)` to check one against the
 //!   other.
@@ -53,6 +55,7 @@ use kin_compiler::{Compiled, Diagnostic};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::compensate::{self, CompensateError, Compensated, Options, ServoError};
 use crate::engine::{Engine, EngineError, Evaluator};
 use crate::interp::{EvalError, Interpreter, State};
 use crate::jit::{self, BatchError, JitError, JitModel, StateRows};
@@ -339,6 +342,31 @@ impl Model {
         })
     }
 
+    /// The compensation function of a positioning machine (thesis §2.3.5) with this model's
+    /// bound values, for a controller to call every servo cycle: see [`ServoCompensator`].
+    /// Refused for a measuring machine, weights that are not finite and non-negative with one
+    /// positive, and more than [`compensate::MAX_SERVO_AXES`] axes.
+    pub fn compensator(&self, options: Options) -> Result<ServoCompensator, CompensateError> {
+        let m = self.machine();
+        if m.task.sign() < 0.0 {
+            return Err(CompensateError::Measuring(m.name.clone()));
+        }
+        let w = options.weights;
+        if w.iter().any(|x| !(x.is_finite() && *x >= 0.0)) || w.iter().all(|x| *x == 0.0) {
+            return Err(CompensateError::Weights);
+        }
+        if !(options.rank_tolerance >= 0.0 && options.rank_tolerance < 1.0) {
+            return Err(CompensateError::Weights);
+        }
+        if m.axes.len() > compensate::MAX_SERVO_AXES {
+            return Err(CompensateError::TooManyAxes(m.axes.len()));
+        }
+        Ok(ServoCompensator {
+            model: self.clone(),
+            options,
+        })
+    }
+
     fn jit_evaluator(&self) -> jit::JitEvaluator {
         let mut e = self.jit.evaluator();
         // The code does not depend on the values: only the evaluator's copy is replaced. The
@@ -484,6 +512,93 @@ impl Model {
         let text = String::from_utf8(bytes)
             .map_err(|e| io(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
         Model::from_json(&text)
+    }
+}
+
+/// The joint corrections of a positioning machine's commanded poses, compiled: made once by
+/// [`Model::compensator`], called every servo cycle.
+///
+/// [`ServoCompensator::compensate`] runs the same §2.3.5 iteration as `kin compensate`
+/// (column-scaled weighted least squares on the joint Jacobian, then Gauss–Newton steps, one
+/// implementation for both) on the JIT's first-order error model applied to the exact nominal
+/// kinematics, at most `Options::iterations` linear solves. It takes `&self`, keeps its scratch
+/// on the stack, allocates nothing and takes no lock: one compensator serves every thread.
+/// `kin compensate` additionally re-evaluates with every frame's error as an exact transform;
+/// the two differ by products of two errors (spec/compensation.md).
+///
+/// ```
+/// use kin_runtime::{compensate::Options, Model};
+///
+/// let model = Model::compile(
+///     "machine slide {
+///         task position
+///         axis X prismatic along x range 0 mm .. 500 mm
+///         tool chain { X moving tool t at (0, 0, -100) mm }
+///         errors { X.tx = const }
+///     }
+///     params { X.tx = [5] um }",
+/// )?;
+/// let comp = model.compensator(Options::pose(model.machine()))?;
+/// let mut state = model.state();
+/// state.q[0] = 0.25;
+/// let mut dq = [0.0];
+/// let done = comp.compensate(&state.get(), &mut dq)?;
+/// assert!((dq[0] + 5e-6).abs() < 1e-12); // 5 µm back
+/// assert!(done.after[0].abs() < 1e-12);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Debug, Clone)]
+pub struct ServoCompensator {
+    model: Model,
+    options: Options,
+}
+
+impl ServoCompensator {
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
+    pub fn options(&self) -> &Options {
+        &self.options
+    }
+
+    /// The correction of the commanded pose `state` into `dq` (one value per axis, m or rad, to
+    /// add to the command), with the predicted error before and after it. The state's inputs,
+    /// lags, time and directions of motion are those of the commanded motion.
+    pub fn compensate(&self, state: &State, dq: &mut [f64]) -> Result<Compensated, ServoError> {
+        let model = &self.model;
+        let mut flat = [0.0; 6 * compensate::MAX_SERVO_AXES];
+        let n = model.axes().min(compensate::MAX_SERVO_AXES);
+        let mut engine = compensate::JitEngine {
+            jit: &model.jit,
+            beta: model.beta(),
+            nonlinear: &model.nonlinear,
+            flat: &mut flat[..6 * n],
+        };
+        compensate::servo(&mut engine, model.machine(), &self.options, state, dq)
+    }
+
+    /// An interpreter with this model's non-linear values, for
+    /// [`ServoCompensator::compensate_interp`] (one per thread).
+    pub fn interpreter(&self) -> Result<Interpreter<'_>, EvalError> {
+        let mut it = Interpreter::new(self.model.machine())?;
+        it.set_nonlinear(&self.model.nonlinear)?;
+        Ok(it)
+    }
+
+    /// [`ServoCompensator::compensate`] by the interpreter: the reference the native code is
+    /// checked against (and timed against in `kin bench`).
+    pub fn compensate_interp(
+        &self,
+        interpreter: &mut Interpreter,
+        state: &State,
+        dq: &mut [f64],
+    ) -> Result<Compensated, ServoError> {
+        let mut engine = compensate::InterpEngine {
+            interpreter,
+            beta: self.model.beta(),
+        };
+        compensate::servo(&mut engine, self.model.machine(), &self.options, state, dq)
     }
 }
 
@@ -634,6 +749,7 @@ mod tests {
     #[test]
     fn a_model_is_send_and_sync() {
         assert_send_sync::<Model>();
+        assert_send_sync::<ServoCompensator>();
     }
 
     #[test]

@@ -1204,3 +1204,199 @@ fn a_large_model_compiles_and_agrees_with_the_interpreter() {
         model.compile_time()
     );
 }
+
+/// The servo compensation by the JIT and by the interpreter on random positioning machines:
+/// the same iteration on engines that agree to 1e-12 of their terms. Compared: the effect of
+/// the two corrections on the tool and the predicted errors, relative to the error compensated;
+/// the corrections themselves per axis kind (an angle and a length each by its own scale).
+#[test]
+fn random_machines_compensate_alike_in_both_engines() {
+    use kin_runtime::compensate::Options as CompOptions;
+    let mut gen = Gen {
+        rng: StdRng::seed_from_u64(20251125),
+        fourier_along: true,
+    };
+    let mut rng = StdRng::seed_from_u64(7);
+    let (mut worst_dq, mut worst_after, mut compared, mut failed) = (0.0_f64, 0.0_f64, 0, 0);
+    let mut skipped = 0;
+    let mut worst_effect = 0.0_f64;
+    for index in 0..120 {
+        // Compensation is for positioning machines: every generated machine is made one.
+        let src = gen
+            .machine(index)
+            .replacen("task measure", "task position", 1);
+        let mut model = kin_runtime::Model::compile(&src).unwrap_or_else(|e| panic!("{src}\n{e}"));
+        let n = model.coefficients();
+        let beta: Vec<f64> = (0..n).map(|_| rng.random_range(-1e-5..1e-5)).collect();
+        model.set_beta(&beta).expect("β");
+        let nonlinear: Vec<f64> = model
+            .nonlinear()
+            .iter()
+            .map(|v| v * rng.random_range(0.8..1.25))
+            .collect();
+        model.set_nonlinear(&nonlinear).expect("values");
+        let m = model.machine().clone();
+        let options = CompOptions::pose(&m);
+        let comp = model.compensator(options).expect("compensator");
+        let mut it = comp.interpreter().expect("interpreter");
+        let axes = m.axes.len();
+        let (mut a, mut b) = (vec![0.0; axes], vec![0.0; axes]);
+        for _ in 0..4 {
+            let mut s = random_state(&mut rng, &m);
+            // Commands inside the declared ranges (compensation refuses others).
+            for (q, axis) in s.q.iter_mut().zip(&m.axes) {
+                if !axis.continuous {
+                    *q = q.clamp(axis.range[0], axis.range[1]);
+                }
+            }
+            let st = s.get();
+            let ca = comp.compensate(&st, &mut a);
+            let cb = comp.compensate_interp(&mut it, &st, &mut b);
+            let (ca, cb) = match (ca, cb) {
+                (Ok(x), Ok(y)) => (x, y),
+                (Err(x), Err(y)) => {
+                    // NaN ≠ NaN: compared as text.
+                    assert_eq!(x.to_string(), y.to_string(), "machine {index}\n{src}");
+                    failed += 1;
+                    continue;
+                }
+                (x, y) => panic!("machine {index}: {x:?} vs {y:?}\n{src}"),
+            };
+            // Random error models can be far from small (a quadratic of a continuous axis over
+            // several turns): the compensation is a solve for small errors, and where the errors
+            // reach a millimetre or a milliradian, or the iteration has not converged within its
+            // bound, there is nothing physical to agree on.
+            let small = |e: &[f64; 6]| e.iter().all(|x| x.abs() < 1e-3);
+            if !(small(&ca.before) && small(&cb.before))
+                || ca.iterations == options.iterations
+                || cb.iterations == options.iterations
+            {
+                skipped += 1;
+                continue;
+            }
+            assert_eq!(ca.rank, cb.rank, "machine {index}\n{src}");
+            assert_eq!(ca.iterations, cb.iterations, "machine {index}\n{src}");
+            // What the machine does with the two corrections: the tool moves by J·dq, so the
+            // corrections agree where it matters when W·J·(dq_a − dq_b) is small against the
+            // weighted error. The corrections themselves can differ more, by the condition
+            // number of the weighted Jacobian (a random machine's can be large), in directions
+            // that hardly move the tool.
+            let mut cols = vec![Vector6::zeros(); axes];
+            it.nominal_jacobian(&st, &mut cols).expect("nominal");
+            let w = Vector6::from(options.weights);
+            let moved: Vector6<f64> = cols
+                .iter()
+                .zip(a.iter().zip(&b))
+                .map(|(c, (x, y))| c.component_mul(&w) * (x - y))
+                .sum();
+            let weighted = Vector6::from(ca.before).component_mul(&w).norm().max(1e-30);
+            worst_effect = worst_effect.max(moved.norm() / weighted);
+            for kind in [JointKind::Prismatic, JointKind::Revolute] {
+                let pick = |v: &[f64]| -> Vec<f64> {
+                    v.iter()
+                        .zip(&m.axes)
+                        .filter(|(_, axis)| axis.kind == kind)
+                        .map(|(x, _)| *x)
+                        .collect()
+                };
+                let (pa, pb) = (pick(&a), pick(&b));
+                let scale = pa.iter().chain(&pb).fold(0.0_f64, |s, x| s.max(x.abs()));
+                for (x, y) in pa.iter().zip(&pb) {
+                    if scale > 0.0 {
+                        worst_dq = worst_dq.max((x - y).abs() / scale);
+                    }
+                }
+            }
+            let scale: f64 = ca.before.iter().map(|x| x.abs()).sum::<f64>().max(1e-30);
+            for (x, y) in ca
+                .after
+                .iter()
+                .zip(&cb.after)
+                .chain(ca.before.iter().zip(&cb.before))
+            {
+                worst_after = worst_after.max((x - y).abs() / scale);
+            }
+            compared += 1;
+        }
+    }
+    eprintln!(
+        "{compared} compensations compared ({failed} failed alike in both engines, {skipped} with errors over 1 mm or 1 mrad or not converged left out); worst relative differences: the corrections' effect on the tool {worst_effect:e}, the predicted errors {worst_after:e}, the corrections themselves {worst_dq:e}"
+    );
+    assert!(compared > 300, "too few compensations compared: {compared}");
+    // The engines agree to 1e-12 of the size of the terms an error sums (see `compare`); a
+    // random model's terms can cancel to an error a hundred times smaller, and the iteration
+    // re-evaluates it at every step, so against the error itself 1e-12 becomes ~1e-10 here
+    // (measured 3e-10 with these seeds). The corrections carry, in addition, the condition
+    // number of the weighted joint Jacobian (measured 2e-9).
+    assert!(
+        worst_effect <= 1e3 * TOLERANCE,
+        "the corrections' effects differ by {worst_effect:e}"
+    );
+    assert!(
+        worst_after <= 1e3 * TOLERANCE,
+        "errors differ by {worst_after:e}"
+    );
+    assert!(
+        worst_dq <= 1e5 * TOLERANCE,
+        "corrections differ by {worst_dq:e}"
+    );
+}
+
+#[test]
+fn compensation_does_not_allocate_and_serves_many_threads() {
+    use kin_runtime::compensate::Options as CompOptions;
+    let path = format!(
+        "{}/../examples/milling_5axis.kin",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let src = std::fs::read_to_string(&path).expect("example readable");
+    let mut model = kin_runtime::Model::compile(&src).expect("compiles");
+    let n = model.coefficients();
+    let beta: Vec<f64> = (0..n).map(|j| 2e-6 * ((j % 5) as f64 - 2.0)).collect();
+    model.set_beta(&beta).expect("β");
+    let comp = model
+        .compensator(CompOptions::pose(model.machine()))
+        .expect("compensator");
+    let states = kin_runtime::states::States::sample(model.machine(), 64, 5);
+    let axes = model.axes();
+    let mut dq = vec![0.0; axes];
+    comp.compensate(&states.get(0), &mut dq).expect("warm-up");
+    let before = allocations();
+    for r in 0..states.len() {
+        std::hint::black_box(
+            comp.compensate(&states.get(r), &mut dq)
+                .expect("compensates"),
+        );
+    }
+    assert_eq!(allocations(), before, "a compensation allocated");
+    // Four threads on one compensator at once, each its own output: what one thread alone gives.
+    let alone: Vec<Vec<f64>> = (0..states.len())
+        .map(|r| {
+            let mut dq = vec![0.0; axes];
+            comp.compensate(&states.get(r), &mut dq)
+                .expect("compensates");
+            dq
+        })
+        .collect();
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..4)
+            .map(|t| {
+                let (comp, states, alone) = (&comp, &states, &alone);
+                scope.spawn(move || {
+                    let mut dq = vec![0.0; axes];
+                    for round in 0..20 {
+                        for r in 0..states.len() {
+                            let r = (r + 7 * t + round) % states.len();
+                            comp.compensate(&states.get(r), &mut dq)
+                                .expect("compensates");
+                            assert_eq!(dq, alone[r], "thread {t}, pose {r}");
+                        }
+                    }
+                })
+            })
+            .collect();
+        for h in handles {
+            h.join().expect("thread");
+        }
+    });
+}

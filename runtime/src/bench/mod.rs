@@ -8,6 +8,11 @@
 //! for the [hand-written baseline](baseline_5axis) of that machine; and the time from source text
 //! to callable native functions. Every figure is the best of a few rounds, so a moment of load
 //! elsewhere shows less.
+//!
+//! For a positioning machine it also times the servo compensation
+//! ([`ServoCompensator`](crate::embed::ServoCompensator)) call by call, JIT and interpreter, and
+//! gives the median, the 99.9th percentile and the largest time of one call: a controller cares
+//! about the worst cycle, not the average.
 
 pub mod baseline_5axis;
 
@@ -82,6 +87,29 @@ pub struct Figures {
     pub jit_compile: Duration,
     /// Whether this code was built without optimisations (figures not representative).
     pub debug_build: bool,
+    /// Time per servo compensation call; the reason when the machine measures instead.
+    pub compensation: Result<CompensationTimes, String>,
+}
+
+/// The distribution of the time of one call.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Latency {
+    pub calls: usize,
+    pub median: Duration,
+    /// The 99.9th percentile.
+    pub p999: Duration,
+    pub max: Duration,
+}
+
+/// The servo compensation timed call by call.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CompensationTimes {
+    /// The bound on the linear solves per call (`Options::iterations`).
+    pub iterations: usize,
+    pub jit: Latency,
+    /// The first linear solve only (one iteration), JIT.
+    pub jit_first_solve: Latency,
+    pub interp: Latency,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -227,6 +255,7 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
     };
 
     let baseline = baseline_rates(m, options, &rows, &beta, &nonlinear);
+    let compensation = compensation_times(&model, options, &rows, &beta)?;
     let write_only = rate(options, || {
         for r in 0..count {
             jac.fill(black_box(r as f64));
@@ -248,9 +277,91 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
         front_end,
         jit_compile,
         debug_build: cfg!(debug_assertions),
+        compensation,
     })
 }
 
+/// The servo compensation of every sampled pose in turn, each call timed alone, for about
+/// `options.time`: JIT with the default iterations, JIT with the first solve only, interpreter.
+fn compensation_times(
+    model: &Model,
+    options: &Options,
+    rows: &StateRows,
+    beta: &[f64],
+) -> Result<Result<CompensationTimes, String>, BenchError> {
+    let mut bound = model.clone();
+    bound.set_beta(beta)?;
+    let defaults = crate::compensate::Options::pose(bound.machine());
+    let comp = match bound.compensator(defaults) {
+        Ok(c) => c,
+        Err(e) => return Ok(Err(e.to_string())),
+    };
+    let first = match bound.compensator(crate::compensate::Options {
+        iterations: 1,
+        ..defaults
+    }) {
+        Ok(c) => c,
+        Err(e) => return Ok(Err(e.to_string())),
+    };
+    let mut dq = vec![0.0; bound.axes()];
+    let mut it = comp.interpreter()?;
+    let jit = latency(options, rows.len(), |r| {
+        comp.compensate(&rows.get(r), &mut dq).map(|_| ())
+    });
+    let jit_first_solve = latency(options, rows.len(), |r| {
+        first.compensate(&rows.get(r), &mut dq).map(|_| ())
+    });
+    let interp = latency(options, rows.len(), |r| {
+        comp.compensate_interp(&mut it, &rows.get(r), &mut dq)
+            .map(|_| ())
+    });
+    Ok(match (jit, jit_first_solve, interp) {
+        (Ok(jit), Ok(jit_first_solve), Ok(interp)) => Ok(CompensationTimes {
+            iterations: defaults.iterations,
+            jit,
+            jit_first_solve,
+            interp,
+        }),
+        (Err(e), _, _) | (_, Err(e), _) | (_, _, Err(e)) => Err(e.to_string()),
+    })
+}
+
+/// Calls `f` on poses `0, 1, …` (cycling), each call timed alone, for `options.time` (at least
+/// one pass over the poses after an untimed one); the clock's own cost is in every figure.
+fn latency<E>(
+    options: &Options,
+    poses: usize,
+    mut f: impl FnMut(usize) -> Result<(), E>,
+) -> Result<Latency, E> {
+    for r in 0..poses {
+        f(r)?;
+    }
+    let mut times: Vec<u64> = Vec::with_capacity(poses.max(1 << 16));
+    let start = Instant::now();
+    let mut r = 0;
+    while times.len() < poses || start.elapsed() < options.time {
+        let t = Instant::now();
+        f(r)?;
+        let ns = t.elapsed().as_nanos();
+        times.push(u64::try_from(ns).unwrap_or(u64::MAX));
+        r = (r + 1) % poses.max(1);
+    }
+    times.sort_unstable();
+    let at = |q: f64| {
+        let k = ((times.len() as f64 - 1.0) * q).round() as usize;
+        Duration::from_nanos(times.get(k).copied().unwrap_or(0))
+    };
+    Ok(Latency {
+        calls: times.len(),
+        median: at(0.5),
+        p999: at(0.999),
+        max: at(1.0),
+    })
+}
+
+fn us(d: Duration) -> String {
+    format!("{:.2} µs", d.as_secs_f64() * 1e6)
+}
 fn baseline_rates(
     m: &Machine,
     options: &Options,
@@ -374,7 +485,36 @@ impl fmt::Display for Figures {
             ms(self.compile),
             ms(self.front_end),
             ms(self.jit_compile)
-        )
+        )?;
+        writeln!(f)?;
+        match &self.compensation {
+            Ok(c) => {
+                writeln!(
+                    f,
+                    "{:<40} {:>10} {:>10} {:>10} {:>10} {:>12}",
+                    "time per compensation call", "median", "p99.9", "max", "calls", "× interp"
+                )?;
+                let line = |f: &mut fmt::Formatter<'_>, name: &str, l: &Latency| {
+                    writeln!(
+                        f,
+                        "{name:<40} {:>10} {:>10} {:>10} {:>10} {:>12.1}",
+                        us(l.median),
+                        us(l.p999),
+                        us(l.max),
+                        l.calls,
+                        c.interp.median.as_secs_f64() / l.median.as_secs_f64().max(1e-12)
+                    )
+                };
+                line(f, "interpreter", &c.interp)?;
+                line(f, &format!("JIT, at most {} solves", c.iterations), &c.jit)?;
+                line(f, "JIT, first solve only", &c.jit_first_solve)?;
+                writeln!(
+                    f,
+                    "(each call timed alone, clock included; × interp compares medians; the maximum is what one unlucky cycle took on this computer under its load, not a bound)"
+                )
+            }
+            Err(why) => writeln!(f, "no compensation timing: {why}"),
+        }
     }
 }
 
@@ -406,9 +546,21 @@ mod tests {
         }
         assert!(figures.write_only > 0.0, "{figures:?}");
         assert!(figures.baseline.is_err());
+        let c = figures
+            .compensation
+            .as_ref()
+            .expect("a positioning machine");
+        for l in [c.jit, c.jit_first_solve, c.interp] {
+            assert!(
+                l.calls >= 20 && l.median <= l.p999 && l.p999 <= l.max,
+                "{c:?}"
+            );
+        }
         let text = figures.to_string();
         assert!(
-            text.contains("not a test") && text.contains("no hand-written baseline"),
+            text.contains("not a test")
+                && text.contains("no hand-written baseline")
+                && text.contains("time per compensation call"),
             "{text}"
         );
         assert!(matches!(

@@ -1506,6 +1506,8 @@ fn stations_section(s: &mut String, f: &FitReport) {
         s.push_str("</tr>\n</table>\n");
     }
     s.push_str("</section>\n");
+}
+
 /// Before and after compensation along each axis (`--compensation`).
 fn compensation_section(
     s: &mut String,

@@ -74,6 +74,48 @@ pub(super) fn restate(
         finding.columns = finding.columns.saturating_sub(2);
         (c, r) = (c1, r1);
     }
+    // One periodic error seen in several components: the pitch and yaw a leadscrew's nut gives
+    // its carriage repeat at the screw's wavelength. A companion joins the line (`X.tx, X.ry
+    // += …`, one wavelength for both) when the joint refit improves on the line without it
+    // (partial F-test of its columns, Bonferroni over the companions tried), and the same
+    // terms with a wavelength of their own do not improve on the joint one (partial F-test of
+    // the one parameter more): otherwise it is another effect, for a line of its own.
+    if finding.candidate.family == super::Family::Periodic {
+        let companions = periodic::companions(&finding.candidate.target);
+        let level = alpha / companions.len().max(1) as f64;
+        let single = r.rows;
+        for extra in companions {
+            let line = &finding.candidate.text;
+            let Some((targets, rhs)) = line.split_once(" += ") else {
+                break;
+            };
+            let joint = format!("{targets}, {extra} += {rhs}");
+            let Some((cj, rj)) = refit(&joint)? else {
+                continue;
+            };
+            if !significant_gain(&r, &rj, level) {
+                continue;
+            }
+            let apart = format!("{line}\n{extra} += {rhs}");
+            if let Some((_, ra)) = refit(&apart)? {
+                if significant_gain(&rj, &ra, alpha) {
+                    continue;
+                }
+            }
+            let added = rj.solution.rank.saturating_sub(r.solution.rank);
+            if r.solution.rss > 0.0 && rj.solution.rss > 0.0 && single > 0 {
+                let n = single as f64;
+                finding.bic += n * (rj.solution.rss / r.solution.rss).ln() + added as f64 * n.ln();
+            }
+            finding.columns += added;
+            finding.candidate.text = joint;
+            finding.candidate.explanation.push_str(&format!(
+                "; seen also in {extra} at the same wavelength (one effect: the carriage tilts with the same period)"
+            ));
+            finding.candidate.also.push(extra);
+            (c, r) = (cj, rj);
+        }
+    }
     let Some(nl) = &r.nonlinear else {
         return Ok(());
     };

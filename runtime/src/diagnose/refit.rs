@@ -153,6 +153,45 @@ pub(super) fn restate(
     Ok(())
 }
 
+/// One finding per effect: a line with several targets is reached from the finding of each
+/// of its components (`tool.tz` joined by `tool.tx`, and `tool.tx` by `tool.tz`). A finding
+/// whose components all belong to another finding's joint line of the same family is dropped,
+/// the one kept being led by the component that showed the effect most (then by text), so that
+/// its parameter is named after that component.
+pub(super) fn one_per_effect(findings: &mut Vec<Finding>) {
+    fn set(f: &Finding) -> Vec<&str> {
+        let mut v: Vec<&str> = std::iter::once(f.candidate.target.as_str())
+            .chain(f.candidate.also.iter().map(String::as_str))
+            .collect();
+        v.sort_unstable();
+        v
+    }
+    let covered = |b: &Finding, a: &Finding| {
+        let (sa, sb) = (set(a), set(b));
+        !a.candidate.also.is_empty()
+            && a.candidate.family == b.candidate.family
+            && sb.iter().all(|t| sa.contains(t))
+            && (sa.len() > sb.len()
+                || a.explained > b.explained
+                || (a.explained == b.explained && a.candidate.text < b.candidate.text))
+    };
+    let drop: Vec<bool> = findings
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            findings
+                .iter()
+                .enumerate()
+                .any(|(j, a)| i != j && covered(b, a))
+        })
+        .collect();
+    let mut k = 0;
+    findings.retain(|_| {
+        k += 1;
+        !drop.get(k - 1).copied().unwrap_or(false)
+    });
+}
+
 /// The components where the effect of `c`'s line is physically expected with the same
 /// non-linear parameter, and how the explanation says so: for a periodic error along an axis,
 /// the carriage's tilts ([`periodic::companions`]); for a tool's thermal lag (`tool.tz +=
@@ -273,6 +312,44 @@ mod tests {
             "X.tx += lag(T, tau fit 30 min) * linear(X)",
         );
         assert!(companions(&scale).0.is_empty());
+    }
+
+    #[test]
+    fn a_joint_line_is_one_finding() {
+        let f = |target: &str, also: &[&str], explained: f64| Finding {
+            candidate: super::super::Candidate {
+                family: super::super::Family::Thermal,
+                target: target.into(),
+                also: also.iter().map(|s| s.to_string()).collect(),
+                text: format!("{target} += lag(T, tau fit 40 min) * const"),
+                explanation: String::new(),
+            },
+            alternatives: Vec::new(),
+            separation: None,
+            columns: 2,
+            explained,
+            f: 1.0,
+            p: 0.0,
+            p_adjusted: 0.0,
+            significant: true,
+            rms_after: 0.0,
+            bic: -1.0,
+            plausibility: None,
+            fitted: Vec::new(),
+        };
+        let mut all = vec![
+            f("tool.tx", &["tool.tz"], 0.08),
+            f("tool.tz", &["tool.tx"], 0.85),
+            f("tool.ty", &[], 0.01),
+        ];
+        one_per_effect(&mut all);
+        let kept: Vec<&str> = all.iter().map(|f| f.candidate.target.as_str()).collect();
+        assert_eq!(kept, ["tool.tz", "tool.ty"]);
+        // A single component inside a joint line is that line's.
+        let mut all = vec![f("tool.tx", &[], 0.9), f("tool.tz", &["tool.tx"], 0.5)];
+        one_per_effect(&mut all);
+        assert_eq!(all.len(), 1);
+        assert_eq!(all[0].candidate.target, "tool.tz");
     }
 
     #[test]

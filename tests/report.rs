@@ -70,6 +70,7 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
         candidate: Candidate {
             family,
             target: target.into(),
+            also: Vec::new(),
             text: text.into(),
             explanation: format!("{target} <explained> & so on"),
         },

@@ -287,3 +287,110 @@ fn apply_writes_the_fitted_wavelength_back_and_the_report_keeps_every_round() {
     }
     assert!(!html.contains("larger than the noise allows"));
 }
+
+/// A model of `cmm3` whose truth adds a periodic error along X at `tx_mm` in the positioning
+/// error (`X.tx`, 5 µm) and at `ry_mm` in the pitch of the carriage (`X.ry`, 10 µrad, seen
+/// through the probe's Abbe arm, which Z changes); 0.2 µm of noise. Returns the directory, the
+/// model and the data.
+fn screw_and_pitch(name: &str, tx_mm: f64, ry_mm: f64) -> (std::path::PathBuf, String, String) {
+    let dir = scratch(name);
+    let model = dir.join("cmm3.kin");
+    std::fs::write(&model, cmm3(CMM3_ERRORS)).unwrap();
+    let truth_model = dir.join("truth.kin");
+    let truth_errors = format!(
+        "{CMM3_ERRORS}        X.tx += fourier(X, harmonics 1, wavelength {tx_mm} mm)\n        X.ry = fourier(X, harmonics 1, wavelength {ry_mm} mm)\n"
+    );
+    std::fs::write(&truth_model, cmm3(&truth_errors)).unwrap();
+    let truth = dir.join("truth.params");
+    std::fs::write(
+        &truth,
+        "params {\n    X.tx = [3, -2, 1, 0.5, 3, 4] um\n    X.rz[0] = 4 urad\n    Y.ty[0] = 1.5 um\n    Z.tz[0] = 2 um\n    X.ry = [6, -8] urad\n}\n",
+    )
+    .unwrap();
+    let data = dir.join("points.csv");
+    simulate(
+        truth_model.to_str().unwrap(),
+        truth.to_str().unwrap(),
+        1200,
+        5,
+        &["--noise", "0.2um"],
+        data.to_str().unwrap(),
+    );
+    let (m, d) = (
+        model.to_str().unwrap().to_string(),
+        data.to_str().unwrap().to_string(),
+    );
+    (dir, m, d)
+}
+
+/// One leadscrew's periodic error in the positioning error and the pitch of its carriage, at
+/// one wavelength: `kin diagnose` proposes one line for both components (`X.tx, X.ry += …`)
+/// with one fitted wavelength, and one `--apply` brings the residuals to the noise, the
+/// wavelength within two standard errors of the truth.
+#[test]
+fn one_periodic_error_in_two_components_is_one_line_and_one_round() {
+    let (dir, m, d) = screw_and_pitch("shared_wavelength", 20.0, 20.0);
+    let json = dir.join("diagnose.json");
+    let s = ok(&kin(&["diagnose", &m, &d, "-o", json.to_str().unwrap()]));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let top = &v["findings"][0];
+    let text = top["candidate"]["text"].as_str().unwrap_or_default();
+    assert!(
+        text.starts_with("X.tx, X.ry += ") && text.matches("wavelength fit").count() == 1,
+        "the first finding is not one line for both components:\n{s}"
+    );
+    assert_eq!(top["candidate"]["also"], serde_json::json!(["X.ry"]), "{s}");
+    assert_eq!(top["fitted"].as_array().map(Vec::len), Some(1), "{s}");
+
+    let s = ok(&kin(&["diagnose", &m, &d, "--apply", "1"]));
+    let revised = std::fs::read_to_string(&m).unwrap();
+    let added: Vec<&str> = revised
+        .lines()
+        .filter(|l| l.contains("wavelength fit"))
+        .collect();
+    assert_eq!(added.len(), 1, "{revised}");
+    assert!(added[0].trim().starts_with("X.tx, X.ry += "), "{revised}");
+
+    // One round: the refit is at the noise, its wavelength (one parameter, from both
+    // components) within two standard errors of the truth.
+    let fit = dir.join("fit.json");
+    let s2 = ok(&kin(&["fit", &m, &d, "-o", fit.to_str().unwrap()]));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fit).unwrap()).unwrap();
+    let sigma = v["sigma"].as_f64().unwrap();
+    assert!(sigma <= 0.2 * 1.1, "σ̂ {sigma} after one round:\n{s}\n{s2}");
+    let nl = v["nonlinear"].as_array().unwrap();
+    assert_eq!(nl.len(), 1, "{s2}");
+    assert_eq!(nl[0]["name"], "X.tx.wavelength");
+    let (lambda, se) = (
+        nl[0]["value"].as_f64().unwrap(),
+        nl[0]["se"].as_f64().unwrap(),
+    );
+    assert!(
+        (lambda - 20.0).abs() <= 2.0 * se && se < 0.05,
+        "λ = {lambda} ± {se} mm"
+    );
+    let after = ok(&kin(&["diagnose", &m, &d]));
+    assert!(
+        !after.contains("X.ry += fourier") && !after.contains("X.tx += fourier"),
+        "the periodic error is left for another round:\n{after}"
+    );
+}
+
+/// The control: the positioning error and the pitch at different wavelengths are two effects,
+/// never one line.
+#[test]
+fn periodic_errors_at_different_wavelengths_are_not_merged() {
+    let (dir, m, d) = screw_and_pitch("separate_wavelengths", 20.0, 31.0);
+    let json = dir.join("diagnose.json");
+    let s = ok(&kin(&["diagnose", &m, &d, "-o", json.to_str().unwrap()]));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for f in v["findings"].as_array().unwrap() {
+        let text = f["candidate"]["text"].as_str().unwrap_or_default();
+        let targets = text.split(" += ").next().unwrap_or_default();
+        assert!(!targets.contains(','), "a merged line `{text}`:\n{s}");
+        assert_eq!(f["candidate"]["also"], serde_json::json!([]), "{s}");
+    }
+}

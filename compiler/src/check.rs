@@ -110,31 +110,95 @@ struct Checker<'a> {
 
 impl Checker<'_> {
     fn definition(&mut self, def: &ast::ErrorDef, sink: &mut Sink) {
-        let Some((frame, component, display, sign)) = self.target(&def.target, sink) else {
+        // Every target resolved and claimed first, so that a bad one stops the definition
+        // before its value is checked (and its diagnostics given) once per target.
+        let mut claimed: Vec<(usize, Component, String, Span, f64)> = Vec::new();
+        let mut named: HashMap<(FrameRef, Component), Span> = HashMap::new();
+        for t in &def.targets {
+            let Some((frame, component, display, sign)) = self.target(t, sink) else {
+                return;
+            };
+            if let Some(first) = named.get(&(frame, component)) {
+                sink.push(
+                    Diagnostic::error(
+                        "E0102",
+                        format!("`{display}` is named twice in this definition"),
+                        t.span,
+                    )
+                    .with_label("named again here")
+                    .with_secondary(*first, "first named here")
+                    .with_help("each component takes the terms once: remove one of the two"),
+                );
+                return;
+            }
+            named.insert((frame, component), t.span);
+            let Some(index) = self.claim(frame, component, &display, t.span, def.add, sink) else {
+                return;
+            };
+            claimed.push((index, component, display, t.span, sign));
+        }
+        let Some((_, _, first, _, _)) = claimed.first() else {
             return;
         };
-        self.current = display.clone();
-        let index = match self.defined.get(&(frame, component)).copied() {
+        // The value is expanded once: a wavelength or time constant it declares `fit` is one
+        // parameter (named after the first target), shared by every target's terms.
+        self.current = first.clone();
+        let Some(terms) = self.expand(&def.value, sink) else {
+            return;
+        };
+        let several = claimed.len() > 1;
+        for (index, component, display, target_span, sign) in claimed {
+            self.current = display;
+            let mut terms = terms.clone();
+            // A location or squareness name carried with the opposite sign (`EC0Y = const` on
+            // a frame where it is `−X.rz`): the model is the component's, negated.
+            if sign < 0.0 {
+                for t in &mut terms {
+                    t.scale = match &t.scale {
+                        Scalar::Num(v) => Scalar::Num(-v),
+                        other => Scalar::Neg(Box::new(other.clone())),
+                    };
+                }
+            }
+            self.terms(
+                index,
+                component,
+                terms,
+                several.then_some(target_span),
+                sink,
+            );
+        }
+    }
+
+    /// The error model of `(frame, component)`: a new one, or for `+=` the existing one; a
+    /// second `=` is an error.
+    fn claim(
+        &mut self,
+        frame: FrameRef,
+        component: Component,
+        display: &str,
+        span: Span,
+        add: bool,
+        sink: &mut Sink,
+    ) -> Option<usize> {
+        match self.defined.get(&(frame, component)).copied() {
             Some((index, first)) => {
-                if !def.add {
-                    let mut d = Diagnostic::error(
-                        "E0102",
-                        format!("`{display}` is defined twice"),
-                        def.target.span,
-                    )
-                    .with_label("second definition")
-                    .with_help(format!(
-                        "use `{display} += …` to add terms to an existing model"
-                    ));
+                if !add {
+                    let mut d =
+                        Diagnostic::error("E0102", format!("`{display}` is defined twice"), span)
+                            .with_label("second definition")
+                            .with_help(format!(
+                                "use `{display} += …` to add terms to an existing model"
+                            ));
                     if let Some(first) =
                         first.or_else(|| self.models.error_spans.get(index).copied())
                     {
                         d = d.with_secondary(first, "first defined here");
                     }
                     sink.push(d);
-                    return;
+                    return None;
                 }
-                index
+                Some(index)
             }
             None => {
                 let index = self.models.errors.len();
@@ -143,27 +207,26 @@ impl Checker<'_> {
                     component,
                     terms: Vec::new(),
                 });
-                self.models.error_spans.push(def.target.span);
-                self.defined.insert(
-                    (frame, component),
-                    (index, (!def.add).then_some(def.target.span)),
-                );
-                index
-            }
-        };
-        let Some(mut terms) = self.expand(&def.value, sink) else {
-            return;
-        };
-        // A location or squareness name carried with the opposite sign (`EC0Y = const` on a
-        // frame where it is `−X.rz`): the model is the component's, negated.
-        if sign < 0.0 {
-            for t in &mut terms {
-                t.scale = match &t.scale {
-                    Scalar::Num(v) => Scalar::Num(-v),
-                    other => Scalar::Neg(Box::new(other.clone())),
-                };
+                self.models.error_spans.push(span);
+                self.defined
+                    .insert((frame, component), (index, (!add).then_some(span)));
+                Some(index)
             }
         }
+    }
+
+    /// Adds the expanded `terms` to error model `index` (the target `self.current`), checking
+    /// each against the component's dimension. `target` is the target's span when the
+    /// definition names several, for diagnostics to say which one a term does not fit.
+    fn terms(
+        &mut self,
+        index: usize,
+        component: Component,
+        terms: Vec<SymTerm>,
+        target: Option<Span>,
+        sink: &mut Sink,
+    ) {
+        let display = self.current.clone();
         let component_unit = if component.is_rotation() {
             &self.st.units.tilt
         } else {
@@ -199,8 +262,7 @@ impl Checker<'_> {
                 } else {
                     "a translation"
                 };
-                sink.push(
-                    Diagnostic::error(
+                let d = Diagnostic::error(
                         "E0202",
                         if term.dim == Dim::DIMENSIONLESS {
                             format!("{kind} error cannot take a dimensionless term")
@@ -218,8 +280,13 @@ impl Checker<'_> {
                         format!("give it a unit, e.g. `{} {}`", 1, component_unit.name)
                     } else {
                         "multiply by `const` to fit a coefficient instead, or fix the units".to_string()
-                    }),
-                );
+                    });
+                sink.push(match target {
+                    Some(t) => {
+                        d.with_secondary(t, format!("this target is {}", component_dim.describe()))
+                    }
+                    None => d,
+                });
             } else {
                 let scale = match term.temp {
                     Temp::Literal { difference } => Scalar::Num(difference),
@@ -1707,4 +1774,89 @@ pub(crate) fn display_unit(dim: Dim, units: &ir::DisplayUnits) -> Unit {
 fn fmt_num(v: f64) -> String {
     let r = (v * 1e6).round() / 1e6;
     format!("{r}")
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::basis::{Basis, Wavelength};
+    use crate::ir::{Component, Machine, Var};
+
+    fn machine(errors: &str) -> Machine {
+        let src = format!(
+            "machine m {{
+                task position
+                units {{ length mm, error um, tilt urad, time min }}
+                input T : temperature rise
+                axis X prismatic along x range 0 mm .. 500 mm
+                tool chain {{ X moving  tool t at (0, 0, -100) mm }}
+                errors {{ {errors} }}
+            }}"
+        );
+        let out = crate::compile(&src);
+        out.compiled
+            .unwrap_or_else(|| panic!("{:?}", out.diagnostics))
+            .machine
+    }
+
+    /// The wavelength parameter index of each fitted Fourier factor, by component.
+    fn wavelengths(m: &Machine) -> Vec<(Component, usize)> {
+        m.errors
+            .iter()
+            .flat_map(|e| e.terms.iter().map(move |t| (e.component, t)))
+            .flat_map(|(c, t)| {
+                t.factors.iter().filter_map(move |f| match &f.basis {
+                    Basis::Fourier {
+                        wavelength: Some(Wavelength::Fitted(nl)),
+                        ..
+                    } => Some((c, nl.index)),
+                    _ => None,
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn several_targets_share_one_wavelength_and_keep_their_own_coefficients() {
+        let m = machine(
+            "X.tx = const
+             X.tx, X.ry, X.rz += fourier(X, harmonics 1..2, wavelength fit 20 mm)",
+        );
+        assert_eq!(m.nonlinear.len(), 1, "{:?}", m.nonlinear);
+        assert_eq!(m.nonlinear[0].name, "X.tx.wavelength");
+        assert_eq!(
+            wavelengths(&m),
+            vec![(Component::Tx, 0), (Component::Ry, 0), (Component::Rz, 0)]
+        );
+        let names: Vec<&str> = m.coefficients.iter().map(|c| c.name.as_str()).collect();
+        // `const`, then four harmonic columns per target.
+        assert_eq!(names.len(), 1 + 3 * 4);
+        assert_eq!(names[1..5], ["X.tx[1]", "X.tx[2]", "X.tx[3]", "X.tx[4]"]);
+        assert_eq!(names[5..9], ["X.ry[0]", "X.ry[1]", "X.ry[2]", "X.ry[3]"]);
+        assert_eq!(m.coefficients[2].unit.name, "um");
+        assert_eq!(m.coefficients[6].unit.name, "urad");
+        // Written apart, they are two parameters.
+        let apart = machine(
+            "X.tx += fourier(X, harmonics 1, wavelength fit 20 mm)
+             X.ry += fourier(X, harmonics 1, wavelength fit 20 mm)",
+        );
+        assert_eq!(apart.nonlinear.len(), 2);
+    }
+
+    #[test]
+    fn several_targets_share_one_lag() {
+        let m = machine("tool.tz, X.rx += lag(T, tau fit 30 min) * const");
+        assert_eq!(m.lags.len(), 1);
+        assert_eq!(m.nonlinear.len(), 1);
+        assert_eq!(m.nonlinear[0].name, "tool.tz.tau");
+        let lagged = m
+            .errors
+            .iter()
+            .filter(|e| {
+                e.terms
+                    .iter()
+                    .any(|t| t.scale == crate::ir::Scalar::Var(Var::Lag(0)))
+            })
+            .count();
+        assert_eq!(lagged, 2);
+    }
 }

@@ -137,6 +137,17 @@ const CASES: &[Case] = &[
         form: "",
     },
     Case {
+        name: "periodic in X.tx and X.ry (one λ)",
+        kind: Kind::Cmm,
+        family: Family::Periodic,
+        target: "X.tx",
+        // One leadscrew: 1 µm in the positioning error and 4 µrad of pitch (≈ 0.4 … 2 µm
+        // through the Abbe arm) at one wavelength; one line for both, one fitted λ.
+        hidden: "X.tx, X.ry += fourier(X, harmonics 1, wavelength 23.7 mm)",
+        values: &[0.6, -0.8, 2.4, 3.2],
+        form: "X.tx, X.ry += fourier(X, harmonics 1, wavelength fit",
+    },
+    Case {
         name: "periodic, two harmonics (X 20 mm)",
         kind: Kind::Cmm,
         family: Family::Periodic,
@@ -186,6 +197,16 @@ const CASES: &[Case] = &[
         hidden: "tool.tz += lag(T, tau 40 min) * const",
         values: &[0.5],
         form: "",
+    },
+    Case {
+        name: "thermal in tool.tz and tool.tx (one τ)",
+        kind: Kind::Cmm,
+        family: Family::Thermal,
+        target: "tool.tz",
+        // One heat source behind one 40 min lag: 0.5 µm/K along z, 0.3 µm/K along x.
+        hidden: "tool.tz, tool.tx += lag(T, tau 40 min) * const",
+        values: &[0.5, 0.3],
+        form: "tool.tz, tool.tx += lag(T, tau fit",
     },
     Case {
         name: "drift (tool.ty)",

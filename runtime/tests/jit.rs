@@ -329,6 +329,12 @@ struct Gen {
     /// Also `fourier(V, …, wavelength λ)` along a variable that is not an angle. Off where a
     /// test's random stream (and so its machines) must stay as it was.
     fourier_along: bool,
+    /// Also definitions with several targets (`A0.tx, A1.ry += …`), sharing their fitted
+    /// wavelengths and time constants. Off where a test's random stream must stay as it was.
+    shared: bool,
+    /// While generating the value of a definition whose targets mix translations and
+    /// rotations: no fixed term (it cannot have both dimensions).
+    no_fixed: bool,
 }
 
 #[derive(Clone)]
@@ -471,10 +477,27 @@ impl Gen {
         for _ in 0..self.rng.random_range(1..=8) {
             let frame = self.pick(&frames).clone();
             let comp = *self.pick(&["tx", "ty", "tz", "rx", "ry", "rz"]);
-            let first = defined.insert((frame.clone(), comp));
-            let op = if first { "=" } else { "+=" };
-            let expr = self.expr(&axes, comp.starts_with('r'));
-            src += &format!("        {frame}.{comp} {op} {expr}\n");
+            let mut targets = vec![(frame, comp)];
+            if self.shared && self.chance(0.4) {
+                for _ in 0..self.rng.random_range(1..=2) {
+                    let t = (
+                        self.pick(&frames).clone(),
+                        *self.pick(&["tx", "ty", "tz", "rx", "ry", "rz"]),
+                    );
+                    if !targets.contains(&t) {
+                        targets.push(t);
+                    }
+                }
+            }
+            let fresh = targets.iter().all(|t| !defined.contains(t));
+            defined.extend(targets.iter().cloned());
+            let op = if fresh { "=" } else { "+=" };
+            let rotation = comp.starts_with('r');
+            self.no_fixed = targets.iter().any(|t| t.1.starts_with('r') != rotation);
+            let expr = self.expr(&axes, rotation);
+            self.no_fixed = false;
+            let names: Vec<String> = targets.iter().map(|(f, c)| format!("{f}.{c}")).collect();
+            src += &format!("        {} {op} {expr}\n", names.join(", "));
         }
         src += "    }\n}\n";
         src
@@ -678,7 +701,7 @@ impl Gen {
     fn term(&mut self, axes: &[AxisDecl], rotation: bool) -> String {
         let mut avoid = Vec::new();
         match self.rng.random_range(0..8) {
-            0 => self.fixed(axes, rotation),
+            0 if !self.no_fixed => self.fixed(axes, rotation),
             1 => format!(
                 "{} * {}",
                 self.known_scale(axes),
@@ -722,6 +745,8 @@ fn random_machines_agree_with_the_interpreter() {
     let mut gen = Gen {
         rng: StdRng::seed_from_u64(20240601),
         fourier_along: true,
+        shared: false,
+        no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(99);
     let mut worst = Worst::default();
@@ -766,6 +791,8 @@ fn fourier_along_an_axis_agrees_with_the_interpreter() {
     let mut gen = Gen {
         rng: StdRng::seed_from_u64(20261123),
         fourier_along: true,
+        shared: false,
+        no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(7);
     // Machines with a Fourier series at a fixed and at a fitted wavelength.
@@ -794,11 +821,50 @@ fn fourier_along_an_axis_agrees_with_the_interpreter() {
 }
 
 #[test]
+fn shared_targets_agree_with_the_interpreter() {
+    let mut gen = Gen {
+        rng: StdRng::seed_from_u64(20261125),
+        fourier_along: true,
+        shared: true,
+        no_fixed: false,
+    };
+    let mut rng = StdRng::seed_from_u64(11);
+    // Machines where a fitted wavelength or time constant is shared by several targets.
+    let mut shared = 0;
+    for index in 0..120 {
+        let src = gen.machine(index);
+        shared += usize::from(src.lines().any(|l| {
+            l.split(" = ")
+                .next()
+                .and_then(|t| t.split(" += ").next())
+                .is_some_and(|t| t.contains(", "))
+                && l.contains(" fit ")
+        }));
+        let m = compile_source(&src);
+        let model = jit::compile(&m).unwrap_or_else(|e| panic!("{src}\n{e}"));
+        let states: Vec<OwnedState> = (0..6).map(|_| random_state(&mut rng, &m)).collect();
+        let w = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            compare(&m, &model, &states, &mut rng, &format!("machine {index}"))
+        }));
+        if let Err(e) = w {
+            eprintln!("failing source:\n{src}");
+            std::panic::resume_unwind(e);
+        }
+    }
+    assert!(
+        shared > 5,
+        "only {shared} machines share a fitted parameter"
+    );
+}
+
+#[test]
 fn every_family_is_generated() {
     // The generator's reach, checked on its text so a change cannot quietly drop a family.
     let mut gen = Gen {
         rng: StdRng::seed_from_u64(20240601),
         fourier_along: true,
+        shared: false,
+        no_fixed: false,
     };
     let text: String = (0..200).map(|i| gen.machine(i)).collect();
     for needle in [

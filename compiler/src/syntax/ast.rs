@@ -175,7 +175,9 @@ pub struct ErrorsDecl {
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct ErrorDef {
-    pub target: Target,
+    /// One or more (`X.tx, X.ry += …`): never empty. Every target takes the same terms with
+    /// its own coefficients; the non-linear parameters and lags the value declares are one.
+    pub targets: Vec<Target>,
     /// `+=` rather than `=`.
     pub add: bool,
     pub value: Expr,

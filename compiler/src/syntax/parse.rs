@@ -414,21 +414,27 @@ fn build_errors(pair: P) -> Result<ErrorsDecl> {
     for d in pair.into_inner().filter(|p| p.as_rule() == Rule::error_def) {
         let dsp = span(&d);
         let mut it = d.into_inner();
-        let target_pair = next(&mut it, "error target")?;
-        let tsp = span(&target_pair);
-        let mut names = target_pair
-            .into_inner()
-            .filter(|p| p.as_rule() == Rule::any_name);
-        let frame = name(next(&mut names, "error target")?);
-        let component = names.next().map(name);
-        let assign = next(&mut it, "assignment")?;
+        let mut targets = Vec::new();
+        let mut assign = next(&mut it, "error target")?;
+        while assign.as_rule() != Rule::assign {
+            if assign.as_rule() == Rule::target {
+                let tsp = span(&assign);
+                let mut names = assign
+                    .into_inner()
+                    .filter(|p| p.as_rule() == Rule::any_name);
+                let frame = name(next(&mut names, "error target")?);
+                let component = names.next().map(name);
+                targets.push(Target {
+                    frame,
+                    component,
+                    span: tsp,
+                });
+            }
+            assign = next(&mut it, "assignment")?;
+        }
         let value = build_expr(next(&mut it, "error model")?)?;
         defs.push(ErrorDef {
-            target: Target {
-                frame,
-                component,
-                span: tsp,
-            },
+            targets,
             add: assign.as_str() == "+=",
             value,
             span: dsp,

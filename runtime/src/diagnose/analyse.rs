@@ -913,6 +913,7 @@ fn test_candidates(
             settings.alpha,
         )?;
     }
+    refit::one_per_effect(&mut out);
     out.sort_by(rank_order);
     Ok(out)
 }

@@ -322,6 +322,7 @@ pub(super) fn push(
         candidate: Candidate {
             family,
             target,
+            also: Vec::new(),
             text,
             explanation,
         },
@@ -686,6 +687,7 @@ mod tests {
             candidate: Candidate {
                 family,
                 target: target.into(),
+                also: Vec::new(),
                 text: line(target, &all, false),
                 explanation,
             },

@@ -43,6 +43,10 @@ pub struct Candidate {
     pub family: Family,
     /// The error component it adds to, e.g. `Y.ty`.
     pub target: String,
+    /// Further components the line adds the same terms to, sharing its non-linear parameters
+    /// (`X.tx, X.ry += …`: one effect seen in several components); usually empty.
+    #[serde(default)]
+    pub also: Vec<String>,
     /// The exact line to add inside `errors { … }`, e.g. `Y.ty += linear(X) * spline(Y, knots 3)`.
     pub text: String,
     /// What it would mean physically, in plain words.

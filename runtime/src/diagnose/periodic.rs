@@ -102,6 +102,23 @@ pub(super) fn propose(
     }
 }
 
+/// The components besides `target` (the component along an axis' motion, `X.tx`) where the
+/// same periodic error is physically expected at the same wavelength: the pitch and yaw of the
+/// carriage (`X.ry`, `X.rz`), which a leadscrew nut's wobble or a scale's mounting makes
+/// periodic with the pitch. Empty for a target that is not a translation.
+pub(super) fn companions(target: &str) -> Vec<String> {
+    let Some((frame, comp)) = target.rsplit_once('.') else {
+        return Vec::new();
+    };
+    let tilts: &[&str] = match comp {
+        "tx" => &["ry", "rz"],
+        "ty" => &["rx", "rz"],
+        "tz" => &["rx", "ry"],
+        _ => &[],
+    };
+    tilts.iter().map(|r| format!("{frame}.{r}")).collect()
+}
+
 /// How a series of harmonics 1..`top` is described.
 pub(super) fn phrase(top: u32) -> String {
     match top {
@@ -218,6 +235,13 @@ mod tests {
         // One that fits far better (a shape no few harmonics follow) is.
         with_spline.push(reading(false, 2, 5.0));
         assert_eq!(choose(&with_spline, 1000.0, 5, 0.01), Some(4));
+    }
+
+    #[test]
+    fn a_positioning_error_is_looked_for_in_the_carriage_tilts() {
+        assert_eq!(companions("X.tx"), ["X.ry", "X.rz"]);
+        assert_eq!(companions("ram.tz"), ["ram.rx", "ram.ry"]);
+        assert!(companions("X.rz").is_empty());
     }
 
     #[test]

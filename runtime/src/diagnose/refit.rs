@@ -74,6 +74,49 @@ pub(super) fn restate(
         finding.columns = finding.columns.saturating_sub(2);
         (c, r) = (c1, r1);
     }
+    // One effect seen in several components: the pitch and yaw a leadscrew's nut gives its
+    // carriage repeat at the screw's wavelength; one heat source behind one lag expands the
+    // tool along several directions. A companion joins the line (`X.tx, X.ry += …`, one
+    // wavelength or time constant for all) when the joint refit improves on the line without
+    // it (partial F-test of its columns, Bonferroni over the companions tried), and the same
+    // terms with a parameter of their own do not improve on the joint one (partial F-test of
+    // the one parameter more): otherwise it is another effect, for a line of its own.
+    let (companions, same) = companions(&finding.candidate);
+    let level = alpha / companions.len().max(1) as f64;
+    let single = r.rows;
+    for extra in companions {
+        let line = &finding.candidate.text;
+        let Some((targets, rhs)) = line.split_once(" += ") else {
+            break;
+        };
+        let joint = format!("{targets}, {extra} += {rhs}");
+        let Some((cj, rj)) = refit(&joint)? else {
+            continue;
+        };
+        if !significant_gain(&r, &rj, level) {
+            continue;
+        }
+        let apart = format!("{line}\n{extra} += {rhs}");
+        if let Some((_, ra)) = refit(&apart)? {
+            if significant_gain(&rj, &ra, alpha) {
+                continue;
+            }
+        }
+        let added = rj.solution.rank.saturating_sub(r.solution.rank);
+        if r.solution.rss > 0.0 && rj.solution.rss > 0.0 && single > 0 {
+            let n = single as f64;
+            finding.bic += n * (rj.solution.rss / r.solution.rss).ln() + added as f64 * n.ln();
+        }
+        finding.columns += added;
+        finding.candidate.text = joint;
+        finding
+            .candidate
+            .explanation
+            .push_str(&format!("; seen also in {extra} {same}"));
+        finding.candidate.also.push(extra);
+        (c, r) = (cj, rj);
+    }
+
     let Some(nl) = &r.nonlinear else {
         return Ok(());
     };
@@ -108,6 +151,73 @@ pub(super) fn restate(
     }
     finding.fitted = fitted;
     Ok(())
+}
+
+/// One finding per effect: a line with several targets is reached from the finding of each
+/// of its components (`tool.tz` joined by `tool.tx`, and `tool.tx` by `tool.tz`). A finding
+/// whose components all belong to another finding's joint line of the same family is dropped,
+/// the one kept being led by the component that showed the effect most (then by text), so that
+/// its parameter is named after that component.
+pub(super) fn one_per_effect(findings: &mut Vec<Finding>) {
+    fn set(f: &Finding) -> Vec<&str> {
+        let mut v: Vec<&str> = std::iter::once(f.candidate.target.as_str())
+            .chain(f.candidate.also.iter().map(String::as_str))
+            .collect();
+        v.sort_unstable();
+        v
+    }
+    let covered = |b: &Finding, a: &Finding| {
+        let (sa, sb) = (set(a), set(b));
+        !a.candidate.also.is_empty()
+            && a.candidate.family == b.candidate.family
+            && sb.iter().all(|t| sa.contains(t))
+            && (sa.len() > sb.len()
+                || a.explained > b.explained
+                || (a.explained == b.explained && a.candidate.text < b.candidate.text))
+    };
+    let drop: Vec<bool> = findings
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            findings
+                .iter()
+                .enumerate()
+                .any(|(j, a)| i != j && covered(b, a))
+        })
+        .collect();
+    let mut k = 0;
+    findings.retain(|_| {
+        k += 1;
+        !drop.get(k - 1).copied().unwrap_or(false)
+    });
+}
+
+/// The components where the effect of `c`'s line is physically expected with the same
+/// non-linear parameter, and how the explanation says so: for a periodic error along an axis,
+/// the carriage's tilts ([`periodic::companions`]); for a tool's thermal lag (`tool.tz +=
+/// lag(T, tau fit …) * const`), the tool's other translations (one heat source, one lag).
+fn companions(c: &super::Candidate) -> (Vec<String>, &'static str) {
+    match c.family {
+        super::Family::Periodic => (
+            periodic::companions(&c.target),
+            "at the same wavelength (one effect: the carriage tilts with the same period)",
+        ),
+        super::Family::Thermal if c.text.contains("lag(") && c.text.ends_with(") * const") => {
+            let Some((frame, comp)) = c.target.rsplit_once('.') else {
+                return (Vec::new(), "");
+            };
+            let others = ["tx", "ty", "tz"]
+                .iter()
+                .filter(|t| **t != comp && comp.starts_with('t'))
+                .map(|t| format!("{frame}.{t}"))
+                .collect();
+            (
+                others,
+                "with the same time constant (one heat source behind one lag)",
+            )
+        }
+        _ => (Vec::new(), ""),
+    }
 }
 
 /// Whether the fit `big` improves on `small` (its columns and parameters a subset) by a
@@ -170,6 +280,77 @@ fn significant(v: f64, se: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn companions_are_where_physics_expects_the_same_parameter() {
+        let c = |family, target: &str, text: &str| super::super::Candidate {
+            family,
+            target: target.into(),
+            also: Vec::new(),
+            text: text.into(),
+            explanation: String::new(),
+        };
+        use super::super::Family;
+        let periodic = c(
+            Family::Periodic,
+            "X.tx",
+            "X.tx += fourier(X, harmonics 1, wavelength fit 20 mm)",
+        );
+        assert_eq!(companions(&periodic).0, ["X.ry", "X.rz"]);
+        let lag = c(
+            Family::Thermal,
+            "tool.tz",
+            "tool.tz += lag(T, tau fit 30 min) * const",
+        );
+        assert_eq!(companions(&lag).0, ["tool.tx", "tool.ty"]);
+        // A direct expansion has no parameter to share, a scale's lag no common term.
+        let direct = c(Family::Thermal, "tool.tz", "tool.tz += T * const");
+        assert!(companions(&direct).0.is_empty());
+        let scale = c(
+            Family::Thermal,
+            "X.tx",
+            "X.tx += lag(T, tau fit 30 min) * linear(X)",
+        );
+        assert!(companions(&scale).0.is_empty());
+    }
+
+    #[test]
+    fn a_joint_line_is_one_finding() {
+        let f = |target: &str, also: &[&str], explained: f64| Finding {
+            candidate: super::super::Candidate {
+                family: super::super::Family::Thermal,
+                target: target.into(),
+                also: also.iter().map(|s| s.to_string()).collect(),
+                text: format!("{target} += lag(T, tau fit 40 min) * const"),
+                explanation: String::new(),
+            },
+            alternatives: Vec::new(),
+            separation: None,
+            columns: 2,
+            explained,
+            f: 1.0,
+            p: 0.0,
+            p_adjusted: 0.0,
+            significant: true,
+            rms_after: 0.0,
+            bic: -1.0,
+            plausibility: None,
+            fitted: Vec::new(),
+        };
+        let mut all = vec![
+            f("tool.tx", &["tool.tz"], 0.08),
+            f("tool.tz", &["tool.tx"], 0.85),
+            f("tool.ty", &[], 0.01),
+        ];
+        one_per_effect(&mut all);
+        let kept: Vec<&str> = all.iter().map(|f| f.candidate.target.as_str()).collect();
+        assert_eq!(kept, ["tool.tz", "tool.ty"]);
+        // A single component inside a joint line is that line's.
+        let mut all = vec![f("tool.tx", &[], 0.9), f("tool.tz", &["tool.tx"], 0.5)];
+        one_per_effect(&mut all);
+        assert_eq!(all.len(), 1);
+        assert_eq!(all[0].candidate.target, "tool.tz");
+    }
 
     #[test]
     fn fitted_values_replace_the_scanned_ones() {

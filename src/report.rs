@@ -8,6 +8,7 @@
 
 mod curves;
 mod plot;
+mod umap;
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -328,7 +329,7 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
     if inp.diagnosis.is_some() {
         s.push_str("<a href=\"#spectrum\">Spectrum</a><a href=\"#candidates\">Candidates</a>");
     }
-    s.push_str("<a href=\"#history\">History</a><a href=\"#curves\">Parametric errors</a></nav>\n");
+    s.push_str("<a href=\"#history\">History</a><a href=\"#curves\">Parametric errors</a><a href=\"#uncertainty\">Uncertainty</a></nav>\n");
     for n in &inp.notes {
         let _ = writeln!(s, "<div class=\"warn\">{}</div>", esc(n));
     }
@@ -340,6 +341,7 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
     }
     history_section(&mut s, inp)?;
     curves_section(&mut s, inp)?;
+    umap::section(&mut s, inp.machine, fit, &data_ranges(inp));
     coefficients(&mut s, fit);
     let _ = write!(s, "<footer>kin {} · a self-contained page: no scripts, no external resources.</footer>\n</main>\n</body>\n</html>\n", env!("CARGO_PKG_VERSION"));
     Ok(s)

@@ -39,6 +39,10 @@ pub enum SimulateError {
     Engine(String),
     #[error("the fit's covariance does not fit this model: {0}")]
     Covariance(String),
+    #[error("confidence ellipsoids are of positions: they need a point file of poses, not a length file")]
+    EllipsoidOfLengths,
+    #[error("the confidence level must be strictly between 0 and 1")]
+    Level,
 }
 
 /// Which error components a simulated point file holds, and the measurement noise.
@@ -211,6 +215,81 @@ pub fn uncertainty(
             Ok(Uncertainty::Lengths(u))
         }
     }
+}
+
+/// The confidence ellipsoid of a predicted position error: the region
+/// `(e − ê)ᵀ C⁻¹ (e − ê) ≤ χ²₃(level)` for `C` the 3×3 covariance of the prediction (eq. 4.12
+/// for the three components together), which holds the model's error with probability `level`
+/// when the coefficients' estimate is normal with the fit's covariance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ellipsoid {
+    /// Semi-axis lengths, largest first (m): `√(λᵢ · χ²₃(level))` for `λᵢ` the eigenvalues of C.
+    pub semi_axes: [f64; 3],
+    /// Unit directions of the semi-axes in the workpiece reference frame's axes, in the order
+    /// of `semi_axes`; each signed so that its largest component is positive.
+    pub directions: [[f64; 3]; 3],
+}
+
+impl Ellipsoid {
+    /// The ellipsoid of covariance `c` (m²) at `level` (0 < level < 1).
+    pub fn of(c: &[[f64; 3]; 3], level: f64) -> Result<Ellipsoid, SimulateError> {
+        use statrs::distribution::{ChiSquared, ContinuousCDF};
+        if !(level > 0.0 && level < 1.0) {
+            return Err(SimulateError::Level);
+        }
+        let k2 = ChiSquared::new(3.0)
+            .map_err(|_| SimulateError::Level)?
+            .inverse_cdf(level);
+        let m = nalgebra::Matrix3::from_fn(|i, j| c[i][j]);
+        let eig = nalgebra::SymmetricEigen::new(m);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let mut out = Ellipsoid {
+            semi_axes: [0.0; 3],
+            directions: [[0.0; 3]; 3],
+        };
+        for (k, &i) in order.iter().enumerate() {
+            // A covariance is positive semi-definite: a negative eigenvalue is rounding.
+            out.semi_axes[k] = (eig.eigenvalues[i].max(0.0) * k2).sqrt();
+            let v = eig.eigenvectors.column(i);
+            let big = (0..3).fold(0, |b, j| if v[j].abs() > v[b].abs() { j } else { b });
+            let sign = if v[big] < 0.0 { -1.0 } else { 1.0 };
+            out.directions[k] = [sign * v[0], sign * v[1], sign * v[2]];
+        }
+        Ok(out)
+    }
+}
+
+/// The confidence ellipsoid at `level` of the predicted position error at each pose of a point
+/// file `poses`, from the coefficients' covariance in `fit` ([`Ellipsoid`]).
+pub fn ellipsoids(
+    m: &Machine,
+    fit: &FitReport,
+    poses: &Observations,
+    level: f64,
+    engine: crate::engine::Engine,
+) -> Result<Vec<Ellipsoid>, SimulateError> {
+    if let Some(why) = fit.covariance_mismatch(m) {
+        return Err(SimulateError::Covariance(why));
+    }
+    if !(level > 0.0 && level < 1.0) {
+        return Err(SimulateError::Level);
+    }
+    let Observations::Points(p) = poses else {
+        return Err(SimulateError::EllipsoidOfLengths);
+    };
+    let mut ev =
+        crate::engine::make(m, engine).map_err(|e| SimulateError::Engine(e.to_string()))?;
+    let states = States::new(m, &p.rows, &p.pose, "")?;
+    let mut out = Vec::with_capacity(states.len());
+    for r in 0..states.len() {
+        let line = states.line.get(r).copied().unwrap_or(0);
+        let c = fit
+            .position_covariance(ev.as_mut(), &states.get(r))
+            .map_err(|source| SimulateError::Eval { line, source })?;
+        out.push(Ellipsoid::of(&c, level)?);
+    }
+    Ok(out)
 }
 
 /// The first-order model's prediction at the poses of `poses`, without noise (`kin eval`).

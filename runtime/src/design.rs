@@ -34,6 +34,10 @@ pub enum DesignError {
     Deficient { missing: usize, rank: usize },
 }
 
+/// A coefficient column reduced by its unit's nuisance elimination to this fraction of its
+/// length or less is zero up to rounding.
+const CANCELLED: f64 = 1e-10;
+
 /// One candidate unit: `rows × p` values (row-major) after its nuisance parameters were
 /// eliminated, `p` the number of coefficients.
 #[derive(Debug, Clone, PartialEq)]
@@ -51,6 +55,7 @@ impl Unit {
         let rows = x.len().checked_div(width).unwrap_or(0);
         let mut b = DMatrix::from_row_slice(rows, p, &take_columns(x, width, 0, p));
         if q > 0 && rows > 0 {
+            let before: Vec<f64> = b.column_iter().map(|c| c.norm()).collect();
             let z = DMatrix::from_row_slice(rows, q, &take_columns(x, width, p, q));
             // An orthonormal basis of the nuisance columns' span (dropping dependent ones: a
             // length error and a shift may coincide on a single row), then B − Q Qᵀ B.
@@ -63,6 +68,15 @@ impl Unit {
                         let proj = qk.transpose() * &b;
                         b -= &qk * proj;
                     }
+                }
+            }
+            // A column the placement explains entirely leaves only rounding (~1e-16 of its
+            // length); scaled to unit length that residue would look like information, so it
+            // is taken as the zero it is (a constant offset seen by one artifact, say).
+            for (j, was) in before.iter().enumerate() {
+                let mut col = b.column_mut(j);
+                if col.norm() <= CANCELLED * was {
+                    col.fill(0.0);
                 }
             }
         }

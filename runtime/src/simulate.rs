@@ -570,3 +570,99 @@ pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
         observed: Default::default(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// χ²₃ quantiles from the tables (Abramowitz & Stegun, table 26.8).
+    const CHI2_3_95: f64 = 7.814_727_903;
+    const CHI2_3_50: f64 = 2.365_973_884;
+
+    fn covariance() -> [[f64; 3]; 3] {
+        // L Lᵀ for a fixed lower-triangular L: positive definite and far from diagonal.
+        let l = [[2.0, 0.0, 0.0], [1.5, 0.7, 0.0], [-0.4, 0.9, 0.3]];
+        let mut c = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                c[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum();
+            }
+        }
+        c
+    }
+
+    #[test]
+    fn the_semi_axes_are_the_chi2_scaled_eigen_pairs() {
+        let c = covariance();
+        for (level, k2) in [(0.95, CHI2_3_95), (0.5, CHI2_3_50)] {
+            let e = Ellipsoid::of(&c, level).unwrap();
+            assert!(e.semi_axes[0] >= e.semi_axes[1] && e.semi_axes[1] >= e.semi_axes[2]);
+            // Trace and determinant are invariants: Σ a² = χ²·tr C, Π a² = χ²³·det C.
+            let trace = c[0][0] + c[1][1] + c[2][2];
+            let sum: f64 = e.semi_axes.iter().map(|a| a * a).sum();
+            assert!(
+                (sum - k2 * trace).abs() < 1e-9 * sum,
+                "{sum} vs {}",
+                k2 * trace
+            );
+            let det = nalgebra::Matrix3::from_fn(|i, j| c[i][j]).determinant();
+            let prod: f64 = e.semi_axes.iter().map(|a| a * a).product();
+            assert!((prod - k2.powi(3) * det).abs() < 1e-9 * prod);
+            for (k, u) in e.directions.iter().enumerate() {
+                // C u = λ u with λ = a²/χ², and the directions orthonormal.
+                let lambda = e.semi_axes[k].powi(2) / k2;
+                for i in 0..3 {
+                    let cu: f64 = (0..3).map(|j| c[i][j] * u[j]).sum();
+                    assert!((cu - lambda * u[i]).abs() < 1e-9, "axis {k}");
+                }
+                for (m, v) in e.directions.iter().enumerate() {
+                    let dot: f64 = (0..3).map(|i| u[i] * v[i]).sum();
+                    let want = if k == m { 1.0 } else { 0.0 };
+                    assert!((dot - want).abs() < 1e-12);
+                }
+            }
+        }
+    }
+
+    /// Monte Carlo over the covariance: the share of normal draws inside the ellipsoid is its
+    /// level, within four binomial standard deviations.
+    #[test]
+    fn the_ellipsoid_holds_its_level_of_normal_draws() {
+        let c = covariance();
+        let l = nalgebra::Matrix3::from_fn(|i, j| c[i][j])
+            .cholesky()
+            .unwrap()
+            .l();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let n = 40_000;
+        for level in [0.5, 0.95] {
+            let e = Ellipsoid::of(&c, level).unwrap();
+            let inside = (0..n)
+                .filter(|_| {
+                    let z = nalgebra::Vector3::from_fn(|_, _| normal.sample(&mut rng));
+                    let x = l * z;
+                    let r: f64 = (0..3)
+                        .map(|k| {
+                            let u = nalgebra::Vector3::from(e.directions[k]);
+                            (x.dot(&u) / e.semi_axes[k]).powi(2)
+                        })
+                        .sum();
+                    r <= 1.0
+                })
+                .count();
+            let share = inside as f64 / n as f64;
+            let sd = (level * (1.0 - level) / n as f64).sqrt();
+            assert!((share - level).abs() < 4.0 * sd, "{share} vs {level}");
+        }
+    }
+
+    #[test]
+    fn a_level_outside_zero_to_one_is_refused() {
+        assert!(Ellipsoid::of(&covariance(), 1.0).is_err());
+        assert!(Ellipsoid::of(&covariance(), 0.0).is_err());
+        assert!(Ellipsoid::of(&covariance(), f64::NAN).is_err());
+    }
+}

@@ -261,6 +261,10 @@ pub fn section(s: &mut String, m: &Machine, fit: &FitReport, data: &Ranges) {
             esc(&map.held.join(", "))
         }
     );
+    let used = kin_runtime::states::used_vars(m);
+    if used.iter().any(|v| matches!(v, Var::Direction(_))) {
+        s.push_str("<p class=\"note\">Every axis is taken as approached in its positive direction (the model has a direction-dependent error).</p>\n");
+    }
     if !(lo.is_finite() && hi.is_finite()) {
         s.push_str("<p class=\"note\">The uncertainty is not finite anywhere on the map.</p>\n</section>\n");
         return;

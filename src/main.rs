@@ -411,11 +411,15 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
-    /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
-    /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
-    /// A measurement on this computer, not a test.
     /// Plan a calibration: choose N of the candidate measurements that determine the model best
     /// (D-optimal, artifacts' placements as nuisance parameters), or score a plan (spec/design.md).
+    #[command(after_help = "Examples:
+  kin design cmm.kin --generate ballbar --plane X,Y -o candidates.csv
+  kin design mill.kin --generate stepgauge --axis X --pitch 20mm --levels 3 -o gauge.csv
+  kin design cmm.kin --generate plate --plane X,Y --length 400mm --step 100mm -o plates.csv
+  kin design mill.kin --generate rtest --sphere 0,0,50 --sphere 150,0,80 -o rtest.csv
+  kin design cmm.kin --candidates candidates.csv -n 6 -o plan.csv
+  kin design cmm.kin --evaluate my_plan.csv --candidates candidates.csv")]
     Design {
         machine: PathBuf,
         /// A point or length file of candidate measurements (error columns not needed); rows of
@@ -471,6 +475,9 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
+    /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
+    /// A measurement on this computer, not a test.
     Bench {
         machine: PathBuf,
         /// Poses sampled over the axis ranges, evaluated in turn (1 to 10⁸).

@@ -319,7 +319,7 @@ fn angles(m: &Machine, i: usize, step: f64) -> Vec<f64> {
 
 /// Every combination of positions of the axes not in `fixed`: `levels` evenly spaced positions
 /// of each prismatic axis (the middle when 1), the middle of each revolute axis's range.
-fn others(m: &Machine, fixed: &[usize], levels: usize) -> Vec<Vec<f64>> {
+fn others(m: &Machine, fixed: &[usize], levels: usize) -> Result<Vec<Vec<f64>>, Failed> {
     let mut out = vec![m
         .axes
         .iter()
@@ -328,6 +328,11 @@ fn others(m: &Machine, fixed: &[usize], levels: usize) -> Vec<Vec<f64>> {
     for (i, a) in m.axes.iter().enumerate() {
         if fixed.contains(&i) || a.kind != JointKind::Prismatic || levels < 2 {
             continue;
+        }
+        if out.len().saturating_mul(levels) > MAX_GENERATED {
+            return Err(usage(format!(
+                "--levels {levels} gives more than {MAX_GENERATED} positions of the other axes"
+            )));
         }
         let values: Vec<f64> = (0..levels)
             .map(|k| a.range[0] + (a.range[1] - a.range[0]) * k as f64 / (levels - 1) as f64)
@@ -344,11 +349,8 @@ fn others(m: &Machine, fixed: &[usize], levels: usize) -> Vec<Vec<f64>> {
                 })
             })
             .collect();
-        if out.len() > MAX_GENERATED {
-            break;
-        }
     }
-    out
+    Ok(out)
 }
 
 /// Ball bars in the plane of two prismatic axes: the first sphere on a grid of `step` over both
@@ -365,7 +367,7 @@ fn ballbar(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
         round9(g.angle_step.to_degrees())
     ));
     w.header(true, false);
-    for base in others(m, &[u, v], g.levels) {
+    for base in others(m, &[u, v], g.levels)? {
         for &x in &grid(ru, g.step) {
             for &y in &grid(rv, g.step) {
                 for k in 0..turns {
@@ -419,10 +421,10 @@ fn stepgauge(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
         round9(g.pitch * 1e3),
         round9(faces as f64 * g.pitch * 1e3),
         round9(g.step * 1e3),
-        others(m, &[axis], g.levels).len()
+        others(m, &[axis], g.levels)?.len()
     ));
     w.header(true, false);
-    for base in others(m, &[axis], g.levels) {
+    for base in others(m, &[axis], g.levels)? {
         for &s in &grid(r, g.step) {
             if !inside(s + faces as f64 * g.pitch, r) {
                 continue;
@@ -460,7 +462,7 @@ fn plate(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
     ));
     w.header(false, true);
     let mut placement = 0usize;
-    for base in others(m, &[u, v], g.levels) {
+    for base in others(m, &[u, v], g.levels)? {
         for &x in &grid(ru, g.step) {
             for &y in &grid(rv, g.step) {
                 for k in 0..turns {
@@ -558,6 +560,11 @@ fn rtest(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
                     continue;
                 }
                 let values = grids.get(o).cloned().unwrap_or_default();
+                if settings.len().saturating_mul(values.len()) > MAX_GENERATED {
+                    return Err(usage(format!(
+                        "more than {MAX_GENERATED} sweeps; use a larger --angle-step"
+                    )));
+                }
                 settings = settings
                     .iter()
                     .flat_map(|set| {

@@ -140,7 +140,9 @@ fn color(t: f64) -> RGBColor {
         .rposition(|(s, _)| *s <= t)
         .unwrap_or(0)
         .min(STOPS.len() - 2);
-    let ((s0, c0), (s1, c1)) = (STOPS[k], STOPS[k + 1]);
+    let (Some(&(s0, c0)), Some(&(s1, c1))) = (STOPS.get(k), STOPS.get(k + 1)) else {
+        return RGBColor(0, 0, 0);
+    };
     let w = ((t - s0) / (s1 - s0)).clamp(0.0, 1.0);
     let mix = |i: usize| (c0[i] + (c1[i] - c0[i]) * w).round() as u8;
     RGBColor(mix(0), mix(1), mix(2))

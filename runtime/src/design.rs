@@ -617,10 +617,29 @@ impl Current {
             return;
         };
         let k = &ia * s_inv * sign; // q × k
-        let aw = &a * &self.w; // k × rows
-        self.w -= &k * aw;
+        let aw = rows_times(&a, &self.w); // k × rows
+                                          // W −= K (A W), column by column in place: no q × rows temporary per step.
+        for (j, mut col) in self.w.column_iter_mut().enumerate() {
+            for (l, kl) in k.column_iter().enumerate() {
+                col.axpy(-aw[(l, j)], &kl, 1.0);
+            }
+        }
         self.inv -= &k * ia.transpose();
     }
+}
+
+/// `A W` for a unit's few rows `A` (k × q) and all candidates' `W` (q × rows), as dot products
+/// of contiguous columns of `W`: the generic product of a short wide matrix walks `W` in
+/// k-long strides, which made it most of a search's time.
+fn rows_times(a: &DMatrix<f64>, w: &DMatrix<f64>) -> DMatrix<f64> {
+    let at = a.transpose();
+    let mut out = DMatrix::zeros(a.nrows(), w.ncols());
+    for (j, wc) in w.column_iter().enumerate() {
+        for (x, ac) in at.column_iter().enumerate() {
+            out[(x, j)] = ac.dot(&wc);
+        }
+    }
+    out
 }
 
 /// One start: greedy completion of `seeded` to `n` units, then DETMAX, then Fedorov swaps.
@@ -710,7 +729,7 @@ fn fedorov(
             let Some(&i) = chosen.get(at) else { break };
             let a = stack.unit(i);
             // A M⁻¹ B_jᵀ for every candidate j at once (k_a × rows).
-            let cross = &a * &cur.w;
+            let cross = rows_times(&a, &cur.w);
             let aa = own
                 .get(i)
                 .cloned()

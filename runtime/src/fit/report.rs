@@ -745,11 +745,10 @@ impl FitReport {
             }
         }
         // Symmetric by construction up to rounding; make it exactly so for the eigensolver.
-        for i in 0..3 {
-            for j in 0..i {
-                let v = 0.5 * (out[i][j] + out[j][i]);
-                out[i][j] = v;
-                out[j][i] = v;
+        let raw = out;
+        for (i, row) in out.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = 0.5 * (raw[i][j] + raw[j][i]);
             }
         }
         Ok(out)

@@ -106,6 +106,38 @@ pub fn radius(text: &str) -> Result<f64, String> {
     }
 }
 
+/// A confidence level in percent, 0 < L < 100 (`--ellipsoid 95`), as a fraction.
+pub fn percent(text: &str) -> Result<f64, String> {
+    number(text, "a level in percent with 0 < L < 100", |v| {
+        v > 0.0 && v < 100.0
+    })
+    .map(|v| v / 100.0)
+}
+
+/// A point `x,y,z` of three lengths, each in mm unless it names its unit (`--sphere 0,0,50`,
+/// `--sphere 0mm,0mm,2in`).
+pub fn point(text: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let [x, y, z] = parts.as_slice() else {
+        return Err(format!("`{text}`: expected three lengths x,y,z"));
+    };
+    let mut out = [0.0; 3];
+    for (slot, part) in out.iter_mut().zip([x, y, z]) {
+        let part = part.trim();
+        let with_unit = if part.ends_with(|c: char| c.is_ascii_digit() || c == '.') {
+            format!("{part}mm")
+        } else {
+            part.to_string()
+        };
+        let v = crate::load::quantity(&with_unit, Dim::LENGTH)?;
+        if !v.is_finite() || v.abs() > 1e4 {
+            return Err(format!("`{part}` is not a length within 10 km"));
+        }
+        *slot = v;
+    }
+    Ok(out)
+}
+
 /// A length standard deviation, finite and ≥ 0 (`--noise 0.3um`, `--artifact-shift`,
 /// `--artifact-length`).
 pub fn length_spread(text: &str) -> Result<Spread, String> {

@@ -14,22 +14,8 @@ use serde::Serialize;
 use crate::load::{self, Failed};
 use crate::Format;
 
-/// What `--generate` writes.
-pub struct Generate {
-    /// Bar length, grid step of the first sphere (m) and angle step (rad).
-    pub length: f64,
-    pub step: f64,
-    pub angle_step: f64,
-    /// The two prismatic axes spanning the plane; the first two prismatic axes when empty.
-    pub plane: Vec<String>,
-}
-
-/// At most this many candidates are generated: beyond it the exchange algorithm's memory
-/// (one unit of p values each) and time grow past what a planning step should take.
-const MAX_GENERATED: usize = 1_000_000;
-
 pub struct DesignArgs {
-    pub generate: Option<Generate>,
+    pub generate: Option<crate::generate::Generate>,
     pub machine: PathBuf,
     pub candidates: Option<PathBuf>,
     pub n: Option<usize>,
@@ -141,10 +127,9 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
             return Err(Failed::USAGE);
         };
         crate::files::check(out, &[&a.machine])?;
-        let text = ballbar(m, g)?;
-        let count = text.lines().count().saturating_sub(2);
+        let (text, count) = crate::generate::generate(m, g)?;
         files_write(out, &text)?;
-        eprintln!("wrote {count} ball-bar candidates to {}", out.display());
+        eprintln!("wrote {count} candidate rows to {}", out.display());
         return Ok(());
     }
     match (&a.candidates, &a.evaluate) {
@@ -406,120 +391,5 @@ fn print(r: &Report, format: Format, what: &str) {
             }
             print!("{out}");
         }
-    }
-}
-
-/// Ball-bar candidates in the plane of two prismatic axes: the first sphere on a grid of
-/// `step` over both ranges, the bar at every multiple of `angle_step` in [0°, 360°), kept when
-/// the second sphere is inside the ranges too. The other axes stay at the middle of their
-/// ranges.
-fn ballbar(m: &Machine, g: &Generate) -> Result<String, Failed> {
-    use kin_compiler::ir::JointKind;
-    let bad = |msg: String| {
-        eprintln!("error: {msg}");
-        Failed::USAGE
-    };
-    if !(g.length > 0.0 && g.step > 0.0 && g.angle_step > 0.0) {
-        return Err(bad(
-            "--length, --step and --angle-step must be above zero".into()
-        ));
-    }
-    let prismatic: Vec<usize> = m
-        .axes
-        .iter()
-        .enumerate()
-        .filter(|(_, a)| a.kind == JointKind::Prismatic)
-        .map(|(i, _)| i)
-        .collect();
-    let plane: Vec<usize> = if g.plane.is_empty() {
-        prismatic.iter().take(2).copied().collect()
-    } else {
-        g.plane
-            .iter()
-            .map(|n| {
-                prismatic
-                    .iter()
-                    .copied()
-                    .find(|&i| m.axes.get(i).is_some_and(|a| &a.name == n))
-                    .ok_or_else(|| bad(format!("`{n}` is not a prismatic axis of the machine")))
-            })
-            .collect::<Result<_, _>>()?
-    };
-    let (Some(&u), Some(&v), 2) = (plane.first(), plane.get(1), plane.len()) else {
-        return Err(bad(
-            "a ball-bar plane needs two prismatic axes (--plane X,Y)".into(),
-        ));
-    };
-    let range = |i: usize| m.axes.get(i).map_or([0.0, 0.0], |a| a.range);
-    let (ru, rv) = (range(u), range(v));
-    let points = |r: [f64; 2]| ((r[1] - r[0]) / g.step).floor() as usize + 1;
-    let angles = (std::f64::consts::TAU / g.angle_step).round().max(1.0) as usize;
-    points(ru)
-        .checked_mul(points(rv))
-        .and_then(|n| n.checked_mul(angles))
-        .filter(|&n| n <= MAX_GENERATED)
-        .ok_or_else(|| {
-            bad(format!(
-                "the grid holds more than {MAX_GENERATED} candidates; use a larger --step or --angle-step"
-            ))
-        })?;
-    let unit = |i: usize| match m.axes.get(i).map(|a| a.kind) {
-        Some(JointKind::Revolute) => ("deg", 180.0 / std::f64::consts::PI),
-        _ => ("mm", 1000.0),
-    };
-    let mut out = format!(
-        "# ball-bar candidates: length {} mm, grid {} mm, angle step {} deg\n",
-        round9(g.length * 1e3),
-        round9(g.step * 1e3),
-        round9(g.angle_step.to_degrees())
-    );
-    let mut header = Vec::new();
-    for end in ["_1", "_2"] {
-        for (i, a) in m.axes.iter().enumerate() {
-            header.push(format!("{}{end}[{}]", a.name, unit(i).0));
-        }
-    }
-    out.push_str(&header.join(","));
-    out.push('\n');
-    let eps = 1e-9;
-    let inside = |x: f64, r: [f64; 2]| x >= r[0] - eps && x <= r[1] + eps;
-    let mut row = Vec::with_capacity(2 * m.axes.len());
-    for i in 0..points(ru) {
-        for j in 0..points(rv) {
-            let (x, y) = (ru[0] + g.step * i as f64, rv[0] + g.step * j as f64);
-            for k in 0..angles {
-                let (sn, cs) = (g.angle_step * k as f64).sin_cos();
-                let (x2, y2) = (x + g.length * cs, y + g.length * sn);
-                if !(inside(x2, ru) && inside(y2, rv)) {
-                    continue;
-                }
-                row.clear();
-                for (end_u, end_v) in [(x, y), (x2, y2)] {
-                    for (a, axis) in m.axes.iter().enumerate() {
-                        let value = if a == u {
-                            end_u
-                        } else if a == v {
-                            end_v
-                        } else {
-                            0.5 * (axis.range[0] + axis.range[1])
-                        };
-                        row.push(format!("{}", round9(value * unit(a).1)));
-                    }
-                }
-                out.push_str(&row.join(","));
-                out.push('\n');
-            }
-        }
-    }
-    Ok(out)
-}
-
-/// Nine decimals: nanometres in mm, far below any machine's resolution, and no `1e-14` noise.
-fn round9(v: f64) -> f64 {
-    let r = (v * 1e9).round() / 1e9;
-    if r == 0.0 {
-        0.0
-    } else {
-        r
     }
 }

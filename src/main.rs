@@ -10,6 +10,7 @@ mod design;
 mod diagnose;
 mod files;
 mod fit;
+mod generate;
 mod grid;
 mod import;
 mod iso;
@@ -371,7 +372,8 @@ enum Command {
     },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     #[command(after_help = "Examples:
-  kin eval mill.kin poses.csv --params fit.json --uncertainty -o predicted.csv")]
+  kin eval mill.kin poses.csv --params fit.json --uncertainty -o predicted.csv
+  kin eval mill.kin poses.csv --params fit.json --uncertainty --ellipsoid 95 -o predicted.csv")]
     Eval {
         machine: PathBuf,
         /// A point or length file of poses; observed columns are not needed (spec/data.md).
@@ -387,6 +389,11 @@ enum Command {
         /// (`u_dL` for a length file), from the covariance of the fit given as --params FIT.json.
         #[arg(long, requires = "params")]
         uncertainty: bool,
+        /// With --uncertainty: the confidence ellipsoid of each pose's position error at this
+        /// level in percent (e.g. `--ellipsoid 95`): semi-axes `ell_a1…3` and their directions
+        /// `ell_u1x … ell_u3z` (point files).
+        #[arg(long, requires = "uncertainty", value_parser = args::percent)]
+        ellipsoid: Option<f64>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
@@ -500,11 +507,15 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
-    /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
-    /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
-    /// A measurement on this computer, not a test.
     /// Plan a calibration: choose N of the candidate measurements that determine the model best
     /// (D-optimal, artifacts' placements as nuisance parameters), or score a plan (spec/design.md).
+    #[command(after_help = "Examples:
+  kin design cmm.kin --generate ballbar --plane X,Y -o candidates.csv
+  kin design mill.kin --generate stepgauge --axis X --pitch 20mm --levels 3 -o gauge.csv
+  kin design cmm.kin --generate plate --plane X,Y --length 400mm --step 100mm -o plates.csv
+  kin design mill.kin --generate rtest --sphere 0,0,50 --sphere 150,0,80 -o rtest.csv
+  kin design cmm.kin --candidates candidates.csv -n 6 -o plan.csv
+  kin design cmm.kin --evaluate my_plan.csv --candidates candidates.csv")]
     Design {
         machine: PathBuf,
         /// A point or length file of candidate measurements (error columns not needed); rows of
@@ -520,21 +531,37 @@ enum Command {
         /// Score this plan instead (prediction variances over --candidates when given).
         #[arg(long, conflicts_with_all = ["n", "output"])]
         evaluate: Option<PathBuf>,
-        /// Write candidates for an artifact to -o instead: `ballbar` (bars in a plane).
-        #[arg(long, value_parser = ["ballbar"], conflicts_with_all = ["candidates", "evaluate", "n"])]
+        /// Write candidates for an artifact to -o instead: `ballbar` (bars in a plane),
+        /// `stepgauge` (along an axis), `plate` (ball or hole plate in a plane, each placement an
+        /// artifact), `rtest` (a sphere followed through the rotary axes' sweeps).
+        #[arg(long, value_parser = ["ballbar", "stepgauge", "plate", "rtest"], conflicts_with_all = ["candidates", "evaluate", "n"])]
         generate: Option<String>,
-        /// Ball bar: its length.
+        /// Ball bar: its length; step gauge: first to last face; plate: the side of its grid.
         #[arg(long, value_parser = args::length_spread, default_value = "400mm")]
         length: Spread,
-        /// Ball bar: the grid step of the first sphere.
+        /// The grid step of the artifact's placement (first sphere, first face, first feature).
         #[arg(long, value_parser = args::length_spread, default_value = "50mm")]
         step: Spread,
-        /// Ball bar: the step of its orientation.
+        /// Step gauge: the spacing of its faces; plate: the spacing of its features.
+        #[arg(long, value_parser = args::length_spread, default_value = "50mm")]
+        pitch: Spread,
+        /// Ball bar: its orientation step; plate: its rotation step; R-test: the rotary axes' step.
         #[arg(long, value_parser = args::angle_spread, default_value = "15deg")]
         angle_step: Spread,
-        /// Ball bar: the two prismatic axes of its plane, e.g. `--plane X,Y` (default: the first two).
+        /// Ball bar, plate: the two prismatic axes of the plane, e.g. `--plane X,Y` (default: the first two).
         #[arg(long, value_delimiter = ',')]
         plane: Vec<String>,
+        /// Step gauge: the prismatic axis it lies along (default: the first).
+        #[arg(long)]
+        axis: Option<String>,
+        /// Positions of each prismatic axis outside the plane or across the gauge, evenly spaced
+        /// with the ends included (1: the middle of the range).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=100))]
+        levels: u64,
+        /// R-test: a sphere centre in the workpiece frame, `x,y,z` (mm unless a unit is given);
+        /// repeat for more spheres (default: (0,0,50), (100,0,50), (0,100,50) mm).
+        #[arg(long, value_parser = args::point)]
+        sphere: Vec<[f64; 3]>,
         #[arg(long, value_enum, default_value_t = Format::Human)]
         format: Format,
         #[arg(long, default_value = "jit")]
@@ -544,6 +571,9 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
+    /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
+    /// A measurement on this computer, not a test.
     Bench {
         machine: PathBuf,
         /// Poses sampled over the axis ranges, evaluated in turn (1 to 10⁸).
@@ -768,6 +798,7 @@ fn main() -> ExitCode {
             engine,
             ignore,
             uncertainty,
+            ellipsoid,
             color,
         } => simulate::eval(simulate::EvalArgs {
             machine: &machine,
@@ -778,6 +809,7 @@ fn main() -> ExitCode {
             engine,
             ignore: &ignore.options(),
             uncertainty,
+            ellipsoid,
             color: color.enabled(),
         }),
         Command::Report {
@@ -846,17 +878,29 @@ fn main() -> ExitCode {
             step,
             angle_step,
             plane,
+            pitch,
+            axis,
+            levels,
+            sphere,
             format,
             engine,
             ignore,
             color,
         } => load::Failed::exit(design::run(design::DesignArgs {
-            generate: generate.map(|_| design::Generate {
-                length: length.si,
-                step: step.si,
-                angle_step: angle_step.si,
-                plane,
-            }),
+            generate: generate
+                .as_deref()
+                .and_then(generate::Kind::parse)
+                .map(|kind| generate::Generate {
+                    kind,
+                    length: length.si,
+                    step: step.si,
+                    pitch: pitch.si,
+                    angle_step: angle_step.si,
+                    plane,
+                    axis,
+                    levels: usize::try_from(levels).unwrap_or(1),
+                    spheres: sphere,
+                }),
             machine,
             candidates,
             n: n.and_then(|v| usize::try_from(v).ok()),

@@ -9,6 +9,7 @@
 mod compensation;
 mod curves;
 pub(crate) mod plot;
+mod umap;
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -344,7 +345,7 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
     if inp.diagnosis.is_some() {
         s.push_str("<a href=\"#spectrum\">Spectrum</a><a href=\"#candidates\">Candidates</a>");
     }
-    s.push_str("<a href=\"#history\">History</a><a href=\"#curves\">Parametric errors</a>");
+    s.push_str("<a href=\"#history\">History</a><a href=\"#curves\">Parametric errors</a><a href=\"#uncertainty\">Uncertainty</a>");
     if inp.compensation.is_some() {
         s.push_str("<a href=\"#compensation\">Compensation</a>");
     }
@@ -361,6 +362,7 @@ pub fn html(inp: &Inputs) -> Result<String, ReportError> {
     history_section(&mut s, inp)?;
     curves_section(&mut s, inp)?;
     stations_section(&mut s, fit);
+    umap::section(&mut s, inp.machine, fit, &data_ranges(inp));
     if let Some(c) = &inp.compensation {
         compensation_section(&mut s, c)?;
     }

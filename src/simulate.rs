@@ -58,6 +58,8 @@ pub struct EvalArgs<'a> {
     pub ignore: &'a crate::args::DataOptions,
     /// Add each prediction's standard uncertainty from the fit given as `params`.
     pub uncertainty: bool,
+    /// With `uncertainty`: the level (0 < L < 1) of each pose's confidence ellipsoid.
+    pub ellipsoid: Option<f64>,
     pub color: bool,
 }
 
@@ -158,6 +160,7 @@ pub fn eval(a: EvalArgs) -> ExitCode {
         engine,
         ignore,
         uncertainty,
+        ellipsoid,
         color,
     } = a;
     finish((|| {
@@ -197,9 +200,39 @@ pub fn eval(a: EvalArgs) -> ExitCode {
                 fit.sigma,
                 fit.error_unit
             ));
+            if let Some(level) = ellipsoid {
+                let e = simulate::ellipsoids(m, &fit, &poses, level, engine).map_err(fail)?;
+                extra.extend(ellipsoid_columns(&e));
+                comments.push(format!(
+                    "ell_… : {}% confidence ellipsoid of the position error (χ² with 3 degrees of freedom): semi-axes ell_a1 ≥ ell_a2 ≥ ell_a3 along the unit directions ell_u1 … ell_u3 (workpiece frame)",
+                    level * 100.0
+                ));
+            }
         }
         write(&out, m, output, comments, extra)
     })())
+}
+
+/// `ell_a1 … ell_a3` (error unit) and `ell_u1x … ell_u3z` (direction cosines) for the writer.
+fn ellipsoid_columns(e: &[simulate::Ellipsoid]) -> Vec<data::ExtraColumn> {
+    let mut out = Vec::with_capacity(12);
+    for k in 0..3 {
+        out.push(data::ExtraColumn {
+            name: format!("ell_a{}", k + 1),
+            quantity: data::ExtraQuantity::Error,
+            values: e.iter().map(|x| x.semi_axes[k]).collect(),
+        });
+    }
+    for k in 0..3 {
+        for (c, axis) in ["x", "y", "z"].iter().enumerate() {
+            out.push(data::ExtraColumn {
+                name: format!("ell_u{}{axis}", k + 1),
+                quantity: data::ExtraQuantity::Ratio,
+                values: e.iter().map(|x| x.directions[k][c]).collect(),
+            });
+        }
+    }
+    out
 }
 
 /// `u_ex` … `u_erz` (or `u_dL`) for the writer.

@@ -729,3 +729,90 @@ fn fit_rejects_artifact_labels_too_thin_to_place_before_fitting() {
         "{err}"
     );
 }
+
+/// `kin eval --uncertainty --ellipsoid 95`: per pose the semi-axes are the χ²₃(0.95)-scaled
+/// square roots of the eigenvalues of the position covariance, so their squares sum to
+/// χ²₃(0.95) · (u_ex² + u_ey² + u_ez²) (the trace), with 7.8147279 from the tables; the
+/// directions are orthonormal.
+#[test]
+fn eval_ellipsoids_hold_the_position_uncertainty_at_the_stated_level() {
+    let data = "examples/data/bridge_cmm_points.csv";
+    let fit = tmp("ellipsoid_fit.json");
+    let fit_s = fit.to_str().expect("utf-8 path");
+    let out = kin(&["fit", "examples/bridge_cmm.kin", data, "-o", fit_s]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let pred = tmp("ellipsoid_pred.csv");
+    let pred_s = pred.to_str().expect("utf-8 path");
+    let out = kin(&[
+        "eval",
+        "examples/bridge_cmm.kin",
+        data,
+        "--params",
+        fit_s,
+        "--uncertainty",
+        "--ellipsoid",
+        "95",
+        "--components",
+        "position",
+        "-o",
+        pred_s,
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let u: Vec<Vec<f64>> = ["u_ex", "u_ey", "u_ez"]
+        .iter()
+        .map(|n| column(&pred, n))
+        .collect();
+    let a: Vec<Vec<f64>> = ["ell_a1", "ell_a2", "ell_a3"]
+        .iter()
+        .map(|n| column(&pred, n))
+        .collect();
+    let dirs: Vec<Vec<Vec<f64>>> = (1..=3)
+        .map(|k| {
+            ["x", "y", "z"]
+                .iter()
+                .map(|c| column(&pred, &format!("ell_u{k}{c}")))
+                .collect()
+        })
+        .collect();
+    let chi2 = 7.814_727_903;
+    for r in 0..u[0].len() {
+        let trace: f64 = (0..3).map(|c| u[c][r].powi(2)).sum();
+        let sum: f64 = (0..3).map(|k| a[k][r].powi(2)).sum();
+        // The file holds a few significant digits per cell.
+        assert!(
+            (sum - chi2 * trace).abs() < 1e-4 * chi2 * trace,
+            "row {r}: Σa² = {sum}, χ²·tr = {}",
+            chi2 * trace
+        );
+        assert!(a[0][r] >= a[1][r] && a[1][r] >= a[2][r]);
+        for k in 0..3 {
+            for l in 0..3 {
+                let dot: f64 = (0..3).map(|c| dirs[k][c][r] * dirs[l][c][r]).sum();
+                let want = if k == l { 1.0 } else { 0.0 };
+                assert!((dot - want).abs() < 1e-4, "row {r}: u{k}·u{l} = {dot}");
+            }
+        }
+    }
+    // Without --uncertainty the option is a usage error; a length file has no ellipsoid.
+    let out = kin(&[
+        "eval",
+        "examples/bridge_cmm.kin",
+        data,
+        "--params",
+        fit_s,
+        "--ellipsoid",
+        "95",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let out = kin(&[
+        "eval",
+        "examples/bridge_cmm.kin",
+        data,
+        "--params",
+        fit_s,
+        "--uncertainty",
+        "--ellipsoid",
+        "100",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+}

@@ -357,3 +357,312 @@ fn a_min_norm_fit_marks_undetermined_coefficients_and_diagnose_accepts_the_model
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+/// A 3-axis measuring machine: X's positioning spline and straightness in y, Y's scale, the
+/// XY squareness, Z's scale.
+const CMM3: &str = "machine cmm3 {
+    task measure
+    units { length mm, angle deg, error um, tilt urad }
+    axis Y prismatic along y range 0 mm .. 500 mm
+    axis X prismatic along x range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        Y moving
+        X moving
+        Z moving
+        tool probe
+    }
+    workpiece chain {
+        workpiece
+    }
+    errors {
+        X.tx = spline(X, knots 3)          // positioning of X
+        X.ty = straightness(X, knots 3)    // straightness of X in y
+        Y.ty = linear(Y)                   // scale of Y
+        Y.rz = const                       // squareness of X to Y
+        Z.tz = linear(Z)                   // scale of Z
+    }
+}
+";
+
+/// A file's header names (units stripped) and its data rows as cells, read by the rules of
+/// spec/data.md (comment lines start with `#`, the first other line is the header).
+fn read_csv(path: &std::path::Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).expect("written");
+    let mut lines = text.lines().filter(|l| !l.trim_start().starts_with('#'));
+    let header = lines
+        .next()
+        .expect("header")
+        .split(',')
+        .map(|h| h.split('[').next().unwrap_or(h).trim().to_string())
+        .collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|c| c.trim().to_string()).collect())
+        .collect();
+    (header, rows)
+}
+
+fn cell(header: &[String], row: &[String], name: &str) -> f64 {
+    let k = header.iter().position(|h| h == name).expect(name);
+    row[k].parse().expect("number")
+}
+
+/// The coefficients `kin check --plan` finds determined, by name.
+fn determined(machine: &str, plan: &std::path::Path) -> Vec<(String, bool)> {
+    let v = json(&kin(&[
+        "check",
+        machine,
+        "--plan",
+        plan.to_str().expect("utf8"),
+        "--format",
+        "json",
+    ]));
+    v["terms"]
+        .as_array()
+        .expect("terms")
+        .iter()
+        .map(|t| {
+            (
+                t["name"].as_str().expect("name").to_string(),
+                t["determined"].as_bool().expect("flag"),
+            )
+        })
+        .collect()
+}
+
+fn all_determined(d: &[(String, bool)], prefix: &str) -> bool {
+    let of: Vec<_> = d.iter().filter(|(n, _)| n.starts_with(prefix)).collect();
+    !of.is_empty() && of.iter().all(|(_, ok)| *ok)
+}
+
+fn none_determined(d: &[(String, bool)], prefix: &str) -> bool {
+    let of: Vec<_> = d.iter().filter(|(n, _)| n.starts_with(prefix)).collect();
+    !of.is_empty() && of.iter().all(|(_, ok)| !*ok)
+}
+
+#[test]
+fn a_step_gauge_along_x_determines_its_positioning_but_not_its_straightness() {
+    let d = dir("stepgauge");
+    let machine = d.join("cmm3.kin");
+    std::fs::write(&machine, CMM3).expect("write");
+    let m = machine.to_str().expect("utf8");
+    let out = d.join("gauge.csv");
+    let o = kin(&[
+        "design",
+        m,
+        "--generate",
+        "stepgauge",
+        "--axis",
+        "X",
+        "--length",
+        "420mm",
+        "--pitch",
+        "20mm",
+        "--step",
+        "60mm",
+        "--levels",
+        "2",
+        "-o",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (h, rows) = read_csv(&out);
+    // First faces at 0, 60, 120, 180 (180 + 420 = 600 is the end of the range), 21 distances
+    // each, on the 2 × 2 lines of Y and Z at the ends of their ranges.
+    assert_eq!(rows.len(), 4 * 21 * 4);
+    for r in &rows {
+        let (x1, x2) = (cell(&h, r, "X_1"), cell(&h, r, "X_2"));
+        assert!(
+            (0.0..=600.0).contains(&x1) && (0.0..=600.0).contains(&x2),
+            "{r:?}"
+        );
+        let k = (x2 - x1) / 20.0;
+        assert!(
+            (k - k.round()).abs() < 1e-9 && k >= 1.0 && k <= 21.0,
+            "{r:?}"
+        );
+        assert_eq!(cell(&h, r, "Y_1"), cell(&h, r, "Y_2"));
+        assert_eq!(cell(&h, r, "Z_1"), cell(&h, r, "Z_2"));
+        assert!([0.0, 500.0].contains(&cell(&h, r, "Y_1")), "{r:?}");
+        assert!([-400.0, 0.0].contains(&cell(&h, r, "Z_1")), "{r:?}");
+    }
+    let det = determined(m, &out);
+    assert!(all_determined(&det, "X.tx"), "{det:?}");
+    assert!(none_determined(&det, "X.ty"), "{det:?}");
+    assert!(
+        none_determined(&det, "Y.ty") && none_determined(&det, "Z.tz"),
+        "{det:?}"
+    );
+    // A design over the candidates chooses rows of the file.
+    let plan = d.join("plan.csv");
+    let o = kin(&[
+        "design",
+        m,
+        "--candidates",
+        out.to_str().expect("utf8"),
+        "-n",
+        "8",
+        "-o",
+        plan.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (_, chosen) = read_csv(&plan);
+    assert_eq!(chosen.len(), 8);
+    assert!(chosen.iter().all(|c| rows.contains(c)));
+}
+
+#[test]
+fn plates_in_the_xy_plane_determine_the_xy_squareness_and_scales_not_z() {
+    let d = dir("plate");
+    let machine = d.join("cmm3.kin");
+    std::fs::write(&machine, CMM3).expect("write");
+    let m = machine.to_str().expect("utf8");
+    let out = d.join("plate.csv");
+    let o = kin(&[
+        "design",
+        m,
+        "--generate",
+        "plate",
+        "--plane",
+        "X,Y",
+        "--length",
+        "300mm",
+        "--pitch",
+        "100mm",
+        "--step",
+        "100mm",
+        "--angle-step",
+        "30deg",
+        "-o",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (h, rows) = read_csv(&out);
+    let label = h
+        .iter()
+        .position(|c| c == "artifact")
+        .expect("artifact column");
+    let mut labels: Vec<&str> = rows.iter().map(|r| r[label].as_str()).collect();
+    labels.dedup();
+    assert!(labels.len() > 4, "several placements: {labels:?}");
+    for l in &labels {
+        let features: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r[label] == *l)
+            .map(|r| (cell(&h, r, "X"), cell(&h, r, "Y")))
+            .collect();
+        // A 4 × 4 grid 100 mm apart: rigid, whatever its rotation, and inside the ranges.
+        assert_eq!(features.len(), 16, "{l}");
+        let (a, b, c) = (features[0], features[1], features[4]);
+        let dist = |p: (f64, f64), q: (f64, f64)| (p.0 - q.0).hypot(p.1 - q.1);
+        assert!((dist(a, b) - 100.0).abs() < 1e-6 && (dist(a, c) - 100.0).abs() < 1e-6);
+        assert!((dist(a, features[15]) - 300.0 * 2f64.sqrt()).abs() < 1e-6);
+        for (x, y) in features {
+            assert!((-1e-9..=600.0 + 1e-9).contains(&x) && (-1e-9..=500.0 + 1e-9).contains(&y));
+        }
+    }
+    let det = determined(m, &out);
+    for t in ["X.tx", "Y.ty", "Y.rz"] {
+        assert!(all_determined(&det, t), "{t}: {det:?}");
+    }
+    // Z stays at the middle of its range: its scale is not seen.
+    assert!(none_determined(&det, "Z.tz"), "{det:?}");
+}
+
+/// An R-test on a rotary table: X, Y, Z follow a sphere on the table as C turns.
+const ROTARY: &str = "machine rtest {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along x range -300 mm .. 300 mm
+    axis Y prismatic along y range -300 mm .. 300 mm
+    axis Z prismatic along z range -100 mm .. 300 mm
+    axis C revolute about z continuous
+    tool chain {
+        X moving
+        Y moving
+        Z moving
+        tool probe
+    }
+    workpiece chain {
+        C moving
+        workpiece
+    }
+    errors {
+        X.tx = linear(X)    // scale of X
+        Y.ty = linear(Y)    // scale of Y
+        Z.tz = linear(Z)    // scale of Z
+    }
+}
+";
+
+#[test]
+fn an_r_test_follows_each_sphere_and_sees_the_ellipticity_not_the_size() {
+    let d = dir("rtest");
+    let machine = d.join("rotary.kin");
+    std::fs::write(&machine, ROTARY).expect("write");
+    let m = machine.to_str().expect("utf8");
+    let out = d.join("rtest.csv");
+    let o = kin(&[
+        "design",
+        m,
+        "--generate",
+        "rtest",
+        "--sphere",
+        "150,0,50",
+        "--sphere",
+        "0mm,250mm,50mm",
+        "--angle-step",
+        "30deg",
+        "-o",
+        out.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (h, rows) = read_csv(&out);
+    let label = h
+        .iter()
+        .position(|c| c == "artifact")
+        .expect("artifact column");
+    // Sphere 1 (radius 150) at all 12 angles; sphere 2 (radius 250) too: both inside ±300.
+    assert_eq!(rows.len(), 24);
+    for r in &rows {
+        let (x, y, z, c) = (
+            cell(&h, r, "X"),
+            cell(&h, r, "Y"),
+            cell(&h, r, "Z"),
+            cell(&h, r, "C"),
+        );
+        // The tool is at the sphere: on its circle about the C axis, at its height.
+        let radius = if r[label].starts_with("s1") {
+            150.0
+        } else {
+            250.0
+        };
+        assert!((x.hypot(y) - radius).abs() < 1e-6, "{r:?}");
+        assert!((z - 50.0).abs() < 1e-9, "{r:?}");
+        assert!((0.0..360.0).contains(&c));
+    }
+    // Each sweep's sphere has an unknown placement: a circle scaled alike in x and y is the
+    // same circle about another sphere position, so only the difference of the two scales is
+    // seen (an R-test sees the ellipticity, not the size); the spheres stay at one height, so
+    // Z's scale is not seen at all.
+    let o = kin(&["check", m, "--plan", out.to_str().expect("utf8")]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        text.contains("cannot separate X.tx[0], Y.ty[0]; determined: X.tx[0] - Y.ty[0]"),
+        "{text}"
+    );
+    assert!(text.contains("not determined at all: Z.tz[0]"), "{text}");
+    // A sphere no angle can reach (outside the ranges) gives no rows; none at all is an error.
+    let o = kin(&[
+        "design",
+        m,
+        "--generate",
+        "rtest",
+        "--sphere",
+        "500,0,0",
+        "-o",
+        d.join("none.csv").to_str().expect("utf8"),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+}

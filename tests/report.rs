@@ -387,7 +387,112 @@ fn without_a_diagnosis_the_optional_sections_are_left_out() {
             && section(&html, "residuals").matches("<svg").count() == 0
     );
     assert!(section(&html, "curves").contains("<svg"));
+    uncertainty_map_agrees_with_eval(&dir, &html);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The uncertainty map's smallest and largest values, at the positions the page names and with
+/// the other variables at the values it names, are what `kin eval --uncertainty` gives there:
+/// √(u_ex² + u_ey² + u_ez²).
+fn uncertainty_map_agrees_with_eval(dir: &Path, html: &str) {
+    let map = section(html, "uncertainty");
+    assert_eq!(map.matches("<svg").count(), 1, "{map}");
+    // "held at X = 1.0 mm, T_scale = 20.00 degC, …." from the paragraph.
+    let held = map
+        .split("held at ")
+        .nth(1)
+        .and_then(|t| t.split(". ").next())
+        .expect("held values");
+    let mut names = Vec::new();
+    let mut values = Vec::new();
+    for item in held.split(", ") {
+        let (name, rest) = item.split_once(" = ").expect("name = value unit");
+        let (value, unit) = rest.split_once(' ').expect("value unit");
+        names.push(format!("{name}[{unit}]"));
+        values.push(value.to_string());
+        if unit == "mm" {
+            // The map takes every axis as approached in its positive direction.
+            names.push(format!("dir_{name}"));
+            values.push("+1".into());
+        }
+    }
+    // The rows of the extremes: value, then the two plane axes (X and Y of the bridge CMM).
+    let cells = |label: &str| -> Vec<f64> {
+        let row = map
+            .split(&format!("<td class=\"l\">{label}</td>"))
+            .nth(1)
+            .expect(label);
+        row.split("</tr>")
+            .next()
+            .expect("row")
+            .split("<td>")
+            .skip(1)
+            .map(|c| {
+                c.split("</td>")
+                    .next()
+                    .expect("cell")
+                    .parse()
+                    .expect("number")
+            })
+            .collect()
+    };
+    let header = map
+        .split("<th class=\"l\"></th>")
+        .nth(1)
+        .expect("table header");
+    let axes: Vec<&str> = header
+        .split("<th>")
+        .skip(2)
+        .map(|h| h.split(' ').next().expect("axis"))
+        .collect();
+    let mut csv = format!(
+        "{},{a}[mm],{b}[mm],dir_{a},dir_{b},time\n",
+        names.join(","),
+        a = axes[0],
+        b = axes[1]
+    );
+    let extremes = [cells("smallest"), cells("largest")];
+    for e in &extremes {
+        csv.push_str(&format!("{},{},{},+1,+1,0\n", values.join(","), e[1], e[2]));
+    }
+    std::fs::write(dir.join("extremes.csv"), csv).expect("write");
+    let out = kin(
+        dir,
+        &[
+            "eval",
+            "bridge_cmm.kin",
+            "extremes.csv",
+            "--params",
+            "fit.json",
+            "--uncertainty",
+            "--components",
+            "position",
+            "-o",
+            "extremes_u.csv",
+        ],
+    );
+    assert!(out.status.success(), "kin eval: {}", text(&out.stderr));
+    let written = std::fs::read_to_string(dir.join("extremes_u.csv")).expect("eval output");
+    let mut lines = written.lines().filter(|l| !l.starts_with('#'));
+    let head: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |n: &str| {
+        head.iter()
+            .position(|h| h.split('[').next() == Some(n))
+            .expect(n)
+    };
+    for (line, e) in lines.zip(&extremes) {
+        let c: Vec<f64> = line
+            .split(',')
+            .map(|v| v.parse().expect("number"))
+            .collect();
+        let u = (c[col("u_ex")].powi(2) + c[col("u_ey")].powi(2) + c[col("u_ez")].powi(2)).sqrt();
+        assert!(
+            (u - e[0]).abs() < 2e-3 * e[0],
+            "eval gives {u}, the map {}",
+            e[0]
+        );
+    }
+    assert!(extremes[0][0] < extremes[1][0]);
 }
 
 /// The data with every cell of the column named `header` replaced by `value`.

@@ -509,6 +509,8 @@ pub enum ExtraQuantity {
     /// A position or coordinate (the length unit), e.g. the corrected coordinates of
     /// `kin correct`.
     Length,
+    /// A plain number (unit `1`), e.g. a direction cosine.
+    Ratio,
 }
 
 #[derive(Debug, Error)]

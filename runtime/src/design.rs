@@ -34,6 +34,10 @@ pub enum DesignError {
     Deficient { missing: usize, rank: usize },
 }
 
+/// A coefficient column reduced by its unit's nuisance elimination to this fraction of its
+/// length or less is zero up to rounding.
+const CANCELLED: f64 = 1e-10;
+
 /// One candidate unit: `rows × p` values (row-major) after its nuisance parameters were
 /// eliminated, `p` the number of coefficients.
 #[derive(Debug, Clone, PartialEq)]
@@ -51,6 +55,7 @@ impl Unit {
         let rows = x.len().checked_div(width).unwrap_or(0);
         let mut b = DMatrix::from_row_slice(rows, p, &take_columns(x, width, 0, p));
         if q > 0 && rows > 0 {
+            let before: Vec<f64> = b.column_iter().map(|c| c.norm()).collect();
             let z = DMatrix::from_row_slice(rows, q, &take_columns(x, width, p, q));
             // An orthonormal basis of the nuisance columns' span (dropping dependent ones: a
             // length error and a shift may coincide on a single row), then B − Q Qᵀ B.
@@ -63,6 +68,15 @@ impl Unit {
                         let proj = qk.transpose() * &b;
                         b -= &qk * proj;
                     }
+                }
+            }
+            // A column the placement explains entirely leaves only rounding (~1e-16 of its
+            // length); scaled to unit length that residue would look like information, so it
+            // is taken as the zero it is (a constant offset seen by one artifact, say).
+            for (j, was) in before.iter().enumerate() {
+                let mut col = b.column_mut(j);
+                if col.norm() <= CANCELLED * was {
+                    col.fill(0.0);
                 }
             }
         }
@@ -603,10 +617,29 @@ impl Current {
             return;
         };
         let k = &ia * s_inv * sign; // q × k
-        let aw = &a * &self.w; // k × rows
-        self.w -= &k * aw;
+        let aw = rows_times(&a, &self.w); // k × rows
+                                          // W −= K (A W), column by column in place: no q × rows temporary per step.
+        for (j, mut col) in self.w.column_iter_mut().enumerate() {
+            for (l, kl) in k.column_iter().enumerate() {
+                col.axpy(-aw[(l, j)], &kl, 1.0);
+            }
+        }
         self.inv -= &k * ia.transpose();
     }
+}
+
+/// `A W` for a unit's few rows `A` (k × q) and all candidates' `W` (q × rows), as dot products
+/// of contiguous columns of `W`: the generic product of a short wide matrix walks `W` in
+/// k-long strides, which made it most of a search's time.
+fn rows_times(a: &DMatrix<f64>, w: &DMatrix<f64>) -> DMatrix<f64> {
+    let at = a.transpose();
+    let mut out = DMatrix::zeros(a.nrows(), w.ncols());
+    for (j, wc) in w.column_iter().enumerate() {
+        for (x, ac) in at.column_iter().enumerate() {
+            out[(x, j)] = ac.dot(&wc);
+        }
+    }
+    out
 }
 
 /// One start: greedy completion of `seeded` to `n` units, then DETMAX, then Fedorov swaps.
@@ -696,7 +729,7 @@ fn fedorov(
             let Some(&i) = chosen.get(at) else { break };
             let a = stack.unit(i);
             // A M⁻¹ B_jᵀ for every candidate j at once (k_a × rows).
-            let cross = &a * &cur.w;
+            let cross = rows_times(&a, &cur.w);
             let aa = own
                 .get(i)
                 .cloned()

@@ -39,6 +39,10 @@ pub enum SimulateError {
     Engine(String),
     #[error("the fit's covariance does not fit this model: {0}")]
     Covariance(String),
+    #[error("confidence ellipsoids are of positions: they need a point file of poses, not a length file")]
+    EllipsoidOfLengths,
+    #[error("the confidence level must be strictly between 0 and 1")]
+    Level,
 }
 
 /// Which error components a simulated point file holds, and the measurement noise.
@@ -211,6 +215,81 @@ pub fn uncertainty(
             Ok(Uncertainty::Lengths(u))
         }
     }
+}
+
+/// The confidence ellipsoid of a predicted position error: the region
+/// `(e − ê)ᵀ C⁻¹ (e − ê) ≤ χ²₃(level)` for `C` the 3×3 covariance of the prediction (eq. 4.12
+/// for the three components together), which holds the model's error with probability `level`
+/// when the coefficients' estimate is normal with the fit's covariance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ellipsoid {
+    /// Semi-axis lengths, largest first (m): `√(λᵢ · χ²₃(level))` for `λᵢ` the eigenvalues of C.
+    pub semi_axes: [f64; 3],
+    /// Unit directions of the semi-axes in the workpiece reference frame's axes, in the order
+    /// of `semi_axes`; each signed so that its largest component is positive.
+    pub directions: [[f64; 3]; 3],
+}
+
+impl Ellipsoid {
+    /// The ellipsoid of covariance `c` (m²) at `level` (0 < level < 1).
+    pub fn of(c: &[[f64; 3]; 3], level: f64) -> Result<Ellipsoid, SimulateError> {
+        use statrs::distribution::{ChiSquared, ContinuousCDF};
+        if !(level > 0.0 && level < 1.0) {
+            return Err(SimulateError::Level);
+        }
+        let k2 = ChiSquared::new(3.0)
+            .map_err(|_| SimulateError::Level)?
+            .inverse_cdf(level);
+        let m = nalgebra::Matrix3::from_fn(|i, j| c[i][j]);
+        let eig = nalgebra::SymmetricEigen::new(m);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let mut out = Ellipsoid {
+            semi_axes: [0.0; 3],
+            directions: [[0.0; 3]; 3],
+        };
+        for (k, &i) in order.iter().enumerate() {
+            // A covariance is positive semi-definite: a negative eigenvalue is rounding.
+            out.semi_axes[k] = (eig.eigenvalues[i].max(0.0) * k2).sqrt();
+            let v = eig.eigenvectors.column(i);
+            let big = (0..3).fold(0, |b, j| if v[j].abs() > v[b].abs() { j } else { b });
+            let sign = if v[big] < 0.0 { -1.0 } else { 1.0 };
+            out.directions[k] = [sign * v[0], sign * v[1], sign * v[2]];
+        }
+        Ok(out)
+    }
+}
+
+/// The confidence ellipsoid at `level` of the predicted position error at each pose of a point
+/// file `poses`, from the coefficients' covariance in `fit` ([`Ellipsoid`]).
+pub fn ellipsoids(
+    m: &Machine,
+    fit: &FitReport,
+    poses: &Observations,
+    level: f64,
+    engine: crate::engine::Engine,
+) -> Result<Vec<Ellipsoid>, SimulateError> {
+    if let Some(why) = fit.covariance_mismatch(m) {
+        return Err(SimulateError::Covariance(why));
+    }
+    if !(level > 0.0 && level < 1.0) {
+        return Err(SimulateError::Level);
+    }
+    let Observations::Points(p) = poses else {
+        return Err(SimulateError::EllipsoidOfLengths);
+    };
+    let mut ev =
+        crate::engine::make(m, engine).map_err(|e| SimulateError::Engine(e.to_string()))?;
+    let states = States::new(m, &p.rows, &p.pose, "")?;
+    let mut out = Vec::with_capacity(states.len());
+    for r in 0..states.len() {
+        let line = states.line.get(r).copied().unwrap_or(0);
+        let c = fit
+            .position_covariance(ev.as_mut(), &states.get(r))
+            .map_err(|source| SimulateError::Eval { line, source })?;
+        out.push(Ellipsoid::of(&c, level)?);
+    }
+    Ok(out)
 }
 
 /// The first-order model's prediction at the poses of `poses`, without noise (`kin eval`).
@@ -489,5 +568,101 @@ pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
         rows,
         pose,
         observed: Default::default(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// χ²₃ quantiles from the tables (Abramowitz & Stegun, table 26.8).
+    const CHI2_3_95: f64 = 7.814_727_903;
+    const CHI2_3_50: f64 = 2.365_973_884;
+
+    fn covariance() -> [[f64; 3]; 3] {
+        // L Lᵀ for a fixed lower-triangular L: positive definite and far from diagonal.
+        let l = [[2.0, 0.0, 0.0], [1.5, 0.7, 0.0], [-0.4, 0.9, 0.3]];
+        let mut c = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                c[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum();
+            }
+        }
+        c
+    }
+
+    #[test]
+    fn the_semi_axes_are_the_chi2_scaled_eigen_pairs() {
+        let c = covariance();
+        for (level, k2) in [(0.95, CHI2_3_95), (0.5, CHI2_3_50)] {
+            let e = Ellipsoid::of(&c, level).unwrap();
+            assert!(e.semi_axes[0] >= e.semi_axes[1] && e.semi_axes[1] >= e.semi_axes[2]);
+            // Trace and determinant are invariants: Σ a² = χ²·tr C, Π a² = χ²³·det C.
+            let trace = c[0][0] + c[1][1] + c[2][2];
+            let sum: f64 = e.semi_axes.iter().map(|a| a * a).sum();
+            assert!(
+                (sum - k2 * trace).abs() < 1e-9 * sum,
+                "{sum} vs {}",
+                k2 * trace
+            );
+            let det = nalgebra::Matrix3::from_fn(|i, j| c[i][j]).determinant();
+            let prod: f64 = e.semi_axes.iter().map(|a| a * a).product();
+            assert!((prod - k2.powi(3) * det).abs() < 1e-9 * prod);
+            for (k, u) in e.directions.iter().enumerate() {
+                // C u = λ u with λ = a²/χ², and the directions orthonormal.
+                let lambda = e.semi_axes[k].powi(2) / k2;
+                for i in 0..3 {
+                    let cu: f64 = (0..3).map(|j| c[i][j] * u[j]).sum();
+                    assert!((cu - lambda * u[i]).abs() < 1e-9, "axis {k}");
+                }
+                for (m, v) in e.directions.iter().enumerate() {
+                    let dot: f64 = (0..3).map(|i| u[i] * v[i]).sum();
+                    let want = if k == m { 1.0 } else { 0.0 };
+                    assert!((dot - want).abs() < 1e-12);
+                }
+            }
+        }
+    }
+
+    /// Monte Carlo over the covariance: the share of normal draws inside the ellipsoid is its
+    /// level, within four binomial standard deviations.
+    #[test]
+    fn the_ellipsoid_holds_its_level_of_normal_draws() {
+        let c = covariance();
+        let l = nalgebra::Matrix3::from_fn(|i, j| c[i][j])
+            .cholesky()
+            .unwrap()
+            .l();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        let n = 40_000;
+        for level in [0.5, 0.95] {
+            let e = Ellipsoid::of(&c, level).unwrap();
+            let inside = (0..n)
+                .filter(|_| {
+                    let z = nalgebra::Vector3::from_fn(|_, _| normal.sample(&mut rng));
+                    let x = l * z;
+                    let r: f64 = (0..3)
+                        .map(|k| {
+                            let u = nalgebra::Vector3::from(e.directions[k]);
+                            (x.dot(&u) / e.semi_axes[k]).powi(2)
+                        })
+                        .sum();
+                    r <= 1.0
+                })
+                .count();
+            let share = inside as f64 / n as f64;
+            let sd = (level * (1.0 - level) / n as f64).sqrt();
+            assert!((share - level).abs() < 4.0 * sd, "{share} vs {level}");
+        }
+    }
+
+    #[test]
+    fn a_level_outside_zero_to_one_is_refused() {
+        assert!(Ellipsoid::of(&covariance(), 1.0).is_err());
+        assert!(Ellipsoid::of(&covariance(), 0.0).is_err());
+        assert!(Ellipsoid::of(&covariance(), f64::NAN).is_err());
     }
 }

@@ -124,7 +124,7 @@ fn scalar_vars(s: &Scalar, out: &mut Vec<Var>) {
 
 /// The SI range a variable is plotted over: an axis's travel, an input's declared range, else
 /// what the data span, else a plausible spread (the same defaults as sampled states use).
-fn range_of(m: &Machine, v: Var, data: &Ranges) -> Option<(f64, f64)> {
+pub(super) fn range_of(m: &Machine, v: Var, data: &Ranges) -> Option<(f64, f64)> {
     match v {
         Var::Axis(a) => m.axes.get(a).map(|a| (a.range[0], a.range[1])),
         Var::Input(i) => {

@@ -78,11 +78,13 @@ fn extra_columns<'a>(
         units.tilt.clone(),
         units.length.clone(),
     );
+    let ratio = Unit::dimensionless();
     options.extra.iter().map(move |c| {
         let unit = match c.quantity {
             ExtraQuantity::Error => &error,
             ExtraQuantity::Tilt => &tilt,
             ExtraQuantity::Length => &length,
+            ExtraQuantity::Ratio => &ratio,
         };
         Column::number(&c.name, unit, &c.values, false)
     })

@@ -739,6 +739,48 @@ impl FitReport {
         v
     }
 
+    /// The 3×3 covariance of the predicted position error `(ex, ey, ez)` at `state`: eq. 4.12
+    /// for the three components together, `G Cov(β̂) Gᵀ` with `G` the position rows of the
+    /// β-Jacobian. m². The nuisance parameters do not enter.
+    pub fn position_covariance(
+        &self,
+        engine: &mut dyn crate::engine::Evaluator,
+        state: &crate::interp::State,
+    ) -> Result<[[f64; 3]; 3], crate::interp::EvalError> {
+        let n = self.coefficients.len();
+        let mut jac = vec![0.0; 6 * n];
+        let mut err = [0.0; 6];
+        let beta = vec![0.0; n];
+        engine.error_and_jacobian(state, &beta, &mut err, &mut jac)?;
+        // Cov(β̂) gᵢ for each position row, then the inner products with the other rows.
+        let mut cg = vec![0.0; 3 * n];
+        for i in 0..3 {
+            let g = jac.get(i * n..(i + 1) * n).unwrap_or(&[]);
+            for a in 0..n {
+                let row = self.covariance.get(a * n..(a + 1) * n).unwrap_or(&[]);
+                if let Some(slot) = cg.get_mut(i * n + a) {
+                    *slot = row.iter().zip(g).map(|(c, gb)| c * gb).sum();
+                }
+            }
+        }
+        let mut out = [[0.0; 3]; 3];
+        for (i, out_row) in out.iter_mut().enumerate() {
+            let gi = jac.get(i * n..(i + 1) * n).unwrap_or(&[]);
+            for (j, slot) in out_row.iter_mut().enumerate() {
+                let cgj = cg.get(j * n..(j + 1) * n).unwrap_or(&[]);
+                *slot = gi.iter().zip(cgj).map(|(a, b)| a * b).sum();
+            }
+        }
+        // Symmetric by construction up to rounding; make it exactly so for the eigensolver.
+        let raw = out;
+        for (i, row) in out.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = 0.5 * (raw[i][j] + raw[j][i]);
+            }
+        }
+        Ok(out)
+    }
+
     /// The variance of the model's predicted error at `state` (eq. 4.12):
     /// `Var(ê_c) = g_cᵀ Cov(β̂) g_c` for each component c, with `g_c` row c of the β-Jacobian.
     /// SI² (m², rad²). The nuisance parameters do not enter: a prediction is of the machine.

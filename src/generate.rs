@@ -1,0 +1,675 @@
+//! `kin design --generate`: candidate measurements of the common artifacts, written in the
+//! measurement-file format (spec/data.md) so that `kin design --candidates` reads them back
+//! (spec/design.md, "Candidates").
+//!
+//! Every generator keeps the poses inside the declared axis ranges: a candidate that would need
+//! an axis outside its range is not written, so a plan chosen from the file can be run as is.
+
+use kin_compiler::ir::{JointKind, Machine, Var};
+use kin_runtime::exact;
+use kin_runtime::kinematics::Pose;
+use nalgebra::{DMatrix, DVector, Vector3};
+
+use crate::load::Failed;
+
+/// The artifact a candidate file is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// Ball bars in a plane (length file, one row a unit).
+    Ballbar,
+    /// A step gauge along one prismatic axis (length file, one face distance a unit).
+    Stepgauge,
+    /// A ball or hole plate in a plane, placed at several positions and orientations (point
+    /// file, one placement an `artifact` label).
+    Plate,
+    /// R-test: a sphere on the workpiece side followed by the tool while the rotary axes turn
+    /// (point file, one sweep of one rotary axis around one sphere an `artifact` label).
+    Rtest,
+}
+
+impl Kind {
+    pub fn parse(text: &str) -> Option<Kind> {
+        match text {
+            "ballbar" => Some(Kind::Ballbar),
+            "stepgauge" => Some(Kind::Stepgauge),
+            "plate" => Some(Kind::Plate),
+            "rtest" => Some(Kind::Rtest),
+            _ => None,
+        }
+    }
+}
+
+/// What `--generate` writes. Lengths in m, angles in rad.
+pub struct Generate {
+    pub kind: Kind,
+    /// Ball bar: its length; step gauge: the distance from its first face to its last; plate:
+    /// the side of its square grid of features.
+    pub length: f64,
+    /// The grid step of the artifact's placement: the first sphere of a bar, the first face of
+    /// a gauge, the first feature (corner) of a plate.
+    pub step: f64,
+    /// The spacing of a step gauge's faces and of a plate's features.
+    pub pitch: f64,
+    /// Ball bar: its orientation step; plate: its rotation step in the plane; R-test: the step
+    /// of the rotary axes.
+    pub angle_step: f64,
+    /// Ball bar, plate: the two prismatic axes spanning the plane (the first two when empty).
+    pub plane: Vec<String>,
+    /// Step gauge: the prismatic axis it lies along (the first when absent).
+    pub axis: Option<String>,
+    /// The number of evenly spaced positions of each prismatic axis outside the plane (or
+    /// across the gauge), ends included; 1 is the middle of its range.
+    pub levels: usize,
+    /// R-test: the sphere centres in the workpiece reference frame (m).
+    pub spheres: Vec<[f64; 3]>,
+}
+
+/// The R-test's spheres when none are given: 50 mm above the workpiece origin, and 100 mm out
+/// along its x and y axes.
+pub const DEFAULT_SPHERES: [[f64; 3]; 3] = [[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.0, 0.1, 0.05]];
+
+/// At most this many candidate rows are generated: beyond it the exchange algorithm's memory
+/// (one unit of p values each) and time grow past what a planning step should take.
+pub const MAX_GENERATED: usize = 1_000_000;
+
+/// Positions within the ranges are accepted this far outside them (m or rad): grid points
+/// computed as `lower + k·step` land on the upper end only up to rounding.
+const EPS: f64 = 1e-9;
+
+/// The candidate file's text and the number of its data rows.
+pub fn generate(m: &Machine, g: &Generate) -> Result<(String, usize), Failed> {
+    let positive = [
+        (g.length, "--length"),
+        (g.step, "--step"),
+        (g.pitch, "--pitch"),
+        (g.angle_step, "--angle-step"),
+    ];
+    if let Some((_, name)) = positive.iter().find(|(v, _)| !(*v > 0.0 && v.is_finite())) {
+        return Err(usage(format!("{name} must be above zero")));
+    }
+    if g.levels == 0 {
+        return Err(usage("--levels must be at least 1".into()));
+    }
+    // Grids far finer than any candidate file can hold are refused before they are built.
+    let widest = m
+        .axes
+        .iter()
+        .filter(|a| a.kind == JointKind::Prismatic)
+        .map(|a| a.range[1] - a.range[0])
+        .fold(0.0, f64::max);
+    if widest / g.step.min(g.pitch) > MAX_GENERATED as f64
+        || std::f64::consts::TAU / g.angle_step > MAX_GENERATED as f64
+    {
+        return Err(usage(format!(
+            "the grid holds more than {MAX_GENERATED} candidates; use a larger --step, --pitch or --angle-step"
+        )));
+    }
+    let mut w = Writer::new(m);
+    match g.kind {
+        Kind::Ballbar => ballbar(m, g, &mut w)?,
+        Kind::Stepgauge => stepgauge(m, g, &mut w)?,
+        Kind::Plate => plate(m, g, &mut w)?,
+        Kind::Rtest => rtest(m, g, &mut w)?,
+    }
+    if w.rows == 0 {
+        return Err(usage(
+            "no candidate fits inside the axis ranges; use a shorter --length or smaller steps"
+                .into(),
+        ));
+    }
+    Ok((w.out, w.rows))
+}
+
+fn usage(msg: String) -> Failed {
+    eprintln!("error: {msg}");
+    Failed::USAGE
+}
+
+/// Collects the rows, refusing to grow past [`MAX_GENERATED`].
+struct Writer<'m> {
+    m: &'m Machine,
+    out: String,
+    rows: usize,
+    /// The axes whose direction of approach the model uses (backlash): they get `dir_` columns.
+    dirs: Vec<usize>,
+}
+
+impl<'m> Writer<'m> {
+    fn new(m: &'m Machine) -> Self {
+        let used = kin_runtime::states::used_vars(m);
+        Writer {
+            m,
+            out: String::new(),
+            rows: 0,
+            dirs: (0..m.axes.len())
+                .filter(|&a| used.contains(&Var::Direction(a)))
+                .collect(),
+        }
+    }
+
+    /// The directions of approach each candidate is written for: both, when the model uses
+    /// one (every such axis approaching from the same side), so that a plan can see backlash.
+    fn directions(&self) -> &'static [f64] {
+        if self.dirs.is_empty() {
+            &[1.0]
+        } else {
+            &[1.0, -1.0]
+        }
+    }
+
+    fn comment(&mut self, text: &str) {
+        self.out.push_str("# ");
+        self.out.push_str(text);
+        self.out.push('\n');
+    }
+
+    /// The header of a point file (`label`: with an `artifact` column) or a length file.
+    fn header(&mut self, lengths: bool, label: bool) {
+        let mut names = Vec::new();
+        let ends: &[&str] = if lengths { &["_1", "_2"] } else { &[""] };
+        for end in ends {
+            for a in &self.m.axes {
+                names.push(format!("{}{end}[{}]", a.name, unit(a.kind).0));
+            }
+            for &a in &self.dirs {
+                if let Some(axis) = self.m.axes.get(a) {
+                    names.push(format!("dir_{}{end}", axis.name));
+                }
+            }
+        }
+        for i in &self.m.inputs {
+            names.push(format!("{}[{}]", i.name, i.unit.name));
+        }
+        if !self.m.lags.is_empty() {
+            // A lag needs a time; the inputs are constant, so every lag is in steady state.
+            names.push("time[s]".into());
+        }
+        if label {
+            names.push("artifact".into());
+        }
+        if !lengths {
+            // Empty observed columns: the plan observes what they name (spec/design.md).
+            names.extend(["ex", "ey", "ez"].map(String::from));
+        }
+        self.out.push_str(&names.join(","));
+        self.out.push('\n');
+    }
+
+    /// One row: the poses (one or two), then the label, then the empty observed cells.
+    fn row(
+        &mut self,
+        poses: &[&[f64]],
+        dir: f64,
+        label: Option<&str>,
+        observed: usize,
+    ) -> Result<(), Failed> {
+        self.rows += 1;
+        if self.rows > MAX_GENERATED {
+            return Err(usage(format!(
+                "more than {MAX_GENERATED} candidates; use larger steps or fewer --levels"
+            )));
+        }
+        let mut cells = Vec::new();
+        for q in poses {
+            for (a, v) in self.m.axes.iter().zip(q.iter()) {
+                cells.push(format!("{}", round9(v * unit(a.kind).1)));
+            }
+            for _ in &self.dirs {
+                cells.push(if dir < 0.0 { "-1" } else { "+1" }.to_string());
+            }
+        }
+        for i in &self.m.inputs {
+            cells.push(format!("{}", round9(i.unit.from_si(input_reference(i)))));
+        }
+        if !self.m.lags.is_empty() {
+            cells.push("0".into());
+        }
+        if let Some(l) = label {
+            cells.push(l.to_string());
+        }
+        cells.extend(std::iter::repeat_n(String::new(), observed));
+        self.out.push_str(&cells.join(","));
+        self.out.push('\n');
+        Ok(())
+    }
+}
+
+/// The value an input is planned at: the middle of its declared range, else 20 °C for an
+/// absolute temperature (the reference temperature of length metrology) and 0 for any other
+/// input (a temperature rise, a force, … at its reference).
+pub fn input_reference(i: &kin_compiler::ir::Input) -> f64 {
+    match i.range {
+        Some([lo, hi]) => 0.5 * (lo + hi),
+        None if i.absolute => 293.15,
+        None => 0.0,
+    }
+}
+
+fn unit(kind: JointKind) -> (&'static str, f64) {
+    match kind {
+        JointKind::Revolute => ("deg", 180.0 / std::f64::consts::PI),
+        JointKind::Prismatic => ("mm", 1000.0),
+    }
+}
+
+fn prismatic(m: &Machine) -> Vec<usize> {
+    m.axes
+        .iter()
+        .enumerate()
+        .filter(|(_, a)| a.kind == JointKind::Prismatic)
+        .map(|(i, _)| i)
+        .collect()
+}
+
+/// The prismatic axis called `name`.
+fn prismatic_named(m: &Machine, name: &str) -> Result<usize, Failed> {
+    prismatic(m)
+        .into_iter()
+        .find(|&i| m.axes.get(i).is_some_and(|a| a.name == name))
+        .ok_or_else(|| usage(format!("`{name}` is not a prismatic axis of the machine")))
+}
+
+/// The two prismatic axes of `--plane` (the first two declared when it is empty).
+fn plane(m: &Machine, g: &Generate, what: &str) -> Result<(usize, usize), Failed> {
+    let axes: Vec<usize> = if g.plane.is_empty() {
+        prismatic(m).into_iter().take(2).collect()
+    } else {
+        g.plane
+            .iter()
+            .map(|n| prismatic_named(m, n))
+            .collect::<Result<_, _>>()?
+    };
+    match axes.as_slice() {
+        [u, v] if u != v => Ok((*u, *v)),
+        _ => Err(usage(format!(
+            "a {what} plane needs two different prismatic axes (--plane X,Y)"
+        ))),
+    }
+}
+
+fn range(m: &Machine, i: usize) -> [f64; 2] {
+    m.axes.get(i).map_or([0.0, 0.0], |a| a.range)
+}
+
+fn inside(x: f64, r: [f64; 2]) -> bool {
+    x >= r[0] - EPS && x <= r[1] + EPS
+}
+
+/// `lower, lower + step, …` up to the upper end of `r` (the upper end itself when on the grid).
+fn grid(r: [f64; 2], step: f64) -> Vec<f64> {
+    let n = ((r[1] - r[0]) / step + 1e-9).floor();
+    if !(n.is_finite() && n >= 0.0) || n > MAX_GENERATED as f64 {
+        return vec![r[0]];
+    }
+    (0..=n as usize).map(|k| r[0] + step * k as f64).collect()
+}
+
+/// The angles of a revolute axis on a grid of `step`: `[0, 2π)` for a continuous axis, its range
+/// from the lower end otherwise.
+fn angles(m: &Machine, i: usize, step: f64) -> Vec<f64> {
+    match m.axes.get(i) {
+        Some(a) if a.continuous => {
+            let n = (std::f64::consts::TAU / step - 1e-9).ceil().max(1.0) as usize;
+            (0..n).map(|k| step * k as f64).collect()
+        }
+        Some(a) => grid(a.range, step),
+        None => Vec::new(),
+    }
+}
+
+/// Every combination of positions of the axes not in `fixed`: `levels` evenly spaced positions
+/// of each prismatic axis (the middle when 1), the middle of each revolute axis's range.
+fn others(m: &Machine, fixed: &[usize], levels: usize) -> Result<Vec<Vec<f64>>, Failed> {
+    let mut out = vec![m
+        .axes
+        .iter()
+        .map(|a| 0.5 * (a.range[0] + a.range[1]))
+        .collect::<Vec<f64>>()];
+    for (i, a) in m.axes.iter().enumerate() {
+        if fixed.contains(&i) || a.kind != JointKind::Prismatic || levels < 2 {
+            continue;
+        }
+        if out.len().saturating_mul(levels) > MAX_GENERATED {
+            return Err(usage(format!(
+                "--levels {levels} gives more than {MAX_GENERATED} positions of the other axes"
+            )));
+        }
+        let values: Vec<f64> = (0..levels)
+            .map(|k| a.range[0] + (a.range[1] - a.range[0]) * k as f64 / (levels - 1) as f64)
+            .collect();
+        out = out
+            .iter()
+            .flat_map(|q| {
+                values.iter().map(move |&v| {
+                    let mut q = q.clone();
+                    if let Some(slot) = q.get_mut(i) {
+                        *slot = v;
+                    }
+                    q
+                })
+            })
+            .collect();
+    }
+    Ok(out)
+}
+
+/// Ball bars in the plane of two prismatic axes: the first sphere on a grid of `step` over both
+/// ranges, the bar at every multiple of `angle_step` in [0°, 360°) from the first plane axis
+/// towards the second, kept when the second sphere is inside the ranges too.
+fn ballbar(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
+    let (u, v) = plane(m, g, "ball-bar")?;
+    let (ru, rv) = (range(m, u), range(m, v));
+    let turns = (std::f64::consts::TAU / g.angle_step).round().max(1.0) as usize;
+    w.comment(&format!(
+        "ball-bar candidates: length {} mm, grid {} mm, angle step {} deg",
+        round9(g.length * 1e3),
+        round9(g.step * 1e3),
+        round9(g.angle_step.to_degrees())
+    ));
+    w.header(true, false);
+    for base in others(m, &[u, v], g.levels)? {
+        for &x in &grid(ru, g.step) {
+            for &y in &grid(rv, g.step) {
+                for k in 0..turns {
+                    let (sn, cs) = (g.angle_step * k as f64).sin_cos();
+                    let (x2, y2) = (x + g.length * cs, y + g.length * sn);
+                    if !(inside(x2, ru) && inside(y2, rv)) {
+                        continue;
+                    }
+                    let (mut q1, mut q2) = (base.clone(), base.clone());
+                    set(&mut q1, u, x);
+                    set(&mut q1, v, y);
+                    set(&mut q2, u, x2);
+                    set(&mut q2, v, y2);
+                    for &d in w.directions() {
+                        w.row(&[&q1, &q2], d, None, 0)?;
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+fn set(q: &mut [f64], i: usize, value: f64) {
+    if let Some(slot) = q.get_mut(i) {
+        *slot = value;
+    }
+}
+
+/// A step gauge along one prismatic axis: its first face on a grid of `step` from the lower end
+/// of the range, each row the distance from the first face to one of the others (`pitch`
+/// apart, up to `length`), the whole gauge inside the range; the other prismatic axes at
+/// `levels` positions each (the gauge's lines).
+fn stepgauge(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
+    let axis = match &g.axis {
+        Some(name) => prismatic_named(m, name)?,
+        None => *prismatic(m)
+            .first()
+            .ok_or_else(|| usage("a step gauge needs a prismatic axis".into()))?,
+    };
+    let r = range(m, axis);
+    let faces = (g.length / g.pitch + 1e-9).floor() as usize;
+    if faces == 0 {
+        return Err(usage(
+            "--pitch is longer than the gauge's --length: the gauge has one face".into(),
+        ));
+    }
+    let name = m.axes.get(axis).map_or("", |a| a.name.as_str());
+    w.comment(&format!(
+        "step-gauge candidates along {name}: faces every {} mm up to {} mm, first face every {} mm, {} line(s)",
+        round9(g.pitch * 1e3),
+        round9(faces as f64 * g.pitch * 1e3),
+        round9(g.step * 1e3),
+        others(m, &[axis], g.levels)?.len()
+    ));
+    w.header(true, false);
+    for base in others(m, &[axis], g.levels)? {
+        for &s in &grid(r, g.step) {
+            if !inside(s + faces as f64 * g.pitch, r) {
+                continue;
+            }
+            for k in 1..=faces {
+                let (mut q1, mut q2) = (base.clone(), base.clone());
+                set(&mut q1, axis, s);
+                set(&mut q2, axis, s + g.pitch * k as f64);
+                for &d in w.directions() {
+                    w.row(&[&q1, &q2], d, None, 0)?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A plate with a square grid of features `pitch` apart over a side of `length`, its first
+/// feature on a grid of `step` over the plane, turned by every multiple of `angle_step` in
+/// [0°, 90°) (the grid is the same after a quarter turn); a placement is kept when every
+/// feature is inside the ranges, and is one `artifact` label (its placement is unknown).
+fn plate(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
+    let (u, v) = plane(m, g, "plate")?;
+    let (ru, rv) = (range(m, u), range(m, v));
+    let side = (g.length / g.pitch + 1e-9).floor() as usize;
+    let turns = (std::f64::consts::FRAC_PI_2 / g.angle_step - 1e-9)
+        .ceil()
+        .max(1.0) as usize;
+    w.comment(&format!(
+        "plate candidates: {n}×{n} features {} mm apart, first feature every {} mm, turned in steps of {} deg; one placement per artifact label",
+        round9(g.pitch * 1e3),
+        round9(g.step * 1e3),
+        round9(g.angle_step.to_degrees()),
+        n = side + 1
+    ));
+    w.header(false, true);
+    let mut placement = 0usize;
+    for base in others(m, &[u, v], g.levels)? {
+        for &x in &grid(ru, g.step) {
+            for &y in &grid(rv, g.step) {
+                for k in 0..turns {
+                    let (sn, cs) = (g.angle_step * k as f64).sin_cos();
+                    let features: Vec<(f64, f64)> = (0..=side)
+                        .flat_map(|i| (0..=side).map(move |j| (i, j)))
+                        .map(|(i, j)| {
+                            let (a, b) = (g.pitch * i as f64, g.pitch * j as f64);
+                            (x + a * cs - b * sn, y + a * sn + b * cs)
+                        })
+                        .collect();
+                    if !features
+                        .iter()
+                        .all(|&(fu, fv)| inside(fu, ru) && inside(fv, rv))
+                    {
+                        continue;
+                    }
+                    placement += 1;
+                    for &d in w.directions() {
+                        let label = match (w.dirs.is_empty(), d < 0.0) {
+                            (true, _) => format!("plate{placement}"),
+                            (false, false) => format!("plate{placement}+"),
+                            (false, true) => format!("plate{placement}-"),
+                        };
+                        for &(fu, fv) in &features {
+                            let mut q = base.clone();
+                            set(&mut q, u, fu);
+                            set(&mut q, v, fv);
+                            w.row(&[&q], d, Some(&label), 3)?;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// R-test: for each sphere, each revolute axis swept over its grid of `angle_step` with the other
+/// revolute axes at each of their grid angles; at every angle the prismatic axes place the
+/// (first declared) tool's nominal point at the sphere. One sweep is one `artifact` label: the
+/// sphere's placement on the table is unknown and taken out per sweep. Angles at which the
+/// prismatic axes cannot reach the sphere within their ranges are left out; a sweep needs two
+/// angles or more.
+fn rtest(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
+    let revolute: Vec<usize> = m
+        .axes
+        .iter()
+        .enumerate()
+        .filter(|(_, a)| a.kind == JointKind::Revolute)
+        .map(|(i, _)| i)
+        .collect();
+    if revolute.is_empty() {
+        return Err(usage(
+            "an R-test needs a revolute axis; the machine has none".into(),
+        ));
+    }
+    let linear = prismatic(m);
+    let spheres: Vec<[f64; 3]> = if g.spheres.is_empty() {
+        DEFAULT_SPHERES.to_vec()
+    } else {
+        g.spheres.clone()
+    };
+    w.comment(&format!(
+        "R-test candidates: spheres at {} mm (workpiece frame), rotary axes every {} deg; one sweep of one rotary axis per artifact label",
+        spheres
+            .iter()
+            .map(|s| format!(
+                "({}, {}, {})",
+                round9(s[0] * 1e3),
+                round9(s[1] * 1e3),
+                round9(s[2] * 1e3)
+            ))
+            .collect::<Vec<_>>()
+            .join(", "),
+        round9(g.angle_step.to_degrees())
+    ));
+    w.header(false, true);
+    let grids: Vec<Vec<f64>> = revolute
+        .iter()
+        .map(|&i| angles(m, i, g.angle_step))
+        .collect();
+    let mid: Vec<f64> = m
+        .axes
+        .iter()
+        .map(|a| 0.5 * (a.range[0] + a.range[1]))
+        .collect();
+    for (s, sphere) in spheres.iter().enumerate() {
+        let target = Vector3::from(*sphere);
+        for (r, &swept) in revolute.iter().enumerate() {
+            // Every combination of the other revolute axes' grid angles.
+            let mut settings: Vec<Vec<(usize, f64)>> = vec![Vec::new()];
+            for (o, &other) in revolute.iter().enumerate() {
+                if o == r {
+                    continue;
+                }
+                let values = grids.get(o).cloned().unwrap_or_default();
+                if settings.len().saturating_mul(values.len()) > MAX_GENERATED {
+                    return Err(usage(format!(
+                        "more than {MAX_GENERATED} sweeps; use a larger --angle-step"
+                    )));
+                }
+                settings = settings
+                    .iter()
+                    .flat_map(|set| {
+                        values.iter().map(move |&a| {
+                            let mut set = set.clone();
+                            set.push((other, a));
+                            set
+                        })
+                    })
+                    .collect();
+            }
+            for setting in settings {
+                let mut rows = Vec::new();
+                for &angle in grids.get(r).map_or(&[][..], |v| v.as_slice()) {
+                    let mut q = mid.clone();
+                    for &(i, a) in &setting {
+                        set(&mut q, i, a);
+                    }
+                    set(&mut q, swept, angle);
+                    if let Some(q) = reach(m, &linear, q, &target)? {
+                        rows.push(q);
+                    }
+                }
+                if rows.len() < 2 {
+                    continue;
+                }
+                let name = |i: usize| m.axes.get(i).map_or("", |a| a.name.as_str());
+                let mut label = format!("s{}_{}", s + 1, name(swept));
+                for &(i, a) in &setting {
+                    label.push_str(&format!("_{}{}", name(i), round9(a.to_degrees())));
+                }
+                for &d in w.directions() {
+                    let label = match (w.dirs.is_empty(), d < 0.0) {
+                        (true, _) => label.clone(),
+                        (false, false) => format!("{label}+"),
+                        (false, true) => format!("{label}-"),
+                    };
+                    for q in &rows {
+                        w.row(&[q], d, Some(&label), 3)?;
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The prismatic positions (from `q`'s, the revolute angles kept) that put the first tool's
+/// nominal point at `target` in the workpiece frame, or None when they are outside the ranges.
+/// With the angles fixed the tool point is affine in the prismatic positions (translations
+/// composed with fixed rotations), so one step of least squares solves it exactly.
+fn reach(
+    m: &Machine,
+    linear: &[usize],
+    mut q: Vec<f64>,
+    target: &Vector3<f64>,
+) -> Result<Option<Vec<f64>>, Failed> {
+    let point = |q: &[f64]| -> Result<Vector3<f64>, Failed> {
+        let pose = Pose {
+            q,
+            tool: 0,
+            tool_offset: None,
+        };
+        exact::nominal_transform(m, &pose)
+            .map(|t| Vector3::new(t[(0, 3)], t[(1, 3)], t[(2, 3)]))
+            .map_err(|e| {
+                eprintln!("error: {e}");
+                Failed::INPUT
+            })
+    };
+    let p0 = point(&q)?;
+    let mut j = DMatrix::zeros(3, linear.len());
+    for (c, &i) in linear.iter().enumerate() {
+        let mut moved = q.clone();
+        if let Some(v) = moved.get_mut(i) {
+            *v += 1.0;
+        }
+        let d = point(&moved)? - p0;
+        j.set_column(c, &d);
+    }
+    let rhs = DVector::from_iterator(3, (target - p0).iter().copied());
+    let Ok(step) = j.clone().svd(true, true).solve(&rhs, 1e-12) else {
+        return Ok(None);
+    };
+    if (&j * &step - &rhs).norm() > 1e-9 {
+        // The prismatic axes cannot move the tool point there (fewer than three directions).
+        return Ok(None);
+    }
+    for (c, &i) in linear.iter().enumerate() {
+        if let Some(v) = q.get_mut(i) {
+            *v += step[c];
+            if !inside(*v, range(m, i)) {
+                return Ok(None);
+            }
+        }
+    }
+    Ok(Some(q))
+}
+
+/// Nine decimals: nanometres in mm, far below any machine's resolution, and no `1e-14` noise.
+fn round9(v: f64) -> f64 {
+    let r = (v * 1e9).round() / 1e9;
+    if r == 0.0 {
+        0.0
+    } else {
+        r
+    }
+}

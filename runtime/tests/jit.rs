@@ -1281,6 +1281,9 @@ fn random_machines_compensate_alike_in_both_engines() {
     let mut gen = Gen {
         rng: StdRng::seed_from_u64(20251125),
         fourier_along: true,
+        // The machines this test was measured on: no shared-target definitions.
+        shared: false,
+        no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(7);
     let (mut worst_dq, mut worst_after, mut compared, mut failed) = (0.0_f64, 0.0_f64, 0, 0);

@@ -1057,7 +1057,9 @@ fn the_report_shows_the_error_before_and_after_compensation() {
     // no compensation.
     ok(&o);
     let html = std::fs::read_to_string(d.join("cmm.html")).expect("report written");
-    let start = html.find("<section id=\"compensation\">").expect("the section");
+    let start = html
+        .find("<section id=\"compensation\">")
+        .expect("the section");
     let section = &html[start..];
     let section = &section[..section.find("</section>").expect("closed")];
     assert!(

@@ -38,6 +38,15 @@ fn library_dir() -> Option<PathBuf> {
     found
 }
 
+/// `LD_LIBRARY_PATH` with `lib` first.
+fn library_path(lib: &Path) -> std::ffi::OsString {
+    let mut dirs = vec![lib.to_path_buf()];
+    if let Some(old) = std::env::var_os("LD_LIBRARY_PATH") {
+        dirs.extend(std::env::split_paths(&old));
+    }
+    std::env::join_paths(dirs).unwrap_or_default()
+}
+
 fn c_compiler() -> Option<String> {
     let candidates = std::env::var("CC")
         .ok()
@@ -105,6 +114,9 @@ fn the_c_example_matches_the_rust_api() {
     let machine = root().join("examples/bridge_cmm.kin");
     let params = root().join("examples/data/bridge_cmm_truth.params");
     let run = Command::new(&exe)
+        // Cargo's own library path lists the profile folder too, where an older `cargo build`
+        // may have left a stale copy: the library this test found comes first.
+        .env("LD_LIBRARY_PATH", library_path(&lib))
         .arg(&machine)
         .arg(&params)
         .output()
@@ -248,6 +260,9 @@ fn the_c_compensation_example_matches_the_rust_api() {
     );
     let machine = root().join("examples/milling_5axis.kin");
     let run = Command::new(&exe)
+        // Cargo's own library path lists the profile folder too, where an older `cargo build`
+        // may have left a stale copy: the library this test found comes first.
+        .env("LD_LIBRARY_PATH", library_path(&lib))
         .arg(&machine)
         .output()
         .expect("runs the example");

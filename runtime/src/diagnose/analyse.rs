@@ -15,7 +15,7 @@ use super::{
 };
 use crate::data::Observations;
 use crate::fit::report::{component_name, model_hash};
-use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, LENGTH};
+use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, Weights, LENGTH};
 
 #[derive(Debug, Error)]
 pub enum DiagnoseError {
@@ -91,6 +91,7 @@ pub fn diagnose(
     let proposals = library::propose(m, &available, &peaks, &settings.taus);
     let findings = test_candidates(compiled, source, files, base, options, &proposals, settings)?;
     let (regions, bins) = regions(m, &rows, base, settings);
+    // σ̂ and the RMS as the fit weighs its rows: with a stated noise, multiples of it.
     let all: Vec<f64> = base.residuals.iter().map(|r| r.residual / s).collect();
     Ok(Diagnosis {
         machine: m.name.clone(),
@@ -105,7 +106,22 @@ pub fn diagnose(
         findings,
         noise: noise_check(m, &rows, base, settings),
         outliers: outliers(m, files, base),
+        weighted: base.layout.weights.stated,
     })
+}
+
+/// A residual of the fit in its component's display unit (the error unit; the tilt unit for
+/// rotations), whatever the fit weighed its row by: a stated noise weighs every row by
+/// `scale/σ` of its kind, the unit weighting a tilt unit as an error unit. Locating failures,
+/// the spectra and the noise tests work on the physical residual, each kind against its own σ.
+fn display(m: &Machine, weights: &Weights, component: u8, residual: f64) -> f64 {
+    let w = weights.of(component);
+    let unit = Weights::unit(m).of(component);
+    if w > 0.0 && w.is_finite() {
+        residual / w * unit / m.units.error.scale
+    } else {
+        residual / m.units.error.scale
+    }
 }
 
 /// The stated σ of a component's rows, in its display unit (error unit; tilt unit for
@@ -138,7 +154,7 @@ fn outliers(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Outlier> {
                 .unwrap_or_default(),
             line: r.meta.line as usize,
             component: component_name(r.meta.component).to_string(),
-            residual: r.residual / m.units.error.scale,
+            residual: display(m, &base.layout.weights, r.meta.component, r.residual),
             studentized: r.studentized,
         })
         .collect()
@@ -308,7 +324,6 @@ fn variables(m: &Machine) -> Vec<(String, String)> {
 }
 
 fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
-    let s = m.units.error.scale;
     let index: Vec<HashMap<usize, usize>> = files
         .iter()
         .map(|f| {
@@ -395,7 +410,7 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
                 file: r.meta.file,
                 component: r.meta.component,
                 outlier: r.studentized.abs() > base.outlier_threshold,
-                residual: r.residual / s,
+                residual: display(m, &base.layout.weights, r.meta.component, r.residual),
                 leverage: r.leverage,
                 values,
                 dirs,
@@ -694,7 +709,11 @@ fn test_candidates(
     };
     let mut engine = crate::engine::make(&sup.machine, settings.engine)?;
     engine.set_nonlinear(&values)?;
-    let layout = Layout::new(&sup.machine, files);
+    // Weighted as the base fit is (by the stated noise, kind by kind): every test below is then
+    // on rows of unit variance, and a µrad row counts as much as its σ says, not as a µm.
+    // (The base fit's weights, so that the tests and the base fit agree on them.)
+    let mut layout = Layout::new(&sup.machine, files);
+    layout.weights = base.layout.weights;
     let states = fit::states_with(&sup.machine, files, &values)?;
     let mut acc = StreamingQr::new(layout.columns(), options.block);
     fit::for_each_row(engine.as_mut(), files, &states, &layout, |_, x, y| {

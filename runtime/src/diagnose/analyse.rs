@@ -243,7 +243,7 @@ fn noise_check(m: &Machine, rows: &[Located], base: &FitResult, settings: &Setti
 
 fn available(m: &Machine, files: &[DataSet]) -> Available {
     let all = |f: &dyn Fn(&DataSet) -> bool| !files.is_empty() && files.iter().all(f);
-    Available {
+    let mut available = Available {
         directions: (0..m.axes.len())
             .map(|a| {
                 all(&|d: &DataSet| match &d.observations {
@@ -281,7 +281,69 @@ fn available(m: &Machine, files: &[DataSet]) -> Available {
                 }))
             })
             .collect(),
+        reversals: Vec::new(),
+    };
+    available.reversals = reversals(m, files, &available.sampled);
+    available
+}
+
+/// Per pair of axes (a, b): the parts of b's sampled range ([`library::REVERSAL_BINS`]) in which
+/// the data hold both directions of motion of a. Point files and both ends of a length.
+fn reversals(m: &Machine, files: &[DataSet], sampled: &[Option<Sampling>]) -> Vec<Vec<usize>> {
+    let n = m.axes.len();
+    let parts = library::REVERSAL_BINS;
+    // seen[a][b][part]: bit 0 a moving +, bit 1 a moving −.
+    let mut seen = vec![vec![vec![0u8; parts]; n]; n];
+    let mut visit = |pose: &crate::data::Pose, rows: usize| {
+        for a in 0..n {
+            let Some(Some(dir)) = pose.dir.get(a) else {
+                continue;
+            };
+            for (b, s) in sampled.iter().enumerate() {
+                let (Some(s), Some(q)) = (s, pose.axes.get(b)) else {
+                    continue;
+                };
+                if b == a || !(s.span() > 0.0) {
+                    continue;
+                }
+                for r in 0..rows {
+                    let (Some(&d), Some(&x)) = (dir.get(r), q.get(r)) else {
+                        continue;
+                    };
+                    if !x.is_finite() {
+                        continue;
+                    }
+                    let bit = if d > 0.0 {
+                        1
+                    } else if d < 0.0 {
+                        2
+                    } else {
+                        continue;
+                    };
+                    let part = (((x - s.lo) / s.span() * parts as f64).floor().max(0.0) as usize)
+                        .min(parts - 1);
+                    seen[a][b][part] |= bit;
+                }
+            }
+        }
+    };
+    for f in files {
+        match &f.observations {
+            Observations::Points(p) => visit(&p.pose, p.rows.line.len()),
+            Observations::Lengths(l) => {
+                for pose in &l.poses {
+                    visit(pose, l.rows.line.len());
+                }
+            }
+        }
     }
+    seen.iter()
+        .map(|row| {
+            row.iter()
+                .map(|cells| cells.iter().filter(|&&c| c == 3).count())
+                .collect()
+        })
+        .collect()
 }
 
 /// One residual with the state variables it was observed at (display units).

@@ -286,10 +286,19 @@ fn replace(path: &Path, base: &str, revised: &str, keep: bool) -> Result<(), Fai
 /// The terminal report: where, then against the noise, then what.
 pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     let u = &d.error_unit;
-    let mut s = format!(
-        "diagnosis of `{}`: σ̂ = {:.4} {u}, residual RMS {:.4} {u}\n",
-        d.machine, sigma, rms
-    );
+    let mut s = if d.weighted {
+        format!(
+            "diagnosis of `{}`: σ̂/σ = {:.4}, residual RMS {:.4} σ (every fit weighs each row by its stated noise)\n",
+            d.machine, sigma, rms
+        )
+    } else {
+        format!(
+            "diagnosis of `{}`: σ̂ = {:.4} {u}, residual RMS {:.4} {u}\n",
+            d.machine, sigma, rms
+        )
+    };
+    // With a stated noise the residual level after a line is a multiple of it.
+    let after_unit = if d.weighted { "σ" } else { u.as_str() };
     let significant: Vec<_> = d.findings.iter().filter(|f| f.significant).collect();
     s.push_str("\nwhere the model fails\n");
     if d.regions.is_empty() {
@@ -360,7 +369,7 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     }
     for (i, f) in significant.iter().enumerate().take(10) {
         s.push_str(&format!(
-            "  {:>2}. {:<19} explains {:>5.1} % of the residual variance with {} column{} (F = {:.1}, p {}, ΔBIC = {:.0}, RMS → {:.4} {u})\n      {}\n      add: {}\n",
+            "  {:>2}. {:<19} explains {:>5.1} % of the residual variance with {} column{} (F = {:.1}, p {}, ΔBIC = {:.0}, RMS → {:.4} {after_unit})\n      {}\n      add: {}\n",
             i + 1,
             format!("{:?}", f.candidate.family),
             100.0 * f.explained,

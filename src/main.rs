@@ -238,6 +238,7 @@ enum Command {
     #[command(after_help = "Examples:
   kin diagnose examples/bridge_cmm.kin examples/data/bridge_cmm_points.csv
   kin diagnose mill.kin points.csv --noise 0.3um -o diagnose.json
+  kin diagnose mill.kin poses.csv --noise 0.3um --noise-tilt 20urad   # µm and µrad rows weighed by their σ
   kin diagnose mill.kin points.csv --apply 1 --dry-run     # show the line, change nothing")]
     Diagnose {
         machine: PathBuf,
@@ -262,12 +263,13 @@ enum Command {
         /// With --apply: print the lines that would be added, change nothing.
         #[arg(long, requires = "apply")]
         dry_run: bool,
-        /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: the
-        /// residuals are then judged against it (χ² test, region tests) instead of against the
-        /// fit's own σ̂, and only then can the verdict be "down to the noise".
+        /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: every fit
+        /// of the diagnosis divides each row by its kind's σ (weighted least squares), and the
+        /// residuals are judged against it (χ² test, region tests) instead of against the
+        /// fit's own σ̂; only then can the verdict be "down to the noise".
         #[arg(long, value_name = "Q", value_parser = args::stated_length_noise, allow_hyphen_values = true)]
         noise: Option<Spread>,
-        /// The instrument's standard deviation on rotations, e.g. `1urad`.
+        /// The instrument's standard deviation on rotations, e.g. `20urad` (pose data need both).
         #[arg(long, value_name = "Q", value_parser = args::stated_angle_noise, allow_hyphen_values = true)]
         noise_tilt: Option<Spread>,
         /// `json`: standard output holds DIAGNOSE.json alone (spec/json.md); not with --apply.
@@ -774,8 +776,9 @@ fn main() -> ExitCode {
                 enter: None,
                 holdout: None,
                 seed: 0,
-                // The diagnosis judges unweighted residuals against the stated noise itself.
-                noise: None,
+                // Every fit of the diagnosis weighs its rows by the stated noise, kind by kind
+                // (positions and lengths by --noise, rotations by --noise-tilt).
+                noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
                 engine,
                 ignore: ignore.options(),
                 color: color.enabled(),

@@ -92,6 +92,7 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
         model_hash: model_hash.into(),
         sigma: 0.2,
         rms: 0.2,
+        weighted: false,
         error_unit: "um".into(),
         alpha: 0.01,
         regions: vec![Region {

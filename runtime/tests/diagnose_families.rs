@@ -250,6 +250,28 @@ const CASES: &[Case] = &[
         form: "linear(Y) * backlash(Y)",
     },
     Case {
+        name: "backlash across axes (X with Y)",
+        kind: Kind::Cmm,
+        family: Family::Backlash,
+        target: "X.tx",
+        // No step at mid-travel of Y, ±1.2 µm at its ends: the reversal of X is seen as an
+        // error that depends on where Y is (the bridge's weight on X's drive).
+        hidden: "X.tx += linear(Y) * backlash(X)",
+        values: &[1.2],
+        form: "linear(Y) * backlash(X)",
+    },
+    Case {
+        name: "hysteresis across axes (Y.rx with X)",
+        kind: Kind::Cmm,
+        family: Family::Backlash,
+        target: "Y.rx",
+        // A pitch of Y at its reversals that grows along X by ±4 µrad, seen through the Abbe
+        // arm below the Y carriage.
+        hidden: "Y.rx += linear(X) * backlash(Y)",
+        values: &[4.0],
+        form: "linear(X) * backlash(Y)",
+    },
+    Case {
         name: "once per revolution (C.tz axial)",
         kind: Kind::Mill,
         family: Family::RevoluteHarmonics,

@@ -15,7 +15,7 @@ use super::{
 };
 use crate::data::Observations;
 use crate::fit::report::{component_name, model_hash};
-use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, LENGTH};
+use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, Weights, LENGTH};
 
 #[derive(Debug, Error)]
 pub enum DiagnoseError {
@@ -91,6 +91,7 @@ pub fn diagnose(
     let proposals = library::propose(m, &available, &peaks, &settings.taus);
     let findings = test_candidates(compiled, source, files, base, options, &proposals, settings)?;
     let (regions, bins) = regions(m, &rows, base, settings);
+    // σ̂ and the RMS as the fit weighs its rows: with a stated noise, multiples of it.
     let all: Vec<f64> = base.residuals.iter().map(|r| r.residual / s).collect();
     Ok(Diagnosis {
         machine: m.name.clone(),
@@ -105,7 +106,22 @@ pub fn diagnose(
         findings,
         noise: noise_check(m, &rows, base, settings),
         outliers: outliers(m, files, base),
+        weighted: base.layout.weights.stated,
     })
+}
+
+/// A residual of the fit in its component's display unit (the error unit; the tilt unit for
+/// rotations), whatever the fit weighed its row by: a stated noise weighs every row by
+/// `scale/σ` of its kind, the unit weighting a tilt unit as an error unit. Locating failures,
+/// the spectra and the noise tests work on the physical residual, each kind against its own σ.
+fn display(m: &Machine, weights: &Weights, component: u8, residual: f64) -> f64 {
+    let w = weights.of(component);
+    let unit = Weights::unit(m).of(component);
+    if w > 0.0 && w.is_finite() {
+        residual / w * unit / m.units.error.scale
+    } else {
+        residual / m.units.error.scale
+    }
 }
 
 /// The stated σ of a component's rows, in its display unit (error unit; tilt unit for
@@ -138,7 +154,7 @@ fn outliers(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Outlier> {
                 .unwrap_or_default(),
             line: r.meta.line as usize,
             component: component_name(r.meta.component).to_string(),
-            residual: r.residual / m.units.error.scale,
+            residual: display(m, &base.layout.weights, r.meta.component, r.residual),
             studentized: r.studentized,
         })
         .collect()
@@ -242,7 +258,7 @@ pub fn lack_of_fit(
 
 fn available(m: &Machine, files: &[DataSet]) -> Available {
     let all = |f: &dyn Fn(&DataSet) -> bool| !files.is_empty() && files.iter().all(f);
-    Available {
+    let mut available = Available {
         directions: (0..m.axes.len())
             .map(|a| {
                 all(&|d: &DataSet| match &d.observations {
@@ -280,7 +296,69 @@ fn available(m: &Machine, files: &[DataSet]) -> Available {
                 }))
             })
             .collect(),
+        reversals: Vec::new(),
+    };
+    available.reversals = reversals(m, files, &available.sampled);
+    available
+}
+
+/// Per pair of axes (a, b): the parts of b's sampled range ([`library::REVERSAL_BINS`]) in which
+/// the data hold both directions of motion of a. Point files and both ends of a length.
+fn reversals(m: &Machine, files: &[DataSet], sampled: &[Option<Sampling>]) -> Vec<Vec<usize>> {
+    let n = m.axes.len();
+    let parts = library::REVERSAL_BINS;
+    // seen[a][b][part]: bit 0 a moving +, bit 1 a moving −.
+    let mut seen = vec![vec![vec![0u8; parts]; n]; n];
+    let mut visit = |pose: &crate::data::Pose, rows: usize| {
+        for a in 0..n {
+            let Some(Some(dir)) = pose.dir.get(a) else {
+                continue;
+            };
+            for (b, s) in sampled.iter().enumerate() {
+                let (Some(s), Some(q)) = (s, pose.axes.get(b)) else {
+                    continue;
+                };
+                if b == a || !(s.span() > 0.0) {
+                    continue;
+                }
+                for r in 0..rows {
+                    let (Some(&d), Some(&x)) = (dir.get(r), q.get(r)) else {
+                        continue;
+                    };
+                    if !x.is_finite() {
+                        continue;
+                    }
+                    let bit = if d > 0.0 {
+                        1
+                    } else if d < 0.0 {
+                        2
+                    } else {
+                        continue;
+                    };
+                    let part = (((x - s.lo) / s.span() * parts as f64).floor().max(0.0) as usize)
+                        .min(parts - 1);
+                    seen[a][b][part] |= bit;
+                }
+            }
+        }
+    };
+    for f in files {
+        match &f.observations {
+            Observations::Points(p) => visit(&p.pose, p.rows.line.len()),
+            Observations::Lengths(l) => {
+                for pose in &l.poses {
+                    visit(pose, l.rows.line.len());
+                }
+            }
+        }
     }
+    seen.iter()
+        .map(|row| {
+            row.iter()
+                .map(|cells| cells.iter().filter(|&&c| c == 3).count())
+                .collect()
+        })
+        .collect()
 }
 
 /// One residual with the state variables it was observed at (display units).
@@ -323,7 +401,6 @@ fn variables(m: &Machine) -> Vec<(String, String)> {
 }
 
 fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
-    let s = m.units.error.scale;
     let index: Vec<HashMap<usize, usize>> = files
         .iter()
         .map(|f| {
@@ -410,7 +487,7 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
                 file: r.meta.file,
                 component: r.meta.component,
                 outlier: r.studentized.abs() > base.outlier_threshold,
-                residual: r.residual / s,
+                residual: display(m, &base.layout.weights, r.meta.component, r.residual),
                 leverage: r.leverage,
                 values,
                 dirs,
@@ -431,8 +508,7 @@ fn periodogram(
     let w = std::f64::consts::TAU / lambda;
     // One sincos per point: the double angle gives τ's sums, the angle difference
     // the projections (four trigonometric calls per point otherwise).
-    trig.clear();
-    trig.extend(pts.iter().map(|(x, _)| libm::sincos(w * x)));
+    sincos_all(w, pts, trig);
     let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| {
         (s + 2.0 * sn * cs, c + cs * cs - sn * sn)
     });
@@ -451,6 +527,23 @@ fn periodogram(
     } else {
         0.0
     }
+}
+
+/// `(sin, cos)` of `w x` for every point's `x`, into `trig`: four at a time (`wide`'s
+/// vectorised sin/cos, a three-part Cody–Waite reduction and minimax polynomials, within a few
+/// ulp of libm for the arguments a spectrum has, |w x| below 2π × 10⁵). This is the spectra's
+/// inner loop: 600 wavelengths × every residual × every component and prismatic axis.
+fn sincos_all(w: f64, pts: &[(f64, f64)], trig: &mut Vec<(f64, f64)>) {
+    trig.clear();
+    trig.reserve(pts.len());
+    let mut chunks = pts.chunks_exact(4);
+    for c in &mut chunks {
+        let a = wide::f64x4::new([w * c[0].0, w * c[1].0, w * c[2].0, w * c[3].0]);
+        let (sn, cs) = a.sin_cos();
+        let (sn, cs) = (sn.to_array(), cs.to_array());
+        trig.extend(sn.into_iter().zip(cs));
+    }
+    trig.extend(chunks.remainder().iter().map(|(x, _)| libm::sincos(w * x)));
 }
 
 /// Lomb–Scargle periodogram (Scargle 1982) of the residuals along each prismatic axis, per
@@ -510,14 +603,21 @@ fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<S
             {
                 let (mut a, mut b) = (wavelengths[k + 1], wavelengths[k - 1]);
                 let g = (5f64.sqrt() - 1.0) / 2.0;
+                // Each step keeps one inner point and its power: one new evaluation per step.
+                let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
+                let mut pc = periodogram(&pts, mean, var, c, &mut trig);
+                let mut pd = periodogram(&pts, mean, var, d, &mut trig);
                 for _ in 0..40 {
-                    let (c, d) = (b - g * (b - a), a + g * (b - a));
-                    if periodogram(&pts, mean, var, c, &mut trig)
-                        >= periodogram(&pts, mean, var, d, &mut trig)
-                    {
+                    if pc >= pd {
                         b = d;
+                        (d, pd) = (c, pc);
+                        c = b - g * (b - a);
+                        pc = periodogram(&pts, mean, var, c, &mut trig);
                     } else {
                         a = c;
+                        (c, pc) = (d, pd);
+                        d = a + g * (b - a);
+                        pd = periodogram(&pts, mean, var, d, &mut trig);
                     }
                 }
                 let best = 0.5 * (a + b);
@@ -709,7 +809,11 @@ fn test_candidates(
     };
     let mut engine = crate::engine::make(&sup.machine, settings.engine)?;
     engine.set_nonlinear(&values)?;
-    let layout = Layout::new(&sup.machine, files);
+    // Weighted as the base fit is (by the stated noise, kind by kind): every test below is then
+    // on rows of unit variance, and a µrad row counts as much as its σ says, not as a µm.
+    // (The base fit's weights, so that the tests and the base fit agree on them.)
+    let mut layout = Layout::new(&sup.machine, files);
+    layout.weights = base.layout.weights;
     let states = fit::states_with(&sup.machine, files, &values)?;
     let mut acc = StreamingQr::new(layout.columns(), options.block);
     fit::for_each_row(engine.as_mut(), files, &states, &layout, |_, x, y| {
@@ -1581,6 +1685,27 @@ machine cmm3 {
         }
         let p = plausibility(&qr.finish(), &[0], &[1], m, size, m.coefficients.len());
         assert!(p.warnings.is_empty(), "{p:?}");
+    }
+
+    /// The four-lane sin/cos against libm's, over the arguments of a spectrum (positions of a
+    /// metre in mm at wavelengths down to a tenth of a mm) and beyond.
+    #[test]
+    fn vectorised_sincos_matches_libm() {
+        let pts: Vec<(f64, f64)> = (0..1003)
+            .map(|i| (-200.0 + 1.234567 * i as f64, 0.0))
+            .collect();
+        let mut trig = Vec::new();
+        for w in [1e-3, 0.7, std::f64::consts::TAU / 0.1, 400.0] {
+            sincos_all(w, &pts, &mut trig);
+            assert_eq!(trig.len(), pts.len());
+            for ((x, _), (sn, cs)) in pts.iter().zip(&trig) {
+                let (s0, c0) = libm::sincos(w * x);
+                assert!(
+                    (sn - s0).abs() < 1e-14 && (cs - c0).abs() < 1e-14,
+                    "w {w} x {x}: {sn} {cs} against {s0} {c0}"
+                );
+            }
+        }
     }
 
     #[test]

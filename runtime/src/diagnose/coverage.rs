@@ -123,6 +123,20 @@ pub(super) const ROWS: &[Row] = &[
         form: "[backlash(A) +] linear(A) * backlash(A) | spline(A, knots N) * backlash(A)",
     },
     Row {
+        key: "backlash-across",
+        element: Element::Prismatic,
+        components: Components::Along,
+        family: Family::Backlash,
+        form: "[backlash(A) +] linear(B) * backlash(A) | spline(B, knots N) * backlash(A)",
+    },
+    Row {
+        key: "hysteresis-across",
+        element: Element::Prismatic,
+        components: Components::Rotations,
+        family: Family::Backlash,
+        form: "[backlash(A) +] linear(B) * backlash(A) | spline(B, knots N) * backlash(A)",
+    },
+    Row {
         key: "coupling-axis",
         element: Element::Prismatic,
         components: Components::All,
@@ -193,6 +207,13 @@ pub(super) const ROWS: &[Row] = &[
         form: "[backlash(A) +] linear(A) * backlash(A) | spline(A, knots N) * backlash(A)",
     },
     Row {
+        key: "rotary-backlash-across",
+        element: Element::Revolute,
+        components: Components::About,
+        family: Family::Backlash,
+        form: "[backlash(A) +] linear(B) * backlash(A) | spline(B, knots N) * backlash(A)",
+    },
+    Row {
         key: "rotary-coupling-axis",
         element: Element::Revolute,
         components: Components::All,
@@ -257,6 +278,15 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
     };
     let text = &p.test_text;
     let width = text.contains(" * backlash(");
+    // A width along another axis: a `linear(B)` or `spline(B, …)` factor of the step.
+    let across = width
+        && axis.is_some_and(|(_, a)| {
+            m.axes.iter().any(|b| {
+                b.name != a.name
+                    && (text.contains(&format!("linear({}) * backlash(", b.name))
+                        || text.contains(&format!("spline({}, ", b.name)))
+            })
+        });
     let first = text.contains("harmonics 1)") || text.contains("harmonics 1..");
     let input = axis.is_some_and(|(_, a)| {
         m.inputs
@@ -272,7 +302,8 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
             && fits(r.components)
             && match r.key {
                 "backlash" | "hysteresis" | "rotary-backlash" => !width,
-                "backlash-width" | "hysteresis-width" | "rotary-backlash-width" => width,
+                "backlash-width" | "hysteresis-width" | "rotary-backlash-width" => width && !across,
+                "backlash-across" | "hysteresis-across" | "rotary-backlash-across" => across,
                 "harmonics" => !first,
                 "once-per-rev" | "once-per-rev-angular" => first,
                 "coupling-axis" | "rotary-coupling-axis" => !input,
@@ -349,6 +380,8 @@ machine cover {{
             inputs: vec![true; m.inputs.len()],
             time: true,
             sampled,
+            // Every axis reverses in every part of every other's range.
+            reversals: vec![vec![super::super::library::REVERSAL_BINS; m.axes.len()]; m.axes.len()],
         }
     }
 
@@ -414,6 +447,40 @@ machine cover {{
             straight.map(|p| p.candidate.text.as_str()),
             Some("X.tz += straightness(X, knots 5)")
         );
+    }
+
+    /// A reversal width along another axis needs reversals at several of its positions: none
+    /// without them, the linear form from three, the spline from a position per function and
+    /// one more.
+    #[test]
+    fn a_reversal_across_axes_needs_reversals_along_the_other_axis() {
+        let m = machine("");
+        let across = |at: usize| -> Vec<String> {
+            let mut a = available(&m);
+            a.reversals = vec![vec![at; m.axes.len()]; m.axes.len()];
+            propose(&m, &a, &[], &[])
+                .into_iter()
+                .filter(|p| p.candidate.target == "X.tx")
+                .map(|p| p.candidate.text)
+                .filter(|t| t.contains("(Y) * backlash(X)") || t.contains("spline(Y, knots"))
+                .collect()
+        };
+        assert!(across(0).is_empty() && across(2).is_empty());
+        assert_eq!(
+            across(3),
+            vec!["X.tx += backlash(X) + linear(Y) * backlash(X)"]
+        );
+        let all = across(8);
+        assert_eq!(all.len(), 2, "{all:?}");
+        assert!(all.contains(&"X.tx += backlash(X) + spline(Y, knots 2) * backlash(X)".to_string()));
+        // Never along a continuous rotary axis (its angle wraps).
+        let mut a = available(&m);
+        a.reversals = vec![vec![8; m.axes.len()]; m.axes.len()];
+        assert!(propose(&m, &a, &[], &[]).iter().all(|p| !p
+            .candidate
+            .text
+            .contains("(C) * backlash(")
+            && !p.candidate.text.contains("spline(C, ")));
     }
 
     #[test]

@@ -18,7 +18,15 @@ pub struct Available {
     pub time: bool,
     /// How the data sample each axis (`None`: no position of it in the data).
     pub sampled: Vec<Option<Sampling>>,
+    /// `reversals[a][b]`: at how many positions of axis `b` the data hold both directions of
+    /// motion of axis `a` (its range cut in [`REVERSAL_BINS`] equal parts, or its distinct
+    /// positions when fewer): what a reversal error of `a` that changes along `b` can be seen
+    /// at. Empty when not computed.
+    pub reversals: Vec<Vec<usize>>,
 }
+
+/// The parts an axis' range is cut into to count where another axis reverses.
+pub const REVERSAL_BINS: usize = 8;
 
 /// The positions of one axis the data visit (SI): what a candidate along it can resolve.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -216,6 +216,8 @@ pub struct Spectrum {
 pub struct Diagnosis {
     pub machine: String,
     pub model_hash: String,
+    /// σ̂ and the residual RMS of the fit diagnosed, error unit; with `weighted`, ratios to
+    /// the stated noise (every row divided by its kind's σ), as are the findings' `rms_after`.
     pub sigma: f64,
     pub rms: f64,
     pub error_unit: String,
@@ -230,6 +232,10 @@ pub struct Diagnosis {
     pub noise: NoiseCheck,
     #[serde(default)]
     pub outliers: Vec<Outlier>,
+    /// Whether every fit of the diagnosis (the base fit, the candidate tests, the refits) was
+    /// weighted by the stated noise (`--noise`, `--noise-tilt`).
+    #[serde(default)]
+    pub weighted: bool,
 }
 
 mod analyse;

@@ -63,11 +63,6 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
             }
         }
         if available.directions.get(a).copied().unwrap_or(false) {
-            // A continuous axis wraps: a reversal width linear in its angle would jump by the
-            // slope × 2π where the angle wraps.
-            if axis.kind == JointKind::Revolute && axis.continuous {
-                continue;
-            }
             let comps: Vec<Component> = if axis.kind == JointKind::Revolute {
                 vec![rotation_about(axis.direction)]
             } else {
@@ -78,10 +73,117 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                     Component::Rz,
                 ]
             };
-            for comp in comps {
-                reversal_width(m, frame, &name, &axis.name, a, comp, knots, out);
+            for &comp in &comps {
+                // A continuous axis wraps: a reversal width linear in its angle would jump by
+                // the slope × 2π where the angle wraps.
+                if !(axis.kind == JointKind::Revolute && axis.continuous) {
+                    reversal_width(m, frame, &name, &axis.name, a, comp, knots, out);
+                }
+                for (b, other) in m.axes.iter().enumerate() {
+                    let at = available
+                        .reversals
+                        .get(a)
+                        .and_then(|r| r.get(b))
+                        .copied()
+                        .unwrap_or(0);
+                    // The same wrap for the other axis' angle.
+                    let periodic = other.kind == JointKind::Revolute && other.continuous;
+                    if b == a || periodic || at < ACROSS_LINEAR {
+                        continue;
+                    }
+                    let across = Across {
+                        a,
+                        b,
+                        axis: &axis.name,
+                        other: &other.name,
+                        knots: sibling_knots(m, frame, Var::Axis(b)),
+                        positions: at,
+                    };
+                    reversal_across(m, frame, &name, comp, &across, out);
+                }
             }
         }
+    }
+}
+
+/// Positions of the other axis with reversals of the axis, at least, for a reversal width
+/// linear along the other axis: two fix a line, a third tests it.
+pub(super) const ACROSS_LINEAR: usize = 3;
+
+/// A reversal of axis `a` seen as an error that depends on the position of axis `b`.
+struct Across<'a> {
+    a: usize,
+    b: usize,
+    axis: &'a str,
+    other: &'a str,
+    /// Knots of a spline along `b` on this frame (its siblings', at least 2).
+    knots: usize,
+    /// Positions of `b` with reversals of `a` in the data.
+    positions: usize,
+}
+
+/// A reversal error of one axis whose width changes with the position of another (Soons 1993,
+/// §3.2.5 with §3.3.2): the clearance of a carriage's guideway or the windup of its drive
+/// changes as another carriage moves its weight or its moment arm, so the step at a reversal of
+/// A grows along B (`linear(B) * backlash(A)`, `spline(B, knots N) * backlash(A)`). Nested
+/// with A's constant step exactly as [`reversal_width`] is, and in the same group: one
+/// reversal finding per component, in whichever form pays for its columns. Proposed only when
+/// the data reverse A at several positions of B (a spline needs a position per function and
+/// one more).
+fn reversal_across(
+    m: &Machine,
+    frame: FrameRef,
+    name: &str,
+    comp: Component,
+    x: &Across,
+    out: &mut Vec<Proposal>,
+) {
+    let (dir, along_b) = (Var::Direction(x.a), Var::Axis(x.b));
+    let target = format!("{name}.{}", comp.name());
+    let step_only = |t: &kin_compiler::ir::Term| t.factors.len() == 1 && uses(t, dir);
+    if has(m, frame, comp, |t| uses(t, dir) && uses(t, along_b)) {
+        return;
+    }
+    let constant = has(m, frame, comp, step_only);
+    if !constant && has(m, frame, comp, |t| uses(t, dir)) {
+        return;
+    }
+    let step = Term::new(format!("backlash({})", x.axis));
+    let kind = if comp.is_rotation() {
+        "angular hysteresis"
+    } else {
+        "backlash"
+    };
+    let group = if constant {
+        format!("reversal width {target}")
+    } else {
+        line(&target, &[&step], true)
+    };
+    let mut forms = vec![format!("linear({}) * backlash({})", x.other, x.axis)];
+    // spline(B, knots N) has N + 2 functions.
+    if x.positions > x.knots + 2 {
+        forms.push(format!(
+            "spline({}, knots {}) * backlash({})",
+            x.other, x.knots, x.axis
+        ));
+    }
+    for width in forms {
+        let mut terms = Vec::new();
+        if !constant {
+            terms.push(step.clone());
+        }
+        terms.push(Term::new(width));
+        push(
+            out,
+            Family::Backlash,
+            target.clone(),
+            terms,
+            format!(
+                "{target} steps with the direction of motion of {} by an amount that changes with the position of {}: {kind} whose width depends on where {} is (its weight or moment on {}'s guideways or drive)",
+                x.axis, x.other, x.other, x.axis
+            ),
+            Some(group.clone()),
+        );
     }
 }
 

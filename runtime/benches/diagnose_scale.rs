@@ -1,0 +1,168 @@
+//! The diagnosis issue's scale benchmark: `kin diagnose` at 10 000 poses. Two models, each
+//! simulated (exact transforms, Gaussian noise) from the bundled example with random
+//! coefficients and one effect hidden, fitted without it, then diagnosed:
+//!
+//! - `examples/milling_5axis.kin` without `X.tx += backlash(X)` (173 coefficients, a fitted
+//!   lag, a continuous C table; ≈ 140 candidates);
+//! - `examples/bridge_cmm.kin` without `Y.ty += backlash(Y)`.
+//!
+//! Reports per phase the wall time and the CPU time of the (single) working thread: everything
+//! runs on the main thread, so CPU time is the figure that does not depend on what else the
+//! machine runs. The diagnosis is timed as `diagnose::diagnose` (what `kin diagnose` does after
+//! its fit), and its phases as the spectra, the candidate tests and the refits.
+//!
+//! ```text
+//! cargo bench -p kin-runtime --bench diagnose_scale             # 10 000 poses
+//! cargo bench -p kin-runtime --bench diagnose_scale -- 3000     # fewer poses
+//! KIN_BENCH_REPEAT=3                                            # best of N diagnoses
+//! ```
+
+use std::time::{Duration, Instant};
+
+use kin_compiler::{compile, Compiled};
+use kin_runtime::data::Observations;
+use kin_runtime::diagnose::{self, Settings};
+use kin_runtime::fit::{self, DataSet, Options};
+use kin_runtime::simulate::{self, sample_points};
+use rand::{Rng, SeedableRng};
+
+/// CPU time of the calling thread (ns from the scheduler; zero where it cannot be read).
+fn cpu_now() -> Duration {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .map(Duration::from_nanos)
+        .unwrap_or_default()
+}
+
+fn timed<T>(what: &str, f: impl FnOnce() -> T) -> (T, Duration) {
+    let (w, c) = (Instant::now(), cpu_now());
+    let out = f();
+    let (wall, cpu) = (w.elapsed(), cpu_now().saturating_sub(c));
+    println!(
+        "  {what:<28} wall {:>8.3} s   cpu {:>8.3} s",
+        wall.as_secs_f64(),
+        cpu.as_secs_f64()
+    );
+    (out, cpu)
+}
+
+fn compiled(src: &str) -> Compiled {
+    let out = compile(src);
+    match out.compiled {
+        Some(c) => c,
+        None => panic!("{src}\n{:#?}", out.diagnostics),
+    }
+}
+
+/// One case: the example's text, the line hidden from the start model and its value (display
+/// units), the noise.
+fn case(name: &str, path: &str, hidden: &str, value: f64, noise: f64, n: usize, repeat: usize) {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
+    let truth_src = std::fs::read_to_string(format!("{root}/{path}")).expect("example");
+    let line = truth_src
+        .lines()
+        .find(|l| l.trim_start().starts_with(hidden))
+        .expect("hidden line");
+    let at = truth_src.find(line).expect("line");
+    let range = at..at + line.len();
+    let start_src = truth_src.replacen(&format!("{line}\n"), "", 1);
+    let truth = compiled(&truth_src);
+    let start = compiled(&start_src);
+    println!(
+        "{name}: {n} poses, {} coefficients in the fitted model",
+        start.machine.coefficients.len()
+    );
+    let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+    let beta: Vec<f64> = truth
+        .machine
+        .coefficients
+        .iter()
+        .enumerate()
+        .map(|(j, c)| {
+            let span = &truth.map.coefficients[j];
+            let v = if span.start >= range.start && span.end <= range.end {
+                value
+            } else {
+                rng.random_range(-1.0..1.0)
+            };
+            v * c.unit.scale
+        })
+        .collect();
+    let obs = simulate::simulate(
+        &truth.machine,
+        &beta,
+        &Observations::Points(sample_points(&truth.machine, n, 5)),
+        &simulate::Options {
+            noise,
+            seed: 6,
+            ..simulate::Options::default()
+        },
+    )
+    .expect("simulate");
+    let files = [DataSet {
+        path: format!("{name}.csv").into(),
+        observations: obs,
+    }];
+    // As `kin diagnose` fits: a model the data do not fully determine (the mill's position
+    // data do not see every rotation) is fitted by minimum norm, not refused.
+    let options = Options {
+        min_norm: true,
+        ..Options::default()
+    };
+    let engine = kin_runtime::engine::Engine::default();
+    let (base, _) = timed("fit", || {
+        let mut e = kin_runtime::engine::make(&start.machine, engine).expect("engine");
+        fit::fit(&start, e.as_mut(), &files, &[], &options, &mut |_, _| {}).expect("fit")
+    });
+    let settings = Settings {
+        noise: Some(noise),
+        ..Settings::default()
+    };
+    let mut best = Duration::MAX;
+    for _ in 0..repeat.max(1) {
+        let (d, cpu) = timed("diagnose", || {
+            diagnose::diagnose(&start, &start_src, &files, &base, &options, &settings)
+                .expect("diagnose")
+        });
+        best = best.min(cpu);
+        if let Some(top) = d.findings.first() {
+            println!(
+                "  {} candidates; top: {} (significant {})",
+                d.findings.len(),
+                top.candidate.text,
+                top.significant
+            );
+        }
+    }
+    println!("  best diagnose cpu {:.3} s\n", best.as_secs_f64());
+}
+
+fn main() {
+    let n: usize = std::env::args()
+        .skip(1)
+        .find_map(|a| a.parse().ok())
+        .unwrap_or(10_000);
+    let repeat: usize = std::env::var("KIN_BENCH_REPEAT")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
+    case(
+        "milling_5axis",
+        "examples/milling_5axis.kin",
+        "X.tx += backlash(X)",
+        1.5,
+        0.3e-6,
+        n,
+        repeat,
+    );
+    case(
+        "bridge_cmm",
+        "examples/bridge_cmm.kin",
+        "Y.ty += backlash(Y)",
+        1.5,
+        0.2e-6,
+        n,
+        repeat,
+    );
+}

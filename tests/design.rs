@@ -334,7 +334,7 @@ fn a_min_norm_fit_marks_undetermined_coefficients_and_diagnose_accepts_the_model
     ]);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(out.contains("Y.ty             [um] undetermined"), "{out}");
+    assert!(out.contains("Y.ty EYY         [um] undetermined"), "{out}");
     assert!(
         out.contains("Y.rz             [urad] undetermined"),
         "{out}"

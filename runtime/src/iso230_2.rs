@@ -142,21 +142,73 @@ pub struct Evaluation {
 
 /// Reads a run file from disk.
 pub fn read_file(path: &Path) -> Result<Run, Iso2302Error> {
-    use crate::bounded_read::{read_unless_regular, BoundedReadError, MAX_STREAM_BYTES};
-    let bytes = read_unless_regular(path, MAX_STREAM_BYTES).map_err(|e| match e {
-        BoundedReadError::Io(source) => Iso2302Error::Io {
-            path: path.to_path_buf(),
-            source,
-        },
-        BoundedReadError::TooLarge { limit } => Iso2302Error::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::other(format!(
-                "not a regular file and longer than {} MiB",
-                limit >> 20
-            )),
-        },
+    let bytes = read_bytes(path).map_err(|source| Iso2302Error::Io {
+        path: path.to_path_buf(),
+        source,
     })?;
     read(&bytes, path)
+}
+
+/// A standard test's file from disk (ISO 230-2 and 230-4 alike): whole when it is a regular
+/// file, at most `MAX_STREAM_BYTES` otherwise (a pipe or device could be endless).
+pub(crate) fn read_bytes(path: &Path) -> Result<Vec<u8>, std::io::Error> {
+    use crate::bounded_read::{read_unless_regular, BoundedReadError, MAX_STREAM_BYTES};
+    read_unless_regular(path, MAX_STREAM_BYTES).map_err(|e| match e {
+        BoundedReadError::Io(source) => source,
+        BoundedReadError::TooLarge { limit } => std::io::Error::other(format!(
+            "not a regular file and longer than {} MiB",
+            limit >> 20
+        )),
+    })
+}
+
+/// A test file's text without its byte-order mark, or the line of the first byte that is not
+/// UTF-8.
+pub(crate) fn text(bytes: &[u8]) -> Result<&str, RunProblem> {
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        let valid = bytes.get(..e.valid_up_to()).unwrap_or_default();
+        RunProblem::Line {
+            line: 1 + valid.iter().filter(|&&b| b == b'\n').count(),
+            what: "not valid UTF-8".into(),
+        }
+    })?;
+    Ok(text.strip_prefix('\u{feff}').unwrap_or(text))
+}
+
+/// Splits line `n` of a test file into `cells` (text in `buf`); a quoting problem is reported
+/// at its line and column.
+pub(crate) fn split_line(
+    line: &str,
+    n: usize,
+    dialect: Dialect,
+    buf: &mut String,
+    cells: &mut Vec<Cell>,
+) -> Result<(), RunProblem> {
+    csv::split(line, dialect.delimiter, buf, cells).map_err(|e| {
+        let (at, what) = match e {
+            csv::SplitError::Unclosed(at) => (at, "a quote not closed on its line".into()),
+            csv::SplitError::AfterQuote(at) => (
+                at + 1,
+                format!("text after a closing quote; expected {}", dialect.name()),
+            ),
+        };
+        RunProblem::At {
+            line: n,
+            column: column_of(line, at),
+            what,
+        }
+    })
+}
+
+/// A header cell: `NAME` or `NAME[UNIT]`.
+pub(crate) fn header_cell(cell: &str) -> Result<(&str, Option<&str>), String> {
+    match cell.split_once('[') {
+        Some((n, rest)) => match rest.strip_suffix(']') {
+            Some(u) => Ok((n.trim(), Some(u.trim()))),
+            None => Err(format!("`{cell}`: expected NAME or NAME[UNIT]")),
+        },
+        None => Ok((cell, None)),
+    }
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -204,15 +256,7 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<Run, Iso2302Error> {
         path: path.to_path_buf(),
         problems,
     };
-    let text = std::str::from_utf8(bytes).map_err(|e| {
-        let valid = bytes.get(..e.valid_up_to()).unwrap_or_default();
-        let line = 1 + valid.iter().filter(|&&b| b == b'\n').count();
-        invalid(vec![RunProblem::Line {
-            line,
-            what: "not valid UTF-8".into(),
-        }])
-    })?;
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let text = text(bytes).map_err(|p| invalid(vec![p]))?;
     let mut lines = text
         .split('\n')
         .enumerate()
@@ -228,57 +272,30 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<Run, Iso2302Error> {
     let mut problems = Vec::new();
     let mut buf = String::new();
     let mut cells: Vec<Cell> = Vec::new();
-    let split = |line: &str, buf: &mut String, cells: &mut Vec<Cell>| {
-        csv::split(line, dialect.delimiter, buf, cells).map_err(|e| {
-            let (at, what) = match e {
-                csv::SplitError::Unclosed(at) => (at, "a quote not closed on its line".into()),
-                csv::SplitError::AfterQuote(at) => (
-                    at + 1,
-                    format!("text after a closing quote; expected {}", dialect.name()),
-                ),
-            };
-            RunProblem::At {
-                line: 0,
-                column: column_of(line, at),
-                what,
-            }
-        })
-    };
-    let at_line = |p: RunProblem, n: usize| match p {
-        RunProblem::At { column, what, .. } => RunProblem::At {
-            line: n,
-            column,
-            what,
-        },
-        other => other,
-    };
     // Header: which column is which, and the units.
     let mut roles: Vec<Option<Role>> = Vec::new();
     let mut target_unit = Unit::atom("mm");
     let mut deviation_unit = Unit::atom("um");
-    if let Err(p) = split(header, &mut buf, &mut cells) {
-        push(&mut problems, at_line(p, header_line));
+    if let Err(p) = split_line(header, header_line, dialect, &mut buf, &mut cells) {
+        push(&mut problems, p);
     }
     for c in &cells {
         let column = column_of(header, c.origin);
         let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-        let (name, unit) = match cell.split_once('[') {
-            Some((n, rest)) => match rest.strip_suffix(']') {
-                Some(u) => (n.trim(), Some(u.trim())),
-                None => {
-                    push(
-                        &mut problems,
-                        RunProblem::At {
-                            line: header_line,
-                            column,
-                            what: format!("`{cell}`: expected NAME or NAME[UNIT]"),
-                        },
-                    );
-                    roles.push(None);
-                    continue;
-                }
-            },
-            None => (cell, None),
+        let (name, unit) = match header_cell(cell) {
+            Ok(nu) => nu,
+            Err(what) => {
+                push(
+                    &mut problems,
+                    RunProblem::At {
+                        line: header_line,
+                        column,
+                        what,
+                    },
+                );
+                roles.push(None);
+                continue;
+            }
         };
         let Some(&(_, role)) = COLUMNS.iter().find(|(n, _)| *n == name) else {
             push(
@@ -353,8 +370,8 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<Run, Iso2302Error> {
     };
     let mut samples = Vec::new();
     for (n, line) in lines {
-        if let Err(p) = split(line, &mut buf, &mut cells) {
-            push(&mut problems, at_line(p, n));
+        if let Err(p) = split_line(line, n, dialect, &mut buf, &mut cells) {
+            push(&mut problems, p);
             continue;
         }
         if cells.len() != roles.len() {

@@ -16,8 +16,11 @@ use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use thiserror::Error;
 
-use crate::data::csv::{self, Cell, Dialect};
-use crate::iso230_2::{column_of, length_unit, number, push, Listing, RunProblem, MAX_PROBLEMS};
+use crate::data::csv::{Cell, Dialect};
+use crate::iso230_2::{
+    column_of, header_cell, length_unit, number, push, read_bytes, split_line, text, Listing,
+    RunProblem, MAX_PROBLEMS,
+};
 
 #[derive(Debug, Error)]
 pub enum Iso2304Error {
@@ -122,19 +125,9 @@ pub struct Evaluation {
 
 /// Reads a run file from disk.
 pub fn read_file(path: &Path) -> Result<CircularRun, Iso2304Error> {
-    use crate::bounded_read::{read_unless_regular, BoundedReadError, MAX_STREAM_BYTES};
-    let bytes = read_unless_regular(path, MAX_STREAM_BYTES).map_err(|e| match e {
-        BoundedReadError::Io(source) => Iso2304Error::Io {
-            path: path.to_path_buf(),
-            source,
-        },
-        BoundedReadError::TooLarge { limit } => Iso2304Error::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::other(format!(
-                "not a regular file and longer than {} MiB",
-                limit >> 20
-            )),
-        },
+    let bytes = read_bytes(path).map_err(|source| Iso2304Error::Io {
+        path: path.to_path_buf(),
+        source,
     })?;
     read(&bytes, path)
 }
@@ -250,15 +243,7 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<CircularRun, Iso2304Error> {
         path: path.to_path_buf(),
         problems,
     };
-    let text = std::str::from_utf8(bytes).map_err(|e| {
-        let valid = bytes.get(..e.valid_up_to()).unwrap_or_default();
-        let line = 1 + valid.iter().filter(|&&b| b == b'\n').count();
-        invalid(vec![RunProblem::Line {
-            line,
-            what: "not valid UTF-8".into(),
-        }])
-    })?;
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let text = text(bytes).map_err(|p| invalid(vec![p]))?;
     let mut problems = Vec::new();
     let mut setup = Setup::default();
     let mut header = None;
@@ -288,26 +273,10 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<CircularRun, Iso2304Error> {
     let dialect = Dialect::detect(header);
     let mut buf = String::new();
     let mut cells: Vec<Cell> = Vec::new();
-    let split = |line: &str, n: usize, buf: &mut String, cells: &mut Vec<Cell>| {
-        csv::split(line, dialect.delimiter, buf, cells).map_err(|e| {
-            let (at, what) = match e {
-                csv::SplitError::Unclosed(at) => (at, "a quote not closed on its line".into()),
-                csv::SplitError::AfterQuote(at) => (
-                    at + 1,
-                    format!("text after a closing quote; expected {}", dialect.name()),
-                ),
-            };
-            RunProblem::At {
-                line: n,
-                column: column_of(line, at),
-                what,
-            }
-        })
-    };
     let mut roles: Vec<Option<Role>> = Vec::new();
     let mut angle_unit = Unit::atom("deg");
     let mut deviation_unit = Unit::atom("um");
-    if let Err(p) = split(header, header_line, &mut buf, &mut cells) {
+    if let Err(p) = split_line(header, header_line, dialect, &mut buf, &mut cells) {
         push(&mut problems, p);
     }
     for c in &cells {
@@ -318,19 +287,13 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<CircularRun, Iso2304Error> {
             what,
         };
         let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-        let (name, unit) = match cell.split_once('[') {
-            Some((n, rest)) => match rest.strip_suffix(']') {
-                Some(u) => (n.trim(), Some(u.trim())),
-                None => {
-                    push(
-                        &mut problems,
-                        at(format!("`{cell}`: expected NAME or NAME[UNIT]")),
-                    );
-                    roles.push(None);
-                    continue;
-                }
-            },
-            None => (cell, None),
+        let (name, unit) = match header_cell(cell) {
+            Ok(nu) => nu,
+            Err(what) => {
+                push(&mut problems, at(what));
+                roles.push(None);
+                continue;
+            }
         };
         let Some(&(_, role)) = COLUMNS.iter().find(|(n, _)| *n == name) else {
             push(
@@ -387,7 +350,7 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<CircularRun, Iso2304Error> {
     };
     let mut samples = Vec::new();
     for (n, line) in rows {
-        if let Err(p) = split(line, n, &mut buf, &mut cells) {
+        if let Err(p) = split_line(line, n, dialect, &mut buf, &mut cells) {
             push(&mut problems, p);
             continue;
         }

@@ -7,7 +7,7 @@
 //! touches one parametric error, so a Jacobian column is one F-matrix column times one basis
 //! value: no derivative is ever taken numerically.
 
-use kin_compiler::ir::{Component, FrameRef, Machine, Scalar, Term, Var};
+use kin_compiler::ir::{Component, ErrorModel, FrameRef, Machine, Scalar, Term, Var};
 use nalgebra::{Vector3, Vector6};
 use thiserror::Error;
 
@@ -71,7 +71,12 @@ pub struct Interpreter<'m> {
     /// Scratch for one term's tensor-product values and one factor's basis values.
     term: Vec<f64>,
     factor: Vec<f64>,
-    errors: FrameErrors,
+    /// The error models in the order their contributions are summed: by frame, chains from the
+    /// base outward ([`frame_order`]), the declaration order within a frame. The JIT sums in
+    /// this order too, so that the two engines' errors agree to the last bit (a different
+    /// association of the same terms differs by rounding, which cancellation between terms
+    /// and the compensation's joint Jacobian amplify).
+    order: Vec<&'m ErrorModel>,
 }
 
 impl<'m> Interpreter<'m> {
@@ -100,7 +105,7 @@ impl<'m> Interpreter<'m> {
             nonlinear: machine.nonlinear.iter().map(|p| p.value).collect(),
             term: vec![0.0; widest_term],
             factor: vec![0.0; widest_factor],
-            errors: FrameErrors::zeros(machine),
+            order: summation_order(machine),
         })
     }
 
@@ -165,17 +170,7 @@ impl<'m> Interpreter<'m> {
             if !acts(model.frame, state.tool) {
                 continue;
             }
-            let mut value = 0.0;
-            for term in &model.terms {
-                let n = self.term_values(term, state)?;
-                match term.coefficients {
-                    0 => value += self.term.first().copied().unwrap_or(0.0),
-                    _ => {
-                        let b = beta.get(term.first..term.first + n).unwrap_or(&[]);
-                        value += b.iter().zip(&self.term).map(|(b, v)| b * v).sum::<f64>();
-                    }
-                }
-            }
+            let value = self.model_value(model, state, beta, None)?;
             if let Some(slot) = out.get_mut(model.frame) {
                 if let Some(c) = slot.get_mut(model.component.index()) {
                     *c += value;
@@ -197,23 +192,63 @@ impl<'m> Interpreter<'m> {
         Ok(())
     }
 
-    /// The tool-location error (ex, ey, ez, erx, ery, erz) at `state`, with the task's sign.
+    /// The tool-location error (ex, ey, ez, erx, ery, erz) at `state`, with the task's sign:
+    /// `Σ F_k E_k` (eq. 2.24) summed model by model, each model's value times its F-matrix
+    /// column, in [`Interpreter::order`]'s order (that of the JIT).
     pub fn error(&mut self, state: &State, beta: &[f64]) -> Result<[f64; 6], EvalError> {
-        let mut errors = std::mem::replace(
-            &mut self.errors,
-            FrameErrors {
-                tool_chain: Vec::new(),
-                workpiece_chain: Vec::new(),
-                tool_end: [0.0; 6],
-                workpiece_end: [0.0; 6],
-            },
-        );
-        let result = self.frame_errors(state, beta, &mut errors).and_then(|()| {
-            self.first.evaluate(&state.pose(), &mut self.sens)?;
-            Ok(self.sens.first_order_error(&errors)? * self.machine.task.sign())
-        });
-        self.errors = errors;
-        Ok(result?.into())
+        self.check_state(state)?;
+        self.check_beta(beta)?;
+        self.first.evaluate(&state.pose(), &mut self.sens)?;
+        let sign = self.machine.task.sign();
+        let mut total = [0.0; 6];
+        for k in 0..self.order.len() {
+            let Some(&model) = self.order.get(k) else {
+                continue;
+            };
+            if !acts(model.frame, state.tool) {
+                continue;
+            }
+            let value = self.model_value(model, state, beta, None)?;
+            let column = self.sens.column(model.frame, model.component) * sign;
+            for (t, c) in total.iter_mut().zip(column.iter()) {
+                *t += c * value;
+            }
+        }
+        Ok(total)
+    }
+
+    /// The value of one error model: its terms' `Σ v·β` (and fixed terms) as one running sum
+    /// in term and coefficient order, the association the JIT uses. With `jac` (6 × n_β,
+    /// row-major) and the model's F-matrix `column`, also writes the model's Jacobian entries.
+    fn model_value(
+        &mut self,
+        model: &ErrorModel,
+        state: &State,
+        beta: &[f64],
+        mut jac: Option<(&mut [f64], &Vector6<f64>)>,
+    ) -> Result<f64, EvalError> {
+        let n = beta.len();
+        let mut value: Option<f64> = None;
+        let mut add = |x: f64| value = Some(value.map_or(x, |a| a + x));
+        for term in &model.terms {
+            let count = self.term_values(term, state)?;
+            if term.coefficients == 0 {
+                add(self.term.first().copied().unwrap_or(0.0));
+                continue;
+            }
+            for (k, v) in self.term.iter().take(count).enumerate() {
+                let j = term.first + k;
+                if let Some((jac, column)) = jac.as_mut() {
+                    for (r, c) in column.iter().enumerate() {
+                        if let Some(slot) = jac.get_mut(r * n + j) {
+                            *slot = c * v;
+                        }
+                    }
+                }
+                add(v * beta.get(j).copied().unwrap_or(0.0));
+            }
+        }
+        Ok(value.unwrap_or(0.0))
     }
 
     /// The error at `state` and its Jacobian with respect to β: `jac` is 6 × n_β, row-major
@@ -239,30 +274,22 @@ impl<'m> Interpreter<'m> {
         self.first.evaluate(&state.pose(), &mut self.sens)?;
         let sign = self.machine.task.sign();
         jac.fill(0.0);
-        let mut total = Vector6::zeros();
-        for model in &self.machine.errors {
-            let column = self.sens.column(model.frame, model.component) * sign;
-            if column.iter().all(|c| *c == 0.0) && !acts(model.frame, state.tool) {
+        let mut total = [0.0; 6];
+        for k in 0..self.order.len() {
+            let Some(&model) = self.order.get(k) else {
+                continue;
+            };
+            // Another tool's frame: its column is zero, and its variables need not be given.
+            if !acts(model.frame, state.tool) {
                 continue;
             }
-            for term in &model.terms {
-                let count = self.term_values(term, state)?;
-                if term.coefficients == 0 {
-                    total += column * self.term.first().copied().unwrap_or(0.0);
-                    continue;
-                }
-                for (k, v) in self.term.iter().take(count).enumerate() {
-                    let j = term.first + k;
-                    for (r, c) in column.iter().enumerate() {
-                        if let Some(slot) = jac.get_mut(r * n + j) {
-                            *slot = c * v;
-                        }
-                    }
-                    total += column * (v * beta.get(j).copied().unwrap_or(0.0));
-                }
+            let column = self.sens.column(model.frame, model.component) * sign;
+            let value = self.model_value(model, state, beta, Some((&mut *jac, &column)))?;
+            for (t, c) in total.iter_mut().zip(column.iter()) {
+                *t += c * value;
             }
         }
-        *err = total.into();
+        *err = total;
         Ok(())
     }
 
@@ -352,6 +379,25 @@ impl<'m> Interpreter<'m> {
             len *= size;
         }
         Ok(len)
+    }
+}
+
+/// The error models in summation order: sorted (stably) by [`frame_order`].
+fn summation_order(m: &Machine) -> Vec<&ErrorModel> {
+    let mut models: Vec<&ErrorModel> = m.errors.iter().collect();
+    models.sort_by_key(|e| frame_order(e.frame));
+    models
+}
+
+/// Sort key grouping error models by frame, chains from the base outward: the order in which
+/// both engines sum the models' contributions to the error.
+pub(crate) fn frame_order(f: FrameRef) -> (u8, usize) {
+    match f {
+        FrameRef::Tool(k) => (0, k),
+        FrameRef::Workpiece(k) => (1, k),
+        FrameRef::ToolEnd(None) => (2, 0),
+        FrameRef::ToolEnd(Some(i)) => (2, i + 1),
+        FrameRef::WorkpieceEnd => (3, 0),
     }
 }
 

@@ -24,6 +24,7 @@ use kin_compiler::ir::{
 
 use super::graph::{Cmp, Dst, Graph, Id, Src};
 use super::JitError;
+use crate::interp::frame_order;
 
 /// Which function a graph is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -935,17 +936,6 @@ impl Builder<'_> {
                 self.g.store(Dst::Out, 3 + 3 * i + j, kin.rotation[i][j]);
             }
         }
-    }
-}
-
-/// Sort key grouping error models by frame, chains from the base outward.
-fn frame_order(f: FrameRef) -> (u8, usize) {
-    match f {
-        FrameRef::Tool(k) => (0, k),
-        FrameRef::Workpiece(k) => (1, k),
-        FrameRef::ToolEnd(None) => (2, 0),
-        FrameRef::ToolEnd(Some(i)) => (2, i + 1),
-        FrameRef::WorkpieceEnd => (3, 0),
     }
 }
 

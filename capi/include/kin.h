@@ -50,6 +50,7 @@ extern "C" {
 #define KIN_ERR_OVERLAP 11 /* output buffers overlap each other or an input */
 #define KIN_ERR_RANGE 12   /* a commanded joint position is outside its axis's declared range */
 #define KIN_ERR_MACHINE 13 /* no compensator for this machine: it measures, or has too many axes */
+#define KIN_ERR_DIVERGES 14 /* the correction diverges: the model's errors are too large to linearise */
 
 /* Most axes a compensator takes. */
 #define KIN_COMPENSATOR_MAX_AXES 16
@@ -192,7 +193,8 @@ void kin_compensator_free(kin_compensator *comp);
  * (or NULL) how many independent combinations of the weighted components the joints can move.
  * The first-order model's error at the moved pose, applied to the exact nominal kinematics, at
  * most `iterations` Gauss-Newton solves. KIN_ERR_RANGE for a command outside an axis's declared
- * range. Allocates nothing on success, takes no lock: many threads may call it at once. */
+ * range; KIN_ERR_DIVERGES when a Gauss-Newton step does not shrink against the one before (the
+ * model's errors are too large for a linearised correction: apply none). Allocates nothing on success, takes no lock: many threads may call it at once. */
 int kin_compensate(const kin_compensator *comp, const kin_state *state, double *dq, size_t n_dq,
                    double *before, size_t n_before, double *after, size_t n_after, size_t *rank);
 

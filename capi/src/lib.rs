@@ -57,6 +57,10 @@ pub const KIN_ERR_RANGE: c_int = 12;
 /// The model is not one a compensator applies to: a measuring machine (`task measure`) or more
 /// axes than `KIN_COMPENSATOR_MAX_AXES`.
 pub const KIN_ERR_MACHINE: c_int = 13;
+/// The compensation does not converge: a Gauss–Newton step did not shrink against the one
+/// before, or the model's error overflowed at the moved pose. The model's predicted errors are
+/// too large for a correction linearised on the joint Jacobian; apply no correction.
+pub const KIN_ERR_DIVERGES: c_int = 14;
 
 /// Most axes a compensator takes (its scratch is on the stack).
 pub const KIN_COMPENSATOR_MAX_AXES: usize = kin_runtime::compensate::MAX_SERVO_AXES;
@@ -540,6 +544,7 @@ fn compensate_error(e: kin_runtime::compensate::CompensateError) -> Fail {
         E::OutOfRange { .. } => Fail(KIN_ERR_RANGE, e.to_string()),
         E::Eval(e) => eval_error(e),
         E::Kinematics(_) | E::Solve => Fail(KIN_ERR_EVAL, e.to_string()),
+        E::Diverges(_) => Fail(KIN_ERR_DIVERGES, e.to_string()),
     }
 }
 
@@ -568,6 +573,7 @@ fn servo_error(m: &Model, e: kin_runtime::compensate::ServoError) -> Fail {
         }
         E::Eval(e) => eval_error(e),
         E::Solve => Fail(KIN_ERR_EVAL, e.to_string()),
+        E::Diverges(_) => Fail(KIN_ERR_DIVERGES, e.to_string()),
     }
 }
 

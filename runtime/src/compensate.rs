@@ -48,6 +48,8 @@ pub enum CompensateError {
     Kinematics(#[from] KinematicsError),
     #[error("the correction does not converge (the singular value decomposition failed)")]
     Solve,
+    #[error(transparent)]
+    Diverges(#[from] Divergence),
     #[error(
         "the machine has {0} axes; the servo compensation holds its scratch on the stack and takes at most {MAX_SERVO_AXES}"
     )]
@@ -57,6 +59,33 @@ pub enum CompensateError {
 /// The singular value decomposition of the step did not converge (non-finite values).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Unsolvable;
+
+/// The Gauss–Newton iteration of §2.3.5 leaves the region where it converges: the predicted
+/// error is too large (or the model too strongly non-linear in the axes) for a correction
+/// linearised on the joint Jacobian. Near a solution each step moves the tool by a small
+/// fraction of the one before (the fraction is the relative change of the errors over the
+/// step); a step that moves it no less than the previous one, or a pose where the model's
+/// error overflows, means the iteration is not approaching one, and carrying on only takes
+/// the axes further away (a random model with metre-sized errors reached 10^135 m in four
+/// steps).
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
+pub enum Divergence {
+    #[error(
+        "the correction diverges: step {step} moves the tool by {moved:.3e} (weighted, SI), no less than step {previous_step} did ({previous:.3e}); the model's errors are too large for a correction linearised on the joint Jacobian"
+    )]
+    Grows {
+        /// The step (from 1) that did not shrink, and the one before it.
+        step: usize,
+        previous_step: usize,
+        /// `‖W J δ‖` of the two steps.
+        moved: f64,
+        previous: f64,
+    },
+    #[error(
+        "the correction diverges: after step {step} the model's error is not finite (the axes moved to where it overflows); the model's errors are too large for a correction linearised on the joint Jacobian"
+    )]
+    Overflows { step: usize },
+}
 
 impl From<Unsolvable> for CompensateError {
     fn from(_: Unsolvable) -> Self {
@@ -75,7 +104,15 @@ pub struct Options {
     /// Relative size below which a singular value of the column-scaled, weighted Jacobian is a
     /// direction the machine cannot correct.
     pub rank_tolerance: f64,
+    /// A step whose effect on the weighted error (`‖W J δ‖`, SI) is below this ends the
+    /// iteration: [`PICOMETRE`] by default. 0 runs all `iterations` solves at every call, the
+    /// slowest path, which `kin bench` times apart.
+    pub converged: f64,
 }
+
+/// The default [`Options::converged`]: a step that changes the weighted error by less than a
+/// picometre no longer matters. Below it, steps are rounding noise and never a [`Divergence`].
+pub const PICOMETRE: f64 = 1e-12;
 
 impl Options {
     /// Every component, a rotation weighed as in the fit (one tilt unit as one error unit):
@@ -87,6 +124,7 @@ impl Options {
             weights: [1.0, 1.0, 1.0, l, l, l],
             iterations: 4,
             rank_tolerance: 1e-9,
+            converged: PICOMETRE,
         }
     }
 
@@ -281,7 +319,7 @@ pub fn check_range(m: &Machine, q: &[f64]) -> Result<(), CompensateError> {
 /// batch compensation answers with the exact transforms ([`Compensator`]), the servo
 /// compensation with the first-order model of an engine ([`servo`]).
 pub(crate) trait Plant {
-    type Error: From<Unsolvable>;
+    type Error: From<Unsolvable> + From<Divergence>;
     /// The error (actual − commanded location, SI, wr axes) when the axes are moved by `dq`.
     /// The first call of an iteration is at `dq = 0`.
     fn residual(&mut self, dq: &[f64]) -> Result<Vector6<f64>, Self::Error>;
@@ -304,6 +342,11 @@ pub(crate) struct Outcome {
 /// the moved pose, at most `options.iterations` solves. `free` marks the axes that may move
 /// (all when `None`). `dq` receives the correction; `jacobian` and `step` are scratch of the
 /// machine's axis count. Allocates nothing.
+///
+/// A step whose effect on the weighted error is below `options.converged` (a picometre) ends
+/// the iteration (the error changes by less than that over the step); a step of at least a
+/// picometre that does not shrink against the one before, or a non-finite error at the moved
+/// pose, is a [`Divergence`].
 pub(crate) fn iterate<P: Plant>(
     plant: &mut P,
     options: &Options,
@@ -318,6 +361,7 @@ pub(crate) fn iterate<P: Plant>(
     let before = residual;
     let mut rank = 0;
     let mut iterations = 0;
+    let mut previous = f64::INFINITY;
     for k in 0..options.iterations {
         plant.jacobian(jacobian)?;
         if let Some(free) = free {
@@ -332,7 +376,7 @@ pub(crate) fn iterate<P: Plant>(
         for (d, x) in dq.iter_mut().zip(step.iter()) {
             *d += x;
         }
-        // The step's effect on the weighted error: below a picometre it no longer matters.
+        // The step's effect on the weighted error: below `converged` it no longer matters.
         let effect: f64 = jacobian
             .iter()
             .zip(step.iter())
@@ -340,9 +384,22 @@ pub(crate) fn iterate<P: Plant>(
             .sum::<Vector6<f64>>()
             .norm();
         residual = plant.residual(dq)?;
-        if effect < 1e-12 && k > 0 {
+        if residual.iter().any(|x| !x.is_finite()) {
+            return Err(Divergence::Overflows { step: k + 1 }.into());
+        }
+        if effect < options.converged && k > 0 {
             break;
         }
+        if effect >= previous && effect >= PICOMETRE {
+            return Err(Divergence::Grows {
+                step: k + 1,
+                previous_step: k,
+                moved: effect,
+                previous,
+            }
+            .into());
+        }
+        previous = effect;
     }
     Ok(Outcome {
         before,
@@ -501,6 +558,8 @@ pub enum ServoError {
     Solve,
     #[error("the correction came out as {0}: the model's errors are too large for it")]
     NotFinite(f64),
+    #[error(transparent)]
+    Diverges(#[from] Divergence),
 }
 
 impl From<Unsolvable> for ServoError {
@@ -772,6 +831,76 @@ machine mill3 {
             assert!((c.after[k] - c.before[k]).abs() < 1e-9, "{c:?}");
         }
         assert!(c.after[3..].iter().any(|e| e.abs() > 1e-6));
+    }
+
+    #[test]
+    fn errors_too_large_to_linearise_are_a_divergence() {
+        let c = compile(MILL3).compiled.expect("compiles");
+        let m = &c.machine;
+        // A scale error of metres over X's 0.5 m: the error's slope along X exceeds 1, so each
+        // Gauss–Newton step on the nominal Jacobian overshoots by more than it corrects.
+        let beta = vec![1.0, 0.0, 0.0, 0.0];
+        let mut comp = Compensator::new(m, &beta, Options::pose(m)).expect("compensator");
+        let q = [0.3, 0.2, -0.1];
+        let state = State {
+            q: &q,
+            inputs: &[],
+            lags: &[],
+            time: 0.0,
+            dirs: &[1.0; 3],
+            tool: 0,
+            tool_offset: None,
+        };
+        match comp.compensate(&state) {
+            Err(CompensateError::Diverges(Divergence::Grows {
+                step: 2,
+                previous_step: 1,
+                moved,
+                previous,
+            })) => assert!(moved >= previous, "{moved} {previous}"),
+            other => panic!("{other:?}"),
+        }
+        // The same model with a realistic scale error (50 µm/m) converges.
+        let beta = vec![50e-6, 0.0, 0.0, 0.0];
+        let mut comp = Compensator::new(m, &beta, Options::pose(m)).expect("compensator");
+        assert!(comp.compensate(&state).is_ok());
+    }
+
+    #[test]
+    fn the_slowest_path_does_every_solve_and_finds_the_same_correction() {
+        let c = compile(MILL3).compiled.expect("compiles");
+        let m = &c.machine;
+        let beta = vec![50e-6, 20e-6, 30e-6, 10e-6];
+        let mut it = Interpreter::new(m).expect("interpreter");
+        let q = [0.3, 0.2, -0.1];
+        let state = State {
+            q: &q,
+            inputs: &[],
+            lags: &[],
+            time: 0.0,
+            dirs: &[1.0; 3],
+            tool: 0,
+            tool_offset: None,
+        };
+        let mut run = |options: Options| {
+            let mut engine = InterpEngine {
+                interpreter: &mut it,
+                beta: &beta,
+            };
+            let mut dq = [0.0; 3];
+            let c = servo(&mut engine, m, &options, &state, &mut dq).expect("compensates");
+            (c, dq)
+        };
+        let (typical, a) = run(Options::pose(m));
+        let (slowest, b) = run(Options {
+            converged: 0.0,
+            ..Options::pose(m)
+        });
+        assert!(typical.iterations < 4, "{typical:?}");
+        assert_eq!(slowest.iterations, 4);
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() < 1e-15, "{a:?} {b:?}");
+        }
     }
 
     #[test]

@@ -1068,3 +1068,241 @@ fn the_report_shows_the_error_before_and_after_compensation() {
     );
     assert_eq!(section.matches("<svg").count(), 0);
 }
+
+/// The script the browser test adds to a copy of the report: once the page has loaded and laid
+/// out, it measures the compensation section as drawn (its box, each plot's box, the boxes of
+/// the before/after lines, told apart by their colours) and reads the table as rendered text,
+/// into a `<pre id="kin-probe">` that `--dump-dom` prints.
+const PROBE: &str = r#"<script>
+addEventListener('load', () => {
+  const sec = document.getElementById('compensation');
+  const box = (e) => { const r = e.getBoundingClientRect(); return [r.width, r.height]; };
+  const union = (els) => {
+    let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity, n = 0;
+    for (const e of els) {
+      const b = e.getBBox();
+      x0 = Math.min(x0, b.x); x1 = Math.max(x1, b.x + b.width);
+      y0 = Math.min(y0, b.y); y1 = Math.max(y1, b.y + b.height);
+      n += e.points.numberOfItems;
+    }
+    return { x0, x1, y0, y1, points: n, parts: els.length };
+  };
+  const line = (svg, colour) => union([...svg.querySelectorAll('polyline')]
+    .filter(p => p.getAttribute('stroke').toUpperCase() === colour));
+  const plots = [...sec.querySelectorAll('svg')].map(svg => ({
+    box: box(svg),
+    title: svg.textContent.trim().split('\n')[0],
+    axis: line(svg, '#969BA5'),
+    before: line(svg, '#E69F00'),
+    after: line(svg, '#0072B2'),
+  }));
+  const rows = [...sec.querySelectorAll('table tr')].slice(1)
+    .map(tr => [...tr.cells].map(c => c.innerText));
+  const pre = document.createElement('pre');
+  pre.id = 'kin-probe';
+  pre.textContent = JSON.stringify({ section: box(sec), display: getComputedStyle(sec).display, plots, rows });
+  document.body.appendChild(pre);
+});
+</script>"#;
+
+/// The compensation section in a real browser (headless Chromium, as `tests/report.rs` uses
+/// it): it is laid out and visible, each of its plots is drawn with a before line that spans
+/// the swept range through every point and a dashed after line, and the numbers its table shows
+/// are those `kin compensate` writes for the same sweep (each axis over its range in 40 steps,
+/// the others at the middle of theirs, directions positive).
+#[test]
+fn the_compensation_section_renders_in_a_browser_and_agrees_with_kin_compensate() {
+    let Some(chromium) = browser() else {
+        println!("browser check skipped: no chromium at /usr/bin/chromium or on PATH");
+        return;
+    };
+    let (d, machine, fit) = fitted("browser");
+    let s = |p: &Path| p.to_str().expect("utf-8 path").to_string();
+    let page = d.join("report.html");
+    ok(&kin(&[
+        "report",
+        &s(&machine),
+        "--fit",
+        &s(&fit),
+        "--compensation",
+        "-o",
+        &s(&page),
+    ]));
+    let html = std::fs::read_to_string(&page).expect("report");
+    let probed = d.join("probed.html");
+    std::fs::write(
+        &probed,
+        html.replacen("</body>", &format!("{PROBE}</body>"), 1),
+    )
+    .expect("copy");
+    let url = format!("file://{}", probed.canonicalize().expect("path").display());
+    let profile = d.join("chromium-profile");
+    let out = run_browser(
+        &chromium,
+        &[
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            &format!("--user-data-dir={}", profile.display()),
+            "--window-size=1280,4000",
+            "--virtual-time-budget=10000",
+            "--dump-dom",
+            &url,
+        ],
+    );
+    let dom = text(&out);
+    let start = dom.find("<pre id=\"kin-probe\">").expect("the probe ran") + 20;
+    let json = &dom[start..start + dom[start..].find("</pre>").expect("closed")];
+    let json = json
+        .replace("&amp;", "&")
+        .replace("&lt;", "<")
+        .replace("&gt;", ">")
+        .replace("&quot;", "\"");
+    let probe: serde_json::Value = serde_json::from_str(&json).expect("probe JSON");
+    let num = |v: &serde_json::Value| v.as_f64().expect("a number");
+    // Laid out and visible.
+    assert_ne!(probe["display"], "none");
+    assert!(
+        num(&probe["section"][0]) > 800.0 && num(&probe["section"][1]) > 600.0,
+        "{probe}"
+    );
+    // Three axes, a position and an orientation plot each, drawn (the page's grid scales the
+    // 420 × 290 charts to its columns, keeping their shape).
+    let plots = probe["plots"].as_array().expect("plots");
+    assert_eq!(plots.len(), 6, "{probe}");
+    for p in plots {
+        let (w, h) = (num(&p["box"][0]), num(&p["box"][1]));
+        assert!(w >= 300.0 && (w / h - 420.0 / 290.0).abs() < 0.02, "{p}");
+        let (x0, x1) = (num(&p["axis"]["x0"]), num(&p["axis"]["x1"]));
+        // The before line: one polyline through all 41 points of the sweep, from one end of
+        // the x axis to the other (the data fill the axis, less the chart's margins).
+        assert_eq!(num(&p["before"]["points"]), 41.0, "{p}");
+        let span = num(&p["before"]["x1"]) - num(&p["before"]["x0"]);
+        assert!(span > 0.9 * (x1 - x0), "{p}");
+        // The after line: dashed, so many pieces, over the same span.
+        assert!(num(&p["after"]["parts"]) > 10.0, "{p}");
+        assert!(
+            num(&p["after"]["x1"]) - num(&p["after"]["x0"]) > 0.9 * span,
+            "{p}"
+        );
+    }
+    // Along X the position error varies (the scale error): the before line is not flat,
+    // while after compensation it lies on the zero line at the bottom.
+    let x_position = &plots[0];
+    assert!(
+        num(&x_position["before"]["y1"]) - num(&x_position["before"]["y0"]) > 50.0,
+        "{x_position}"
+    );
+    assert!(
+        num(&x_position["after"]["y1"]) - num(&x_position["after"]["y0"]) < 3.0,
+        "{x_position}"
+    );
+    // The table, as the browser shows it, against `kin compensate` over the same sweeps.
+    let rows = probe["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 3, "{probe}");
+    let shown = |r: &serde_json::Value, k: usize| -> f64 {
+        r[k].as_str()
+            .expect("cell text")
+            .replace('−', "-")
+            .trim()
+            .parse()
+            .unwrap_or_else(|_| panic!("a number: {r}"))
+    };
+    let sweeps = [
+        ("X", "X=0:500:12.5,Y=200,Z=-150,dir_X=1"),
+        ("Y", "X=250,Y=0:400:10,Z=-150,dir_X=1"),
+        ("Z", "X=250,Y=200,Z=-300:0:7.5,dir_X=1"),
+    ];
+    for (r, (axis, grid)) in rows.iter().zip(sweeps) {
+        assert_eq!(r[0], axis, "{r}");
+        let csv = d.join(format!("sweep_{axis}.csv"));
+        ok(&kin(&[
+            "compensate",
+            &s(&machine),
+            "--fit",
+            &s(&fit),
+            "--grid",
+            grid,
+            "-o",
+            &s(&csv),
+        ]));
+        let norm_max = |names: [&str; 3]| -> f64 {
+            let cols: Vec<Vec<f64>> = names.iter().map(|n| column(&csv, n)).collect();
+            assert_eq!(cols[0].len(), 41, "{grid}");
+            (0..cols[0].len())
+                .map(|i| cols.iter().map(|c| c[i] * c[i]).sum::<f64>().sqrt())
+                .fold(0.0, f64::max)
+        };
+        let before = norm_max(["ex", "ey", "ez"]);
+        let after = norm_max(["rest_ex", "rest_ey", "rest_ez"]);
+        let tilt_before = norm_max(["erx", "ery", "erz"]);
+        let tilt_after = norm_max(["rest_erx", "rest_ery", "rest_erz"]);
+        // Shown to three significant digits; the remaining position error is rounding (pm).
+        let close = |shown: f64, truth: f64| (shown - truth).abs() <= 0.005 * truth.abs() + 1e-6;
+        assert!(close(shown(r, 1), before), "{axis}: {r} vs {before}");
+        assert!(shown(r, 2) < 1e-6 && after < 1e-6, "{axis}: {r} vs {after}");
+        assert!(
+            close(shown(r, 3), tilt_before),
+            "{axis}: {r} vs {tilt_before}"
+        );
+        assert!(
+            close(shown(r, 4), tilt_after),
+            "{axis}: {r} vs {tilt_after}"
+        );
+        assert_eq!(shown(r, 5), 3.0, "{r}");
+    }
+}
+
+/// A Chromium to render with: `/usr/bin/chromium`, or one of the usual names on `PATH`.
+fn browser() -> Option<PathBuf> {
+    let fixed = PathBuf::from("/usr/bin/chromium");
+    if fixed.is_file() {
+        return Some(fixed);
+    }
+    let path = std::env::var_os("PATH")?;
+    [
+        "chromium",
+        "chromium-browser",
+        "google-chrome",
+        "google-chrome-stable",
+    ]
+    .iter()
+    .flat_map(|name| std::env::split_paths(&path).map(move |d| d.join(name)))
+    .find(|p| p.is_file())
+}
+
+/// Runs the browser with `args` and returns its standard output; a browser that hangs must not
+/// hang the test suite (killed after 180 s).
+fn run_browser(chromium: &Path, args: &[&str]) -> Vec<u8> {
+    use std::io::Read as _;
+    use std::process::Stdio;
+    let mut child = Command::new(chromium)
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("chromium starts");
+    let mut stdout = child.stdout.take().expect("stdout");
+    let reader = std::thread::spawn(move || {
+        let mut out = Vec::new();
+        let _ = stdout.read_to_end(&mut out);
+        out
+    });
+    let start = std::time::Instant::now();
+    loop {
+        match child.try_wait().expect("wait for chromium") {
+            Some(_) => break,
+            None if start.elapsed() > std::time::Duration::from_secs(180) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("{} did not finish in 180 s", chromium.display());
+            }
+            None => std::thread::sleep(std::time::Duration::from_millis(100)),
+        }
+    }
+    reader.join().expect("reader")
+}

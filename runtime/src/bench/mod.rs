@@ -106,7 +106,12 @@ pub struct Latency {
 pub struct CompensationTimes {
     /// The bound on the linear solves per call (`Options::iterations`).
     pub iterations: usize,
+    /// The default options: the iteration stops once a step changes the error by less than a
+    /// picometre (the typical path).
     pub jit: Latency,
+    /// The slowest path: every call does all `iterations` solves (and one more evaluation of
+    /// the model than solves), JIT. What a controller has to budget for.
+    pub jit_worst_path: Latency,
     /// The first linear solve only (one iteration), JIT.
     pub jit_first_solve: Latency,
     pub interp: Latency,
@@ -303,10 +308,20 @@ fn compensation_times(
         Ok(c) => c,
         Err(e) => return Ok(Err(e.to_string())),
     };
+    let worst = match bound.compensator(crate::compensate::Options {
+        converged: 0.0,
+        ..defaults
+    }) {
+        Ok(c) => c,
+        Err(e) => return Ok(Err(e.to_string())),
+    };
     let mut dq = vec![0.0; bound.axes()];
     let mut it = comp.interpreter()?;
     let jit = latency(options, rows.len(), |r| {
-        comp.compensate(&rows.get(r), &mut dq).map(|_| ())
+        typical_compensation_call(&comp, &rows.get(r), &mut dq).map(|_| ())
+    });
+    let jit_worst_path = latency(options, rows.len(), |r| {
+        worst_path_compensation_call(&worst, &rows.get(r), &mut dq).map(|_| ())
     });
     let jit_first_solve = latency(options, rows.len(), |r| {
         first.compensate(&rows.get(r), &mut dq).map(|_| ())
@@ -315,15 +330,40 @@ fn compensation_times(
         comp.compensate_interp(&mut it, &rows.get(r), &mut dq)
             .map(|_| ())
     });
-    Ok(match (jit, jit_first_solve, interp) {
-        (Ok(jit), Ok(jit_first_solve), Ok(interp)) => Ok(CompensationTimes {
+    Ok(match (jit, jit_worst_path, jit_first_solve, interp) {
+        (Ok(jit), Ok(jit_worst_path), Ok(jit_first_solve), Ok(interp)) => Ok(CompensationTimes {
             iterations: defaults.iterations,
             jit,
+            jit_worst_path,
             jit_first_solve,
             interp,
         }),
-        (Err(e), _, _) | (_, Err(e), _) | (_, _, Err(e)) => Err(e.to_string()),
+        (Err(e), ..) | (_, Err(e), ..) | (_, _, Err(e), _) | (.., Err(e)) => Err(e.to_string()),
     })
+}
+
+/// One call of the typical path, a function of its own (never inlined) so that callgrind can
+/// count each call's instructions: `valgrind --tool=callgrind --collect-atstart=no
+/// --toggle-collect='*typical_compensation_call*' --dump-after='*typical_compensation_call*'
+/// kin bench …` (spec/cli.md, `kin bench`).
+#[inline(never)]
+fn typical_compensation_call(
+    comp: &crate::embed::ServoCompensator,
+    state: &crate::interp::State,
+    dq: &mut [f64],
+) -> Result<crate::compensate::Compensated, crate::compensate::ServoError> {
+    comp.compensate(state, dq)
+}
+
+/// One call of the slowest path (every solve done), never inlined, as
+/// [`typical_compensation_call`].
+#[inline(never)]
+fn worst_path_compensation_call(
+    comp: &crate::embed::ServoCompensator,
+    state: &crate::interp::State,
+    dq: &mut [f64],
+) -> Result<crate::compensate::Compensated, crate::compensate::ServoError> {
+    comp.compensate(state, dq)
 }
 
 /// Calls `f` on poses `0, 1, …` (cycling), each call timed alone, for `options.time` (at least
@@ -507,10 +547,15 @@ impl fmt::Display for Figures {
                 };
                 line(f, "interpreter", &c.interp)?;
                 line(f, &format!("JIT, at most {} solves", c.iterations), &c.jit)?;
+                line(
+                    f,
+                    &format!("JIT, slowest path: all {} solves", c.iterations),
+                    &c.jit_worst_path,
+                )?;
                 line(f, "JIT, first solve only", &c.jit_first_solve)?;
                 writeln!(
                     f,
-                    "(each call timed alone, clock included; × interp compares medians; the maximum is what one unlucky cycle took on this computer under its load, not a bound)"
+                    "(each call timed alone, clock included; × interp compares medians; the slowest path's median is the time to budget per call on this computer; a maximum is what one unlucky cycle took under its load, not a bound)"
                 )
             }
             Err(why) => writeln!(f, "no compensation timing: {why}"),
@@ -550,7 +595,7 @@ mod tests {
             .compensation
             .as_ref()
             .expect("a positioning machine");
-        for l in [c.jit, c.jit_first_solve, c.interp] {
+        for l in [c.jit, c.jit_worst_path, c.jit_first_solve, c.interp] {
             assert!(
                 l.calls >= 20 && l.median <= l.p999 && l.p999 <= l.max,
                 "{c:?}"
@@ -560,7 +605,8 @@ mod tests {
         assert!(
             text.contains("not a test")
                 && text.contains("no hand-written baseline")
-                && text.contains("time per compensation call"),
+                && text.contains("time per compensation call")
+                && text.contains("slowest path: all 4 solves"),
             "{text}"
         );
         assert!(matches!(

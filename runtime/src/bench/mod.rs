@@ -345,14 +345,18 @@ fn compensation_times(
 /// One call of the typical path, a function of its own (never inlined) so that callgrind can
 /// count each call's instructions: `valgrind --tool=callgrind --collect-atstart=no
 /// --toggle-collect='*typical_compensation_call*' --dump-after='*typical_compensation_call*'
-/// kin bench …` (spec/cli.md, `kin bench`).
+/// kin bench …` (spec/cli.md, `kin bench`). The result goes through `black_box` so that the
+/// call is not a tail jump (callgrind would not see the function return, and dump nothing),
+/// and each wrapper names its path so that the linker cannot fold the two identical bodies
+/// into one symbol.
 #[inline(never)]
 fn typical_compensation_call(
     comp: &crate::embed::ServoCompensator,
     state: &crate::interp::State,
     dq: &mut [f64],
 ) -> Result<crate::compensate::Compensated, crate::compensate::ServoError> {
-    comp.compensate(state, dq)
+    black_box("typical path");
+    black_box(comp.compensate(state, dq))
 }
 
 /// One call of the slowest path (every solve done), never inlined, as
@@ -363,7 +367,8 @@ fn worst_path_compensation_call(
     state: &crate::interp::State,
     dq: &mut [f64],
 ) -> Result<crate::compensate::Compensated, crate::compensate::ServoError> {
-    comp.compensate(state, dq)
+    black_box("slowest path");
+    black_box(comp.compensate(state, dq))
 }
 
 /// Calls `f` on poses `0, 1, …` (cycling), each call timed alone, for `options.time` (at least

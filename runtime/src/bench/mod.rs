@@ -344,8 +344,9 @@ fn compensation_times(
 
 /// One call of the typical path, a function of its own (never inlined) so that callgrind can
 /// count each call's instructions: `valgrind --tool=callgrind --collect-atstart=no
-/// --toggle-collect='*typical_compensation_call*' --dump-after='*typical_compensation_call*'
-/// kin bench …` (spec/cli.md, `kin bench`). The result goes through `black_box` so that the
+/// --toggle-collect=kin_runtime::bench::typical_compensation_call
+/// --dump-after=kin_runtime::bench::typical_compensation_call kin bench …` (spec/cli.md,
+/// `kin bench`). The result goes through `black_box` so that the
 /// call is not a tail jump (callgrind would not see the function return, and dump nothing),
 /// and each wrapper names its path so that the linker cannot fold the two identical bodies
 /// into one symbol.

@@ -711,8 +711,39 @@ machine m {
         let options = Options::default();
         let split = split_for(&c, &mut engine, &files, &start, &options, &fitted)
             .expect("passes")
+            .0
             .expect("a split: only the periodic and Fourier columns move");
         assert_eq!(split.moving(), 2 + 4);
+        // The θ standard errors and each term's F-test gain through the split agree with the
+        // plain QR's.
+        let (r0, rank0, _) =
+            linear_fit(&c, &mut engine, &files, &start, &options, None).expect("fit");
+        let rss0 = sumsq(&r0);
+        let se = |engine: &mut crate::interp::Interpreter, split: Option<&Split>| {
+            covariance(
+                &c, engine, &files, &start, &fitted, rss0, rank0, &options, split,
+            )
+            .expect("covariance")
+        };
+        let (se_p, se_q) = (se(&mut engine, Some(&split)), se(&mut engine, None));
+        for (a, b) in se_p.iter().zip(&se_q) {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-6 * b.abs(), "se {a} vs {b}"),
+                (None, None) => {}
+                other => panic!("{other:?}"),
+            }
+        }
+        for &i in &fitted {
+            let moved = moved_columns(&c, &mut engine, &files, &start, i, &options).expect("moved");
+            let gain = |engine: &mut crate::interp::Interpreter, split: Option<&Split>| {
+                term_gain(&c, engine, &files, &start, &options, split, &moved, rss0).expect("gain")
+            };
+            let (gp, gq) = (gain(&mut engine, Some(&split)), gain(&mut engine, None));
+            assert!(
+                (gp - gq).abs() <= (1e-6 * gq.abs()).max(1e-9 * rss0),
+                "gain {gp} vs {gq}"
+            );
+        }
         for values in [
             start.clone(),
             vec![20.3e-3, 36.0e-3],

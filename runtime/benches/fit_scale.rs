@@ -720,12 +720,14 @@ fn main() {
 
 /// GEMM rate (flop/s) of `Bᵀ·B` for B of `rows × n`, on `threads` threads at once, each its own
 /// product (so the rate is what the cores give, not what one product's split gives).
-fn gemm_rate(rows: usize, n: usize, threads: usize) -> f64 {
+/// Returns the rate per wall second and per CPU second of the process.
+fn gemm_rate(rows: usize, n: usize, threads: usize) -> (f64, f64) {
     let b = Mat::from_fn(rows, n, |i, j| ((i * 7 + j * 13) % 17) as f64 - 8.0);
     let flops = 2.0 * rows as f64 * (n * n) as f64;
     let mut reps = 1usize;
     loop {
         let start = Instant::now();
+        let cpu0 = process_cpu();
         std::thread::scope(|scope| {
             for _ in 0..threads {
                 let b = &b;
@@ -747,10 +749,25 @@ fn gemm_rate(rows: usize, n: usize, threads: usize) -> f64 {
         });
         let t = start.elapsed().as_secs_f64();
         if t > 1.5 {
-            return flops * (reps * threads) as f64 / t;
+            let cpu = process_cpu().saturating_sub(cpu0).as_secs_f64().max(1e-3);
+            let work = flops * (reps * threads) as f64;
+            return (work / t, work / cpu);
         }
         reps = (reps * 2).max((reps as f64 * 2.0 / t.max(1e-3)) as usize);
     }
+}
+
+/// CPU time of the whole process, every thread (`/proc/self/stat` utime + stime, 10 ms ticks):
+/// on a machine others load, work divided by it is what the cores did while they were ours.
+fn process_cpu() -> Duration {
+    let ticks = std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = s.rsplit_once(')')?.1.split_whitespace().collect::<Vec<_>>();
+            Some(rest.get(11)?.parse::<u64>().ok()? + rest.get(12)?.parse::<u64>().ok()?)
+        })
+        .unwrap_or(0);
+    Duration::from_millis(ticks * 10)
 }
 
 fn load() -> String {
@@ -816,8 +833,10 @@ fn flop_limit(poses: usize) {
     let block = Options::default().block;
     let mut first: Option<Vec<f64>> = None;
     for &t in &threads {
-        let rate = gemm_rate(block, n, t);
+        let (rate, rate_cpu) = gemm_rate(block, n, t);
         let limit = flops / rate;
+        let limit_cpu = flops / rate_cpu;
+        let cpu0 = process_cpu();
         let opts = Options {
             threads: t,
             min_norm: true,
@@ -829,13 +848,16 @@ fn flop_limit(poses: usize) {
         let peak = Peak::start();
         let clock = Clock::start();
         let mut pass1 = None;
+        let mut pass1_cpu = None;
         let mut progress = |pass: &'static str, _done: usize| {
             if pass == "residuals" && pass1.is_none() {
                 pass1 = Some(clock.elapsed());
+                pass1_cpu = Some(process_cpu().saturating_sub(cpu0));
             }
         };
         let r = fit::fit(&c, engine.as_mut(), &files, &[], &opts, &mut progress).expect("fit");
         let total = clock.elapsed();
+        let total_cpu = process_cpu().saturating_sub(cpu0);
         let peak = peak.increase();
         let pass1 = pass1.unwrap_or(total);
         println!(
@@ -849,6 +871,19 @@ fn flop_limit(poses: usize) {
             mb(peak),
             status_kb("VmHWM:").unwrap_or(0) / 1000,
             load()
+        );
+        // The same against the GEMM's work per CPU second: what the fit makes of the cycles it
+        // got, whatever else the machine ran (on a loaded machine the wall ratio measures the
+        // others too).
+        let p1 = pass1_cpu.unwrap_or(total_cpu).as_secs_f64();
+        println!(
+            "    CPU of the process: GEMM {:.1} GFLOP per CPU-s → {:.2} CPU-s; factorisation {:.2} CPU-s ({:.2}×), whole fit {:.2} CPU-s ({:.2}×)",
+            rate_cpu / 1e9,
+            limit_cpu,
+            p1,
+            p1 / limit_cpu,
+            total_cpu.as_secs_f64(),
+            total_cpu.as_secs_f64() / limit_cpu
         );
         match &first {
             None => first = Some(r.solution.beta.clone()),
@@ -926,25 +961,28 @@ fn fitted_tau(poses: usize) {
             kin_runtime::engine::make(&c.machine, kin_runtime::engine::Engine::default())
                 .expect("engine");
         let clock = Clock::start();
+        let cpu0 = process_cpu();
         let r = fit::fit(c, engine.as_mut(), &files, &[], &opts, &mut |_, _| {}).expect("fit");
         let t = clock.elapsed();
+        let cpu = process_cpu().saturating_sub(cpu0);
         let nl = r
             .nonlinear
             .as_ref()
             .map(|n| format!(", {} iterations, τ {:?}", n.iterations, n.values))
             .unwrap_or_default();
         println!(
-            "  τ {name:<6}: {} wall, {} CPU of the calling thread; σ̂ {:.4} µm{nl}",
+            "  τ {name:<6}: {} wall, {} CPU of the process; σ̂ {:.4} µm{nl}",
             secs(t.wall),
-            secs(t.cpu),
+            secs(cpu),
             r.sigma * 1e6
         );
-        walls.push(t.wall.as_secs_f64());
+        walls.push((t.wall.as_secs_f64(), cpu.as_secs_f64()));
     }
-    let fixed_wall = (walls[0] + walls[2]) / 2.0;
+    let fixed = |f: fn(&(f64, f64)) -> f64| (f(&walls[0]) + f(&walls[2])) / 2.0;
     println!(
-        "  fitted ÷ fixed (mean of the two fixed fits around it): {:.2}×, load {}",
-        walls[1] / fixed_wall,
+        "  fitted ÷ fixed (mean of the two fixed fits around it): {:.2}× wall, {:.2}× CPU, load {}",
+        walls[1].0 / fixed(|w| w.0),
+        walls[1].1 / fixed(|w| w.1),
         load()
     );
 }

@@ -70,6 +70,11 @@ pub fn poses(text: &str) -> Result<usize, String> {
     count(text, 1, MAX_POSES)
 }
 
+/// Threads of a fit (`kin fit --threads`): 1 to 256.
+pub fn threads(text: &str) -> Result<usize, String> {
+    count(text, 1, 256)
+}
+
 /// The number of rounds of `kin demo`: 0 (fit and diagnose only) to [`MAX_ROUNDS`].
 pub fn rounds(text: &str) -> Result<usize, String> {
     count(text, 0, MAX_ROUNDS)

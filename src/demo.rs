@@ -98,6 +98,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         holdout: None,
         seed: 0,
         noise: None,
+        threads: None,
         engine: kin_runtime::engine::Engine::default(),
         ignore: Default::default(),
         color,

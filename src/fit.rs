@@ -31,6 +31,8 @@ pub struct FitArgs {
     /// The instrument's stated noise: rows are weighted by it.
     pub noise: Option<fit::Noise>,
     pub engine: kin_runtime::engine::Engine,
+    /// Threads of the fit (`--threads`); every core when `None`.
+    pub threads: Option<usize>,
     /// Columns of the data files to skip unread.
     pub ignore: crate::args::DataOptions,
     pub color: bool,
@@ -246,6 +248,7 @@ fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
 }
 
 fn options(a: &FitArgs) -> Options {
+    let defaults = Options::default();
     Options {
         solver: match a.solver {
             SolverArg::Qr => Solver::Qr,
@@ -258,7 +261,8 @@ fn options(a: &FitArgs) -> Options {
             enter: a.enter,
         }),
         noise: a.noise,
-        ..Options::default()
+        threads: a.threads.unwrap_or(defaults.threads),
+        ..defaults
     }
 }
 

@@ -157,7 +157,8 @@ enum Command {
     #[command(after_help = "Examples:
   kin fit examples/bridge_cmm.kin examples/data/bridge_cmm_points.csv -o fit.json
   kin fit mill.kin laser_x.csv ballbar.csv --noise 0.5um -o fit.json
-  kin fit mill.kin points.csv --stepwise 1e-4 --holdout 0.2 -o fit.json")]
+  kin fit mill.kin points.csv --stepwise 1e-4 --holdout 0.2 -o fit.json
+  kin fit mill.kin big_run.csv --threads 2 -o fit.json")]
     Fit {
         machine: PathBuf,
         /// Point and length files (measurement files: spec/data.md). Files of 64 MiB or more
@@ -216,6 +217,10 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
+        /// Threads factoring the rows and computing their leverages (1 to 256; default every
+        /// core this process may use). The same count gives the same bits on every run.
+        #[arg(long, value_name = "N", value_parser = args::threads)]
+        threads: Option<usize>,
         #[command(flatten)]
         ignore: Ignore,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
@@ -723,6 +728,7 @@ fn main() -> ExitCode {
             noise,
             noise_tilt,
             engine,
+            threads,
             ignore,
             color,
             format,
@@ -741,6 +747,7 @@ fn main() -> ExitCode {
                 seed,
                 noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
                 engine,
+                threads,
                 ignore: ignore.options(),
                 color: color.enabled(),
             },
@@ -780,6 +787,7 @@ fn main() -> ExitCode {
                 // (positions and lengths by --noise, rotations by --noise-tilt).
                 noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
                 engine,
+                threads: None,
                 ignore: ignore.options(),
                 color: color.enabled(),
             },

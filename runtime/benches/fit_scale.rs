@@ -16,6 +16,20 @@
 //! KIN_BENCH_MODEL=path/to/model.kin  default examples/bench_200.kin
 //! KIN_BENCH_DENSE=0                  skip the dense solve (it needs ~2 × m × p × 8 bytes)
 //! ```
+//!
+//! The flop limit (issue 15): `-- limit [POSES]` fits POSES (default 1 000 000) simulated poses
+//! of `examples/milling_5axis.kin`, its time constants fixed at their starting values (a fitted
+//! one is optimised over many passes, measured apart), with the JIT as `kin fit` uses it, on 1
+//! and on every core (`KIN_BENCH_THREADS=1,2` to choose). The limit is the Householder flop
+//! count of the triangle, 2·m·n² − 2n³/3 for m rows of `[X | y]` (n columns), at the rate a
+//! faer GEMM of the streaming QR's block shape (`Bᵀ·B`, B = block × n) reaches on as many threads
+//! in the same run. Printed: wall time of the factorisation pass and of the whole fit (pass 2
+//! adds each row's residual and leverage, about half the flops again), each ÷ the limit, and
+//! the peak memory of the fit.
+//!
+//! `-- tau [POSES]` (default 100 000): the same model fitted with its two time constants fitted
+//! and with them fixed, on the same simulated data, in the same run; prints the ratio of the
+//! wall times (issue 15 asks ≤ 3).
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -359,6 +373,18 @@ fn leverage_kernels(x: MatRef<'_, f64>, r: MatRef<'_, f64>) -> Leverage {
 // ---- main -----------------------------------------------------------------------------------
 
 fn main() {
+    if std::env::args().skip(1).any(|a| a == "limit") {
+        flop_limit(poses_wanted());
+        return;
+    }
+    if std::env::args().skip(1).any(|a| a == "tau") {
+        let poses = std::env::args()
+            .skip(1)
+            .find_map(|a| a.replace('_', "").parse().ok())
+            .unwrap_or(100_000);
+        fitted_tau(poses);
+        return;
+    }
     let poses = poses_wanted();
     let blocks = blocks_wanted();
     let dense_wanted = std::env::var("KIN_BENCH_DENSE")
@@ -688,4 +714,275 @@ fn main() {
         .map(|((t, b), se)| ((b - t) / se).abs())
         .fold(0.0, f64::max);
     println!("recovery: max |β̂ − β_true| / se = {worst:.2} over {n} coefficients (first-order fit of exact-simulated data)");
+}
+
+// ---- the flop limit ---------------------------------------------------------------------------
+
+/// GEMM rate (flop/s) of `Bᵀ·B` for B of `rows × n`, on `threads` threads at once, each its own
+/// product (so the rate is what the cores give, not what one product's split gives).
+/// Returns the rate per wall second and per CPU second of the process.
+fn gemm_rate(rows: usize, n: usize, threads: usize) -> (f64, f64) {
+    let b = Mat::from_fn(rows, n, |i, j| ((i * 7 + j * 13) % 17) as f64 - 8.0);
+    let flops = 2.0 * rows as f64 * (n * n) as f64;
+    let mut reps = 1usize;
+    loop {
+        let start = Instant::now();
+        let cpu0 = process_cpu();
+        std::thread::scope(|scope| {
+            for _ in 0..threads {
+                let b = &b;
+                scope.spawn(move || {
+                    let mut c = Mat::<f64>::zeros(n, n);
+                    for _ in 0..reps {
+                        faer::linalg::matmul::matmul(
+                            c.as_mut(),
+                            faer::Accum::Add,
+                            b.transpose(),
+                            b.as_ref(),
+                            1.0,
+                            faer::Par::Seq,
+                        );
+                    }
+                    black_box(c);
+                });
+            }
+        });
+        let t = start.elapsed().as_secs_f64();
+        if t > 1.5 {
+            let cpu = process_cpu().saturating_sub(cpu0).as_secs_f64().max(1e-3);
+            let work = flops * (reps * threads) as f64;
+            return (work / t, work / cpu);
+        }
+        reps = (reps * 2).max((reps as f64 * 2.0 / t.max(1e-3)) as usize);
+    }
+}
+
+/// CPU time of the whole process, every thread (`/proc/self/stat` utime + stime, 10 ms ticks):
+/// on a machine others load, work divided by it is what the cores did while they were ours.
+fn process_cpu() -> Duration {
+    let ticks = std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = s.rsplit_once(')')?.1.split_whitespace().collect::<Vec<_>>();
+            Some(rest.get(11)?.parse::<u64>().ok()? + rest.get(12)?.parse::<u64>().ok()?)
+        })
+        .unwrap_or(0);
+    Duration::from_millis(ticks * 10)
+}
+
+fn load() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .unwrap_or_default()
+        .split_whitespace()
+        .take(3)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn flop_limit(poses: usize) {
+    let model = format!(
+        "{}/../examples/milling_5axis.kin",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let src = std::fs::read_to_string(&model).unwrap_or_else(|e| panic!("{model}: {e}"));
+    // The time constants fixed at their starting values: the linear fit alone.
+    let src = src.replace("tau fit", "tau");
+    let out = kin_compiler::compile(&src);
+    let c = out
+        .compiled
+        .unwrap_or_else(|| panic!("{model}: {:#?}", out.diagnostics));
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads: Vec<usize> = std::env::var("KIN_BENCH_THREADS")
+        .ok()
+        .map(|s| s.split(',').filter_map(|t| t.trim().parse().ok()).collect())
+        .filter(|v: &Vec<usize>| !v.is_empty())
+        .unwrap_or_else(|| if cores > 1 { vec![1, cores] } else { vec![1] });
+    println!(
+        "fit_scale limit: {model} (τ fixed), {poses} poses, {cores} CPUs, load average {}",
+        load()
+    );
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    let truth: Vec<f64> = c
+        .machine
+        .coefficients
+        .iter()
+        .map(|co| co.unit.scale * rng.random_range(-1.0..1.0))
+        .collect();
+    let clock = Clock::start();
+    let points = sample_points(&c.machine, poses, 2);
+    let options = simulate::Options {
+        noise: 0.3e-6,
+        seed: 3,
+        ..simulate::Options::default()
+    };
+    let obs = simulate::simulate(&c.machine, &truth, &Observations::Points(points), &options)
+        .expect("simulate");
+    let files = vec![DataSet {
+        path: "simulated.csv".into(),
+        observations: obs,
+    }];
+    let m = fit::count_rows(&files);
+    let n = fit::Layout::new(&c.machine, &files).columns() + 1;
+    let flops = 2.0 * m as f64 * (n * n) as f64 - 2.0 * (n * n * n) as f64 / 3.0;
+    println!(
+        "  data simulated in {}: {m} rows, [X | y] {n} columns; Householder flops {:.3e}; RSS now {} MB",
+        secs(clock.elapsed().wall),
+        flops,
+        status_kb("VmRSS:").unwrap_or(0) / 1000
+    );
+    let block = Options::default().block;
+    let mut first: Option<Vec<f64>> = None;
+    for &t in &threads {
+        let (rate, rate_cpu) = gemm_rate(block, n, t);
+        let limit = flops / rate;
+        let limit_cpu = flops / rate_cpu;
+        let cpu0 = process_cpu();
+        let opts = Options {
+            threads: t,
+            min_norm: true,
+            ..Options::default()
+        };
+        let mut engine =
+            kin_runtime::engine::make(&c.machine, kin_runtime::engine::Engine::default())
+                .expect("engine");
+        let peak = Peak::start();
+        let clock = Clock::start();
+        let mut pass1 = None;
+        let mut pass1_cpu = None;
+        let mut progress = |pass: &'static str, _done: usize| {
+            if pass == "residuals" && pass1.is_none() {
+                pass1 = Some(clock.elapsed());
+                pass1_cpu = Some(process_cpu().saturating_sub(cpu0));
+            }
+        };
+        let r = fit::fit(&c, engine.as_mut(), &files, &[], &opts, &mut progress).expect("fit");
+        let total = clock.elapsed();
+        let total_cpu = process_cpu().saturating_sub(cpu0);
+        let peak = peak.increase();
+        let pass1 = pass1.unwrap_or(total);
+        println!(
+            "  {t} thread(s): GEMM {:.1} GFLOP/s → limit {}; factorisation {} wall ({:.2}× the limit), whole fit {} wall ({:.2}×), peak +{} (process peak {} MB), load {}",
+            rate / 1e9,
+            secs(Duration::from_secs_f64(limit)),
+            secs(pass1.wall),
+            pass1.wall.as_secs_f64() / limit,
+            secs(total.wall),
+            total.wall.as_secs_f64() / limit,
+            mb(peak),
+            status_kb("VmHWM:").unwrap_or(0) / 1000,
+            load()
+        );
+        // The same against the GEMM's work per CPU second: what the fit makes of the cycles it
+        // got, whatever else the machine ran (on a loaded machine the wall ratio measures the
+        // others too).
+        let p1 = pass1_cpu.unwrap_or(total_cpu).as_secs_f64();
+        println!(
+            "    CPU of the process: GEMM {:.1} GFLOP per CPU-s → {:.2} CPU-s; factorisation {:.2} CPU-s ({:.2}×), whole fit {:.2} CPU-s ({:.2}×)",
+            rate_cpu / 1e9,
+            limit_cpu,
+            p1,
+            p1 / limit_cpu,
+            total_cpu.as_secs_f64(),
+            total_cpu.as_secs_f64() / limit_cpu
+        );
+        match &first {
+            None => first = Some(r.solution.beta.clone()),
+            Some(b) => {
+                let (d, j) = max_rel_diff(&r.solution.beta, b);
+                println!("    β against the first thread count: largest relative difference {d:.1e} (coefficient {j})");
+            }
+        }
+    }
+}
+
+fn fitted_tau(poses: usize) {
+    let model = format!(
+        "{}/../examples/milling_5axis.kin",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let src = std::fs::read_to_string(&model).unwrap_or_else(|e| panic!("{model}: {e}"));
+    let compile = |src: &str| {
+        let out = kin_compiler::compile(src);
+        out.compiled
+            .unwrap_or_else(|| panic!("{model}: {:#?}", out.diagnostics))
+    };
+    let free = compile(&src);
+    let fixed = compile(&src.replace("tau fit", "tau"));
+    println!(
+        "fit_scale tau: {model}, {poses} poses, time constants {:?}, load average {}",
+        free.machine
+            .nonlinear
+            .iter()
+            .filter(|p| p.fitted)
+            .map(|p| p.value)
+            .collect::<Vec<_>>(),
+        load()
+    );
+    let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+    let truth: Vec<f64> = free
+        .machine
+        .coefficients
+        .iter()
+        .map(|co| co.unit.scale * rng.random_range(-1.0..1.0))
+        .collect();
+    // The truth's time constants 30 % off the model's start values, so the optimiser moves.
+    let mut truth_src = src.clone();
+    for (from, to) in [
+        ("tau fit 25 min", "tau 32 min"),
+        ("tau fit 60 min", "tau 45 min"),
+    ] {
+        truth_src = truth_src.replace(from, to);
+    }
+    let truth_c = compile(&truth_src);
+    let points = sample_points(&truth_c.machine, poses, 2);
+    let options = simulate::Options {
+        noise: 0.3e-6,
+        seed: 3,
+        ..simulate::Options::default()
+    };
+    let obs = simulate::simulate(
+        &truth_c.machine,
+        &truth,
+        &Observations::Points(points),
+        &options,
+    )
+    .expect("simulate");
+    let files = vec![DataSet {
+        path: "simulated.csv".into(),
+        observations: obs,
+    }];
+    let opts = Options {
+        min_norm: true,
+        ..Options::default()
+    };
+    let mut walls = Vec::new();
+    for (name, c) in [("fixed", &fixed), ("fitted", &free), ("fixed", &fixed)] {
+        let mut engine =
+            kin_runtime::engine::make(&c.machine, kin_runtime::engine::Engine::default())
+                .expect("engine");
+        let clock = Clock::start();
+        let cpu0 = process_cpu();
+        let r = fit::fit(c, engine.as_mut(), &files, &[], &opts, &mut |_, _| {}).expect("fit");
+        let t = clock.elapsed();
+        let cpu = process_cpu().saturating_sub(cpu0);
+        let nl = r
+            .nonlinear
+            .as_ref()
+            .map(|n| format!(", {} iterations, τ {:?}", n.iterations, n.values))
+            .unwrap_or_default();
+        println!(
+            "  τ {name:<6}: {} wall, {} CPU of the process; σ̂ {:.4} µm{nl}",
+            secs(t.wall),
+            secs(cpu),
+            r.sigma * 1e6
+        );
+        walls.push((t.wall.as_secs_f64(), cpu.as_secs_f64()));
+    }
+    let fixed = |f: fn(&(f64, f64)) -> f64| (f(&walls[0]) + f(&walls[2])) / 2.0;
+    println!(
+        "  fitted ÷ fixed (mean of the two fixed fits around it): {:.2}× wall, {:.2}× CPU, load {}",
+        walls[1].0 / fixed(|w| w.0),
+        walls[1].1 / fixed(|w| w.1),
+        load()
+    );
 }

@@ -815,7 +815,7 @@ fn test_candidates(
     let mut layout = Layout::new(&sup.machine, files);
     layout.weights = base.layout.weights;
     let states = fit::states_with(&sup.machine, files, &values)?;
-    let mut acc = StreamingQr::new(layout.columns(), options.block);
+    let mut acc = StreamingQr::with_threads(layout.columns(), options.block, options.threads);
     fit::for_each_row(engine.as_mut(), files, &states, &layout, |_, x, y| {
         acc.push(x, y)
     })?;

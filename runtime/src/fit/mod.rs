@@ -78,6 +78,10 @@ pub struct Options {
     pub stepwise: Option<Stepwise>,
     /// The instrument's stated noise: rows are weighted by it (see [`Weights`]).
     pub noise: Option<Noise>,
+    /// Threads factoring the blocks of rows and computing the residual pass's leverages
+    /// (default: the cores this process may use). A given count gives the same bits on every
+    /// run; another count differs only by rounding ([`StreamingQr`]).
+    pub threads: usize,
 }
 
 /// Significance levels of the partial F-tests: a coefficient whose p-value exceeds `remove`
@@ -98,6 +102,7 @@ impl Default for Options {
             outlier_alpha: 0.05,
             stepwise: None,
             noise: None,
+            threads: crate::rank_update::threads(),
         }
     }
 }
@@ -147,11 +152,11 @@ pub type Progress<'a> = &'a mut dyn FnMut(&'static str, usize);
 /// rows held in memory, or files read a block at a time), reporting the pass's progress.
 fn triangle(
     columns: usize,
-    block: usize,
+    options: &Options,
     progress: Progress,
     visit: impl FnOnce(&mut dyn FnMut(RowMeta, &[f64], f64)) -> Result<(), FitError>,
 ) -> Result<Reduced, FitError> {
-    let mut acc = StreamingQr::new(columns, block);
+    let mut acc = StreamingQr::with_threads(columns, options.block, options.threads);
     let mut done = 0usize;
     visit(&mut |_, x, y| {
         acc.push(x, y);
@@ -194,7 +199,7 @@ pub fn fit(
     };
     let states = design::states_with(m, files, &values)?;
 
-    let red = triangle(p, options.block, &mut *progress, |row| {
+    let red = triangle(p, options, &mut *progress, |row| {
         Ok(design::for_each_row(engine, files, &states, &layout, row)?)
     })?;
 
@@ -209,7 +214,7 @@ pub fn fit(
 
     // Pass 2: residuals and influence, leverages in blocks (one matrix product per block).
     let mut residuals = Vec::with_capacity(red.rows);
-    let mut block = Block::new(options.block, p);
+    let mut block = Block::new(options.block, p, options.threads);
     let mut done = 0usize;
     design::for_each_row(engine, files, &states, &layout, |meta, x, y| {
         block.push(meta, x, y);
@@ -383,14 +388,20 @@ struct Block {
     x: Mat<f64>,
     y: Vec<f64>,
     meta: Vec<RowMeta>,
+    threads: usize,
 }
 
+/// Rows of a block each thread of the residual pass takes at least: below it a thread costs
+/// more than the product it would share.
+const ROWS_PER_THREAD: usize = 512;
+
 impl Block {
-    fn new(rows: usize, p: usize) -> Self {
+    fn new(rows: usize, p: usize, threads: usize) -> Self {
         Block {
             x: Mat::zeros(rows.max(1), p),
             y: Vec::with_capacity(rows),
             meta: Vec::with_capacity(rows),
+            threads: threads.max(1),
         }
     }
     fn full(&self) -> bool {
@@ -409,17 +420,45 @@ impl Block {
         if b == 0 {
             return;
         }
-        let x = self.x.get(..b, ..);
+        // Fitted value and leverage of every row, the rows cut into one slice per thread (the
+        // cut depends only on the block and the thread count, so the bits do too).
         let beta = Mat::from_fn(s.beta.len(), 1, |i, _| s.beta[i]);
-        let fitted = x * &beta;
-        let gx = x * s.g.transpose();
+        let mut fitted = vec![0.0; b];
+        let mut leverage = vec![0.0; b];
+        let threads = self.threads.min(b / ROWS_PER_THREAD).max(1);
+        let per = b.div_ceil(threads);
+        let x = self.x.get(..b, ..);
+        let work = |from: usize, f: &mut [f64], h: &mut [f64]| {
+            let rows = x.subrows(from, f.len());
+            let fit = rows * &beta;
+            let gx = rows * s.g.transpose();
+            for (i, (f, h)) in f.iter_mut().zip(h.iter_mut()).enumerate() {
+                *f = fit[(i, 0)];
+                *h = (0..gx.ncols()).map(|k| gx[(i, k)].powi(2)).sum();
+            }
+        };
+        if threads == 1 {
+            work(0, &mut fitted, &mut leverage);
+        } else {
+            std::thread::scope(|scope| {
+                let mut parts = fitted.chunks_mut(per).zip(leverage.chunks_mut(per));
+                let first = parts.next();
+                for (t, (f, h)) in parts.enumerate() {
+                    let work = &work;
+                    scope.spawn(move || work((t + 1) * per, f, h));
+                }
+                // The first slice on the calling thread.
+                if let Some((f, h)) = first {
+                    work(0, f, h);
+                }
+            });
+        }
         for i in 0..b {
-            let h: f64 = (0..gx.ncols()).map(|k| gx[(i, k)].powi(2)).sum();
             out.push(ResidualRow {
                 meta: self.meta[i],
                 observed: self.y[i],
-                residual: self.y[i] - fitted[(i, 0)],
-                leverage: h,
+                residual: self.y[i] - fitted[i],
+                leverage: leverage[i],
                 studentized: 0.0,
                 cook: 0.0,
             });

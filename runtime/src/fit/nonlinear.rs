@@ -142,7 +142,7 @@ fn projected_fit(
 
 /// The fixed columns' triangle for [`projected_fit`], from one pass over the rows; `None`
 /// when the plain path must be taken (a moving known term, dependent fixed columns, nothing
-/// moving).
+/// moving), with `true` when the reason is dependent fixed columns.
 fn split_for(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
@@ -150,18 +150,18 @@ fn split_for(
     values: &[f64],
     options: &Options,
     fitted: &[usize],
-) -> Result<Option<Split>, FitError> {
+) -> Result<(Option<Split>, bool), FitError> {
     let m = &compiled.machine;
     let columns = Layout::new(m, files).columns();
     let Some(moving) = projection::moving_columns(m, fitted, columns) else {
-        return Ok(None);
+        return Ok((None, false));
     };
     let fixed = moving.iter().filter(|&&b| !b).count();
     if fixed == columns {
-        return Ok(None);
+        return Ok((None, false));
     }
     let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
-    let mut acc = StreamingQr::new(fixed, options.block);
+    let mut acc = StreamingQr::with_threads(fixed, options.block, options.threads);
     let mut row = Vec::with_capacity(fixed);
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
         row.clear();
@@ -172,7 +172,9 @@ fn split_for(
     if !base.is_finite() {
         return Err(FitError::Overflow);
     }
-    Ok(Split::new(&moving, base))
+    let split = Split::new(&moving, base);
+    let dependent = split.is_none();
+    Ok((split, dependent))
 }
 
 /// As [`linear_fit`], with the columns flagged in `without` left out (held at zero).
@@ -214,7 +216,7 @@ fn triangle_at(
     without: &[bool],
 ) -> Result<(Reduced, Vec<design::FileStates>, Layout), FitError> {
     let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
-    let mut acc = StreamingQr::new(layout.columns(), options.block);
+    let mut acc = StreamingQr::with_threads(layout.columns(), options.block, options.threads);
     let mut row = vec![0.0; layout.columns()];
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
         if without.is_empty() {
@@ -314,18 +316,37 @@ fn covariance(
     }
     let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
     let p = layout.columns();
-    let mut acc = StreamingQr::new(p + k, options.block);
     let mut row = vec![0.0; p + k];
     let mut i = 0usize;
-    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+    let mut fill = |x: &[f64], row: &mut [f64]| {
         row[..p].copy_from_slice(x);
         for (c, col) in d.iter().enumerate() {
             row[p + c] = col.get(i).copied().unwrap_or(0.0);
         }
-        acc.push(&row, y);
         i += 1;
-    })?;
-    let red = acc.finish();
+    };
+    // The derivative columns join the moving ones of the split: the triangle of [X | D | y]
+    // without factoring X again. Its trailing block is all the covariance needs, and the
+    // trailing block does not depend on the order of the columns before it.
+    let red = match split {
+        Some(split) => {
+            let ext = split.extended(p, k);
+            let mut products = ext.products();
+            design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+                fill(x, &mut row);
+                ext.push(&mut products, &row, y);
+            })?;
+            ext.complete(&products)
+        }
+        None => {
+            let mut acc = StreamingQr::with_threads(p + k, options.block, options.threads);
+            design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+                fill(x, &mut row);
+                acc.push(&row, y);
+            })?;
+            acc.finish()
+        }
+    };
     // Cov(θ) = σ̂² (R₂₂ᵀR₂₂)⁻¹ = σ̂² R₂₂⁻¹R₂₂⁻ᵀ: from the triangle itself, never its normal
     // matrix, whose entries span the squares of the parameters' very different scales.
     let r22 = Mat::from_fn(k, k, |a, b| red.r[(p + a, p + b)]);
@@ -352,6 +373,45 @@ fn covariance(
         });
     }
     Ok(se)
+}
+
+/// What the columns `moved` buy at `values`: the residual sum of squares without them less
+/// the one with them. Through the split when it has them all as moving columns (one pass, no
+/// factorisation; both sums from the same products), else by a masked fit against `rss`.
+#[allow(clippy::too_many_arguments)]
+fn term_gain(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    values: &[f64],
+    options: &Options,
+    split: Option<&Split>,
+    moved: &[bool],
+    rss: f64,
+) -> Result<f64, FitError> {
+    if let Some(split) = split {
+        let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
+        let mut products = split.products();
+        design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+            split.push(&mut products, x, y)
+        })?;
+        if let Some(masked) = split.without(&products, moved) {
+            let rss_of = |p: &projection::Products| -> Result<f64, FitError> {
+                let red = split.complete(p);
+                if !red.is_finite() {
+                    return Err(FitError::Overflow);
+                }
+                Ok(
+                    match solve::solve(&red, Solver::Svd, options.tolerance, true) {
+                        Ok(s) | Err(s) => s.rss,
+                    },
+                )
+            };
+            return Ok(rss_of(&masked)? - rss_of(&products)?);
+        }
+    }
+    let (rw, _, _) = masked_fit(compiled, engine, files, values, options, moved)?;
+    Ok(sumsq(&rw) - rss)
 }
 
 fn sumsq(r: &[f64]) -> f64 {
@@ -386,13 +446,22 @@ pub fn optimise(
         v
     };
     let mut phi: Vec<f64> = fitted.iter().map(|&i| values[i].ln()).collect();
-    let (mut r, mut rank) = residuals(compiled, engine, files, &values, options, None)?;
-    if !options.min_norm && rank < Layout::new(m, files).columns() {
+    // The fixed columns' triangle, factored once for every evaluation below (the start's
+    // included): after it no full factorisation of the design is made until the fit at the
+    // optimum.
+    let (split, dependent) = split_for(compiled, engine, files, &values, options, &fitted)?;
+    let split = split.as_ref();
+    if dependent && !options.min_norm {
+        // Fixed columns the others explain: a plain QR decides at once whether the design
+        // is deficient, before any evaluation of the optimiser.
         refuse_deficient(compiled, engine, files, &values, options)?;
     }
-    // The fixed columns' triangle, factored once for every evaluation below.
-    let split = split_for(compiled, engine, files, &values, options, &fitted)?;
-    let split = split.as_ref();
+    let (mut r, mut rank) = residuals(compiled, engine, files, &values, options, split)?;
+    if !options.min_norm && !dependent && rank < Layout::new(m, files).columns() {
+        // The completed triangle decides the moving block's rank coarsely (normal
+        // equations): a plain QR has the last word.
+        refuse_deficient(compiled, engine, files, &values, options)?;
+    }
     let mut rss = sumsq(&r);
     let mut lambda = 1e-3;
     let mut iterations = 0;
@@ -473,8 +542,10 @@ pub fn optimise(
         let (rs, _) = residuals(compiled, engine, files, &held, options, split)?;
         let moved = moved_columns(compiled, engine, files, &values, i, options)?;
         let without = moved.iter().filter(|&&b| b).count();
-        let (rw, _, _) = masked_fit(compiled, engine, files, &values, options, &moved)?;
-        let term_p = f_test_p(sumsq(&rw) - rss, (without + 1) as f64, rss, dof);
+        let gain = term_gain(
+            compiled, engine, files, &values, options, split, &moved, rss,
+        )?;
+        let term_p = f_test_p(gain, (without + 1) as f64, rss, dof);
         let start_p = f_test_p(sumsq(&rs) - rss, 1.0, rss, dof);
         let bounded = se
             .get(i)
@@ -640,8 +711,39 @@ machine m {
         let options = Options::default();
         let split = split_for(&c, &mut engine, &files, &start, &options, &fitted)
             .expect("passes")
+            .0
             .expect("a split: only the periodic and Fourier columns move");
         assert_eq!(split.moving(), 2 + 4);
+        // The θ standard errors and each term's F-test gain through the split agree with the
+        // plain QR's.
+        let (r0, rank0, _) =
+            linear_fit(&c, &mut engine, &files, &start, &options, None).expect("fit");
+        let rss0 = sumsq(&r0);
+        let se = |engine: &mut crate::interp::Interpreter, split: Option<&Split>| {
+            covariance(
+                &c, engine, &files, &start, &fitted, rss0, rank0, &options, split,
+            )
+            .expect("covariance")
+        };
+        let (se_p, se_q) = (se(&mut engine, Some(&split)), se(&mut engine, None));
+        for (a, b) in se_p.iter().zip(&se_q) {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-6 * b.abs(), "se {a} vs {b}"),
+                (None, None) => {}
+                other => panic!("{other:?}"),
+            }
+        }
+        for &i in &fitted {
+            let moved = moved_columns(&c, &mut engine, &files, &start, i, &options).expect("moved");
+            let gain = |engine: &mut crate::interp::Interpreter, split: Option<&Split>| {
+                term_gain(&c, engine, &files, &start, &options, split, &moved, rss0).expect("gain")
+            };
+            let (gp, gq) = (gain(&mut engine, Some(&split)), gain(&mut engine, None));
+            assert!(
+                (gp - gq).abs() <= (1e-6 * gq.abs()).max(1e-9 * rss0),
+                "gain {gp} vs {gq}"
+            );
+        }
         for values in [
             start.clone(),
             vec![20.3e-3, 36.0e-3],

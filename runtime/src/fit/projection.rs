@@ -106,6 +106,40 @@ impl Split {
         })
     }
 
+    /// The same fixed part with `extra` more moving columns after the design's `columns`
+    /// (each row pushed then holds them after its design columns): the triangle of
+    /// `[A | B | D | y]` without a new factorisation of `A`.
+    pub fn extended(&self, columns: usize, extra: usize) -> Split {
+        let mut order = self.order.clone();
+        order.extend(columns..columns + extra);
+        Split {
+            order,
+            fixed: self.fixed,
+            base: self.base.clone(),
+        }
+    }
+
+    /// `p` with the moving columns `drop` marks (design column indices) taken out of the
+    /// problem: their products are zero, so [`Split::complete`] leaves them a zero row (a lost
+    /// rank) and the rest is the fit without them. `None` when `drop` marks a fixed column.
+    pub fn without(&self, p: &Products, drop: &[bool]) -> Option<Products> {
+        let mut out = p.clone();
+        let nb = self.moving();
+        let moving = self.order.get(self.fixed..)?;
+        for (j, _) in drop.iter().enumerate().filter(|(_, d)| **d) {
+            let c = moving.iter().position(|&o| o == j)?;
+            for a in 0..self.fixed {
+                out.ab[(a, c)] = 0.0;
+            }
+            for d in 0..nb {
+                out.bb[(c, d)] = 0.0;
+                out.bb[(d, c)] = 0.0;
+            }
+            out.by[c] = 0.0;
+        }
+        Some(out)
+    }
+
     /// How many columns move.
     pub fn moving(&self) -> usize {
         self.order.len() - self.fixed
@@ -327,6 +361,42 @@ mod tests {
         let (_, red) = split(&data, &moving).expect("split");
         assert_eq!(red.r[(2, 2)], 0.0);
         assert_eq!(red.r[(2, 3)], 0.0);
+    }
+
+    #[test]
+    fn dropped_moving_columns_give_the_fit_without_them() {
+        let moving = [false, true, false, true, true];
+        let data = rows(400, moving.len(), 11);
+        let (split, _) = split(&data, &moving).expect("split");
+        let mut products = split.products();
+        for (x, y) in &data {
+            split.push(&mut products, x, *y);
+        }
+        let drop = [false, false, false, true, false];
+        let masked = split
+            .without(&products, &drop)
+            .expect("moving columns only");
+        let red = split.complete(&masked);
+        let k = moving.len() + 1;
+        let rss = red.r[(k - 1, k - 1)].powi(2);
+        // The same problem with column 3 left out, by a plain QR.
+        let mut plain = StreamingQr::new(moving.len() - 1, 64);
+        for (x, y) in &data {
+            let kept: Vec<f64> = x
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != 3)
+                .map(|(_, v)| *v)
+                .collect();
+            plain.push(&kept, *y);
+        }
+        let plain = plain.finish();
+        let want = plain.r[(k - 2, k - 2)].powi(2);
+        assert!((rss - want).abs() <= 1e-10 * want, "{rss} vs {want}");
+        // A fixed column cannot be dropped this way.
+        assert!(split
+            .without(&products, &[true, false, false, false, false])
+            .is_none());
     }
 
     #[test]

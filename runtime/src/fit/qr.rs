@@ -4,10 +4,113 @@
 //! Each block of rows is stacked under the current `R` and refactored (Householder, faer):
 //! `QR([R; B]) = Q' R'`, and `R'ᵀR' = RᵀR + BᵀB`, so the final `R` is that of the whole matrix
 //! and `R[p, p]²` is the residual sum of squares of the full least-squares problem.
+//!
+//! On several threads the identity is used twice. Block `i` goes to worker `i mod T`, each
+//! worker keeps its own triangle of the blocks it was given, in order, and at the end the
+//! workers' triangles are stacked in worker order and factored once more. Which block meets
+//! which arithmetic depends only on the block size and `T`, never on timing, so a fit on `T`
+//! threads gives the same bits every time; with another `T` only the rounding differs (the
+//! triangles are of the same Gram matrix). While the workers factor, the calling thread
+//! evaluates the next rows (the evaluator is not shared): the two overlap.
+//!
+//! faer's own parallelism would come with its rayon feature, which makes every faer call in
+//! the process parallel by default; here the threads belong to one fit.
+
+use std::sync::mpsc::{self, Receiver, SyncSender};
+use std::thread::JoinHandle;
 
 use faer::Mat;
 
-#[derive(Debug, Clone)]
+/// The parallel half: one channel and one thread per worker, and the emptied blocks coming back.
+#[derive(Debug)]
+struct Workers {
+    to: Vec<SyncSender<(Mat<f64>, usize)>>,
+    spare: Receiver<Mat<f64>>,
+    handles: Vec<JoinHandle<Mat<f64>>>,
+    /// Blocks sent so far: the next goes to worker `sent mod T`.
+    sent: usize,
+}
+
+impl Workers {
+    fn start(threads: usize, k: usize) -> Workers {
+        let (back, spare) = mpsc::channel();
+        let mut to = Vec::with_capacity(threads);
+        let mut handles = Vec::with_capacity(threads);
+        for _ in 0..threads {
+            // One block queued per worker: the reader never runs more than a block ahead.
+            let (tx, rx) = mpsc::sync_channel::<(Mat<f64>, usize)>(1);
+            let back = back.clone();
+            handles.push(std::thread::spawn(move || {
+                let mut r = Mat::zeros(k, k);
+                for (block, filled) in rx {
+                    fold(&mut r, &block, filled);
+                    // The reader may have finished and dropped its end: nothing to return to.
+                    let _ = back.send(block);
+                }
+                r
+            }));
+            to.push(tx);
+        }
+        Workers {
+            to,
+            spare,
+            handles,
+            sent: 0,
+        }
+    }
+
+    /// Hands a block to its worker; returns an empty block to fill next.
+    fn send(&mut self, block: Mat<f64>, filled: usize) -> Mat<f64> {
+        let (rows, cols) = (block.nrows(), block.ncols());
+        let t = self.sent % self.to.len();
+        self.sent += 1;
+        let failed = match self.to.get(t) {
+            Some(tx) => tx.send((block, filled)).is_err(),
+            None => true,
+        };
+        if failed {
+            // Only a worker that died (a bug) drops its end; `finish` reports it.
+            return Mat::zeros(rows, cols);
+        }
+        self.spare
+            .try_recv()
+            .unwrap_or_else(|_| Mat::zeros(rows, cols))
+    }
+
+    /// The workers' triangles, stacked and factored in worker order.
+    fn finish(self, k: usize) -> Mat<f64> {
+        drop(self.to);
+        let mut r = Mat::zeros(k, k);
+        for h in self.handles {
+            match h.join() {
+                Ok(part) => fold(&mut r, &part, k),
+                // A worker panicked: a bug in this module, carried to the caller as it was.
+                Err(e) => std::panic::resume_unwind(e),
+            }
+        }
+        r
+    }
+}
+
+/// `r` := the triangle of `[r; block[..filled]]`.
+fn fold(r: &mut Mat<f64>, block: &Mat<f64>, filled: usize) {
+    if filled == 0 {
+        return;
+    }
+    let k = r.ncols();
+    let stacked = Mat::from_fn(k + filled, k, |i, j| {
+        if i < k {
+            r[(i, j)]
+        } else {
+            block[(i - k, j)]
+        }
+    });
+    let qr = stacked.qr();
+    let t = qr.thin_R();
+    *r = Mat::from_fn(k, k, |i, j| if j >= i { t[(i, j)] } else { 0.0 });
+}
+
+#[derive(Debug)]
 pub struct StreamingQr {
     k: usize,
     r: Mat<f64>,
@@ -16,6 +119,10 @@ pub struct StreamingQr {
     rows: usize,
     norms2: Vec<f64>,
     y_sum: f64,
+    threads: usize,
+    /// Started at the first full block when `threads > 1`: a problem of one block is
+    /// factored on the calling thread, as on one thread.
+    workers: Option<Workers>,
 }
 
 /// The accumulated problem: `r` is `k × k` upper triangular (`k` = columns + 1, y last).
@@ -45,8 +152,14 @@ impl Reduced {
 }
 
 impl StreamingQr {
-    /// `columns` unknowns; rows are buffered `block` at a time.
+    /// `columns` unknowns; rows are buffered `block` at a time; one thread.
     pub fn new(columns: usize, block: usize) -> Self {
+        Self::with_threads(columns, block, 1)
+    }
+
+    /// As [`StreamingQr::new`], the blocks factored on `threads` worker threads (see the
+    /// module's documentation; 0 counts as 1).
+    pub fn with_threads(columns: usize, block: usize, threads: usize) -> Self {
         let k = columns + 1;
         let block = block.max(k);
         StreamingQr {
@@ -57,6 +170,8 @@ impl StreamingQr {
             rows: 0,
             norms2: vec![0.0; columns],
             y_sum: 0.0,
+            threads: threads.max(1),
+            workers: None,
         }
     }
 
@@ -73,6 +188,9 @@ impl StreamingQr {
         self.filled += 1;
         self.rows += 1;
         if self.filled == self.block.nrows() {
+            if self.threads > 1 && self.workers.is_none() {
+                self.workers = Some(Workers::start(self.threads, self.k));
+            }
             self.flush();
         }
     }
@@ -81,23 +199,23 @@ impl StreamingQr {
         if self.filled == 0 {
             return;
         }
-        let (k, b) = (self.k, self.filled);
-        let stacked = Mat::from_fn(k + b, k, |i, j| {
-            if i < k {
-                self.r[(i, j)]
-            } else {
-                self.block[(i - k, j)]
+        match &mut self.workers {
+            Some(w) => {
+                let empty = Mat::zeros(0, 0);
+                let full = std::mem::replace(&mut self.block, empty);
+                self.block = w.send(full, self.filled);
             }
-        });
-        let qr = stacked.qr();
-        let r = qr.thin_R();
-        self.r = Mat::from_fn(k, k, |i, j| if j >= i { r[(i, j)] } else { 0.0 });
+            None => fold(&mut self.r, &self.block, self.filled),
+        }
         self.filled = 0;
     }
 
     pub fn finish(mut self) -> Reduced {
         self.flush();
         let k = self.k;
+        if let Some(w) = self.workers.take() {
+            self.r = w.finish(k);
+        }
         // ‖y‖² is the squared norm of R's last column (RᵀR = [X y]ᵀ[X y]).
         let y_sumsq = (0..k).map(|i| self.r[(i, k - 1)].powi(2)).sum();
         Reduced {

@@ -80,7 +80,7 @@ pub fn fit_in_chunks(
     let p = layout.columns();
 
     // Pass 1: the triangle of [X | y].
-    let red = triangle(p, options.block, &mut *progress, |row| {
+    let red = triangle(p, options, &mut *progress, |row| {
         each_row(compiled, engine, &source, &files, &values, &layout, row)
     })?;
     let Solved {
@@ -105,7 +105,7 @@ pub fn fit_in_chunks(
     let keep = red.rows <= MAX_RESIDUALS;
     let mut residuals = Vec::new();
     let mut drained = Vec::new();
-    let mut block = Block::new(options.block, p);
+    let mut block = Block::new(options.block, p, options.threads);
     let mut done = 0usize;
     let mut settle = |drained: &mut Vec<ResidualRow>| {
         for r in drained.iter_mut() {

@@ -824,6 +824,15 @@ impl Checker<'_> {
         match f {
             "sin" | "cos" => return self.trig(f, args, span, sink),
             "lag" => return self.lag(args, span, sink),
+            "pow" => {
+                sink.push(
+                    Diagnostic::error("E0308", "`pow` is written inside `lag`", name.span)
+                        .with_label("a power of an input outside a lag")
+                        .with_note("a power of an input is a heat source: its heat reaches the structure through a lag")
+                        .with_help("e.g. `lag(pow(S / 1000 rpm, 1.5), tau fit 30 min) * const`"),
+                );
+                return None;
+            }
             _ => {}
         }
         if !FAMILIES.contains(&f) {
@@ -1147,21 +1156,77 @@ impl Checker<'_> {
         Some(SymTerm::scalar(scale, Dim::DIMENSIONLESS, span))
     }
 
-    /// `lag(INPUT, tau [fit] T)`: a known scalar, the first-order lag state of an input.
+    /// `lag(SOURCE, tau [fit] T [, from U])`: a known scalar, the lag state of an input. The
+    /// source is an input, an input over a reference value (`S / 1000 rpm`), a known power of
+    /// either (`pow(S / 1000 rpm, 1.5)`: a heat source), or a lag itself (a second stage).
     fn lag(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let chain = self.lag_chain(args, span, 1, sink)?;
+        let lag = self.models.lags.len();
+        self.models.lags.push(chain.lag);
+        let mut t = SymTerm::scalar(Scalar::Var(Var::Lag(lag)), chain.dim, span);
+        if chain.absolute {
+            t.temp = Temp::Absolute;
+        }
+        Some(t)
+    }
+
+    /// One stage of a lag and, through its source, the stages inside it (at most two).
+    fn lag_chain(
+        &mut self,
+        args: &[Arg],
+        span: Span,
+        depth: usize,
+        sink: &mut Sink,
+    ) -> Option<LagChain> {
         let mut opts = Options::new("lag", args, span, sink)?;
-        let (var_name, var_span) = opts.variable(sink)?;
-        let var = self.resolve_var(&var_name, var_span, sink)?;
-        let Var::Input(input) = var else {
-            sink.push(
-                Diagnostic::error("E0305", "`lag` applies to an input only", var_span)
-                    .with_label(format!("`{var_name}` is not an input"))
-                    .with_note("a lag follows a measured input such as a temperature (thesis eq. 3.41–3.48)"),
-            );
-            return None;
+        let source = *opts.positional.first()?;
+        let inner = match &source.kind {
+            ExprKind::Call { name, args } if name.node == "lag" => {
+                if depth >= 2 {
+                    sink.push(
+                        Diagnostic::error("E0309", "a lag of a lag of a lag", source.span)
+                            .with_label("third stage")
+                            .with_note("a cascade has at most two stages: `lag(lag(T, tau 10 min), tau 2 h)`"),
+                    );
+                    return None;
+                }
+                self.lag_chain(args, source.span, depth + 1, sink)?
+            }
+            ExprKind::Call { name, args } if name.node == "pow" => {
+                self.lag_power(args, source.span, sink)?
+            }
+            _ => self.lag_input(source, sink)?,
         };
+        let mut chain = inner;
         let time_unit = self.st.units.time.clone();
         let (tau, tau_span, fitted) = opts.required_quantity("tau", Dim::TIME, &time_unit, sink)?;
+        if let Some(o) = opts.take("from") {
+            let OptionValue::Expr(e) = &o.value else {
+                sink.push(
+                    Diagnostic::error("E0105", "`from` takes a value of the input", o.value.span())
+                        .with_label("expected a quantity"),
+                );
+                return None;
+            };
+            if let Some(first) = chain.from_span {
+                sink.push(
+                    Diagnostic::error(
+                        "E0309",
+                        "the initial state of this cascade is declared twice",
+                        o.name.span,
+                    )
+                    .with_label("second `from`")
+                    .with_secondary(first, "first declared here")
+                    .with_note("both stages start settled at the one value held before the run"),
+                );
+                return None;
+            }
+            let input = self.st.inputs.get(chain.lag.input)?;
+            let what = format!("the initial value of `{}`", input.name);
+            let value = quantity_of(e, input.unit.dim, &input.unit, input.absolute, &what, sink)?;
+            chain.lag.from = Some(value);
+            chain.from_span = Some(o.name.span);
+        }
         opts.finish(sink)?;
         if !(tau > 0.0) {
             sink.push(
@@ -1174,18 +1239,150 @@ impl Checker<'_> {
         if let Some(p) = self.models.nonlinear.get_mut(index) {
             p.fitted = fitted;
         }
-        let lag = self.models.lags.len();
-        self.models.lags.push(ir::Lag {
-            input,
-            tau: NonLinear { index },
-        });
-        let input_decl = self.st.inputs.get(input)?;
-        let mut t = SymTerm::scalar(Scalar::Var(Var::Lag(lag)), input_decl.unit.dim, span);
-        if input_decl.absolute {
-            t.temp = Temp::Absolute;
+        if depth == 1 && chain.staged {
+            chain.lag.tau2 = Some(NonLinear { index });
+        } else {
+            chain.lag.tau = NonLinear { index };
+            chain.staged = true;
         }
-        Some(t)
+        Some(chain)
     }
+
+    /// The source of a lag that is an input, or an input divided by a reference value.
+    fn lag_input(&mut self, e: &Expr, sink: &mut Sink) -> Option<LagChain> {
+        let (name_expr, reference) = match &e.kind {
+            ExprKind::Binary(BinOp::Div, a, b) if matches!(a.kind, ExprKind::Name(_)) => {
+                (a.as_ref(), Some(b.as_ref()))
+            }
+            _ => (e, None),
+        };
+        let ExprKind::Name(var_name) = &name_expr.kind else {
+            sink.push(
+                Diagnostic::error("E0305", "`lag` applies to an input only", e.span)
+                    .with_label("not an input")
+                    .with_help(
+                        "a lag takes an input, `S / 1000 rpm`, `pow(S / 1000 rpm, 1.5)` or a lag",
+                    ),
+            );
+            return None;
+        };
+        let var = self.resolve_var(var_name, name_expr.span, sink)?;
+        let Var::Input(input) = var else {
+            sink.push(
+                Diagnostic::error("E0305", "`lag` applies to an input only", name_expr.span)
+                    .with_label(format!("`{var_name}` is not an input"))
+                    .with_note("a lag follows a measured input such as a temperature (thesis eq. 3.41–3.48)"),
+            );
+            return None;
+        };
+        let decl = self.st.inputs.get(input)?;
+        let mut chain = LagChain {
+            lag: ir::Lag {
+                input,
+                tau: NonLinear { index: 0 },
+                source: ir::LagSource::default(),
+                tau2: None,
+                from: None,
+            },
+            dim: decl.unit.dim,
+            absolute: decl.absolute,
+            staged: false,
+            from_span: None,
+        };
+        if let Some(r) = reference {
+            if decl.absolute {
+                sink.push(
+                    Diagnostic::error("E0308", "an absolute temperature cannot be scaled", e.span)
+                        .with_label("absolute temperature over a value")
+                        .with_note(
+                            "an absolute temperature has an arbitrary zero; lag it as it is",
+                        ),
+                );
+                return None;
+            }
+            let c = constant(r, false, sink)?;
+            if !(c.value > 0.0) {
+                sink.push(
+                    Diagnostic::error(
+                        "E0308",
+                        "the reference value of a heat source must be positive",
+                        r.span,
+                    )
+                    .with_label("not positive"),
+                );
+                return None;
+            }
+            chain.lag.source.reference = c.value;
+            chain.dim = chain.dim / c.dim;
+        }
+        Some(chain)
+    }
+
+    /// `pow(SOURCE, n)` as the source of a lag: a heat source that grows as a known power of
+    /// an input (bearing friction with spindle speed, losses with power).
+    fn lag_power(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<LagChain> {
+        let [Arg::Positional(base), Arg::Positional(exponent)] = args else {
+            sink.push(
+                Diagnostic::error("E0308", "`pow` takes an input and a power", span)
+                    .with_label("expected two arguments")
+                    .with_help("e.g. `pow(S / 1000 rpm, 1.5)`"),
+            );
+            return None;
+        };
+        let n = match &exponent.kind {
+            ExprKind::Quantity { value, unit: None } => *value,
+            _ => {
+                sink.push(
+                    Diagnostic::error("E0308", "the power must be a plain number", exponent.span)
+                        .with_label("expected a number without unit")
+                        .with_note("the exponent of a heat source is known, e.g. 1.5"),
+                );
+                return None;
+            }
+        };
+        if !(n > 0.0 && n <= 10.0) {
+            sink.push(
+                Diagnostic::error(
+                    "E0308",
+                    format!("the power {n} is out of bounds"),
+                    exponent.span,
+                )
+                .with_label("must be above 0 and at most 10"),
+            );
+            return None;
+        }
+        let mut chain = self.lag_input(base, sink)?;
+        if chain.absolute {
+            sink.push(absolute_temperature(base.span));
+            return None;
+        }
+        if n.fract() == 0.0 {
+            chain.dim = chain.dim.powi(n as i32);
+        } else if !chain.dim.is_dimensionless() {
+            sink.push(
+                Diagnostic::error(
+                    "E0308",
+                    format!("a power {n} of {} has no unit", chain.dim.describe()),
+                    base.span,
+                )
+                .with_label("not dimensionless")
+                .with_help("divide by a reference value, e.g. `pow(S / 1000 rpm, 1.5)`"),
+            );
+            return None;
+        }
+        chain.lag.source.power = n;
+        Some(chain)
+    }
+}
+
+/// A lag while its cascade is checked, innermost stage first.
+struct LagChain {
+    lag: ir::Lag,
+    dim: Dim,
+    absolute: bool,
+    /// Whether the first stage's time constant is set (an inner `lag` was read).
+    staged: bool,
+    from_span: Option<Span>,
 }
 
 /// At most this many terms in one expanded error model.
@@ -1211,7 +1408,7 @@ fn allowed_options(f: &str) -> &'static [&'static str] {
         "straightness" => &["knots", "degree", "smooth"],
         "fourier" => &["harmonics", "wavelength"],
         "periodic" => &["wavelength", "knots", "degree", "smooth", "phase"],
-        "lag" => &["tau"],
+        "lag" => &["tau", "from"],
         _ => &[],
     }
 }

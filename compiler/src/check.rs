@@ -2056,4 +2056,128 @@ mod tests {
             .count();
         assert_eq!(lagged, 2);
     }
+
+    fn heat(errors: &str) -> crate::lower::Output {
+        let src = format!(
+            "machine m {{
+                task position
+                units {{ length mm, error um, tilt urad, time min }}
+                input T : temperature rise
+                input T_abs : temperature absolute
+                input S : speed
+                input P : power [kW]
+                axis X prismatic along x range 0 mm .. 500 mm
+                tool chain {{ X moving  tool t at (0, 0, -100) mm }}
+                errors {{ {errors} }}
+            }}"
+        );
+        crate::compile(&src)
+    }
+
+    fn heat_machine(errors: &str) -> Machine {
+        let out = heat(errors);
+        out.compiled
+            .unwrap_or_else(|| panic!("{:?}", out.diagnostics))
+            .machine
+    }
+
+    fn heat_codes(errors: &str) -> Vec<String> {
+        heat(errors)
+            .diagnostics
+            .iter()
+            .filter(|d| d.severity == crate::diagnostic::Severity::Error)
+            .map(|d| d.code.to_string())
+            .collect()
+    }
+
+    #[test]
+    fn a_power_of_a_heat_source_drives_a_lag() {
+        let m = heat_machine("X.tx = lag(pow(S / 1000 rpm, 1.5), tau fit 40 min) * const");
+        let l = &m.lags[0];
+        assert_eq!(l.input, 2);
+        assert!((l.source.reference - 1000.0 * std::f64::consts::TAU / 60.0).abs() < 1e-9);
+        assert_eq!(l.source.power, 1.5);
+        assert!(l.tau2.is_none());
+        assert_eq!(m.coefficients[0].unit.name, "um", "a dimensionless drive");
+        // 2000 rpm held: (2000/1000)^1.5.
+        let u = 2000.0 * std::f64::consts::TAU / 60.0;
+        assert!((l.steady(u) - 2f64.powf(1.5)).abs() < 1e-12);
+        // An integer power keeps the unit: um per kW².
+        let m = heat_machine("X.tx = lag(pow(P, 2), tau 5 min) * const");
+        assert_eq!(m.lags[0].source.power, 2.0);
+        assert_eq!(
+            m.coefficients[0].unit.dim,
+            crate::units::Dim::LENGTH / crate::units::Dim::POWER.powi(2)
+        );
+    }
+
+    #[test]
+    fn a_lag_of_a_lag_has_two_time_constants() {
+        let m = heat_machine("X.tx = lag(lag(T, tau 10 min), tau fit 2 h) * const");
+        assert_eq!(m.lags.len(), 1);
+        let l = &m.lags[0];
+        let inner = &m.nonlinear[l.tau.index];
+        let outer = &m.nonlinear[l.tau2.map(|t| t.index).unwrap_or(usize::MAX)];
+        assert_eq!(
+            (inner.value, inner.fitted, inner.name.as_str()),
+            (600.0, false, "X.tx.tau")
+        );
+        assert_eq!(
+            (outer.value, outer.fitted, outer.name.as_str()),
+            (7200.0, true, "X.tx.tau[1]")
+        );
+    }
+
+    #[test]
+    fn a_declared_initial_state_is_read_in_the_inputs_unit() {
+        let m = heat_machine("X.tx = lag(S, tau 30 min, from 0 rpm) * const");
+        assert_eq!(m.lags[0].from, Some(0.0));
+        let m = heat_machine("X.tx = lag(lag(T, tau 3 min, from 2 K), tau 30 min) * const");
+        assert_eq!(m.lags[0].from, Some(2.0));
+        let m = heat_machine("X.tx = (lag(T_abs, tau 30 min, from 20 degC) - 20 degC) * const");
+        assert!((m.lags[0].from.unwrap_or(0.0) - 293.15).abs() < 1e-9);
+        let m = heat_machine("X.tx = lag(T, tau 30 min) * const");
+        assert_eq!(m.lags[0].from, None);
+    }
+
+    #[test]
+    fn heat_source_mistakes_are_located_errors() {
+        assert_eq!(
+            heat_codes("X.tx = pow(S / 1000 rpm, 1.5) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(S, 1.5), tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(S / 1000 rpm, 0), tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(S / 1000 rpm, 1.5 mm), tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(T_abs, 2), tau 1 min) * const"),
+            ["E0204"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(S / 0 rpm, tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(lag(lag(T, tau 1 min), tau 2 min), tau 3 min) * const"),
+            ["E0309"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(lag(T, tau 1 min, from 0 K), tau 2 min, from 0 K) * const"),
+            ["E0309"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(S, tau 1 min, from 3 mm) * const"),
+            ["E0203"]
+        );
+        assert_eq!(heat_codes("X.tx = lag(X, tau 1 min) * const"), ["E0305"]);
+    }
 }

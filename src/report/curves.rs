@@ -524,7 +524,7 @@ fn set_with_lags(r: &mut Reference, m: &Machine, v: Var, x: f64) {
     if let Var::Input(i) = v {
         for (l, lag) in m.lags.iter().enumerate() {
             if lag.input == i {
-                r.set(Var::Lag(l), x);
+                r.set(Var::Lag(l), lag.steady(x));
             }
         }
     }

@@ -831,6 +831,7 @@ impl Checker<'_> {
                         .with_note("a power of an input is a heat source: its heat reaches the structure through a lag")
                         .with_help("e.g. `lag(pow(S / 1000 rpm, 1.5), tau fit 30 min) * const`"),
                 );
+                self.mark_used(args);
                 return None;
             }
             _ => {}
@@ -1188,6 +1189,7 @@ impl Checker<'_> {
                             .with_label("third stage")
                             .with_note("a cascade has at most two stages: `lag(lag(T, tau 10 min), tau 2 h)`"),
                     );
+                    self.mark_used(args);
                     return None;
                 }
                 self.lag_chain(args, source.span, depth + 1, sink)?
@@ -1246,6 +1248,40 @@ impl Checker<'_> {
             chain.staged = true;
         }
         Some(chain)
+    }
+
+    /// Marks the inputs named in rejected arguments as used, so that one mistake does not also
+    /// report them as never used.
+    fn mark_used(&mut self, args: &[Arg]) {
+        fn walk(e: &Expr, out: &mut Vec<String>) {
+            match &e.kind {
+                ExprKind::Name(n) => out.push(n.clone()),
+                ExprKind::Neg(a) => walk(a, out),
+                ExprKind::Binary(_, a, b) => {
+                    walk(a, out);
+                    walk(b, out);
+                }
+                ExprKind::Call { args, .. } => args.iter().for_each(|a| {
+                    if let Arg::Positional(e) = a {
+                        walk(e, out)
+                    }
+                }),
+                ExprKind::Quantity { .. } | ExprKind::Const => {}
+            }
+        }
+        let mut names = Vec::new();
+        for a in args {
+            if let Arg::Positional(e) = a {
+                walk(e, &mut names);
+            }
+        }
+        for n in names {
+            if let Some(i) = self.st.input_index(&n) {
+                if let Some(u) = self.models.used_inputs.get_mut(i) {
+                    *u = true;
+                }
+            }
+        }
     }
 
     /// The source of a lag that is an input, or an input divided by a reference value.

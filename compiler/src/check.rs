@@ -85,6 +85,7 @@ pub(crate) fn check_errors(decls: &[&ast::ErrorsDecl], st: &Structure, sink: &mu
         },
         defined: HashMap::new(),
         current: String::new(),
+        component: None,
         nonlinear_count: HashMap::new(),
         per_error: HashMap::new(),
     };
@@ -103,6 +104,9 @@ struct Checker<'a> {
     defined: HashMap<(FrameRef, Component), (usize, Option<Span>)>,
     /// Display name of the target being checked, e.g. `Z.tz`.
     current: String,
+    /// The one component the value being expanded is for (`beam` depends on it); `None` for a
+    /// definition with several targets.
+    component: Option<Component>,
     nonlinear_count: HashMap<(String, &'static str), usize>,
     /// Coefficients so far per error model, for their names.
     per_error: HashMap<usize, usize>,
@@ -143,6 +147,10 @@ impl Checker<'_> {
         // The value is expanded once: a wavelength or time constant it declares `fit` is one
         // parameter (named after the first target), shared by every target's terms.
         self.current = first.clone();
+        self.component = match claimed.as_slice() {
+            [(_, c, _, _, _)] => Some(*c),
+            _ => None,
+        };
         let Some(terms) = self.expand(&def.value, sink) else {
             return;
         };
@@ -824,6 +832,7 @@ impl Checker<'_> {
         match f {
             "sin" | "cos" => return self.trig(f, args, span, sink),
             "lag" => return self.lag(args, span, sink),
+            "beam" => return self.beam(args, span, sink),
             "pow" => {
                 sink.push(
                     Diagnostic::error("E0308", "`pow` is written inside `lag`", name.span)
@@ -839,11 +848,17 @@ impl Checker<'_> {
         if !FAMILIES.contains(&f) {
             let mut d = Diagnostic::error("E0104", format!("unknown function `{f}`"), name.span)
                 .with_label("not a factor family");
-            if let Some(s) = suggest(f, FAMILIES.iter().copied().chain(["sin", "cos", "lag"])) {
+            if let Some(s) = suggest(
+                f,
+                FAMILIES
+                    .iter()
+                    .copied()
+                    .chain(["sin", "cos", "lag", "beam"]),
+            ) {
                 d = d.with_help(format!("did you mean `{s}`?"));
             } else {
                 d = d.with_note(format!(
-                    "factor families: {}, and the functions sin, cos, lag",
+                    "factor families: {}, and the functions sin, cos, lag, beam",
                     FAMILIES.join(", ")
                 ));
             }
@@ -1411,6 +1426,322 @@ impl Checker<'_> {
     }
 }
 
+impl Checker<'_> {
+    /// `beam(A, ends at (x₀, x₁) U, mean at (T₀, T₁))` or `beam(A, ends at (x₀, x₁) U,
+    /// upper at (…), lower at (…), gap d, across y|z)`: the stress-free thermal deformation of
+    /// a beam along prismatic axis A (thesis §3.4.3, eq. 3.57–3.62) per unit coefficient of
+    /// expansion, for the one component being defined. The temperatures (rises from the
+    /// reference state) are known scalars at the two ends, linear in between and beyond
+    /// (eq. 3.56 along the beam); with `s = q − x₀`, `L = x₁ − x₀`, mean `T̄`, gradient `G`
+    /// across the beam (`(upper − lower)/gap`):
+    ///
+    /// - expansion along the beam (eq. 3.58): `E = ∫T̄ = T̄₀s + (T̄₁ − T̄₀)s²/(2L)`;
+    /// - bending angle about `g × u` (eq. 3.59–3.60): `R = ∫G = G₀s + (G₁ − G₀)s²/(2L)`;
+    /// - deflection along `−g` (eq. 3.61–3.62): `D = ∫∫G = G₀s²/2 + (G₁ − G₀)s³/(6L)`;
+    ///
+    /// the component's value is the projection of `u E − g D` (translations, length × K) or
+    /// `(g × u) R` (rotations, angle × K) on its own axis; times a coefficient of expansion
+    /// (`11.5 um/m/K * beam(…)`, or `beam(…) * const` to fit it) it is the parametric error.
+    fn beam(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let mut opts = Options::new("beam", args, span, sink)?;
+        let (var_name, var_span) = opts.variable(sink)?;
+        let var = self.resolve_var(&var_name, var_span, sink)?;
+        let axis = match var {
+            Var::Axis(i) => self
+                .st
+                .axes
+                .get(i)
+                .filter(|a| a.kind == JointKind::Prismatic)
+                .map(|a| (i, a.direction)),
+            _ => None,
+        };
+        let Some((axis, u)) = axis else {
+            sink.push(
+                Diagnostic::error("E0305", "`beam` runs along a prismatic axis", var_span)
+                    .with_label(format!("`{var_name}` is not a prismatic axis"))
+                    .with_note("the beam's coordinate is the axis position (thesis §3.4.3)"),
+            );
+            return None;
+        };
+        let Some(component) = self.component else {
+            sink.push(
+                Diagnostic::error(
+                    "E0310",
+                    "`beam` gives a different error to each component",
+                    span,
+                )
+                .with_label("in a definition with several targets")
+                .with_help(
+                    "write one definition per component: `X.tz += 11.5 um/m/K * beam(X, …)`",
+                ),
+            );
+            return None;
+        };
+        let length_unit = self.st.units.length.clone();
+        let ends = opts.take("ends");
+        let ends = match ends.map(|o| &o.value) {
+            Some(OptionValue::At { items, unit, .. }) if items.len() == 2 => {
+                let unit = match unit {
+                    Some(u) => parse_unit(u, sink)?.as_difference(),
+                    None => length_unit.clone(),
+                };
+                let mut v = [0.0; 2];
+                for (slot, item) in v.iter_mut().zip(items) {
+                    *slot =
+                        quantity_of(item, Dim::LENGTH, &unit, false, "the end of a beam", sink)?;
+                }
+                v
+            }
+            _ => {
+                sink.push(
+                    Diagnostic::error(
+                        "E0105",
+                        "`beam` needs its two ends",
+                        ends.map(|o| o.value.span()).unwrap_or(span),
+                    )
+                    .with_label("expected `ends at (x₀, x₁) mm`")
+                    .with_help("e.g. `beam(X, ends at (0, 800) mm, mean at (T_0, T_1))`"),
+                );
+                return None;
+            }
+        };
+        let length = ends[1] - ends[0];
+        if !(length > 0.0) {
+            sink.push(
+                Diagnostic::error("E0304", "the ends of the beam are equal or inverted", span)
+                    .with_label("the second end must be beyond the first"),
+            );
+            return None;
+        }
+        let mean = self.beam_pair(&mut opts, "mean", span, sink)?;
+        let upper = self.beam_pair(&mut opts, "upper", span, sink)?;
+        let lower = self.beam_pair(&mut opts, "lower", span, sink)?;
+        let gap = opts.quantity("gap", Dim::LENGTH, &length_unit, sink)?;
+        let across = opts.take("across").map(|o| (&o.value, o.value.span()));
+        opts.finish(sink)?;
+        let across = match across {
+            None => None,
+            Some((
+                OptionValue::Expr(Expr {
+                    kind: ExprKind::Name(n),
+                    ..
+                }),
+                at,
+            )) => match n.as_str() {
+                "x" => Some(([1.0, 0.0, 0.0], at)),
+                "y" => Some(([0.0, 1.0, 0.0], at)),
+                "z" => Some(([0.0, 0.0, 1.0], at)),
+                _ => None,
+            }
+            .or_else(|| {
+                sink.push(
+                    Diagnostic::error("E0105", "`across` takes `x`, `y` or `z`", at)
+                        .with_label("not a direction"),
+                );
+                None
+            }),
+            Some((_, at)) => {
+                sink.push(
+                    Diagnostic::error("E0105", "`across` takes `x`, `y` or `z`", at)
+                        .with_label("not a direction"),
+                );
+                return None;
+            }
+        };
+        let (mean, gradient) = match (mean, upper, lower, gap, across) {
+            (Some(m), None, None, None, None) => (m, None),
+            (None, Some(up), Some(lo), Some((d, d_span, _)), Some((g, g_span))) => {
+                if !(d > 0.0) {
+                    sink.push(
+                        Diagnostic::error("E0105", "the gap must be positive", d_span)
+                            .with_label("not positive"),
+                    );
+                    return None;
+                }
+                let dot = g[0] * u[0] + g[1] * u[1] + g[2] * u[2];
+                if dot.abs() > 1e-9 {
+                    sink.push(
+                        Diagnostic::error("E0310", "the gradient must be across the beam", g_span)
+                            .with_label(format!("`{var_name}` runs along this direction")),
+                    );
+                    return None;
+                }
+                let half =
+                    |a: &Scalar, b: &Scalar| mul(Scalar::Num(0.5), add(a.clone(), b.clone()));
+                let grad =
+                    |a: &Scalar, b: &Scalar| mul(Scalar::Num(1.0 / d), sub(a.clone(), b.clone()));
+                (
+                    [half(&up[0], &lo[0]), half(&up[1], &lo[1])],
+                    Some(([grad(&up[0], &lo[0]), grad(&up[1], &lo[1])], g)),
+                )
+            }
+            _ => {
+                sink.push(
+                    Diagnostic::error("E0105", "`beam` needs `mean at (…)`, or `upper`, `lower`, `gap` and `across`", span)
+                        .with_label("temperatures incomplete")
+                        .with_help("e.g. `beam(X, ends at (0, 800) mm, upper at (T_a, T_b), lower at (T_c, T_d), gap 200 mm, across z)`"),
+                );
+                return None;
+            }
+        };
+        let s = sub(Scalar::Var(Var::Axis(axis)), Scalar::Num(ends[0]));
+        let ramp = |v: &[Scalar; 2], k: f64, p: i32| {
+            // v₀ sᵖ/p! + (v₁ − v₀) s^{p+1}/((p+1)! L), with k = 1/p!.
+            let sp = (0..p).fold(Scalar::Num(1.0), |acc, _| mul(acc, s.clone()));
+            let first = mul(mul(Scalar::Num(k), v[0].clone()), sp.clone());
+            let slope = mul(
+                Scalar::Num(k / (f64::from(p) + 1.0) / length),
+                sub(v[1].clone(), v[0].clone()),
+            );
+            add(first, mul(slope, mul(sp, s.clone())))
+        };
+        let k = component.index() % 3;
+        let (value, dim) = if component.is_rotation() {
+            let Some((g_value, g)) = &gradient else {
+                sink.push(beam_nothing(
+                    span,
+                    &self.current,
+                    "a mean temperature only expands the beam",
+                ));
+                return None;
+            };
+            let n = cross(*g, u);
+            if n[k].abs() < 1e-12 {
+                sink.push(beam_nothing(span, &self.current, "a beam does not twist about its own axis, and bends about the axis normal to it and the gradient"));
+                return None;
+            }
+            (
+                mul(Scalar::Num(n[k]), ramp(g_value, 1.0, 1)),
+                Dim::ANGLE * Dim::TEMPERATURE,
+            )
+        } else {
+            let mut v: Option<Scalar> = None;
+            if u[k].abs() > 1e-12 {
+                v = Some(mul(Scalar::Num(u[k]), ramp(&mean, 1.0, 1)));
+            }
+            if let Some((g_value, g)) = &gradient {
+                if g[k].abs() > 1e-12 {
+                    let d = mul(Scalar::Num(-g[k]), ramp(g_value, 0.5, 2));
+                    v = Some(match v {
+                        Some(e) => add(e, d),
+                        None => d,
+                    });
+                }
+            }
+            let Some(v) = v else {
+                sink.push(beam_nothing(
+                    span,
+                    &self.current,
+                    "the beam expands along its axis and deflects along the gradient",
+                ));
+                return None;
+            };
+            (v, Dim::LENGTH * Dim::TEMPERATURE)
+        };
+        Some(SymTerm::scalar(value, dim, span))
+    }
+
+    /// The two end temperatures of a `beam` option: known scalars, temperature rises.
+    fn beam_pair(
+        &mut self,
+        opts: &mut Options<'_>,
+        name: &str,
+        span: Span,
+        sink: &mut Sink,
+    ) -> Option<Option<[Scalar; 2]>> {
+        let Some(o) = opts.take(name) else {
+            return Some(None);
+        };
+        let OptionValue::At {
+            items, unit: None, ..
+        } = &o.value
+        else {
+            sink.push(
+                Diagnostic::error(
+                    "E0105",
+                    format!("`{name}` takes the temperatures at the two ends"),
+                    o.value.span(),
+                )
+                .with_label("expected `at (T₀, T₁)`"),
+            );
+            return None;
+        };
+        let [a, b] = items.as_slice() else {
+            sink.push(
+                Diagnostic::error(
+                    "E0105",
+                    format!("`{name}` takes the temperatures at the two ends"),
+                    o.value.span(),
+                )
+                .with_label(format!("{} values, expected 2", items.len())),
+            );
+            return None;
+        };
+        let _ = span;
+        let mut out = Vec::with_capacity(2);
+        for item in [a, b] {
+            let terms = self.expand(item, sink)?;
+            let t = self.collapse(terms, item.span, sink)?;
+            if t.fitted {
+                sink.push(
+                    Diagnostic::error(
+                        "E0307",
+                        "a fitted factor cannot be a beam's temperature",
+                        item.span,
+                    )
+                    .with_label("basis factor")
+                    .with_note("the model must stay linear in the coefficients β"),
+                );
+                return None;
+            }
+            if t.dim != Dim::TEMPERATURE {
+                sink.push(
+                    Diagnostic::error(
+                        "E0203",
+                        format!(
+                            "a beam's temperature must be a temperature, but this is {}",
+                            t.dim.describe()
+                        ),
+                        item.span,
+                    )
+                    .with_label("expected a temperature rise"),
+                );
+                return None;
+            }
+            out.push(t.scale);
+        }
+        let b = out.pop()?;
+        let a = out.pop()?;
+        Some(Some([a, b]))
+    }
+}
+
+fn beam_nothing(span: Span, target: &str, why: &str) -> Diagnostic {
+    Diagnostic::error("E0310", format!("this `beam` gives no `{target}`"), span)
+        .with_label("zero for this component")
+        .with_note(why.to_string())
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn add(a: Scalar, b: Scalar) -> Scalar {
+    Scalar::Add(Box::new(a), Box::new(b))
+}
+
+fn sub(a: Scalar, b: Scalar) -> Scalar {
+    Scalar::Sub(Box::new(a), Box::new(b))
+}
+
+fn mul(a: Scalar, b: Scalar) -> Scalar {
+    Scalar::Mul(Box::new(a), Box::new(b))
+}
+
 /// A lag while its cascade is checked, innermost stage first.
 struct LagChain {
     lag: ir::Lag,
@@ -1445,6 +1776,7 @@ fn allowed_options(f: &str) -> &'static [&'static str] {
         "fourier" => &["harmonics", "wavelength"],
         "periodic" => &["wavelength", "knots", "degree", "smooth", "phase"],
         "lag" => &["tau", "from"],
+        "beam" => &["ends", "mean", "upper", "lower", "gap", "across"],
         _ => &[],
     }
 }

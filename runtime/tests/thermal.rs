@@ -170,3 +170,110 @@ machine column {
     assert_within_se("τ slow", nl.values[2], nl.se[2], truth[2]);
     assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
 }
+
+/// A bed along X, 800 mm between its end sensors, with sensors on its upper and lower faces
+/// 200 mm apart; each component one definition (the beam's error differs per component).
+const BED: &str = r#"
+machine bed {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 1000 mm
+    input Tu0 : temperature rise
+    input Tu1 : temperature rise
+    input Tl0 : temperature rise
+    input Tl1 : temperature rise
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = 11.5 um/m/K * beam(X, ends at (100, 900) mm, upper at (Tu0, Tu1), lower at (Tl0, Tl1), gap 200 mm, across z)
+        X.tz = 11.5 um/m/K * beam(X, ends at (100, 900) mm, upper at (Tu0, Tu1), lower at (Tl0, Tl1), gap 200 mm, across z)
+        X.ry = 11.5 um/m/K * beam(X, ends at (100, 900) mm, upper at (Tu0, Tu1), lower at (Tl0, Tl1), gap 200 mm, across z)
+    }
+}
+"#;
+
+/// The fixed error of `component` (index into the machine's error models) at position `x` (m)
+/// with the four face temperatures.
+fn bed_error(c: &Compiled, error: usize, x: f64, t: [f64; 4]) -> f64 {
+    let m = &c.machine;
+    let state = kin_runtime::interp::State {
+        q: &[x],
+        inputs: &t,
+        lags: &[],
+        time: 0.0,
+        dirs: &[1.0],
+        tool: 0,
+        tool_offset: None,
+    };
+    m.errors[error]
+        .terms
+        .iter()
+        .map(|term| kin_runtime::interp::scalar(&term.scale, &state, m).expect("scalar"))
+        .sum()
+}
+
+#[test]
+fn a_uniformly_heated_beam_only_expands() {
+    let c = machine(BED);
+    let alpha = 11.5e-6;
+    for x in [0.1, 0.35, 0.9, 1.0] {
+        let t = [2.0; 4];
+        let s = x - 0.1;
+        assert!(
+            (bed_error(&c, 0, x, t) - alpha * 2.0 * s).abs() < 1e-15,
+            "tx at {x}"
+        );
+        assert_eq!(bed_error(&c, 1, x, t), 0.0, "tz at {x}");
+        assert_eq!(bed_error(&c, 2, x, t), 0.0, "ry at {x}");
+    }
+}
+
+#[test]
+fn a_linear_gradient_bends_the_beam_into_a_circle() {
+    // The upper face 1.5 K warmer than the lower along the whole beam: constant curvature
+    // κ = α ΔT / h; the section at s turns by κ s about +y (eq. 3.59) and the axis drops by
+    // κ s²/2 (eq. 3.62), the chord of the circle of radius 1/κ to second order.
+    let c = machine(BED);
+    let alpha = 11.5e-6;
+    let kappa = alpha * 1.5 / 0.2;
+    for x in [0.1, 0.3, 0.9] {
+        let s = x - 0.1;
+        let t = [1.0 + 1.5, 1.0 + 1.5, 1.0, 1.0];
+        let angle = bed_error(&c, 2, x, t);
+        let drop = bed_error(&c, 1, x, t);
+        assert!((angle - kappa * s).abs() < 1e-15, "ry at {x}: {angle}");
+        assert!(
+            (drop + kappa * s * s / 2.0).abs() < 1e-15,
+            "tz at {x}: {drop}"
+        );
+        // Mean 1.75 K: the expansion.
+        assert!((bed_error(&c, 0, x, t) - alpha * 1.75 * s).abs() < 1e-15);
+    }
+}
+
+#[test]
+fn a_gradient_growing_along_the_beam_integrates_exactly() {
+    // G(ξ) rising linearly from 0 to G₁ over L: ε = α G₁ s²/(2L), δ = −α G₁ s³/(6L). Checked
+    // against a fine midpoint integration of eq. 3.59 and 3.62.
+    let c = machine(BED);
+    let alpha = 11.5e-6;
+    let (l, g1) = (0.8, 3.0 / 0.2);
+    let t = [0.0, 3.0, 0.0, 0.0];
+    let x = 0.7;
+    let s: f64 = x - 0.1;
+    let n = 100_000;
+    let h = s / n as f64;
+    let (mut eps, mut delta) = (0.0, 0.0);
+    for i in 0..n {
+        let xi = (i as f64 + 0.5) * h;
+        // ε = ∫ α G (eq. 3.59) and δ = −∫ ε (eq. 3.62), both by the midpoint rule.
+        let g = g1 * xi / l;
+        let eps_mid = eps + alpha * g * h / 2.0;
+        eps += alpha * g * h;
+        delta -= eps_mid * h;
+    }
+    assert!((bed_error(&c, 2, x, t) - eps).abs() < 1e-12 * eps.abs().max(1e-9));
+    assert!((bed_error(&c, 1, x, t) - delta).abs() < 1e-9 * delta.abs());
+}

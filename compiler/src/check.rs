@@ -1286,8 +1286,13 @@ impl Checker<'_> {
         }
         let mut names = Vec::new();
         for a in args {
-            if let Arg::Positional(e) = a {
-                walk(e, &mut names);
+            match a {
+                Arg::Positional(e) => walk(e, &mut names),
+                Arg::Option(o) => match &o.value {
+                    OptionValue::Expr(e) => walk(e, &mut names),
+                    OptionValue::At { items, .. } => items.iter().for_each(|e| walk(e, &mut names)),
+                    _ => {}
+                },
             }
         }
         for n in names {
@@ -1443,6 +1448,9 @@ impl Checker<'_> {
     /// `(g × u) R` (rotations, angle × K) on its own axis; times a coefficient of expansion
     /// (`11.5 um/m/K * beam(…)`, or `beam(…) * const` to fit it) it is the parametric error.
     fn beam(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        // Its temperatures count as used even when the call is rejected: one mistake, one
+        // diagnostic.
+        self.mark_used(args);
         let mut opts = Options::new("beam", args, span, sink)?;
         let (var_name, var_span) = opts.variable(sink)?;
         let var = self.resolve_var(&var_name, var_span, sink)?;
@@ -2547,5 +2555,55 @@ mod tests {
             ["E0203"]
         );
         assert_eq!(heat_codes("X.tx = lag(X, tau 1 min) * const"), ["E0305"]);
+    }
+
+    #[test]
+    fn beam_mistakes_are_located_errors() {
+        let ok = "ends at (0, 500) mm, upper at (T, T), lower at (0 K, 0 K), gap 100 mm, across z";
+        assert!(heat_codes(&format!("X.tz = 11.5 um/m/K * beam(X, {ok})")).is_empty());
+        assert!(heat_codes(&format!("X.ry = beam(X, {ok}) * const")).is_empty());
+        // No torsion (thesis §3.4.3), no bending about the gradient's own direction.
+        assert_eq!(
+            heat_codes(&format!("X.rx = beam(X, {ok}) * const")),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes(&format!("X.rz = beam(X, {ok}) * const")),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes(&format!("X.tz, X.ry += beam(X, {ok}) * const")),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes("X.tz = beam(X, ends at (0, 500) mm, upper at (T, T), lower at (T, T), gap 1 mm, across x) * const"),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes("X.tz = beam(X, ends at (0, 500) mm, mean at (T, T)) * const"),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (0, 500) mm, upper at (T, T)) * const"),
+            ["E0105"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(S, ends at (0, 500) mm, mean at (T, T)) * const"),
+            ["E0305"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (500, 0) mm, mean at (T, T)) * const"),
+            ["E0304"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (0, 500) mm, mean at (T, P)) * const"),
+            ["E0203"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (0, 500) mm, mean at (T, T_abs)) * const"),
+            ["E0204"]
+        );
+        // A lagged temperature and an absolute one differenced are known temperature rises.
+        assert!(heat_codes("X.tx = beam(X, ends at (0, 500) mm, mean at (lag(T, tau 5 min), T_abs - 20 degC)) * const").is_empty());
     }
 }

@@ -1499,3 +1499,50 @@ fn compensation_does_not_allocate_and_serves_many_threads() {
         }
     });
 }
+
+/// A beam's bending (known α and fitted) on a table that carries a rotary axis, with lagged
+/// face temperatures and a heat source: both engines agree on the beam's polynomial in the
+/// axis position and the temperatures, propagated through the chain.
+#[test]
+fn a_heated_beam_agrees_with_the_interpreter() {
+    let src = r#"
+machine beam_table {
+    task position
+    units { length mm, angle deg, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis C revolute about z continuous
+    input T0 : temperature rise
+    input T1 : temperature rise
+    input T2 : temperature rise
+    input S0 : speed
+    tool chain {
+        Y moving
+        tool t at (0, 0, -80) mm
+    }
+    workpiece chain {
+        X moving
+        C moving at (0, 0, 120) mm
+        workpiece at (30, 0, 10) mm
+    }
+    errors {
+        X.tx = 11.5 um/m/K * beam(X, ends at (-50, 1050) mm, upper at (T0, T1), lower at (T2, lag(T2, tau 30 min)), gap 200 mm, across z)
+        X.tz = beam(X, ends at (-50, 1050) mm, upper at (T0, T1), lower at (T2, lag(T2, tau 30 min)), gap 200 mm, across z) * const
+        X.ry = beam(X, ends at (-50, 1050) mm, upper at (T0, T1), lower at (T2, 0 K), gap 200 mm, across z) * spline(X, knots 1)
+        Y.tx = beam(Y, ends at (0, 600) mm, upper at (T0, T1), lower at (T1, T0), gap 80 mm, across x) * const
+        Y.rz = 11.5 um/m/K * beam(Y, ends at (0, 600) mm, upper at (T0, T1), lower at (T1, T0), gap 80 mm, across x)
+        C.tz = lag(lag(pow(S0 / 10000 rpm, 1.5), tau 5 min, from 0 rpm), tau fit 40 min) * const
+    }
+}
+"#;
+    let out = kin_compiler::compile(src);
+    let m = out
+        .compiled
+        .unwrap_or_else(|| panic!("{:#?}", out.diagnostics))
+        .machine;
+    let model = jit::compile(&m).expect("compiles");
+    let mut rng = StdRng::seed_from_u64(16);
+    let states: Vec<OwnedState> = (0..60).map(|_| random_state(&mut rng, &m)).collect();
+    let w = compare(&m, &model, &states, &mut rng, "beam_table");
+    eprintln!("beam_table: {w:?}");
+}

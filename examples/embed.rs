@@ -94,7 +94,7 @@ pub fn run(machine: &Path, params: Option<&Path>) -> Result<Summary, Box<dyn Err
             });
     }
     for (l, lag) in m.lags.iter().enumerate() {
-        state.lags[l] = state.inputs[lag.input];
+        state.lags[l] = lag.steady(state.inputs[lag.input]);
     }
     state.time = 0.0;
     let mut err = [0.0; 6];

@@ -306,7 +306,7 @@ impl Reference {
             lags: m
                 .lags
                 .iter()
-                .map(|l| inputs.get(l.input).copied().unwrap_or(0.0))
+                .map(|l| l.steady(inputs.get(l.input).copied().unwrap_or(0.0)))
                 .collect(),
             inputs,
             dirs: grid.dirs.clone(),

@@ -85,6 +85,7 @@ pub(crate) fn check_errors(decls: &[&ast::ErrorsDecl], st: &Structure, sink: &mu
         },
         defined: HashMap::new(),
         current: String::new(),
+        component: None,
         nonlinear_count: HashMap::new(),
         per_error: HashMap::new(),
     };
@@ -103,6 +104,9 @@ struct Checker<'a> {
     defined: HashMap<(FrameRef, Component), (usize, Option<Span>)>,
     /// Display name of the target being checked, e.g. `Z.tz`.
     current: String,
+    /// The one component the value being expanded is for (`beam` depends on it); `None` for a
+    /// definition with several targets.
+    component: Option<Component>,
     nonlinear_count: HashMap<(String, &'static str), usize>,
     /// Coefficients so far per error model, for their names.
     per_error: HashMap<usize, usize>,
@@ -143,6 +147,10 @@ impl Checker<'_> {
         // The value is expanded once: a wavelength or time constant it declares `fit` is one
         // parameter (named after the first target), shared by every target's terms.
         self.current = first.clone();
+        self.component = match claimed.as_slice() {
+            [(_, c, _, _, _)] => Some(*c),
+            _ => None,
+        };
         let Some(terms) = self.expand(&def.value, sink) else {
             return;
         };
@@ -824,16 +832,33 @@ impl Checker<'_> {
         match f {
             "sin" | "cos" => return self.trig(f, args, span, sink),
             "lag" => return self.lag(args, span, sink),
+            "beam" => return self.beam(args, span, sink),
+            "pow" => {
+                sink.push(
+                    Diagnostic::error("E0308", "`pow` is written inside `lag`", name.span)
+                        .with_label("a power of an input outside a lag")
+                        .with_note("a power of an input is a heat source: its heat reaches the structure through a lag")
+                        .with_help("e.g. `lag(pow(S / 1000 rpm, 1.5), tau fit 30 min) * const`"),
+                );
+                self.mark_used(args);
+                return None;
+            }
             _ => {}
         }
         if !FAMILIES.contains(&f) {
             let mut d = Diagnostic::error("E0104", format!("unknown function `{f}`"), name.span)
                 .with_label("not a factor family");
-            if let Some(s) = suggest(f, FAMILIES.iter().copied().chain(["sin", "cos", "lag"])) {
+            if let Some(s) = suggest(
+                f,
+                FAMILIES
+                    .iter()
+                    .copied()
+                    .chain(["sin", "cos", "lag", "beam"]),
+            ) {
                 d = d.with_help(format!("did you mean `{s}`?"));
             } else {
                 d = d.with_note(format!(
-                    "factor families: {}, and the functions sin, cos, lag",
+                    "factor families: {}, and the functions sin, cos, lag, beam",
                     FAMILIES.join(", ")
                 ));
             }
@@ -1147,21 +1172,78 @@ impl Checker<'_> {
         Some(SymTerm::scalar(scale, Dim::DIMENSIONLESS, span))
     }
 
-    /// `lag(INPUT, tau [fit] T)`: a known scalar, the first-order lag state of an input.
+    /// `lag(SOURCE, tau [fit] T [, from U])`: a known scalar, the lag state of an input. The
+    /// source is an input, an input over a reference value (`S / 1000 rpm`), a known power of
+    /// either (`pow(S / 1000 rpm, 1.5)`: a heat source), or a lag itself (a second stage).
     fn lag(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let chain = self.lag_chain(args, span, 1, sink)?;
+        let lag = self.models.lags.len();
+        self.models.lags.push(chain.lag);
+        let mut t = SymTerm::scalar(Scalar::Var(Var::Lag(lag)), chain.dim, span);
+        if chain.absolute {
+            t.temp = Temp::Absolute;
+        }
+        Some(t)
+    }
+
+    /// One stage of a lag and, through its source, the stages inside it (at most two).
+    fn lag_chain(
+        &mut self,
+        args: &[Arg],
+        span: Span,
+        depth: usize,
+        sink: &mut Sink,
+    ) -> Option<LagChain> {
         let mut opts = Options::new("lag", args, span, sink)?;
-        let (var_name, var_span) = opts.variable(sink)?;
-        let var = self.resolve_var(&var_name, var_span, sink)?;
-        let Var::Input(input) = var else {
-            sink.push(
-                Diagnostic::error("E0305", "`lag` applies to an input only", var_span)
-                    .with_label(format!("`{var_name}` is not an input"))
-                    .with_note("a lag follows a measured input such as a temperature (thesis eq. 3.41–3.48)"),
-            );
-            return None;
+        let source = *opts.positional.first()?;
+        let inner = match &source.kind {
+            ExprKind::Call { name, args } if name.node == "lag" => {
+                if depth >= 2 {
+                    sink.push(
+                        Diagnostic::error("E0309", "a lag of a lag of a lag", source.span)
+                            .with_label("third stage")
+                            .with_note("a cascade has at most two stages: `lag(lag(T, tau 10 min), tau 2 h)`"),
+                    );
+                    self.mark_used(args);
+                    return None;
+                }
+                self.lag_chain(args, source.span, depth + 1, sink)?
+            }
+            ExprKind::Call { name, args } if name.node == "pow" => {
+                self.lag_power(args, source.span, sink)?
+            }
+            _ => self.lag_input(source, sink)?,
         };
+        let mut chain = inner;
         let time_unit = self.st.units.time.clone();
         let (tau, tau_span, fitted) = opts.required_quantity("tau", Dim::TIME, &time_unit, sink)?;
+        if let Some(o) = opts.take("from") {
+            let OptionValue::Expr(e) = &o.value else {
+                sink.push(
+                    Diagnostic::error("E0105", "`from` takes a value of the input", o.value.span())
+                        .with_label("expected a quantity"),
+                );
+                return None;
+            };
+            if let Some(first) = chain.from_span {
+                sink.push(
+                    Diagnostic::error(
+                        "E0309",
+                        "the initial state of this cascade is declared twice",
+                        o.name.span,
+                    )
+                    .with_label("second `from`")
+                    .with_secondary(first, "first declared here")
+                    .with_note("both stages start settled at the one value held before the run"),
+                );
+                return None;
+            }
+            let input = self.st.inputs.get(chain.lag.input)?;
+            let what = format!("the initial value of `{}`", input.name);
+            let value = quantity_of(e, input.unit.dim, &input.unit, input.absolute, &what, sink)?;
+            chain.lag.from = Some(value);
+            chain.from_span = Some(o.name.span);
+        }
         opts.finish(sink)?;
         if !(tau > 0.0) {
             sink.push(
@@ -1174,18 +1256,508 @@ impl Checker<'_> {
         if let Some(p) = self.models.nonlinear.get_mut(index) {
             p.fitted = fitted;
         }
-        let lag = self.models.lags.len();
-        self.models.lags.push(ir::Lag {
-            input,
-            tau: NonLinear { index },
-        });
-        let input_decl = self.st.inputs.get(input)?;
-        let mut t = SymTerm::scalar(Scalar::Var(Var::Lag(lag)), input_decl.unit.dim, span);
-        if input_decl.absolute {
-            t.temp = Temp::Absolute;
+        if depth == 1 && chain.staged {
+            chain.lag.tau2 = Some(NonLinear { index });
+        } else {
+            chain.lag.tau = NonLinear { index };
+            chain.staged = true;
         }
-        Some(t)
+        Some(chain)
     }
+
+    /// Marks the inputs named in rejected arguments as used, so that one mistake does not also
+    /// report them as never used.
+    fn mark_used(&mut self, args: &[Arg]) {
+        fn walk(e: &Expr, out: &mut Vec<String>) {
+            match &e.kind {
+                ExprKind::Name(n) => out.push(n.clone()),
+                ExprKind::Neg(a) => walk(a, out),
+                ExprKind::Binary(_, a, b) => {
+                    walk(a, out);
+                    walk(b, out);
+                }
+                ExprKind::Call { args, .. } => args.iter().for_each(|a| {
+                    if let Arg::Positional(e) = a {
+                        walk(e, out)
+                    }
+                }),
+                ExprKind::Quantity { .. } | ExprKind::Const => {}
+            }
+        }
+        let mut names = Vec::new();
+        for a in args {
+            match a {
+                Arg::Positional(e) => walk(e, &mut names),
+                Arg::Option(o) => match &o.value {
+                    OptionValue::Expr(e) => walk(e, &mut names),
+                    OptionValue::At { items, .. } => items.iter().for_each(|e| walk(e, &mut names)),
+                    _ => {}
+                },
+            }
+        }
+        for n in names {
+            if let Some(i) = self.st.input_index(&n) {
+                if let Some(u) = self.models.used_inputs.get_mut(i) {
+                    *u = true;
+                }
+            }
+        }
+    }
+
+    /// The source of a lag that is an input, or an input divided by a reference value.
+    fn lag_input(&mut self, e: &Expr, sink: &mut Sink) -> Option<LagChain> {
+        let (name_expr, reference) = match &e.kind {
+            ExprKind::Binary(BinOp::Div, a, b) if matches!(a.kind, ExprKind::Name(_)) => {
+                (a.as_ref(), Some(b.as_ref()))
+            }
+            _ => (e, None),
+        };
+        let ExprKind::Name(var_name) = &name_expr.kind else {
+            sink.push(
+                Diagnostic::error("E0305", "`lag` applies to an input only", e.span)
+                    .with_label("not an input")
+                    .with_help(
+                        "a lag takes an input, `S / 1000 rpm`, `pow(S / 1000 rpm, 1.5)` or a lag",
+                    ),
+            );
+            return None;
+        };
+        let var = self.resolve_var(var_name, name_expr.span, sink)?;
+        let Var::Input(input) = var else {
+            sink.push(
+                Diagnostic::error("E0305", "`lag` applies to an input only", name_expr.span)
+                    .with_label(format!("`{var_name}` is not an input"))
+                    .with_note("a lag follows a measured input such as a temperature (thesis eq. 3.41–3.48)"),
+            );
+            return None;
+        };
+        let decl = self.st.inputs.get(input)?;
+        let mut chain = LagChain {
+            lag: ir::Lag {
+                input,
+                tau: NonLinear { index: 0 },
+                source: ir::LagSource::default(),
+                tau2: None,
+                from: None,
+            },
+            dim: decl.unit.dim,
+            absolute: decl.absolute,
+            staged: false,
+            from_span: None,
+        };
+        if let Some(r) = reference {
+            if decl.absolute {
+                sink.push(
+                    Diagnostic::error("E0308", "an absolute temperature cannot be scaled", e.span)
+                        .with_label("absolute temperature over a value")
+                        .with_note(
+                            "an absolute temperature has an arbitrary zero; lag it as it is",
+                        ),
+                );
+                return None;
+            }
+            let c = constant(r, false, sink)?;
+            if !(c.value > 0.0) {
+                sink.push(
+                    Diagnostic::error(
+                        "E0308",
+                        "the reference value of a heat source must be positive",
+                        r.span,
+                    )
+                    .with_label("not positive"),
+                );
+                return None;
+            }
+            chain.lag.source.reference = c.value;
+            chain.dim = chain.dim / c.dim;
+        }
+        Some(chain)
+    }
+
+    /// `pow(SOURCE, n)` as the source of a lag: a heat source that grows as a known power of
+    /// an input (bearing friction with spindle speed, losses with power).
+    fn lag_power(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<LagChain> {
+        let [Arg::Positional(base), Arg::Positional(exponent)] = args else {
+            sink.push(
+                Diagnostic::error("E0308", "`pow` takes an input and a power", span)
+                    .with_label("expected two arguments")
+                    .with_help("e.g. `pow(S / 1000 rpm, 1.5)`"),
+            );
+            return None;
+        };
+        let n = match &exponent.kind {
+            ExprKind::Quantity { value, unit: None } => *value,
+            _ => {
+                sink.push(
+                    Diagnostic::error("E0308", "the power must be a plain number", exponent.span)
+                        .with_label("expected a number without unit")
+                        .with_note("the exponent of a heat source is known, e.g. 1.5"),
+                );
+                return None;
+            }
+        };
+        if !(n > 0.0 && n <= 10.0) {
+            sink.push(
+                Diagnostic::error(
+                    "E0308",
+                    format!("the power {n} is out of bounds"),
+                    exponent.span,
+                )
+                .with_label("must be above 0 and at most 10"),
+            );
+            return None;
+        }
+        let mut chain = self.lag_input(base, sink)?;
+        if chain.absolute {
+            sink.push(absolute_temperature(base.span));
+            return None;
+        }
+        if n.fract() == 0.0 {
+            chain.dim = chain.dim.powi(n as i32);
+        } else if !chain.dim.is_dimensionless() {
+            sink.push(
+                Diagnostic::error(
+                    "E0308",
+                    format!("a power {n} of {} has no unit", chain.dim.describe()),
+                    base.span,
+                )
+                .with_label("not dimensionless")
+                .with_help("divide by a reference value, e.g. `pow(S / 1000 rpm, 1.5)`"),
+            );
+            return None;
+        }
+        chain.lag.source.power = n;
+        Some(chain)
+    }
+}
+
+impl Checker<'_> {
+    /// `beam(A, ends at (x₀, x₁) U, mean at (T₀, T₁))` or `beam(A, ends at (x₀, x₁) U,
+    /// upper at (…), lower at (…), gap d, across y|z)`: the stress-free thermal deformation of
+    /// a beam along prismatic axis A (thesis §3.4.3, eq. 3.57–3.62) per unit coefficient of
+    /// expansion, for the one component being defined. The temperatures (rises from the
+    /// reference state) are known scalars at the two ends, linear in between and beyond
+    /// (eq. 3.56 along the beam); with `s = q − x₀`, `L = x₁ − x₀`, mean `T̄`, gradient `G`
+    /// across the beam (`(upper − lower)/gap`):
+    ///
+    /// - expansion along the beam (eq. 3.58): `E = ∫T̄ = T̄₀s + (T̄₁ − T̄₀)s²/(2L)`;
+    /// - bending angle about `g × u` (eq. 3.59–3.60): `R = ∫G = G₀s + (G₁ − G₀)s²/(2L)`;
+    /// - deflection along `−g` (eq. 3.61–3.62): `D = ∫∫G = G₀s²/2 + (G₁ − G₀)s³/(6L)`;
+    ///
+    /// the component's value is the projection of `u E − g D` (translations, length × K) or
+    /// `(g × u) R` (rotations, angle × K) on its own axis; times a coefficient of expansion
+    /// (`11.5 um/m/K * beam(…)`, or `beam(…) * const` to fit it) it is the parametric error.
+    fn beam(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        // Its temperatures count as used even when the call is rejected: one mistake, one
+        // diagnostic.
+        self.mark_used(args);
+        let mut opts = Options::new("beam", args, span, sink)?;
+        let (var_name, var_span) = opts.variable(sink)?;
+        let var = self.resolve_var(&var_name, var_span, sink)?;
+        let axis = match var {
+            Var::Axis(i) => self
+                .st
+                .axes
+                .get(i)
+                .filter(|a| a.kind == JointKind::Prismatic)
+                .map(|a| (i, a.direction)),
+            _ => None,
+        };
+        let Some((axis, u)) = axis else {
+            sink.push(
+                Diagnostic::error("E0305", "`beam` runs along a prismatic axis", var_span)
+                    .with_label(format!("`{var_name}` is not a prismatic axis"))
+                    .with_note("the beam's coordinate is the axis position (thesis §3.4.3)"),
+            );
+            return None;
+        };
+        let Some(component) = self.component else {
+            sink.push(
+                Diagnostic::error(
+                    "E0310",
+                    "`beam` gives a different error to each component",
+                    span,
+                )
+                .with_label("in a definition with several targets")
+                .with_help(
+                    "write one definition per component: `X.tz += 11.5 um/m/K * beam(X, …)`",
+                ),
+            );
+            return None;
+        };
+        let length_unit = self.st.units.length.clone();
+        let ends = opts.take("ends");
+        let ends = match ends.map(|o| &o.value) {
+            Some(OptionValue::At { items, unit, .. }) if items.len() == 2 => {
+                let unit = match unit {
+                    Some(u) => parse_unit(u, sink)?.as_difference(),
+                    None => length_unit.clone(),
+                };
+                let mut v = [0.0; 2];
+                for (slot, item) in v.iter_mut().zip(items) {
+                    *slot =
+                        quantity_of(item, Dim::LENGTH, &unit, false, "the end of a beam", sink)?;
+                }
+                v
+            }
+            _ => {
+                sink.push(
+                    Diagnostic::error(
+                        "E0105",
+                        "`beam` needs its two ends",
+                        ends.map(|o| o.value.span()).unwrap_or(span),
+                    )
+                    .with_label("expected `ends at (x₀, x₁) mm`")
+                    .with_help("e.g. `beam(X, ends at (0, 800) mm, mean at (T_0, T_1))`"),
+                );
+                return None;
+            }
+        };
+        let length = ends[1] - ends[0];
+        if !(length > 0.0) {
+            sink.push(
+                Diagnostic::error("E0304", "the ends of the beam are equal or inverted", span)
+                    .with_label("the second end must be beyond the first"),
+            );
+            return None;
+        }
+        let mean = self.beam_pair(&mut opts, "mean", span, sink)?;
+        let upper = self.beam_pair(&mut opts, "upper", span, sink)?;
+        let lower = self.beam_pair(&mut opts, "lower", span, sink)?;
+        let gap = opts.quantity("gap", Dim::LENGTH, &length_unit, sink)?;
+        let across = opts.take("across").map(|o| (&o.value, o.value.span()));
+        opts.finish(sink)?;
+        let across = match across {
+            None => None,
+            Some((
+                OptionValue::Expr(Expr {
+                    kind: ExprKind::Name(n),
+                    ..
+                }),
+                at,
+            )) => match n.as_str() {
+                "x" => Some(([1.0, 0.0, 0.0], at)),
+                "y" => Some(([0.0, 1.0, 0.0], at)),
+                "z" => Some(([0.0, 0.0, 1.0], at)),
+                _ => None,
+            }
+            .or_else(|| {
+                sink.push(
+                    Diagnostic::error("E0105", "`across` takes `x`, `y` or `z`", at)
+                        .with_label("not a direction"),
+                );
+                None
+            }),
+            Some((_, at)) => {
+                sink.push(
+                    Diagnostic::error("E0105", "`across` takes `x`, `y` or `z`", at)
+                        .with_label("not a direction"),
+                );
+                return None;
+            }
+        };
+        let (mean, gradient) = match (mean, upper, lower, gap, across) {
+            (Some(m), None, None, None, None) => (m, None),
+            (None, Some(up), Some(lo), Some((d, d_span, _)), Some((g, g_span))) => {
+                if !(d > 0.0) {
+                    sink.push(
+                        Diagnostic::error("E0105", "the gap must be positive", d_span)
+                            .with_label("not positive"),
+                    );
+                    return None;
+                }
+                let dot = g[0] * u[0] + g[1] * u[1] + g[2] * u[2];
+                if dot.abs() > 1e-9 {
+                    sink.push(
+                        Diagnostic::error("E0310", "the gradient must be across the beam", g_span)
+                            .with_label(format!("`{var_name}` runs along this direction")),
+                    );
+                    return None;
+                }
+                let half =
+                    |a: &Scalar, b: &Scalar| mul(Scalar::Num(0.5), add(a.clone(), b.clone()));
+                let grad =
+                    |a: &Scalar, b: &Scalar| mul(Scalar::Num(1.0 / d), sub(a.clone(), b.clone()));
+                (
+                    [half(&up[0], &lo[0]), half(&up[1], &lo[1])],
+                    Some(([grad(&up[0], &lo[0]), grad(&up[1], &lo[1])], g)),
+                )
+            }
+            _ => {
+                sink.push(
+                    Diagnostic::error("E0105", "`beam` needs `mean at (…)`, or `upper`, `lower`, `gap` and `across`", span)
+                        .with_label("temperatures incomplete")
+                        .with_help("e.g. `beam(X, ends at (0, 800) mm, upper at (T_a, T_b), lower at (T_c, T_d), gap 200 mm, across z)`"),
+                );
+                return None;
+            }
+        };
+        let s = sub(Scalar::Var(Var::Axis(axis)), Scalar::Num(ends[0]));
+        let ramp = |v: &[Scalar; 2], k: f64, p: i32| {
+            // v₀ sᵖ/p! + (v₁ − v₀) s^{p+1}/((p+1)! L), with k = 1/p!.
+            let sp = (0..p).fold(Scalar::Num(1.0), |acc, _| mul(acc, s.clone()));
+            let first = mul(mul(Scalar::Num(k), v[0].clone()), sp.clone());
+            let slope = mul(
+                Scalar::Num(k / (f64::from(p) + 1.0) / length),
+                sub(v[1].clone(), v[0].clone()),
+            );
+            add(first, mul(slope, mul(sp, s.clone())))
+        };
+        let k = component.index() % 3;
+        let (value, dim) = if component.is_rotation() {
+            let Some((g_value, g)) = &gradient else {
+                sink.push(beam_nothing(
+                    span,
+                    &self.current,
+                    "a mean temperature only expands the beam",
+                ));
+                return None;
+            };
+            let n = cross(*g, u);
+            if n[k].abs() < 1e-12 {
+                sink.push(beam_nothing(span, &self.current, "a beam does not twist about its own axis, and bends about the axis normal to it and the gradient"));
+                return None;
+            }
+            (
+                mul(Scalar::Num(n[k]), ramp(g_value, 1.0, 1)),
+                Dim::ANGLE * Dim::TEMPERATURE,
+            )
+        } else {
+            let mut v: Option<Scalar> = None;
+            if u[k].abs() > 1e-12 {
+                v = Some(mul(Scalar::Num(u[k]), ramp(&mean, 1.0, 1)));
+            }
+            if let Some((g_value, g)) = &gradient {
+                if g[k].abs() > 1e-12 {
+                    let d = mul(Scalar::Num(-g[k]), ramp(g_value, 0.5, 2));
+                    v = Some(match v {
+                        Some(e) => add(e, d),
+                        None => d,
+                    });
+                }
+            }
+            let Some(v) = v else {
+                sink.push(beam_nothing(
+                    span,
+                    &self.current,
+                    "the beam expands along its axis and deflects along the gradient",
+                ));
+                return None;
+            };
+            (v, Dim::LENGTH * Dim::TEMPERATURE)
+        };
+        Some(SymTerm::scalar(value, dim, span))
+    }
+
+    /// The two end temperatures of a `beam` option: known scalars, temperature rises.
+    fn beam_pair(
+        &mut self,
+        opts: &mut Options<'_>,
+        name: &str,
+        span: Span,
+        sink: &mut Sink,
+    ) -> Option<Option<[Scalar; 2]>> {
+        let Some(o) = opts.take(name) else {
+            return Some(None);
+        };
+        let OptionValue::At {
+            items, unit: None, ..
+        } = &o.value
+        else {
+            sink.push(
+                Diagnostic::error(
+                    "E0105",
+                    format!("`{name}` takes the temperatures at the two ends"),
+                    o.value.span(),
+                )
+                .with_label("expected `at (T₀, T₁)`"),
+            );
+            return None;
+        };
+        let [a, b] = items.as_slice() else {
+            sink.push(
+                Diagnostic::error(
+                    "E0105",
+                    format!("`{name}` takes the temperatures at the two ends"),
+                    o.value.span(),
+                )
+                .with_label(format!("{} values, expected 2", items.len())),
+            );
+            return None;
+        };
+        let _ = span;
+        let mut out = Vec::with_capacity(2);
+        for item in [a, b] {
+            let terms = self.expand(item, sink)?;
+            let t = self.collapse(terms, item.span, sink)?;
+            if t.fitted {
+                sink.push(
+                    Diagnostic::error(
+                        "E0307",
+                        "a fitted factor cannot be a beam's temperature",
+                        item.span,
+                    )
+                    .with_label("basis factor")
+                    .with_note("the model must stay linear in the coefficients β"),
+                );
+                return None;
+            }
+            if t.dim != Dim::TEMPERATURE {
+                sink.push(
+                    Diagnostic::error(
+                        "E0203",
+                        format!(
+                            "a beam's temperature must be a temperature, but this is {}",
+                            t.dim.describe()
+                        ),
+                        item.span,
+                    )
+                    .with_label("expected a temperature rise"),
+                );
+                return None;
+            }
+            out.push(t.scale);
+        }
+        let b = out.pop()?;
+        let a = out.pop()?;
+        Some(Some([a, b]))
+    }
+}
+
+fn beam_nothing(span: Span, target: &str, why: &str) -> Diagnostic {
+    Diagnostic::error("E0310", format!("this `beam` gives no `{target}`"), span)
+        .with_label("zero for this component")
+        .with_note(why.to_string())
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn add(a: Scalar, b: Scalar) -> Scalar {
+    Scalar::Add(Box::new(a), Box::new(b))
+}
+
+fn sub(a: Scalar, b: Scalar) -> Scalar {
+    Scalar::Sub(Box::new(a), Box::new(b))
+}
+
+fn mul(a: Scalar, b: Scalar) -> Scalar {
+    Scalar::Mul(Box::new(a), Box::new(b))
+}
+
+/// A lag while its cascade is checked, innermost stage first.
+struct LagChain {
+    lag: ir::Lag,
+    dim: Dim,
+    absolute: bool,
+    /// Whether the first stage's time constant is set (an inner `lag` was read).
+    staged: bool,
+    from_span: Option<Span>,
 }
 
 /// At most this many terms in one expanded error model.
@@ -1211,7 +1783,8 @@ fn allowed_options(f: &str) -> &'static [&'static str] {
         "straightness" => &["knots", "degree", "smooth"],
         "fourier" => &["harmonics", "wavelength"],
         "periodic" => &["wavelength", "knots", "degree", "smooth", "phase"],
-        "lag" => &["tau"],
+        "lag" => &["tau", "from"],
+        "beam" => &["ends", "mean", "upper", "lower", "gap", "across"],
         _ => &[],
     }
 }
@@ -1858,5 +2431,179 @@ mod tests {
             })
             .count();
         assert_eq!(lagged, 2);
+    }
+
+    fn heat(errors: &str) -> crate::lower::Output {
+        let src = format!(
+            "machine m {{
+                task position
+                units {{ length mm, error um, tilt urad, time min }}
+                input T : temperature rise
+                input T_abs : temperature absolute
+                input S : speed
+                input P : power [kW]
+                axis X prismatic along x range 0 mm .. 500 mm
+                tool chain {{ X moving  tool t at (0, 0, -100) mm }}
+                errors {{ {errors} }}
+            }}"
+        );
+        crate::compile(&src)
+    }
+
+    fn heat_machine(errors: &str) -> Machine {
+        let out = heat(errors);
+        out.compiled
+            .unwrap_or_else(|| panic!("{:?}", out.diagnostics))
+            .machine
+    }
+
+    fn heat_codes(errors: &str) -> Vec<String> {
+        heat(errors)
+            .diagnostics
+            .iter()
+            .filter(|d| d.severity == crate::diagnostic::Severity::Error)
+            .map(|d| d.code.to_string())
+            .collect()
+    }
+
+    #[test]
+    fn a_power_of_a_heat_source_drives_a_lag() {
+        let m = heat_machine("X.tx = lag(pow(S / 1000 rpm, 1.5), tau fit 40 min) * const");
+        let l = &m.lags[0];
+        assert_eq!(l.input, 2);
+        assert!((l.source.reference - 1000.0 * std::f64::consts::TAU / 60.0).abs() < 1e-9);
+        assert_eq!(l.source.power, 1.5);
+        assert!(l.tau2.is_none());
+        assert_eq!(m.coefficients[0].unit.name, "um", "a dimensionless drive");
+        // 2000 rpm held: (2000/1000)^1.5.
+        let u = 2000.0 * std::f64::consts::TAU / 60.0;
+        assert!((l.steady(u) - 2f64.powf(1.5)).abs() < 1e-12);
+        // An integer power keeps the unit: um per kW².
+        let m = heat_machine("X.tx = lag(pow(P, 2), tau 5 min) * const");
+        assert_eq!(m.lags[0].source.power, 2.0);
+        assert_eq!(
+            m.coefficients[0].unit.dim,
+            crate::units::Dim::LENGTH / crate::units::Dim::POWER.powi(2)
+        );
+    }
+
+    #[test]
+    fn a_lag_of_a_lag_has_two_time_constants() {
+        let m = heat_machine("X.tx = lag(lag(T, tau 10 min), tau fit 2 h) * const");
+        assert_eq!(m.lags.len(), 1);
+        let l = &m.lags[0];
+        let inner = &m.nonlinear[l.tau.index];
+        let outer = &m.nonlinear[l.tau2.map(|t| t.index).unwrap_or(usize::MAX)];
+        assert_eq!(
+            (inner.value, inner.fitted, inner.name.as_str()),
+            (600.0, false, "X.tx.tau")
+        );
+        assert_eq!(
+            (outer.value, outer.fitted, outer.name.as_str()),
+            (7200.0, true, "X.tx.tau[1]")
+        );
+    }
+
+    #[test]
+    fn a_declared_initial_state_is_read_in_the_inputs_unit() {
+        let m = heat_machine("X.tx = lag(S, tau 30 min, from 0 rpm) * const");
+        assert_eq!(m.lags[0].from, Some(0.0));
+        let m = heat_machine("X.tx = lag(lag(T, tau 3 min, from 2 K), tau 30 min) * const");
+        assert_eq!(m.lags[0].from, Some(2.0));
+        let m = heat_machine("X.tx = (lag(T_abs, tau 30 min, from 20 degC) - 20 degC) * const");
+        assert!((m.lags[0].from.unwrap_or(0.0) - 293.15).abs() < 1e-9);
+        let m = heat_machine("X.tx = lag(T, tau 30 min) * const");
+        assert_eq!(m.lags[0].from, None);
+    }
+
+    #[test]
+    fn heat_source_mistakes_are_located_errors() {
+        assert_eq!(
+            heat_codes("X.tx = pow(S / 1000 rpm, 1.5) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(S, 1.5), tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(S / 1000 rpm, 0), tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(S / 1000 rpm, 1.5 mm), tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(pow(T_abs, 2), tau 1 min) * const"),
+            ["E0204"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(S / 0 rpm, tau 1 min) * const"),
+            ["E0308"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(lag(lag(T, tau 1 min), tau 2 min), tau 3 min) * const"),
+            ["E0309"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(lag(T, tau 1 min, from 0 K), tau 2 min, from 0 K) * const"),
+            ["E0309"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = lag(S, tau 1 min, from 3 mm) * const"),
+            ["E0203"]
+        );
+        assert_eq!(heat_codes("X.tx = lag(X, tau 1 min) * const"), ["E0305"]);
+    }
+
+    #[test]
+    fn beam_mistakes_are_located_errors() {
+        let ok = "ends at (0, 500) mm, upper at (T, T), lower at (0 K, 0 K), gap 100 mm, across z";
+        assert!(heat_codes(&format!("X.tz = 11.5 um/m/K * beam(X, {ok})")).is_empty());
+        assert!(heat_codes(&format!("X.ry = beam(X, {ok}) * const")).is_empty());
+        // No torsion (thesis §3.4.3), no bending about the gradient's own direction.
+        assert_eq!(
+            heat_codes(&format!("X.rx = beam(X, {ok}) * const")),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes(&format!("X.rz = beam(X, {ok}) * const")),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes(&format!("X.tz, X.ry += beam(X, {ok}) * const")),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes("X.tz = beam(X, ends at (0, 500) mm, upper at (T, T), lower at (T, T), gap 1 mm, across x) * const"),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes("X.tz = beam(X, ends at (0, 500) mm, mean at (T, T)) * const"),
+            ["E0310"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (0, 500) mm, upper at (T, T)) * const"),
+            ["E0105"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(S, ends at (0, 500) mm, mean at (T, T)) * const"),
+            ["E0305"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (500, 0) mm, mean at (T, T)) * const"),
+            ["E0304"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (0, 500) mm, mean at (T, P)) * const"),
+            ["E0203"]
+        );
+        assert_eq!(
+            heat_codes("X.tx = beam(X, ends at (0, 500) mm, mean at (T, T_abs)) * const"),
+            ["E0204"]
+        );
+        // A lagged temperature and an absolute one differenced are known temperature rises.
+        assert!(heat_codes("X.tx = beam(X, ends at (0, 500) mm, mean at (lag(T, tau 5 min), T_abs - 20 degC)) * const").is_empty());
     }
 }

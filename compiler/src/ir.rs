@@ -654,12 +654,66 @@ pub struct NonLinearParam {
     pub unit: Unit,
 }
 
-/// First-order lag of an input (thesis eq. 3.41–3.48, normalised to unit steady-state gain):
-/// `dx/dt = (u − x) / τ`.
+/// Lag of an input (thesis eq. 3.41–3.48, normalised to unit steady-state gain): one stage
+/// `dx/dt = (s − x) / τ`, or two in cascade (`lag(lag(…))`, a slow structure warmed by a
+/// faster one), driven by `s = source(u)`, the heat-source relation of the input.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Lag {
     pub input: usize,
+    /// Time constant of the first stage, the one the source drives.
     pub tau: NonLinear,
+    /// What drives the first stage: the input itself, or a power of it (`pow(S / 1000 rpm, 1.5)`).
+    #[serde(default)]
+    pub source: LagSource,
+    /// Time constant of a second stage driven by the first stage's output, if any.
+    #[serde(default)]
+    pub tau2: Option<NonLinear>,
+    /// The input value (SI) held long enough before each run for every stage to settle there
+    /// (`from 0 rpm`: the machine was at rest); `None` starts each run in steady state with its
+    /// first input value.
+    #[serde(default)]
+    pub from: Option<f64>,
+}
+
+/// The heat-source relation of a lag: `s = (u / reference)^power`, `u` in SI.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LagSource {
+    /// SI value the input is divided by (1 when the model writes none).
+    pub reference: f64,
+    /// A known exponent (1 for the input itself).
+    pub power: f64,
+}
+
+impl Default for LagSource {
+    fn default() -> Self {
+        LagSource {
+            reference: 1.0,
+            power: 1.0,
+        }
+    }
+}
+
+impl LagSource {
+    /// The drive `s` of an input value `u`. An integer power keeps the sign (`pow(F, 3)`); a
+    /// non-integer power uses the magnitude, since the heat of a spindle or a feed does not
+    /// depend on its direction and a negative base has no real non-integer power.
+    pub fn drive(&self, u: f64) -> f64 {
+        let x = u / self.reference;
+        if self.power == 1.0 {
+            x
+        } else if self.power.fract() == 0.0 {
+            libm::pow(x, self.power)
+        } else {
+            libm::pow(x.abs(), self.power)
+        }
+    }
+}
+
+impl Lag {
+    /// The state every stage settles at while the input is held at `u`: unit steady-state gain.
+    pub fn steady(&self, u: f64) -> f64 {
+        self.source.drive(u)
+    }
 }
 
 /// A known scalar: the scalings and fixed terms of the model, evaluated in SI.

@@ -618,6 +618,18 @@ fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) ->
     })
 }
 
+/// The default unit of a heat-source input kind; the names are fixed here, so parsing cannot
+/// fail, and the SI unit of the dimension stands in should it ever.
+fn heat_source_unit(text: &str) -> Unit {
+    Unit::parse(text).unwrap_or_else(|_| {
+        Unit::si(match text {
+            "rpm" => Dim::SPEED,
+            "W" => Dim::POWER,
+            _ => Dim::VELOCITY,
+        })
+    })
+}
+
 fn resolve_input(
     i: &ast::InputDecl,
     units: &ir::DisplayUnits,
@@ -631,6 +643,11 @@ fn resolve_input(
         "angle" => (Dim::ANGLE, units.angle.clone()),
         "time" => (Dim::TIME, units.time.clone()),
         "dimensionless" => (Dim::DIMENSIONLESS, Unit::dimensionless()),
+        // Heat sources: what drives a machine's thermal state besides the temperatures. Their
+        // default units are the ones a controller reports (a spindle's rpm, a feed in mm/min).
+        "speed" => (Dim::SPEED, heat_source_unit("rpm")),
+        "velocity" => (Dim::VELOCITY, heat_source_unit("mm/min")),
+        "power" => (Dim::POWER, heat_source_unit("W")),
         _ => {
             let kinds = [
                 "temperature",
@@ -639,6 +656,9 @@ fn resolve_input(
                 "angle",
                 "time",
                 "dimensionless",
+                "speed",
+                "velocity",
+                "power",
             ];
             let mut d = Diagnostic::error(
                 "E0101",

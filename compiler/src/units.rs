@@ -90,6 +90,25 @@ impl Dim {
         force: 1,
         ..Dim::DIMENSIONLESS
     };
+    /// Angular speed (a spindle's speed): angle per time.
+    pub const SPEED: Dim = Dim {
+        angle: 1,
+        time: -1,
+        ..Dim::DIMENSIONLESS
+    };
+    /// Linear speed (an axis' feed rate): length per time.
+    pub const VELOCITY: Dim = Dim {
+        length: 1,
+        time: -1,
+        ..Dim::DIMENSIONLESS
+    };
+    /// Power (a heat source, a motor's electrical power): force times length per time.
+    pub const POWER: Dim = Dim {
+        length: 1,
+        time: -1,
+        force: 1,
+        ..Dim::DIMENSIONLESS
+    };
 
     fn exponents(self) -> [i8; 5] {
         [
@@ -204,7 +223,7 @@ const fn atom(name: &'static str, dim: Dim, scale: f64) -> Atom {
     Atom { name, dim, scale }
 }
 
-const ATOMS: [Atom; 17] = [
+const ATOMS: [Atom; 21] = [
     atom("nm", Dim::LENGTH, 1e-9),
     atom("um", Dim::LENGTH, 1e-6),
     atom("mm", Dim::LENGTH, 1e-3),
@@ -221,6 +240,11 @@ const ATOMS: [Atom; 17] = [
     atom("K", Dim::TEMPERATURE, 1.0),
     atom("N", Dim::FORCE, 1.0),
     atom("kN", Dim::FORCE, 1000.0),
+    // One revolution is 2π rad, so `rev/min` and `rpm` are the same speed.
+    atom("rev", Dim::ANGLE, std::f64::consts::TAU),
+    atom("rpm", Dim::SPEED, std::f64::consts::TAU / 60.0),
+    atom("W", Dim::POWER, 1.0),
+    atom("kW", Dim::POWER, 1000.0),
     atom("1", Dim::DIMENSIONLESS, 1.0),
 ];
 
@@ -428,8 +452,8 @@ impl<'a> Parser<'a> {
 
 impl Unit {
     /// Canonical names of the atoms unit text is built from, for "did you mean" suggestions.
-    pub const ATOM_NAMES: [&'static str; 17] = {
-        let mut names = [""; 17];
+    pub const ATOM_NAMES: [&'static str; 21] = {
+        let mut names = [""; 21];
         let mut i = 0;
         while i < ATOMS.len() {
             names[i] = ATOMS[i].name;
@@ -615,6 +639,10 @@ mod tests {
             ("K", 1.0),
             ("N", 1.0),
             ("kN", 1000.0),
+            ("rev", std::f64::consts::TAU),
+            ("rpm", 0.10471975511965977),
+            ("W", 1.0),
+            ("kW", 1000.0),
             ("1", 1.0),
         ];
         for (text, scale) in cases {
@@ -650,6 +678,11 @@ mod tests {
         assert_eq!(unit("degC").dim, Dim::TEMPERATURE);
         assert_eq!(unit("kN").dim, Dim::FORCE);
         assert_eq!(unit("1").dim, Dim::DIMENSIONLESS);
+        assert_eq!(unit("rpm").dim, Dim::SPEED);
+        assert_eq!(unit("rev/min").dim, Dim::SPEED);
+        assert!(close(unit("rev/min").scale, unit("rpm").scale));
+        assert_eq!(unit("kW").dim, unit("N*m/s").dim);
+        assert_eq!(unit("mm/min").dim, Dim::VELOCITY);
     }
 
     #[test]

@@ -113,7 +113,7 @@ fn random_state(rng: &mut StdRng, m: &Machine) -> OwnedState {
     let lags = m
         .lags
         .iter()
-        .map(|l| inputs.get(l.input).copied().unwrap_or(0.0) * rng.random_range(0.5..1.0))
+        .map(|l| l.steady(inputs.get(l.input).copied().unwrap_or(0.0)) * rng.random_range(0.5..1.0))
         .collect();
     let dirs = m
         .axes
@@ -332,6 +332,10 @@ struct Gen {
     /// Also definitions with several targets (`A0.tx, A1.ry += …`), sharing their fitted
     /// wavelengths and time constants. Off where a test's random stream must stay as it was.
     shared: bool,
+    /// Also heat sources and cascades (`lag(pow(S0 / 10000 rpm, 1.5), …, from 0 rpm)`,
+    /// `lag(lag(T0, …), …)`) and the speed input they need. Off where a test's random stream
+    /// must stay as it was.
+    heat: bool,
     /// While generating the value of a definition whose targets mix translations and
     /// rotations: no fixed term (it cannot have both dimensions).
     no_fixed: bool,
@@ -449,6 +453,9 @@ impl Gen {
         src += "    input T0 : temperature rise range 0 degC .. 5 degC\n";
         src += "    input Tabs : temperature absolute range 15 degC .. 25 degC\n";
         src += "    input F0 : force range 0 N .. 1000 N\n";
+        if self.heat {
+            src += "    input S0 : speed range 0 rpm .. 12000 rpm\n";
+        }
         let tools: Vec<String> = (0..self.rng.random_range(1..=3))
             .map(|i| format!("t{i}"))
             .collect();
@@ -660,7 +667,8 @@ impl Gen {
     /// A known scalar that scales a term (any dimension).
     fn known_scale(&mut self, axes: &[AxisDecl]) -> String {
         let revolute: Vec<&AxisDecl> = axes.iter().filter(|a| a.revolute).collect();
-        match self.rng.random_range(0..7) {
+        let cases = if self.heat { 9 } else { 7 };
+        match self.rng.random_range(0..cases) {
             0 if !revolute.is_empty() => format!("sin({})", self.pick(&revolute).name),
             1 if revolute.len() >= 2 => format!("cos({} + {})", revolute[0].name, revolute[1].name),
             2 if !revolute.is_empty() => format!("cos(2 * {} - 10 deg)", self.pick(&revolute).name),
@@ -671,6 +679,20 @@ impl Gen {
                 self.f(10.0, 500.0)
             ),
             5 => "time / 1000 s".into(),
+            6 if self.heat => format!(
+                "lag(pow(S0 / 10000 rpm, {}), tau {}{:.1} min{})",
+                self.pick(&["1.5", "2", "0.8"]),
+                if self.chance(0.5) { "fit " } else { "" },
+                self.f(1.0, 60.0),
+                if self.chance(0.5) { ", from 0 rpm" } else { "" }
+            ),
+            7 if self.heat => format!(
+                "lag(lag(T0, tau {}{:.1} s), tau {}{:.1} min)",
+                if self.chance(0.5) { "fit " } else { "" },
+                self.f(10.0, 500.0),
+                if self.chance(0.5) { "fit " } else { "" },
+                self.f(10.0, 200.0)
+            ),
             _ => format!("{:.3}", self.f(-3.0, 3.0)),
         }
     }
@@ -746,6 +768,7 @@ fn random_machines_agree_with_the_interpreter() {
         rng: StdRng::seed_from_u64(20240601),
         fourier_along: true,
         shared: false,
+        heat: true,
         no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(99);
@@ -792,6 +815,7 @@ fn fourier_along_an_axis_agrees_with_the_interpreter() {
         rng: StdRng::seed_from_u64(20261123),
         fourier_along: true,
         shared: false,
+        heat: true,
         no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(7);
@@ -826,6 +850,7 @@ fn shared_targets_agree_with_the_interpreter() {
         rng: StdRng::seed_from_u64(20261125),
         fourier_along: true,
         shared: true,
+        heat: true,
         no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(11);
@@ -864,6 +889,7 @@ fn every_family_is_generated() {
         rng: StdRng::seed_from_u64(20240601),
         fourier_along: true,
         shared: false,
+        heat: true,
         no_fixed: false,
     };
     let text: String = (0..200).map(|i| gen.machine(i)).collect();
@@ -881,6 +907,9 @@ fn every_family_is_generated() {
         "backlash(",
         "direction(",
         "lag(",
+        "lag(lag(",
+        "pow(",
+        "from 0 rpm",
         "tau fit",
         "sin(",
         "cos(",
@@ -1283,6 +1312,7 @@ fn random_machines_compensate_alike_in_both_engines() {
         fourier_along: true,
         // The machines this test was measured on: no shared-target definitions.
         shared: false,
+        heat: false,
         no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(7);
@@ -1461,4 +1491,51 @@ fn compensation_does_not_allocate_and_serves_many_threads() {
             h.join().expect("thread");
         }
     });
+}
+
+/// A beam's bending (known α and fitted) on a table that carries a rotary axis, with lagged
+/// face temperatures and a heat source: both engines agree on the beam's polynomial in the
+/// axis position and the temperatures, propagated through the chain.
+#[test]
+fn a_heated_beam_agrees_with_the_interpreter() {
+    let src = r#"
+machine beam_table {
+    task position
+    units { length mm, angle deg, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis C revolute about z continuous
+    input T0 : temperature rise
+    input T1 : temperature rise
+    input T2 : temperature rise
+    input S0 : speed
+    tool chain {
+        Y moving
+        tool t at (0, 0, -80) mm
+    }
+    workpiece chain {
+        X moving
+        C moving at (0, 0, 120) mm
+        workpiece at (30, 0, 10) mm
+    }
+    errors {
+        X.tx = 11.5 um/m/K * beam(X, ends at (-50, 1050) mm, upper at (T0, T1), lower at (T2, lag(T2, tau 30 min)), gap 200 mm, across z)
+        X.tz = beam(X, ends at (-50, 1050) mm, upper at (T0, T1), lower at (T2, lag(T2, tau 30 min)), gap 200 mm, across z) * const
+        X.ry = beam(X, ends at (-50, 1050) mm, upper at (T0, T1), lower at (T2, 0 K), gap 200 mm, across z) * spline(X, knots 1)
+        Y.tx = beam(Y, ends at (0, 600) mm, upper at (T0, T1), lower at (T1, T0), gap 80 mm, across x) * const
+        Y.rz = 11.5 um/m/K * beam(Y, ends at (0, 600) mm, upper at (T0, T1), lower at (T1, T0), gap 80 mm, across x)
+        C.tz = lag(lag(pow(S0 / 10000 rpm, 1.5), tau 5 min, from 0 rpm), tau fit 40 min) * const
+    }
+}
+"#;
+    let out = kin_compiler::compile(src);
+    let m = out
+        .compiled
+        .unwrap_or_else(|| panic!("{:#?}", out.diagnostics))
+        .machine;
+    let model = jit::compile(&m).expect("compiles");
+    let mut rng = StdRng::seed_from_u64(16);
+    let states: Vec<OwnedState> = (0..60).map(|_| random_state(&mut rng, &m)).collect();
+    let w = compare(&m, &model, &states, &mut rng, "beam_table");
+    eprintln!("beam_table: {w:?}");
 }

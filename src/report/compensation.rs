@@ -76,7 +76,7 @@ pub fn sweeps(m: &Machine, held: &dyn Fn(Var) -> Option<f64>) -> Result<View, St
     let lags: Vec<f64> = m
         .lags
         .iter()
-        .map(|l| inputs.get(l.input).copied().unwrap_or(0.0))
+        .map(|l| l.steady(inputs.get(l.input).copied().unwrap_or(0.0)))
         .collect();
     let time = held(Var::Time).unwrap_or(0.0);
     let dirs = vec![1.0; m.axes.len()];

@@ -99,11 +99,23 @@ pub fn var_unit(m: &Machine, v: Var) -> Unit {
             .get(i)
             .map(|i| i.unit.clone())
             .unwrap_or_else(Unit::dimensionless),
+        // A lag of the input itself is in the input's unit; of a heat-source relation, in the
+        // relation's: a power of the input, or a ratio to a reference value (dimensionless).
         Var::Lag(l) => m
             .lags
             .get(l)
-            .and_then(|l| m.inputs.get(l.input))
-            .map(|i| i.unit.clone())
+            .and_then(|l| {
+                let unit = &m.inputs.get(l.input)?.unit;
+                Some(
+                    if l.source.reference != 1.0 || l.source.power.fract() != 0.0 {
+                        Unit::dimensionless()
+                    } else if l.source.power == 1.0 {
+                        unit.clone()
+                    } else {
+                        unit.powi(l.source.power as i32)
+                    },
+                )
+            })
             .unwrap_or_else(Unit::dimensionless),
         Var::Time => m.units.time.clone(),
         Var::Direction(_) => Unit::dimensionless(),
@@ -524,7 +536,7 @@ fn set_with_lags(r: &mut Reference, m: &Machine, v: Var, x: f64) {
     if let Var::Input(i) = v {
         for (l, lag) in m.lags.iter().enumerate() {
             if lag.input == i {
-                r.set(Var::Lag(l), x);
+                r.set(Var::Lag(l), lag.steady(x));
             }
         }
     }

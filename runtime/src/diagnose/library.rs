@@ -644,6 +644,9 @@ pub fn propose(
         }
     }
 
+    // Heat sources and second time constants (heat.rs).
+    super::heat::propose(m, available, taus, &mut out);
+
     // A slow drift in time of the tool relative to the workpiece.
     if available.time {
         for comp in [Component::Tx, Component::Ty, Component::Tz] {

@@ -242,6 +242,7 @@ mod analyse;
 // The coverage table the library is audited against (its tests; spec/diagnosis.md for users).
 #[cfg(test)]
 mod coverage;
+mod heat;
 pub mod library;
 mod motions;
 mod periodic;

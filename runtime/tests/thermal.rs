@@ -1,0 +1,279 @@
+//! Heat sources, lag cascades and declared initial states, fitted back from simulated data.
+
+use kin_compiler::{compile, Compiled};
+use kin_runtime::data::Observations;
+use kin_runtime::fit::{self, DataSet, FitError, Options};
+use kin_runtime::interp::Interpreter;
+use kin_runtime::simulate::{self, sample_points};
+
+fn machine(src: &str) -> Compiled {
+    let out = compile(src);
+    out.compiled
+        .unwrap_or_else(|| panic!("{:#?}", out.diagnostics))
+}
+
+fn run(c: &Compiled, files: &[DataSet], options: &Options) -> Result<fit::FitResult, FitError> {
+    let mut it = Interpreter::new(&c.machine).expect("interpreter");
+    fit::fit(c, &mut it, files, &[], options, &mut |_, _| {})
+}
+
+const RPM: f64 = std::f64::consts::TAU / 60.0;
+
+/// An eight-hour day sampled every two minutes: the room drifts by a sine of ±1.5 K over the
+/// day, the spindle is off, runs at 6000 rpm from the first hour, at 3000 rpm from the fourth,
+/// and stops for the last hour and a half.
+fn day(n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let time: Vec<f64> = (0..n).map(|r| 120.0 * r as f64).collect();
+    let room = time
+        .iter()
+        .map(|t| 1.5 * (std::f64::consts::TAU * t / 28_800.0).sin())
+        .collect();
+    let speed = time
+        .iter()
+        .map(|&t| {
+            let h = t / 3600.0;
+            RPM * if h < 1.0 {
+                0.0
+            } else if h < 4.0 {
+                6000.0
+            } else if h < 6.5 {
+                3000.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    (time, room, speed)
+}
+
+/// Simulates `src` with the given non-linear values (`truth`, in the machine's order) and
+/// coefficients, then fits it back from the values the source states.
+fn recover(
+    src: &str,
+    truth: &[f64],
+    beta: &[f64],
+    seed: u64,
+) -> (Compiled, kin_runtime::fit::FitResult) {
+    let c = machine(src);
+    let n = 240;
+    let mut poses = sample_points(&c.machine, n, seed);
+    let (time, room, speed) = day(n);
+    poses.rows.time = Some(time);
+    poses.rows.inputs = vec![Some(room), Some(speed)];
+    let mut truth_machine = c.machine.clone();
+    for (p, v) in truth_machine.nonlinear.iter_mut().zip(truth) {
+        p.value = *v;
+    }
+    let options = simulate::Options {
+        noise: 0.1e-6,
+        seed: seed + 1,
+        ..simulate::Options::default()
+    };
+    let obs = simulate::simulate(&truth_machine, beta, &Observations::Points(poses), &options)
+        .expect("simulate");
+    let files = [DataSet {
+        path: "day.csv".into(),
+        observations: obs,
+    }];
+    let r = run(&c, &files, &Options::default()).expect("fit");
+    (c, r)
+}
+
+fn assert_within_se(name: &str, fitted: f64, se: Option<f64>, truth: f64) {
+    let se = se.unwrap_or(f64::NAN);
+    assert!(se.is_finite() && se > 0.0, "{name}: standard error {se}");
+    assert!(
+        ((fitted - truth) / se).abs() < 3.0,
+        "{name}: {} ± {} min, truth {} min",
+        fitted / 60.0,
+        se / 60.0,
+        truth / 60.0
+    );
+}
+
+#[test]
+fn a_temperature_and_a_spindle_speed_with_their_time_constants_are_recovered() {
+    let src = r#"
+machine spindle {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 500 mm
+    input T_room : temperature rise
+    input S : speed
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = linear(X)
+        t.tz = lag(T_room, tau fit 30 min) * const
+             + lag(pow(S / 1000 rpm, 1.5), tau fit 10 min, from 0 rpm) * const
+    }
+}
+"#;
+    let c = machine(src);
+    let names: Vec<&str> = c
+        .machine
+        .nonlinear
+        .iter()
+        .map(|p| p.name.as_str())
+        .collect();
+    assert_eq!(names, ["t.tz.tau", "t.tz.tau[1]"]);
+    // 1.2 µm/K of room drift, 0.8 µm per (S/1000 rpm)^1.5: 11.8 µm at 6000 rpm.
+    let beta = [4e-6, 1.2e-6, 0.8e-6];
+    let truth = [75.0 * 60.0, 20.0 * 60.0];
+    let (_, r) = recover(src, &truth, &beta, 31);
+    let nl = r.nonlinear.as_ref().expect("non-linear fit");
+    assert_within_se("τ room", nl.values[0], nl.se[0], truth[0]);
+    assert_within_se("τ spindle", nl.values[1], nl.se[1], truth[1]);
+    assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
+    let b = &r.solution.beta;
+    assert!(
+        (b[2] - 0.8e-6).abs() < 0.02e-6,
+        "spindle coefficient {}",
+        b[2]
+    );
+}
+
+#[test]
+fn both_time_constants_of_a_cascade_are_recovered() {
+    // A column warmed by the spindle housing: fast stage 12 min, slow stage 90 min.
+    let src = r#"
+machine column {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 500 mm
+    input T_room : temperature rise
+    input S : speed
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = linear(X) + lag(T_room, tau 60 min) * const
+        t.tz = lag(lag(S / 1000 rpm, tau fit 8 min, from 0 rpm), tau fit 60 min) * const
+    }
+}
+"#;
+    let beta = [2e-6, 1.0e-6, 3e-6];
+    let truth = [60.0 * 60.0, 12.0 * 60.0, 90.0 * 60.0];
+    let (c, r) = recover(src, &truth, &beta, 41);
+    let names: Vec<&str> = c
+        .machine
+        .nonlinear
+        .iter()
+        .map(|p| p.name.as_str())
+        .collect();
+    assert_eq!(names, ["X.tx.tau", "t.tz.tau", "t.tz.tau[1]"]);
+    let nl = r.nonlinear.as_ref().expect("non-linear fit");
+    assert_within_se("τ fast", nl.values[1], nl.se[1], truth[1]);
+    assert_within_se("τ slow", nl.values[2], nl.se[2], truth[2]);
+    assert!((r.sigma / 0.1e-6 - 1.0).abs() < 0.2, "σ̂ {}", r.sigma);
+}
+
+/// A bed along X, 800 mm between its end sensors, with sensors on its upper and lower faces
+/// 200 mm apart; each component one definition (the beam's error differs per component).
+const BED: &str = r#"
+machine bed {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 1000 mm
+    input Tu0 : temperature rise
+    input Tu1 : temperature rise
+    input Tl0 : temperature rise
+    input Tl1 : temperature rise
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = 11.5 um/m/K * beam(X, ends at (100, 900) mm, upper at (Tu0, Tu1), lower at (Tl0, Tl1), gap 200 mm, across z)
+        X.tz = 11.5 um/m/K * beam(X, ends at (100, 900) mm, upper at (Tu0, Tu1), lower at (Tl0, Tl1), gap 200 mm, across z)
+        X.ry = 11.5 um/m/K * beam(X, ends at (100, 900) mm, upper at (Tu0, Tu1), lower at (Tl0, Tl1), gap 200 mm, across z)
+    }
+}
+"#;
+
+/// The fixed error of `component` (index into the machine's error models) at position `x` (m)
+/// with the four face temperatures.
+fn bed_error(c: &Compiled, error: usize, x: f64, t: [f64; 4]) -> f64 {
+    let m = &c.machine;
+    let state = kin_runtime::interp::State {
+        q: &[x],
+        inputs: &t,
+        lags: &[],
+        time: 0.0,
+        dirs: &[1.0],
+        tool: 0,
+        tool_offset: None,
+    };
+    m.errors[error]
+        .terms
+        .iter()
+        .map(|term| kin_runtime::interp::scalar(&term.scale, &state, m).expect("scalar"))
+        .sum()
+}
+
+#[test]
+fn a_uniformly_heated_beam_only_expands() {
+    let c = machine(BED);
+    let alpha = 11.5e-6;
+    for x in [0.1, 0.35, 0.9, 1.0] {
+        let t = [2.0; 4];
+        let s = x - 0.1;
+        assert!(
+            (bed_error(&c, 0, x, t) - alpha * 2.0 * s).abs() < 1e-15,
+            "tx at {x}"
+        );
+        assert_eq!(bed_error(&c, 1, x, t), 0.0, "tz at {x}");
+        assert_eq!(bed_error(&c, 2, x, t), 0.0, "ry at {x}");
+    }
+}
+
+#[test]
+fn a_linear_gradient_bends_the_beam_into_a_circle() {
+    // The upper face 1.5 K warmer than the lower along the whole beam: constant curvature
+    // κ = α ΔT / h; the section at s turns by κ s about +y (eq. 3.59) and the axis drops by
+    // κ s²/2 (eq. 3.62), the chord of the circle of radius 1/κ to second order.
+    let c = machine(BED);
+    let alpha = 11.5e-6;
+    let kappa = alpha * 1.5 / 0.2;
+    for x in [0.1, 0.3, 0.9] {
+        let s = x - 0.1;
+        let t = [1.0 + 1.5, 1.0 + 1.5, 1.0, 1.0];
+        let angle = bed_error(&c, 2, x, t);
+        let drop = bed_error(&c, 1, x, t);
+        assert!((angle - kappa * s).abs() < 1e-15, "ry at {x}: {angle}");
+        assert!(
+            (drop + kappa * s * s / 2.0).abs() < 1e-15,
+            "tz at {x}: {drop}"
+        );
+        // Mean 1.75 K: the expansion.
+        assert!((bed_error(&c, 0, x, t) - alpha * 1.75 * s).abs() < 1e-15);
+    }
+}
+
+#[test]
+fn a_gradient_growing_along_the_beam_integrates_exactly() {
+    // G(ξ) rising linearly from 0 to G₁ over L: ε = α G₁ s²/(2L), δ = −α G₁ s³/(6L). Checked
+    // against a fine midpoint integration of eq. 3.59 and 3.62.
+    let c = machine(BED);
+    let alpha = 11.5e-6;
+    let (l, g1) = (0.8, 3.0 / 0.2);
+    let t = [0.0, 3.0, 0.0, 0.0];
+    let x = 0.7;
+    let s: f64 = x - 0.1;
+    let n = 100_000;
+    let h = s / n as f64;
+    let (mut eps, mut delta) = (0.0, 0.0);
+    for i in 0..n {
+        let xi = (i as f64 + 0.5) * h;
+        // ε = ∫ α G (eq. 3.59) and δ = −∫ ε (eq. 3.62), both by the midpoint rule.
+        let g = g1 * xi / l;
+        let eps_mid = eps + alpha * g * h / 2.0;
+        eps += alpha * g * h;
+        delta -= eps_mid * h;
+    }
+    assert!((bed_error(&c, 2, x, t) - eps).abs() < 1e-12 * eps.abs().max(1e-9));
+    assert!((bed_error(&c, 1, x, t) - delta).abs() < 1e-9 * delta.abs());
+}

@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use crate::report::plot::{self, Chart, PlotError, Series, BLUE, GREY, ORANGE};
 use crate::report::{esc, num, CSS};
 
-fn page(title: &str, body: &str) -> String {
+pub(crate) fn page(title: &str, body: &str) -> String {
     format!(
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n<title>{}</title>\n<style>{CSS}</style>\n</head>\n<body>\n<main>\n{body}<footer>written by kin {}</footer>\n</main>\n</body>\n</html>\n",
         esc(title),

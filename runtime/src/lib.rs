@@ -28,6 +28,7 @@ pub mod kinematics;
 pub mod lag;
 pub mod output;
 pub mod plan;
+pub mod predict;
 mod rank_update;
 pub mod simulate;
 pub mod states;

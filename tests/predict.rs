@@ -280,3 +280,98 @@ fn predict_refuses_to_overwrite_an_input_and_locates_cycle_errors() {
     assert_eq!(out.status.code(), Some(1));
     assert!(text(&out.stderr).contains("time"), "{}", text(&out.stderr));
 }
+
+/// The lag of a piecewise-linear input by many small RK4 steps of `dx/dt = (u − x)/τ`: an
+/// integration independent of kin's exact ramp update.
+fn rk4_lag(times: &[f64], u: &[f64], tau: f64) -> Vec<f64> {
+    let mut x = u[0];
+    let mut out = vec![x];
+    for k in 1..times.len() {
+        let (t0, t1, u0, u1) = (times[k - 1], times[k], u[k - 1], u[k]);
+        let steps = 4000;
+        let h = (t1 - t0) / steps as f64;
+        let f = |t: f64, x: f64| {
+            let ut = if t1 > t0 {
+                u0 + (u1 - u0) * (t - t0) / (t1 - t0)
+            } else {
+                u1
+            };
+            (ut - x) / tau
+        };
+        for i in 0..steps {
+            let t = t0 + i as f64 * h;
+            let k1 = f(t, x);
+            let k2 = f(t + h / 2.0, x + h / 2.0 * k1);
+            let k3 = f(t + h / 2.0, x + h / 2.0 * k2);
+            let k4 = f(t + h, x + h * k3);
+            x += h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+        }
+        out.push(x);
+    }
+    out
+}
+
+#[test]
+fn time_series_irregular_sampling_runs_and_gaps_follow_spec_data() {
+    let dir = scratch("series");
+    setup(&dir);
+    // Irregular sampling (2 s to 40 min between rows) in run `a`; run `b`, interleaved, starts
+    // hours later with the same inputs: its lag starts in steady state at its own first value,
+    // whatever run `a` did, so its states equal run `a`'s.
+    let t = [0.0, 0.5, 1.0, 13.0, 53.0, 53.1, 90.0, 150.0];
+    let u = [1.0, 1.0, 3.0, 3.5, 0.5, 2.0, 2.0, 4.0];
+    let mut csv = String::from("run,time[min],X,Y,Z,T_spindle,T_room\n");
+    for k in 0..t.len() {
+        csv += &format!("a,{},250,200,-150,{},0\n", t[k], u[k]);
+        csv += &format!("b,{},250,200,-150,{},0\n", t[k] + 600.0, u[k]);
+    }
+    std::fs::write(dir.join("series.csv"), csv).expect("series");
+    let out = kin(&[
+        "eval",
+        &p(&dir, "m.kin"),
+        &p(&dir, "series.csv"),
+        "--params",
+        &p(&dir, "truth.params"),
+        "-o",
+        &p(&dir, "e.csv"),
+    ]);
+    ok(&out);
+    let c = read_csv(&dir.join("e.csv"));
+    let want = rk4_lag(&t, &u, 25.0);
+    for k in 0..t.len() {
+        // task position: ez = 4 µm/K · lag; rows alternate a, b.
+        let (a, b) = (c["ez"][2 * k], c["ez"][2 * k + 1]);
+        assert!(
+            (a - 4.0 * want[k]).abs() < 1e-6,
+            "row {k}: {a} vs {}",
+            4.0 * want[k]
+        );
+        assert_eq!(a, b, "run b repeats run a");
+    }
+    // A missing input cell the model uses: refused with the file, line and column.
+    std::fs::write(
+        dir.join("hole.csv"),
+        "time[min],X,Y,Z,T_spindle,T_room,ez\n0,250,200,-150,1,0,0\n5,250,200,-150,,0,0.1\n",
+    )
+    .expect("hole");
+    let out = kin(&["fit", &p(&dir, "m.kin"), &p(&dir, "hole.csv")]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("hole.csv") && err.contains("line 3") && err.contains("T_spindle"),
+        "{err}"
+    );
+    // Time going back within a run: refused with the file, line and reason.
+    std::fs::write(
+        dir.join("back.csv"),
+        "run,time[min],X,Y,Z,T_spindle,T_room,ez\na,0,250,200,-150,1,0,0\nb,0,250,200,-150,1,0,0\na,-1,250,200,-150,1,0,0\n",
+    )
+    .expect("back");
+    let out = kin(&["fit", &p(&dir, "m.kin"), &p(&dir, "back.csv")]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("back.csv") && err.contains("line 4") && err.contains("time order"),
+        "{err}"
+    );
+}

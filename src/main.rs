@@ -344,6 +344,27 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// ISO 230-3 figures of thermal tests from their time series: the environmental temperature
+    /// variation error (ETVE, each displacement's range) and the spindle thermal drift (each
+    /// displacement's drift from the start, the spindle axis' tilts from sensor pairs), with
+    /// the drift and temperature plots.
+    #[command(
+        name = "iso230-3",
+        after_help = "Examples:
+  kin iso230-3 etve.csv
+  kin iso230-3 spindle.csv --html spindle.html   # drift, tilts and temperatures over time
+  kin iso230-3 spindle.csv --format json"
+    )]
+    Iso2303 {
+        /// The test: columns time, displacements X Y Z (or X1 X2 Y1 Y2 Z1 Z2 with
+        /// `# separation: 100 mm` before the header) and temperatures T… (spec/iso230-3.md).
+        run: PathBuf,
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
+        /// A self-contained HTML page with the standard's plots.
+        #[arg(long, value_name = "OUT.html")]
+        html: Option<PathBuf>,
+    },
     /// ISO 230-4 figures of circular tests (a ball bar): per direction the circular deviation
     /// G, radial deviation F, least-squares centre offset and radius error; the bidirectional G
     /// and the circular hysteresis H; a polar plot; the samples as lengths for a fit.
@@ -1018,6 +1039,9 @@ fn main() -> ExitCode {
             engine,
             color: color.enabled(),
         }),
+        Command::Iso2303 { run, format, html } => {
+            iso::run_thermal(iso::Iso2303Args { run, format, html })
+        }
         Command::Iso2304 {
             run,
             format,

@@ -145,6 +145,10 @@ fn cycle_poses(
     let path = Path::new(text);
     // A file when one exists by that name; the generator's text never names one.
     let is_file = !text.contains(';') && path.is_file();
+    if !is_file && !text.contains(';') && (text.ends_with(".csv") || text.contains('/')) {
+        eprintln!("error: cannot read the cycle `{text}`: no such file");
+        return Err(Failed::USAGE);
+    }
     let poses: Vec<Vec<f64>> = match &a.poses {
         Some(p) => match load::observations(p, compiled, true, &a.ignore)? {
             Observations::Points(p) => (0..p.rows.len())

@@ -375,3 +375,54 @@ fn time_series_irregular_sampling_runs_and_gaps_follow_spec_data() {
         "{err}"
     );
 }
+
+#[test]
+fn iso230_3_reports_drift_and_tilts_and_draws_them() {
+    let dir = scratch("iso230_3");
+    // Sensors 100 mm apart; the far X sensor moves 3 µm more than the near one: 30 µrad.
+    let run = "# separation: 100 mm\ntime[min],X1[um],X2[um],Z1[um],T_spindle[degC]\n0,0,0,0,20\n30,1,2.5,-8,24\n60,1.5,4.5,-12,26\n90,1.2,3.6,-10,25\n";
+    std::fs::write(dir.join("spindle.csv"), run).expect("run");
+    let out = kin(&["iso230-3", &p(&dir, "spindle.csv"), "--format", "json"]);
+    let v: serde_json::Value = serde_json::from_str(&ok(&out)).expect("json");
+    let z = v["displacements"]
+        .as_array()
+        .expect("list")
+        .iter()
+        .find(|c| c["name"] == "Z1")
+        .expect("Z1");
+    assert!((z["drift"].as_f64().expect("drift") + 12e-6).abs() < 1e-12);
+    assert!((z["drift_at"].as_f64().expect("at") - 3600.0).abs() < 1e-9);
+    assert!((z["range"].as_f64().expect("range") - 12e-6).abs() < 1e-12);
+    let tilt = &v["tilts"][0];
+    assert!(
+        (tilt["drift"].as_f64().expect("tilt") - 30e-6).abs() < 1e-12,
+        "{tilt}"
+    );
+    let out = kin(&[
+        "iso230-3",
+        &p(&dir, "spindle.csv"),
+        "--html",
+        &p(&dir, "spindle.html"),
+    ]);
+    ok(&out);
+    let page = std::fs::read_to_string(dir.join("spindle.html")).expect("page");
+    assert!(
+        page.matches("<svg").count() >= 3,
+        "displacements, tilts, temperatures"
+    );
+    let out = kin(&[
+        "iso230-3",
+        &p(&dir, "spindle.csv"),
+        "--html",
+        &p(&dir, "spindle.csv"),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    std::fs::write(dir.join("bad.csv"), "time,X\n0,1\n1,x\n").expect("bad");
+    let out = kin(&["iso230-3", &p(&dir, "bad.csv")]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        text(&out.stderr).contains("line 3, column 3"),
+        "{}",
+        text(&out.stderr)
+    );
+}

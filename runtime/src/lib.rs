@@ -22,6 +22,7 @@ pub mod history;
 pub mod identify;
 pub mod interp;
 pub mod iso230_2;
+pub mod iso230_3;
 pub mod iso230_4;
 pub mod jit;
 pub mod kinematics;

@@ -388,6 +388,7 @@ mod tests {
 
     fn machine() -> Machine {
         let src = r#"machine m {
+    task position
     units { length mm, angle deg, error um, tilt urad, time min, temperature degC }
     axis X prismatic along x range 0 mm .. 500 mm
     input T_spindle : temperature rise

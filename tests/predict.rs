@@ -59,7 +59,8 @@ fn read_csv(path: &Path) -> HashMap<String, Vec<f64>> {
     let mut cols: HashMap<String, Vec<f64>> = header.iter().map(|h| (h.clone(), vec![])).collect();
     for line in lines {
         for (h, cell) in header.iter().zip(line.split(',')) {
-            let v = if cell.trim().is_empty() {
+            let v = if cell.trim().is_empty() || h == "run" {
+                // `run` holds labels, not numbers.
                 f64::NAN
             } else {
                 cell.trim().parse().expect("a number")

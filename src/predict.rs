@@ -11,7 +11,7 @@ use kin_runtime::data::{self, Groups, Observations, PointData, Pose, Rows, Write
 use kin_runtime::predict::{self, Drift};
 
 use crate::load::{self, Failed};
-use crate::report::plot::{Chart, Series, BLUE, GREY, ORANGE};
+use crate::report::plot::{Chart, Series, BLUE, ORANGE};
 use crate::report::{esc, num};
 
 pub struct PredictArgs {
@@ -422,7 +422,6 @@ fn html(
                 width: 2,
                 dashed: false,
             });
-            let _ = GREY;
             body.push_str(&chart.svg()?);
             if let Some(o) = obs {
                 let pred: Vec<f64> = d.error.iter().map(|e| e[c]).collect();

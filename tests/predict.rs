@@ -427,3 +427,56 @@ fn iso230_3_reports_drift_and_tilts_and_draws_them() {
         text(&out.stderr)
     );
 }
+
+#[test]
+fn simulate_takes_a_cycle_file_at_each_pose() {
+    let dir = scratch("cycle_file");
+    setup(&dir);
+    std::fs::write(
+        dir.join("cycle.csv"),
+        "time[min],T_spindle,T_room\n0,0,0\n10,2,0\n25,2,0\n40,0,0\n",
+    )
+    .expect("cycle");
+    std::fs::write(dir.join("poses.csv"), "X,Y,Z\n0,0,0\n500,400,-300\n").expect("poses");
+    ok(&kin(&[
+        "simulate",
+        &p(&dir, "m.kin"),
+        "--params",
+        &p(&dir, "truth.params"),
+        "--cycle",
+        &p(&dir, "cycle.csv"),
+        "--poses",
+        &p(&dir, "poses.csv"),
+        "-o",
+        &p(&dir, "out.csv"),
+    ]));
+    let c = read_csv(&dir.join("out.csv"));
+    assert_eq!(c["time"].len(), 8, "4 samples × 2 poses");
+    let want = rk4_lag(&[0.0, 10.0, 25.0, 40.0], &[0.0, 2.0, 2.0, 0.0], 25.0);
+    for (k, w) in want.iter().enumerate() {
+        for pose in 0..2 {
+            let r = 2 * k + pose;
+            assert_eq!(c["X"][r], if pose == 0 { 0.0 } else { 500.0 });
+            // Exact transforms: the tilt-free Z.tz shift is the same at every pose.
+            assert!(
+                (c["ez"][r] - 4.0 * w).abs() < 1e-6,
+                "row {r}: {}",
+                c["ez"][r]
+            );
+        }
+    }
+    // --every belongs to a generated cycle.
+    let out = kin(&[
+        "simulate",
+        &p(&dir, "m.kin"),
+        "--cycle",
+        &p(&dir, "cycle.csv"),
+        "--every",
+        "1min",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    // A cycle file that does not exist is named as such, not parsed as a generator.
+    let out = kin(&["simulate", &p(&dir, "m.kin"), "--cycle", "nothere.csv"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("no such file"));
+}

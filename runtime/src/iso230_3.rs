@@ -412,7 +412,7 @@ fn quantity(text: &str, dim: Dim) -> Option<f64> {
     let (v, u) = text.split_at(split);
     let v: f64 = v.trim().parse().ok()?;
     let unit = Unit::parse(u.trim()).ok()?;
-    (unit.dim == dim && v.is_finite()).then(|| v * unit.scale)
+    (unit.dim == dim && v.is_finite()).then_some(v * unit.scale)
 }
 
 #[cfg(test)]

@@ -133,7 +133,7 @@ impl<'a> Words<'a> {
         let mut col = c;
         for part in w.split(',') {
             match part.parse::<f64>() {
-                Ok(v) if v.is_finite() && v >= 0.0 && v <= 1e6 => out.push(v / 60.0),
+                Ok(v) if (0.0..=1e6).contains(&v) => out.push(v / 60.0),
                 _ => {
                     return Err(CycleError {
                         column: col,

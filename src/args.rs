@@ -87,6 +87,18 @@ pub struct Spread {
     pub si: f64,
 }
 
+/// A positive duration with its unit, e.g. `1min`, `30 s` (`kin simulate --every`).
+pub fn duration(text: &str) -> Result<Spread, String> {
+    let s = spread(text, Dim::TIME)?;
+    if s.si > 0.0 {
+        Ok(s)
+    } else {
+        Err(format!(
+            "`{text}`: expected a positive duration, e.g. `1min`"
+        ))
+    }
+}
+
 fn spread(text: &str, dim: Dim) -> Result<Spread, String> {
     let si = crate::load::quantity(text, dim)?;
     if !si.is_finite() {
@@ -189,6 +201,7 @@ impl DataOptions {
             poses,
             ignore: self.ignore.clone(),
             delimiter: self.delimiter,
+            series: false,
         }
     }
 }

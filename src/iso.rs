@@ -656,3 +656,100 @@ fn length_file(a: &Iso2304Args, run: &iso230_4::CircularRun) -> Result<String, F
     }
     Ok(out)
 }
+
+pub struct Iso2303Args {
+    pub run: PathBuf,
+    pub format: Format,
+    pub html: Option<PathBuf>,
+}
+
+pub fn run_thermal(a: Iso2303Args) -> ExitCode {
+    Failed::exit(thermal(&a))
+}
+
+fn thermal(a: &Iso2303Args) -> Result<(), Failed> {
+    use kin_runtime::iso230_3::{self, Iso2303Error};
+    let path = a.run.as_path();
+    if let Some(out) = &a.html {
+        crate::files::check(out, &[path])?;
+    }
+    let run = iso230_3::read_file(path).map_err(|e| {
+        eprintln!("error: {e}");
+        match e {
+            Iso2303Error::Io { .. } => Failed::USAGE,
+            Iso2303Error::Invalid { .. } => {
+                eprintln!("note: the thermal-test file's format is described in spec/iso230-3.md");
+                Failed::INPUT
+            }
+        }
+    })?;
+    let e = iso230_3::evaluate(&run);
+    if let Some(out) = &a.html {
+        let page = crate::iso_html::iso230_3_page(&path.display().to_string(), &run, &e).map_err(
+            |err| {
+                eprintln!("error: {err}");
+                Failed::INPUT
+            },
+        )?;
+        crate::files::write(out, page.as_bytes())?;
+    }
+    match a.format {
+        Format::Human => {
+            let um = |v: f64| v * 1e6;
+            println!(
+                "ISO 230-3 thermal test `{}`: {} samples over {:.2} h",
+                path.display(),
+                e.samples,
+                e.duration / 3600.0
+            );
+            println!("  displacement     ETVE (range)    drift from start        at      end");
+            for c in &e.displacements {
+                println!(
+                    "  {:<12} {:>12.3} um {:>12.3} um {:>8.1} min {:>8.3} um",
+                    c.name,
+                    um(c.range),
+                    um(c.drift),
+                    c.drift_at / 60.0,
+                    um(c.end)
+                );
+            }
+            for t in &e.tilts {
+                let f = &t.figures;
+                println!(
+                    "  tilt {:<7} {:>12.3} urad {:>10.3} urad {:>8.1} min {:>8.3} urad",
+                    t.pair,
+                    f.range * 1e6,
+                    f.drift * 1e6,
+                    f.drift_at / 60.0,
+                    f.end * 1e6
+                );
+            }
+            for c in &e.temperatures {
+                println!(
+                    "  {:<12} {:>12.3} K  {:>12.3} K  {:>8.1} min {:>8.3} K",
+                    c.name,
+                    c.range,
+                    c.drift,
+                    c.drift_at / 60.0,
+                    c.end
+                );
+            }
+        }
+        Format::Json => {
+            let json = serde_json::json!({
+                "file": path.display().to_string(),
+                "units": { "displacement": "m", "tilt": "rad", "temperature": "K", "time": "s" },
+                "duration": e.duration,
+                "samples": e.samples,
+                "displacements": e.displacements,
+                "tilts": e.tilts.iter().map(|t| &t.figures).collect::<Vec<_>>(),
+                "temperatures": e.temperatures,
+            });
+            println!("{json:#}");
+        }
+    }
+    if let Some(out) = &a.html {
+        eprintln!("wrote {}", out.display());
+    }
+    Ok(())
+}

@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use crate::report::plot::{self, Chart, PlotError, Series, BLUE, GREY, ORANGE};
 use crate::report::{esc, num, CSS};
 
-fn page(title: &str, body: &str) -> String {
+pub(crate) fn page(title: &str, body: &str) -> String {
     format!(
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n<title>{}</title>\n<style>{CSS}</style>\n</head>\n<body>\n<main>\n{body}<footer>written by kin {}</footer>\n</main>\n</body>\n</html>\n",
         esc(title),
@@ -438,4 +438,128 @@ mod tests {
         assert_eq!(nice(0.0), 1.0);
         assert_eq!(nice(f64::NAN), 1.0);
     }
+}
+
+/// The ISO 230-3 page: the displacements and tilts over time (the standard's drift plot) and
+/// the temperatures over time on their own chart, with the figures as a table.
+pub fn iso230_3_page(
+    name: &str,
+    run: &kin_runtime::iso230_3::ThermalRun,
+    e: &kin_runtime::iso230_3::Evaluation,
+) -> Result<String, PlotError> {
+    let hours: Vec<f64> = run
+        .time
+        .iter()
+        .map(|t| (t - run.time.first().copied().unwrap_or(0.0)) / 3600.0)
+        .collect();
+    let mut body = format!(
+        "<h1>ISO 230-3 thermal test <code>{}</code></h1>\n<p>{} samples over {} h.</p>\n",
+        esc(name),
+        e.samples,
+        num(e.duration / 3600.0, 3)
+    );
+    let colors = plot::PALETTE;
+    let mut chart = Chart::new(
+        "Displacements over time",
+        "time [h]",
+        "displacement [um]",
+        (900, 420),
+    );
+    for (k, c) in run.displacements.iter().enumerate() {
+        chart.series.push(Series::Line {
+            points: hours
+                .iter()
+                .zip(&c.values)
+                .map(|(&t, &v)| (t, v * 1e6))
+                .collect(),
+            color: colors[k % colors.len()],
+            width: 2,
+            dashed: false,
+        });
+    }
+    body.push_str(&chart.svg()?);
+    body.push_str(&legend(run.displacements.iter().map(|c| c.name.as_str())));
+    if !e.tilts.is_empty() {
+        let mut chart = Chart::new(
+            "Tilts of the spindle axis",
+            "time [h]",
+            "tilt [urad]",
+            (900, 360),
+        );
+        for (k, t) in e.tilts.iter().enumerate() {
+            chart.series.push(Series::Line {
+                points: hours
+                    .iter()
+                    .zip(&t.values)
+                    .map(|(&h, &v)| (h, v * 1e6))
+                    .collect(),
+                color: colors[k % colors.len()],
+                width: 2,
+                dashed: false,
+            });
+        }
+        body.push_str(&chart.svg()?);
+        body.push_str(&legend(e.tilts.iter().map(|t| t.figures.name.as_str())));
+    }
+    if !run.temperatures.is_empty() {
+        let mut chart = Chart::new(
+            "Temperatures over time",
+            "time [h]",
+            "temperature change [K]",
+            (900, 360),
+        );
+        for (k, c) in run.temperatures.iter().enumerate() {
+            let first = c.values.first().copied().unwrap_or(0.0);
+            chart.series.push(Series::Line {
+                points: hours
+                    .iter()
+                    .zip(&c.values)
+                    .map(|(&t, &v)| (t, v - first))
+                    .collect(),
+                color: colors[k % colors.len()],
+                width: 2,
+                dashed: true,
+            });
+        }
+        body.push_str(&chart.svg()?);
+        body.push_str(&legend(run.temperatures.iter().map(|c| c.name.as_str())));
+    }
+    body.push_str("<table><tr><th>channel</th><th>range (ETVE)</th><th>drift from start</th><th>at [min]</th><th>at the end</th></tr>\n");
+    let mut row = |n: &str, f: &kin_runtime::iso230_3::ChannelFigures, scale: f64, unit: &str| {
+        let _ = writeln!(
+            body,
+            "<tr><td>{}</td><td>{} {unit}</td><td>{} {unit}</td><td>{}</td><td>{} {unit}</td></tr>",
+            esc(n),
+            num(f.range * scale, 3),
+            num(f.drift * scale, 3),
+            num(f.drift_at / 60.0, 1),
+            num(f.end * scale, 3)
+        );
+    };
+    for c in &e.displacements {
+        row(&c.name, c, 1e6, "um");
+    }
+    for t in &e.tilts {
+        row(&t.figures.name, &t.figures, 1e6, "urad");
+    }
+    for c in &e.temperatures {
+        row(&c.name, c, 1.0, "K");
+    }
+    body.push_str("</table>\n");
+    Ok(page(&format!("ISO 230-3: {name}"), &body))
+}
+
+fn legend<'a>(names: impl Iterator<Item = &'a str>) -> String {
+    let mut s = String::from("<p>");
+    for (k, n) in names.enumerate() {
+        let c = plot::PALETTE[k % plot::PALETTE.len()];
+        let _ = write!(
+            s,
+            "<span style=\"color:{}\">■</span> {} &nbsp; ",
+            plot::css(c),
+            esc(n)
+        );
+    }
+    s.push_str("</p>\n");
+    s
 }

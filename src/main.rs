@@ -17,6 +17,7 @@ mod iso;
 mod iso_html;
 mod load;
 mod manual;
+mod predict;
 mod render;
 mod report;
 mod rounds;
@@ -112,7 +113,9 @@ enum Command {
     /// (finite transforms), written in the measurement-file format.
     #[command(after_help = "Examples:
   kin simulate examples/bridge_cmm.kin --sample 2000 --noise 0.3um --seed 7 -o points.csv
-  kin simulate mill.kin --poses plan.csv --components pose -o measured.csv")]
+  kin simulate mill.kin --poses plan.csv --components pose -o measured.csv
+  kin simulate mill.kin --cycle 'spindle T_spindle 2 K per 1000 rpm tau 40 min; warmup 8000 rpm 2 h; stop 1 h' --every 2min --noise 0.5um -o warmup.csv
+  kin simulate mill.kin --cycle cycle.csv --poses corners.csv --noise 0.5um -o measured.csv")]
     Simulate {
         machine: PathBuf,
         /// Parameter values (`params { … }` file); the machine's own `params` block otherwise.
@@ -125,6 +128,16 @@ enum Command {
         /// Instead of a poses file, sample N poses over the axis ranges (1 to 10⁸).
         #[arg(long, value_parser = args::poses)]
         sample: Option<usize>,
+        /// A duty cycle: a time series file (`time`, inputs, optionally `run` and axis
+        /// columns; spec/data.md) or a generator such as `spindle T_s 2 K per 1000 rpm tau
+        /// 40 min; warmup 8000 rpm 2 h; steps 2000,4000 rpm 30 min; stop 1 h` (spec/cli.md,
+        /// "Duty cycles"). Each sample is measured at every pose of --poses (default: every axis
+        /// at mid-range), so the lag states evolve as in a real warm-up.
+        #[arg(long, conflicts_with = "sample", value_name = "FILE|TEXT")]
+        cycle: Option<String>,
+        /// With a generated --cycle: the sampling interval (default 1min).
+        #[arg(long, requires = "cycle", value_parser = args::duration)]
+        every: Option<Spread>,
         /// Output file (standard output when absent); never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
@@ -336,6 +349,27 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// ISO 230-3 figures of thermal tests from their time series: the environmental temperature
+    /// variation error (ETVE, each displacement's range) and the spindle thermal drift (each
+    /// displacement's drift from the start, the spindle axis' tilts from sensor pairs), with
+    /// the drift and temperature plots.
+    #[command(
+        name = "iso230-3",
+        after_help = "Examples:
+  kin iso230-3 etve.csv
+  kin iso230-3 spindle.csv --html spindle.html   # drift, tilts and temperatures over time
+  kin iso230-3 spindle.csv --format json"
+    )]
+    Iso2303 {
+        /// The test: columns time, displacements X Y Z (or X1 X2 Y1 Y2 Z1 Z2 with
+        /// `# separation: 100 mm` before the header) and temperatures T… (spec/iso230-3.md).
+        run: PathBuf,
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
+        /// A self-contained HTML page with the standard's plots.
+        #[arg(long, value_name = "OUT.html")]
+        html: Option<PathBuf>,
+    },
     /// ISO 230-4 figures of circular tests (a ball bar): per direction the circular deviation
     /// G, radial deviation F, least-squares centre offset and radius error; the bidirectional G
     /// and the circular hysteresis H; a polar plot; the samples as lengths for a fit.
@@ -376,6 +410,41 @@ enum Command {
         /// reading with its sign flipped (spec/iso230-4.md).
         #[arg(long, requires = "lengths")]
         measure: bool,
+    },
+    /// The fitted model's drift over a duty cycle (a time series of inputs), with its standard
+    /// uncertainty including the fitted time constants', and against the observations the cycle
+    /// holds (thesis §5.1.3).
+    ///
+    /// The cycle is a measurement file with `time` and the model's inputs (spec/data.md, "Time
+    /// series"); without --poses the drift is predicted at the cycle's own axis columns, or, when
+    /// it has none, with every axis at the middle of its range. The output is a measurement file:
+    /// the prediction as `ex … erz`, its standard uncertainty as `u_…`, the observations as `obs_…`.
+    #[command(after_help = "Examples:
+  kin predict mill.kin --fit warmup_fit.json stepped_cycle.csv -o drift.csv --html drift.html
+  kin predict mill.kin --fit warmup_fit.json cycle.csv --poses corners.csv -o drift.csv")]
+    Predict {
+        machine: PathBuf,
+        /// The fit report written by `kin fit -o` (its values and covariance).
+        #[arg(long)]
+        fit: PathBuf,
+        /// The duty cycle: `time`, the inputs, optionally `run`, axis columns and observations.
+        cycle: PathBuf,
+        /// A point file of poses at which to predict the drift (each over the whole cycle).
+        #[arg(long)]
+        poses: Option<PathBuf>,
+        /// Output file (standard output when absent); never one of the inputs, replaced atomically.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// A self-contained HTML page: the drift over time with its band, and the observations.
+        #[arg(long, value_name = "R.html")]
+        html: Option<PathBuf>,
+        /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
+        #[arg(long, default_value = "jit")]
+        engine: kin_runtime::engine::Engine,
+        #[command(flatten)]
+        ignore: Ignore,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
     },
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     #[command(after_help = "Examples:
@@ -687,6 +756,8 @@ fn main() -> ExitCode {
             params,
             poses,
             sample,
+            cycle,
+            every,
             output,
             noise,
             noise_tilt,
@@ -702,6 +773,8 @@ fn main() -> ExitCode {
             params,
             poses,
             sample,
+            cycle,
+            every,
             output,
             noise,
             noise_tilt,
@@ -799,6 +872,27 @@ fn main() -> ExitCode {
             noise,
             noise_tilt,
             format,
+        }),
+        Command::Predict {
+            machine,
+            fit,
+            cycle,
+            poses,
+            output,
+            html,
+            engine,
+            ignore,
+            color,
+        } => predict::predict(predict::PredictArgs {
+            machine,
+            fit,
+            cycle,
+            poses,
+            output,
+            html,
+            engine,
+            data: ignore.options(),
+            color: color.enabled(),
         }),
         Command::Eval {
             machine,
@@ -953,6 +1047,9 @@ fn main() -> ExitCode {
             engine,
             color: color.enabled(),
         }),
+        Command::Iso2303 { run, format, html } => {
+            iso::run_thermal(iso::Iso2303Args { run, format, html })
+        }
         Command::Iso2304 {
             run,
             format,

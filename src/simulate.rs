@@ -33,6 +33,8 @@ pub struct SimulateArgs {
     pub params: Option<PathBuf>,
     pub poses: Option<PathBuf>,
     pub sample: Option<usize>,
+    pub cycle: Option<String>,
+    pub every: Option<Spread>,
     pub output: Option<PathBuf>,
     pub noise: Option<Spread>,
     pub noise_tilt: Option<Spread>,
@@ -85,11 +87,19 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
     }
     let compiled = load::machine(&a.machine, a.params.as_deref(), a.color)?;
     let m = &compiled.machine;
-    let poses = match (&a.poses, a.sample) {
-        (Some(p), None) => load::observations(p, &compiled, true, &a.ignore)?,
-        (None, Some(n)) => Observations::Points(simulate::sample_points(m, n, a.seed)),
+    let mut cycle_comment = None;
+    let poses = match (&a.poses, a.sample, &a.cycle) {
+        (_, _, Some(text)) => {
+            let (points, comment) = cycle_poses(&a, &compiled, text)?;
+            cycle_comment = Some(comment);
+            Observations::Points(points)
+        }
+        (Some(p), None, None) => load::observations(p, &compiled, true, &a.ignore)?,
+        (None, Some(n), None) => Observations::Points(simulate::sample_points(m, n, a.seed)),
         _ => {
-            eprintln!("error: give either a poses file (--poses FILE) or --sample N");
+            eprintln!(
+                "error: give a poses file (--poses FILE), --sample N or a duty cycle (--cycle)"
+            );
             return Err(Failed::USAGE);
         }
     };
@@ -108,7 +118,7 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
-    let comments = vec![
+    let mut comments = vec![
         format!(
             "simulated by kin from `{}` (exact transforms)",
             a.machine.display()
@@ -120,7 +130,108 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
             a.seed
         ),
     ];
+    comments.extend(cycle_comment);
     write(&out, m, a.output.as_deref(), comments, Vec::new())
+}
+
+/// The poses table of `--cycle`: a time series file's rows, or a generated cycle sampled
+/// every `--every`, at each pose of `--poses` (default: mid-range); and a comment saying which.
+fn cycle_poses(
+    a: &SimulateArgs,
+    compiled: &kin_compiler::Compiled,
+    text: &str,
+) -> Result<(data::PointData, String), Failed> {
+    let m = &compiled.machine;
+    let path = Path::new(text);
+    // A file when one exists by that name; the generator's text never names one.
+    let is_file = !text.contains(';') && path.is_file();
+    if !is_file && !text.contains(';') && (text.ends_with(".csv") || text.contains('/')) {
+        eprintln!("error: cannot read the cycle `{text}`: no such file");
+        return Err(Failed::USAGE);
+    }
+    let poses: Vec<Vec<f64>> = match &a.poses {
+        Some(p) => match load::observations(p, compiled, true, &a.ignore)? {
+            Observations::Points(p) => (0..p.rows.len())
+                .map(|r| {
+                    p.pose
+                        .axes
+                        .iter()
+                        .map(|c| c.get(r).copied().unwrap_or(f64::NAN))
+                        .collect()
+                })
+                .collect(),
+            Observations::Lengths(_) => {
+                eprintln!(
+                    "error: `{}`: --cycle takes a point file of poses",
+                    p.display()
+                );
+                return Err(Failed::USAGE);
+            }
+        },
+        None => vec![kin_runtime::predict::midpoint_pose(m)],
+    };
+    if is_file {
+        if a.every.is_some() {
+            eprintln!(
+                "error: --every samples a generated cycle; a cycle file's rows are its samples"
+            );
+            return Err(Failed::USAGE);
+        }
+        let options = data::ReadOptions {
+            poses: true,
+            series: true,
+            ..a.ignore.read(true)
+        };
+        let series = match data::read_file(path, m, &options).map_err(load::read_failed)? {
+            Observations::Points(p) => p,
+            Observations::Lengths(_) => {
+                eprintln!("error: `{text}`: a duty cycle is a point file, not a length file");
+                return Err(Failed::INPUT);
+            }
+        };
+        let n = series.rows.len();
+        let own = series.pose.axes.iter().all(|c| c.len() == n) && !m.axes.is_empty();
+        let points = if own && a.poses.is_none() {
+            data::PointData {
+                observed: Default::default(),
+                ..series
+            }
+        } else {
+            simulate::series_points(m, &series.rows, &poses)
+        };
+        return Ok((points, format!("duty cycle from `{text}`")));
+    }
+    let cycle = simulate::cycle::parse(text, m).map_err(|e| {
+        eprintln!("error: --cycle: {e}");
+        eprintln!("  {}", text.replace('\n', " "));
+        eprintln!("  {}^", " ".repeat(e.column.saturating_sub(1)));
+        eprintln!("note: the cycle's syntax is in spec/cli.md, \"Duty cycles\"");
+        Failed::USAGE
+    })?;
+    let every = a.every.as_ref().map_or(60.0, |s| s.si);
+    if cycle.duration() / every > 1e7 {
+        eprintln!(
+            "error: --every {}: more than 10 million samples",
+            a.every.as_ref().map_or("1min", |s| s.text.as_str())
+        );
+        return Err(Failed::USAGE);
+    }
+    let (times, inputs) = cycle.sample(m, every);
+    let rows = data::Rows {
+        line: (1..=times.len()).collect(),
+        tool: vec![0; times.len()],
+        time: Some(times),
+        inputs: inputs.into_iter().map(Some).collect(),
+        ..data::Rows::default()
+    };
+    Ok((
+        simulate::series_points(m, &rows, &poses),
+        format!(
+            "duty cycle `{}`, sampled every {}",
+            text.replace('\n', " "),
+            a.every.as_ref().map_or("1min", |s| s.text.as_str())
+        ),
+    ))
 }
 
 fn write(

@@ -140,6 +140,7 @@ pub fn measurement_csv(data: &[u8]) {
         },
         // Detected from the header, so the fuzzer reaches every separator and quoting.
         delimiter: None,
+        series: selector & 0x40 != 0,
     };
     let m = &c.machine;
     match data::read(bytes, Path::new("fuzz.csv"), m, &options) {

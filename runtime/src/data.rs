@@ -44,6 +44,9 @@ pub struct ReadOptions {
     /// The cell separator: `b','`, `b';'` or `b'\t'`. `None` detects it from the header line
     /// (spec/data.md). With a separator other than a comma, numbers may use a decimal comma.
     pub delimiter: Option<u8>,
+    /// Read a time series of inputs (a duty cycle for `kin predict`, `kin simulate --cycle`):
+    /// as `poses`, and besides axis columns are optional (all or none) and `time` is required.
+    pub series: bool,
 }
 
 #[derive(Debug, Clone, PartialEq)]

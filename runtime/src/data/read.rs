@@ -458,12 +458,24 @@ impl<'m> Reader<'m> {
         let has = |role: Role| present.contains(&role);
         let mut missing = Vec::new();
         let ends = if kind == Kind::Lengths { 2 } else { 1 };
+        // A time series may leave out the pose altogether (it is given elsewhere), but not
+        // half of it.
+        let no_axes = options.series
+            && ends == 1
+            && !machine
+                .axes
+                .iter()
+                .enumerate()
+                .any(|(axis, _)| has(Role::Axis { end: 0, axis }));
         for end in 0..ends {
             for (axis, a) in machine.axes.iter().enumerate() {
-                if !has(Role::Axis { end, axis }) {
+                if !has(Role::Axis { end, axis }) && !no_axes {
                     missing.push(axis_column(&a.name, kind, end));
                 }
             }
+        }
+        if options.series && !has(Role::Time) {
+            missing.push("time".to_string());
         }
         if kind == Kind::Lengths && !has(Role::Dl) && !options.poses {
             missing.push("dL".to_string());

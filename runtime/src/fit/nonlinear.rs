@@ -23,6 +23,9 @@ use crate::engine::Evaluator;
 pub struct NonlinearFit {
     pub values: Vec<f64>,
     pub se: Vec<Option<f64>>,
+    /// The joint covariance of the fitted parameters with the coefficients, for predictions
+    /// whose uncertainty includes that of the fitted values ([`Joint`]).
+    pub joint: Joint,
     pub iterations: usize,
     pub rss: f64,
     /// For fitted parameters: whether the data determine it at all, and whether it improves
@@ -280,6 +283,20 @@ fn predictions(
     Ok(out)
 }
 
+/// What the covariance of the coefficients β (eq. 4.11, at the fitted non-linear values) lacks
+/// for a prediction that also depends on the fitted non-linear values θ. For `Z = [X | D_θ]`,
+/// `Cov(θ) = S`, `Cov(β, θ) = −A·S` and `Cov(β) = C₀ + A·S·Aᵀ`, with `C₀` the coefficients'
+/// covariance at fixed θ and `A = (XᵀX)⁻¹XᵀD_θ` the regression of `D_θ` on the columns of X;
+/// so a prediction `gᵀβ + hᵀθ` has the variance `gᵀC₀g + (h − Aᵀg)ᵀ S (h − Aᵀg)`.
+#[derive(Debug, Clone, Default)]
+pub struct Joint {
+    /// `S`, `K × K` over every non-linear parameter of the model (rows and columns of fixed
+    /// ones are zero), SI, row-major.
+    pub s: Vec<f64>,
+    /// `A`, `n × K` for the model's `n` coefficients, row-major.
+    pub a: Vec<f64>,
+}
+
 /// Standard errors of the fitted non-linear parameters at the optimum: the θ block of the
 /// Gauss–Newton covariance over all parameters, `σ̂²[D_θᵀ(I − P_X)D_θ]⁻¹` with
 /// `D_θ = ∂(Xβ̂)/∂θ` at fixed β̂ (central differences). It is the trailing block of the QR of
@@ -295,7 +312,7 @@ fn covariance(
     rank: usize,
     options: &Options,
     split: Option<&Split>,
-) -> Result<Vec<Option<f64>>, FitError> {
+) -> Result<(Vec<Option<f64>>, Joint), FitError> {
     let m = &compiled.machine;
     let (_, _, beta) = linear_fit(compiled, engine, files, values, options, split)?;
     let k = fitted.len();
@@ -372,7 +389,61 @@ fn covariance(
             f64::INFINITY
         });
     }
-    Ok(se)
+    Ok((se, joint(&red.r, m, p, fitted, &inv, sigma2)))
+}
+
+/// [`Joint`] from the triangle of `[X | D_θ]` (`p` columns of X, the model's coefficients
+/// first) and `R₂₂⁻¹`: `S = σ̂²R₂₂⁻¹R₂₂⁻ᵀ`, `A = R₁₁⁻¹R₁₂`. A coefficient whose pivot vanishes
+/// (a column the data cannot see) gets a zero row of A: it is not estimated from these data,
+/// so it cannot carry their θ.
+fn joint(
+    r: &Mat<f64>,
+    m: &kin_compiler::ir::Machine,
+    p: usize,
+    fitted: &[usize],
+    inv: &Mat<f64>,
+    sigma2: f64,
+) -> Joint {
+    let kk = m.nonlinear.len();
+    let k = fitted.len();
+    let n = m.coefficients.len().min(p);
+    let mut s = vec![0.0; kk * kk];
+    for (a, &i) in fitted.iter().enumerate() {
+        for (b, &j) in fitted.iter().enumerate() {
+            let v: f64 = (a.max(b)..k).map(|c| inv[(a, c)] * inv[(b, c)]).sum();
+            if let Some(slot) = s.get_mut(i * kk + j) {
+                *slot = sigma2 * v;
+            }
+        }
+    }
+    let scale = (0..p).map(|i| r[(i, i)].abs()).fold(0.0, f64::max);
+    let mut a_full = vec![0.0; p * k];
+    for c in 0..k {
+        for i in (0..p).rev() {
+            let d = r[(i, i)];
+            if !(d.abs() > 1e-12 * scale) {
+                continue;
+            }
+            let mut v = r[(i, p + c)];
+            for j in i + 1..p {
+                v -= r[(i, j)] * a_full[j * k + c];
+            }
+            a_full[i * k + c] = v / d;
+        }
+    }
+    let mut a = vec![0.0; m.coefficients.len() * kk];
+    for row in 0..n {
+        for (c, &j) in fitted.iter().enumerate() {
+            if let Some(slot) = a.get_mut(row * kk + j) {
+                *slot = a_full[row * k + c];
+            }
+        }
+    }
+    if s.iter().chain(&a).any(|v| !v.is_finite()) {
+        // An unbounded direction: no joint covariance rather than a wrong one.
+        return Joint::default();
+    }
+    Joint { s, a }
 }
 
 /// What the columns `moved` buy at `values`: the residual sum of squares without them less
@@ -529,7 +600,7 @@ pub fn optimise(
         }
     }
     values = with(&values, &phi);
-    let se = covariance(
+    let (se, joint) = covariance(
         compiled, engine, files, &values, &fitted, rss, rank, options, split,
     )?;
     let mut verdicts = vec![None; m.nonlinear.len()];
@@ -568,6 +639,7 @@ pub fn optimise(
     Ok(Some(NonlinearFit {
         values,
         se,
+        joint,
         iterations,
         rss,
         verdicts,

@@ -63,6 +63,14 @@ pub struct FitReport {
     /// Covariance of the coefficients (eq. 4.11), SI, row-major `n × n`.
     #[serde(deserialize_with = "nans_if_null")]
     pub covariance: Vec<f64>,
+    /// Covariance `S` of the non-linear parameters, SI, row-major `K × K` over every one of
+    /// the model's non-linear parameters (zero for fixed ones); empty when none was fitted.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub nonlinear_covariance: Vec<f64>,
+    /// `A = (XᵀX)⁻¹XᵀD_θ`, row-major `n × K`: how the coefficients' estimates move with the
+    /// non-linear parameters, so that `Cov(β, θ) = −A·S` ([`super::nonlinear::Joint`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub nonlinear_sensitivity: Vec<f64>,
     #[serde(deserialize_with = "nan_if_null")]
     pub outlier_threshold: f64,
     #[serde(deserialize_with = "nan_if_null")]
@@ -551,6 +559,16 @@ pub fn build(
         nonlinear,
         nuisance,
         covariance,
+        nonlinear_covariance: result
+            .nonlinear
+            .as_ref()
+            .map(|n| n.joint.s.clone())
+            .unwrap_or_default(),
+        nonlinear_sensitivity: result
+            .nonlinear
+            .as_ref()
+            .map(|n| n.joint.a.clone())
+            .unwrap_or_default(),
         outlier_threshold: result.outlier_threshold,
         cook_threshold: result.cook_threshold,
         outliers,

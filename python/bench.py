@@ -51,10 +51,10 @@ def main():
         for _ in range(a.repeats):
             ths = [threading.Thread(target=m.eval, args=(x,), kwargs={"inputs": ti, "out": o})
                    for x, ti, o in zip(qs, ts, outs)]
-            for t in ths:
-                t.start()
-            for t in ths:
-                t.join()
+            for th in ths:
+                th.start()
+            for th in ths:
+                th.join()
         s = (time.perf_counter() - t0) / a.repeats
         base = base or s
         print(f"{threads} thread(s): {a.poses / s:12,.0f} poses/s  = {base / s:.2f} × one thread")

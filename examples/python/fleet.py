@@ -8,7 +8,9 @@ Each simulated machine is the bundled `examples/xy_table.kin` with a random trut
 squareness and scale error, and a backlash of X the nominal model lacks. A task reads the
 machine's model and measurement file, fits, diagnoses (which physical effect is missing),
 writes FIT.json, FIT.params, DIAGNOSE.json and a short REPORT.md beside the data, and returns
-one row: σ̂ and the RMS before, the RMS after the top finding's line, and that line.
+one row: σ̂ and the RMS before, the RMS after the top finding's line, and that line. The fit
+is weighted by the stated instrument noise, so σ̂ and the RMS are multiples of it (1 = the model
+explains the data down to the noise).
 """
 
 # %% Setup

@@ -91,6 +91,23 @@ def fit_partitioned(path: Path, parts: int) -> kin.StreamingFit:
     return total
 
 
+# %% The same on a cluster: each worker fits its partition, the triangles travel back
+def fit_on_dask(path: Path, parts: int, workers: int) -> kin.StreamingFit:
+    """`parts` partitions fitted on a Dask LocalCluster of `workers` processes; each task returns
+    its StreamingFit (pickled as the model and its triangle), and the triangles are merged here."""
+    from dask.distributed import Client, LocalCluster
+
+    groups = list(range(pq.ParquetFile(path).num_row_groups))
+    chunks = [c for c in (groups[i::parts] for i in range(parts)) if c]
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        fits = client.gather(client.map(fit_part, [str(path)] * len(chunks), chunks, pure=False))
+    total = fits[0]
+    for other in fits[1:]:
+        total.merge(other)
+    return total
+
+
 # %% Run
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

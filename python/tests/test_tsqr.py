@@ -25,6 +25,18 @@ def test_four_merged_partitions_give_the_single_stream_beta(tmp_path):
     assert 0.18e-6 < a["sigma"] < 0.22e-6
 
 
+def test_partitions_fitted_on_dask_workers_merge_to_the_single_stream_beta(tmp_path):
+    import cloudpickle
+
+    cloudpickle.register_pickle_by_value(tp)
+    path = tmp_path / "logs.parquet"
+    tp.generate(path, 40_000, batch=5_000)
+    one = tp.fit_part(path, list(range(8))).solve()
+    spread = tp.fit_on_dask(path, parts=4, workers=2).solve()
+    assert spread["rows"] == one["rows"] == 80_000
+    assert relative(spread["beta"], one["beta"]) < 1e-10
+
+
 def test_r_factors_merge_as_the_qr_of_the_stacked_triangles():
     m = kin.Model.compile(tp.MODEL)
     rng = np.random.default_rng(1)

@@ -311,6 +311,9 @@ fn output<'py, D: numpy::ndarray::Dimension>(
     }
 }
 
+/// `eval_jacobian`'s result: the errors (N, 6) and the β-Jacobians (N, 6, coefficients).
+type ErrorsAndJacobians<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>);
+
 /// A compiled `.kin` model with bound parameter values (immutable: `with_params` and
 /// `with_beta` return new models). Quantities are SI: metres, radians, seconds, kelvin.
 ///
@@ -443,10 +446,9 @@ impl PyModel {
         };
         let source = read(&path)?;
         let params = params.as_deref().map(read).transpose()?;
-        PyModel::compile(py, &source, params.as_deref()).map_err(|e| {
+        PyModel::compile(py, &source, params.as_deref()).inspect_err(|e| {
             // Name the file the located error is in.
             let _ = e.value(py).setattr("path", path.display().to_string());
-            e
         })
     }
 
@@ -598,7 +600,7 @@ impl PyModel {
         tool: usize,
         out: Option<Bound<'py, PyArray2<f64>>>,
         jac_out: Option<Bound<'py, PyArray3<f64>>>,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray3<f64>>)> {
+    ) -> PyResult<ErrorsAndJacobians<'py>> {
         let batch = self.batch(py, &states, &inputs, &time, &dirs, tool)?;
         let n = batch.rows;
         let p = self.model.coefficients();

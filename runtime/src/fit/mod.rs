@@ -6,6 +6,7 @@
 //! leverage (eq. 4.12's quadratic form), studentized residual and Cook's distance.
 
 mod design;
+pub mod merge;
 pub mod nonlinear;
 mod projection;
 mod qr;

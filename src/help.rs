@@ -41,13 +41,41 @@ fn shared(id: &str) -> Option<&'static str> {
     })
 }
 
-/// `cmd` and its subcommands with the shared help filled in where an argument has none.
+/// The placeholder `--help` shows for a file option's value, by the option's id, where the
+/// definition names none (clap would print the id in capitals: `--fit <FIT>`).
+fn value_name(id: &str) -> Option<&'static str> {
+    Some(match id {
+        "output" => "OUT",
+        "params" => "FILE",
+        "candidates" | "validate" | "evaluate" => "FILE",
+        "fit" => "FIT.json",
+        "diagnose" => "DIAGNOSE.json",
+        "model" => "MODEL.kin",
+        "dir" => "DIR",
+        "axis" => "AXIS",
+        "component" => "COMPONENT",
+        _ => return None,
+    })
+}
+
+/// `cmd` and its subcommands with the shared help filled in where an argument has none, and
+/// file options given a placeholder that says what they take.
 pub fn document(cmd: Command) -> Command {
-    cmd.mut_args(|arg: Arg| {
+    cmd.mut_args(|mut arg: Arg| {
+        let id = arg.get_id().as_str().to_string();
+        // The derive names a value after its field (`FIT`) unless told otherwise.
+        let derived = arg
+            .get_value_names()
+            .is_none_or(|names| names.len() == 1 && names[0].as_str() == id.to_uppercase());
+        if derived && !arg.is_positional() {
+            if let Some(name) = value_name(&id) {
+                arg = arg.value_name(name);
+            }
+        }
         if arg.get_help().is_some() {
             return arg;
         }
-        match shared(arg.get_id().as_str()) {
+        match shared(&id) {
             Some(text) => arg.help(text),
             None => arg,
         }

@@ -548,4 +548,61 @@ fn completions_and_manual_pages_know_the_global_options() {
         help.contains("--solver") && help.contains("column-pivoted QR"),
         "{help}"
     );
+    // File options say what they take.
+    let out = kin(&["help", "report"]);
+    let help = String::from_utf8(out.stdout).expect("utf-8");
+    assert!(
+        help.contains("--fit <FIT.json>") && help.contains("-o, --output <OUT>"),
+        "{help}"
+    );
+}
+
+/// A `// kin: allow CODE` comment in the model silences its warnings for every command run on
+/// it, as `--allow` does; a code kin does not have is warning W0803 at the code.
+#[test]
+fn a_model_allows_warnings_with_a_comment() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let text = std::fs::read_to_string("examples/bridge_cmm.kin").expect("model");
+    let at = text.find("    axis X").expect("an axis line");
+    let with = |comment: &str| {
+        format!(
+            "{}    input unused : temperature rise {comment}\n{}",
+            &text[..at],
+            &text[at..]
+        )
+    };
+    let model = dir.path().join("m.kin");
+    let m = model.to_str().expect("utf-8");
+    let stderr = |args: &[&str]| {
+        let out = kin(args);
+        assert!(out.status.success(), "{args:?}: {out:?}");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    std::fs::write(&model, with("")).expect("write");
+    assert!(stderr(&["check", "--no-identify", m]).contains("W0101"));
+    std::fs::write(&model, with("// kin: allow W0101 logged for the record")).expect("write");
+    let err = stderr(&["check", "--no-identify", m]);
+    assert!(!err.contains("W0101") && !err.contains("W0803"), "{err}");
+    // The JSON report leaves it out as well.
+    let out = kin(&["check", "--no-identify", "--format", "json", m]);
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("W0101"));
+
+    // A data warning of a run on this model, allowed in the model.
+    let data = std::fs::read_to_string("examples/data/bridge_cmm_points.csv").expect("data");
+    let points = dir.path().join("points.csv");
+    std::fs::write(&points, data.replacen("\n276.14629506687504,", "\n-20,", 1)).expect("write");
+    let p = points.to_str().expect("utf-8");
+    std::fs::write(&model, &text).expect("write");
+    assert!(stderr(&["fit", m, p]).contains("W0801"));
+    std::fs::write(&model, format!("{text}// kin: allow W0801\n")).expect("write");
+    assert!(!stderr(&["fit", m, p]).contains("W0801"));
+
+    // A typo is said, located, and allows nothing.
+    std::fs::write(&model, with("// kin: allow W0110")).expect("write");
+    let err = stderr(&["check", "--no-identify", "--color", "never", m]);
+    assert!(
+        err.contains("W0803") && err.contains("`W0110` is not a warning kin has"),
+        "{err}"
+    );
+    assert!(err.contains("W0101"), "{err}");
 }

@@ -80,14 +80,25 @@ pub fn run(
         return ExitCode::from(2);
     };
     // Text that is not UTF-8 is reported as it is, not compiled.
+    let started = std::time::Instant::now();
     let mut out = if diagnostics.is_empty() {
-        compile(&source)
+        let out = compile(&source);
+        crate::warnings::note(&crate::warnings::timed(
+            &format!("compiled `{name}`"),
+            started,
+        ));
+        out
     } else {
         kin_compiler::Output {
             compiled: None,
             diagnostics,
         }
     };
+    // `// kin: allow` comments: their codes are allowed before anything is printed, and a code
+    // kin does not have is warning W0803.
+    let mut all = crate::warnings::directives(&source);
+    all.append(&mut out.diagnostics);
+    out.diagnostics = all;
     if let (Some(c), Some((observe, aligned))) = (&out.compiled, identifiability) {
         let found = identify(c, observe.into(), aligned, engine);
         if !found.is_empty() {
@@ -119,7 +130,11 @@ pub fn run(
                 summary: out.compiled.as_ref().map(|c| Summary::of(&c.machine)),
             };
             match serde_json::to_string_pretty(&report) {
-                Ok(s) => println!("{s}"),
+                Ok(s) => {
+                    // This report is the run's document even when the model has errors.
+                    crate::errors::document_printed();
+                    println!("{s}");
+                }
                 Err(e) => {
                     eprintln!("error: {e}");
                     return ExitCode::from(2);

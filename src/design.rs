@@ -102,6 +102,12 @@ pub fn check_plan(
 }
 
 pub fn run(a: DesignArgs) -> Result<(), Failed> {
+    // An output that cannot be written is refused before the model is even read (spec/cli.md).
+    if let Some(out) = &a.output {
+        let mut inputs: Vec<&Path> = vec![&a.machine];
+        inputs.extend(a.candidates.as_deref());
+        crate::files::check(out, &inputs)?;
+    }
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
     let mut engine = kin_runtime::engine::make(m, a.engine).map_err(|e| {
@@ -159,6 +165,7 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
             crate::files::check(out, &[&a.machine, cands])?;
             let c = units_of(cands)?;
             let bar = ProgressBar::new_spinner();
+            crate::warnings::hush(&bar);
             bar.set_style(
                 ProgressStyle::with_template("{msg} {spinner} {pos} steps")
                     .unwrap_or_else(|_| ProgressStyle::default_spinner()),

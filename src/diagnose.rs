@@ -48,6 +48,7 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
     // The scan reports no steps of its own yet: a spinner with the elapsed time shows it is
     // alive (drawn on a terminal only; 45 s at 3·10⁵ observations).
     let bar = indicatif::ProgressBar::new_spinner();
+    crate::warnings::hush(&bar);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
             "{spinner} testing the candidate effects ({elapsed})",

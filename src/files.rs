@@ -11,6 +11,7 @@ use crate::load::Failed;
 pub fn check(output_path: &Path, inputs: &[&Path]) -> Result<(), Failed> {
     output::check_target(output_path, inputs).map_err(|e| {
         eprintln!("error: {e}");
+        crate::errors::record("io", e.to_string(), Some(output_path), None);
         Failed::USAGE
     })
 }
@@ -19,6 +20,13 @@ pub fn check(output_path: &Path, inputs: &[&Path]) -> Result<(), Failed> {
 pub fn write(path: &Path, contents: &[u8]) -> Result<(), Failed> {
     output::replace(path, contents).map_err(|e| {
         eprintln!("error: cannot write `{}`: {e}", path.display());
+        crate::errors::record("io", format!("cannot write: {e}"), Some(path), None);
         Failed::USAGE
-    })
+    })?;
+    crate::warnings::note(&format!(
+        "wrote `{}` ({})",
+        path.display(),
+        crate::warnings::bytes(contents.len() as u64)
+    ));
+    Ok(())
 }

@@ -201,6 +201,7 @@ fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
     // The rows are not counted before the fit (that would be one more pass over the files):
     // the progress shows the rows done in each pass.
     let bar = ProgressBar::new_spinner();
+    crate::warnings::hush(&bar);
     bar.set_style(
         ProgressStyle::with_template("{msg:>12} {spinner} {pos} rows")
             .unwrap_or_else(|_| ProgressStyle::default_spinner()),
@@ -314,6 +315,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     let options = options(a);
     let total = fit::count_rows(&files) as u64;
     let bar = ProgressBar::new(2 * total);
+    crate::warnings::hush(&bar);
     bar.set_style(
         ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} rows ({eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),

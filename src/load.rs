@@ -30,10 +30,17 @@ impl Failed {
 /// The bytes of a model, parameter file or fit report, at most
 /// [`bounded_read::MAX_TEXT_BYTES`]: a device or a FIFO that never ends stops there.
 fn read_bytes(path: &Path) -> Result<Vec<u8>, Failed> {
-    bounded_read::read(path, bounded_read::MAX_TEXT_BYTES).map_err(|e| {
+    let bytes = bounded_read::read(path, bounded_read::MAX_TEXT_BYTES).map_err(|e| {
         eprintln!("error: cannot read `{}`: {e}", path.display());
+        crate::errors::record("io", format!("cannot read: {e}"), Some(path), None);
         Failed::USAGE
-    })
+    })?;
+    crate::warnings::note(&format!(
+        "read `{}` ({})",
+        path.display(),
+        crate::warnings::bytes(bytes.len() as u64)
+    ));
+    Ok(bytes)
 }
 
 /// A `.kin` file's text and what is wrong with it before it is even compiled.
@@ -93,11 +100,16 @@ pub fn read_text(path: &Path) -> Result<String, Failed> {
             "error: `{}`, line {line}, column {column}: not valid UTF-8",
             path.display()
         );
+        crate::errors::record("data", "not valid UTF-8", Some(path), Some((line, column)));
         Failed::INPUT
     })
 }
 
 fn report(path: &Path, source: &str, diagnostics: &[Diagnostic], color: bool) {
+    for d in diagnostics.iter().filter(|d| d.is_error()) {
+        let at = render::line_column(source, d.primary_span().start);
+        crate::errors::record(d.code, d.message.clone(), Some(path), Some(at));
+    }
     let mut stderr = std::io::stderr().lock();
     let name = path.display().to_string();
     let _ = render::human(
@@ -137,8 +149,16 @@ pub fn machine_source(
     params: Option<&Path>,
     color: bool,
 ) -> Result<Compiled, Failed> {
+    let started = std::time::Instant::now();
     let out = compile(source);
-    report(path, source, &out.diagnostics, color);
+    crate::warnings::note(&crate::warnings::timed(
+        &format!("compiled `{}`", path.display()),
+        started,
+    ));
+    // `// kin: allow` comments take effect before any warning of this model is printed.
+    let mut diagnostics = crate::warnings::directives(source);
+    diagnostics.extend(out.diagnostics.iter().cloned());
+    report(path, source, &diagnostics, color);
     let Some(mut compiled) = out.compiled else {
         eprintln!("{}: the machine has errors", path.display());
         return Err(Failed::INPUT);
@@ -150,13 +170,15 @@ pub fn machine_source(
         let (text, fit) = if text.trim_start().starts_with('{') {
             let fit = FitOrigin::of(p, &text)?;
             if fit.machine != compiled.machine.name {
-                eprintln!(
-                    "error: `{}` is a fit of machine `{}`, but `{}` is machine `{}`",
+                let message = format!(
+                    "`{}` is a fit of machine `{}`, but `{}` is machine `{}`",
                     p.display(),
                     fit.machine,
                     path.display(),
                     compiled.machine.name
                 );
+                eprintln!("error: {message}");
+                crate::errors::record("fit", message, Some(p), None);
                 return Err(Failed::INPUT);
             }
             same_revision(
@@ -250,8 +272,8 @@ pub fn same_revision(
         Some((n, l)) => format!("`{n}` ({l})"),
         None => "nothing".to_string(),
     };
-    eprintln!(
-        "error: `{}` is a fit of another revision of `{}`: the model has {} coefficients, the fit {}; the first that differs is {} in the model and {} in the fit. Fit the model as it is now (`kin fit`).",
+    let message = format!(
+        "`{}` is a fit of another revision of `{}`: the model has {} coefficients, the fit {}; the first that differs is {} in the model and {} in the fit. Fit the model as it is now (`kin fit`).",
         fit_path.display(),
         model_path.display(),
         model.len(),
@@ -259,6 +281,8 @@ pub fn same_revision(
         describe(model.get(first)),
         describe(fitted.get(first))
     );
+    eprintln!("error: {message}");
+    crate::errors::record("fit", message, Some(fit_path), None);
     Err(Failed::INPUT)
 }
 
@@ -302,6 +326,12 @@ impl FitOrigin {
                      `machine`, `model_hash` and `params`)",
                     path.display()
                 );
+                crate::errors::record(
+                    "fit",
+                    "JSON but not a fit report written by `kin fit -o`",
+                    Some(path),
+                    None,
+                );
                 Err(Failed::INPUT)
             }
         }
@@ -316,6 +346,13 @@ pub fn fit_report(path: &Path) -> Result<kin_runtime::fit::report::FitReport, Fa
             "error: `{}` is not a fit report written by `kin fit -o`: {e}",
             path.display()
         );
+        let at = (e.line() > 0).then(|| (e.line(), e.column()));
+        crate::errors::record(
+            "fit",
+            format!("not a fit report written by `kin fit -o`: {e}"),
+            Some(path),
+            at,
+        );
         Failed::INPUT
     })
 }
@@ -329,8 +366,46 @@ pub fn observations(
     data: &crate::args::DataOptions,
 ) -> Result<Observations, Failed> {
     let options = data.read(poses);
-    let obs = data::read_file(path, &compiled.machine, &options).map_err(read_failed)?;
-    for o in data::ranges::outside(&compiled.machine, &obs) {
+    let started = std::time::Instant::now();
+    // Reading a large file takes seconds: a spinner says it is under way (on a terminal).
+    let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let bar = (size >= LARGE_FILE).then(|| {
+        crate::warnings::spinner(&format!(
+            "reading `{}` ({})",
+            path.display(),
+            crate::warnings::bytes(size)
+        ))
+    });
+    let read = data::read_file(path, &compiled.machine, &options);
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    let obs = read.map_err(read_failed)?;
+    let rows = match &obs {
+        Observations::Points(p) => p.rows.len(),
+        Observations::Lengths(l) => l.rows.len(),
+    };
+    crate::warnings::note(&crate::warnings::timed(
+        &format!(
+            "read {rows} rows of `{}` ({})",
+            path.display(),
+            crate::warnings::bytes(size)
+        ),
+        started,
+    ));
+    let outside = data::ranges::outside(&compiled.machine, &obs);
+    if crate::warnings::strict() && !outside.is_empty() {
+        for o in &outside {
+            let message = format!("{}: {o}", path.display());
+            eprintln!(
+                "error[{}]: {message} (--strict)",
+                crate::warnings::OUTSIDE_RANGE
+            );
+            crate::errors::record("data", message, Some(path), None);
+        }
+        return Err(Failed::INPUT);
+    }
+    for o in outside {
         crate::warnings::say(
             crate::warnings::OUTSIDE_RANGE,
             &format!("{}: {o}", path.display()),
@@ -339,13 +414,24 @@ pub fn observations(
     Ok(obs)
 }
 
+/// Files at least this large show a spinner while they are read (some 10⁵ rows: about a
+/// second).
+const LARGE_FILE: u64 = 16 << 20;
+
 /// Prints a measurement file's read error (with a hint for unknown columns) and gives the exit
 /// code: 2 when the file cannot be read, 1 when what it holds is wrong.
 pub fn read_failed(e: data::ReadError) -> Failed {
     eprintln!("error: {e}");
     match e {
-        data::ReadError::Io { .. } | data::ReadError::TooLarge { .. } => Failed::USAGE,
-        data::ReadError::Invalid { problems, .. } => {
+        data::ReadError::Io { ref path, .. } | data::ReadError::TooLarge { ref path, .. } => {
+            crate::errors::record("io", e.to_string(), Some(path), None);
+            Failed::USAGE
+        }
+        data::ReadError::Invalid { problems, path, .. } => {
+            for p in &problems {
+                let text = p.to_string();
+                crate::errors::record("data", &text, Some(&path), crate::errors::located(&text));
+            }
             let unknown: Vec<&str> = problems
                 .iter()
                 .filter_map(|p| match p {

@@ -8,10 +8,12 @@ mod correct;
 mod demo;
 mod design;
 mod diagnose;
+mod errors;
 mod files;
 mod fit;
 mod generate;
 mod grid;
+mod help;
 mod import;
 mod iso;
 mod iso_html;
@@ -29,7 +31,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use args::{Color, Spread};
-use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand, ValueEnum};
 
 #[derive(Parser)]
 #[command(
@@ -44,9 +46,16 @@ struct Cli {
     /// them); errors are always printed.
     #[arg(long, global = true, value_delimiter = ',', value_name = "CODE", value_parser = warnings::parse_code)]
     allow: Vec<String>,
-    /// Print no warnings at all (errors and results as usual).
+    /// Print no warnings and no progress bars (errors and results as usual).
     #[arg(short, long, global = true)]
     quiet: bool,
+    /// Say on standard error what each step did: the files read and written with their sizes
+    /// and rows, the time each step took, the engine used, the run's total time.
+    #[arg(short, long, global = true, conflicts_with = "quiet")]
+    verbose: bool,
+    /// Make poses outside an axis's declared range an error (exit 1) instead of warning W0801.
+    #[arg(long, global = true)]
+    strict: bool,
 }
 
 /// `--ignore` and `--delimiter`, shared by every command that reads measurement files.
@@ -141,6 +150,10 @@ enum Command {
         /// Output file (standard output when absent); never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
+        /// `json`: standard output holds the measurements as one JSON document (spec/json.md,
+        /// "Measurements"); `-o` still writes the file.
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
         /// Standard deviation of the measurement noise on positions and lengths, e.g. `0.3um`.
         #[arg(long, value_parser = args::length_spread, allow_hyphen_values = true)]
         noise: Option<Spread>,
@@ -241,6 +254,9 @@ enum Command {
     },
     /// The whole loop on a bundled example: fit, where it fails, the missing effect, add it,
     /// watch the error fall.
+    #[command(after_help = "Examples:
+  kin demo
+  kin demo --dir demo --rounds 1     # keep the working copy, add one effect")]
     Demo {
         /// Where to put the working copy of the model and data (a temporary folder otherwise): a
         /// new or empty folder, or one an earlier `kin demo` wrote (marked by `.kin-demo`).
@@ -302,7 +318,11 @@ enum Command {
         color: Color,
     },
     /// Turn another format's machine description into a `.kin` model.
-    #[command(subcommand)]
+    #[command(
+        subcommand,
+        after_help = "Examples:
+  kin import urdf examples/urdf/ur5.urdf -o ur5.kin"
+    )]
     Import(ImportCommand),
     /// ISO 230-2 figures of a bidirectional positioning run along one axis: per target the
     /// mean deviations, standard uncertainties and reversal value; E, M, B, R and A.
@@ -459,6 +479,10 @@ enum Command {
         /// Output file (standard output when absent); never one of the inputs, replaced atomically.
         #[arg(short, long)]
         output: Option<PathBuf>,
+        /// `json`: standard output holds the predictions as one JSON document (spec/json.md,
+        /// "Measurements"); `-o` still writes the file.
+        #[arg(long, value_enum, default_value_t = Format::Human)]
+        format: Format,
         #[arg(long, value_enum, default_value_t = simulate::Components::Pose)]
         components: simulate::Components,
         /// Add each prediction's standard uncertainty (k = 1, eq. 4.12) as columns `u_ex` …
@@ -563,12 +587,14 @@ enum Command {
     /// A measuring machine's coordinates corrected by its fitted model: measured minus
     /// predicted error, with each corrected coordinate's standard uncertainty (eq. 4.12).
     ///
-    /// Example: kin correct cmm.kin --fit FIT.json points.csv -o corrected.csv
-    ///
     /// POINTS.csv holds a pose per row (axis positions, dir_AXIS, tool, inputs, time, as in a
     /// point file; error columns there are not read into the result). The output adds the
     /// measured coordinates x y z (nominal kinematics), x_corrected …, and u_x ….
-    #[command(verbatim_doc_comment)]
+    #[command(
+        verbatim_doc_comment,
+        after_help = "Examples:
+  kin correct cmm.kin --fit fit.json points.csv -o corrected.csv"
+    )]
     Correct {
         machine: PathBuf,
         /// The fit report written by `kin fit -o` (a fit of another machine is refused).
@@ -650,6 +676,9 @@ enum Command {
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
     /// A measurement on this computer, not a test.
+    #[command(after_help = "Examples:
+  kin bench examples/milling_5axis.kin
+  kin bench mill.kin --poses 10000 --seconds 2")]
     Bench {
         machine: PathBuf,
         /// Poses sampled over the axis ranges, evaluated in turn (1 to 10⁸).
@@ -662,10 +691,10 @@ enum Command {
         color: Color,
     },
     /// Shell completion script on standard output (bash, zsh, fish, elvish, powershell).
-    ///
-    /// Example (bash): kin completions bash > ~/.local/share/bash-completion/completions/kin
-    /// Example (zsh):  kin completions zsh > ~/.zfunc/_kin
-    #[command(verbatim_doc_comment)]
+    #[command(after_help = "Examples:
+  kin completions bash > ~/.local/share/bash-completion/completions/kin
+  kin completions zsh > ~/.zfunc/_kin
+  kin completions fish > ~/.config/fish/completions/kin.fish")]
     Completions {
         /// The shell the script is for.
         #[arg(value_enum)]
@@ -673,9 +702,9 @@ enum Command {
     },
     /// Manual pages generated from this command line: `kin.1` on standard output, or one page
     /// per command (kin.1, kin-fit.1, …) into the folder given with -o.
-    ///
-    /// Example: kin man -o ~/.local/share/man/man1 && man kin-fit
-    #[command(verbatim_doc_comment)]
+    #[command(after_help = "Examples:
+  kin man -o ~/.local/share/man/man1 && man kin-fit
+  kin man | man -l -")]
     Man {
         /// A folder to write every page into (replaced atomically); standard output otherwise.
         #[arg(short, long, value_name = "DIR")]
@@ -729,11 +758,85 @@ enum ImportCommand {
     },
 }
 
+/// Whether the command line asks for JSON (`--format json` or `--format=json`), read before
+/// parsing so that a usage error, too, can be answered with a JSON document.
+fn asks_json(args: &[std::ffi::OsString]) -> bool {
+    args.iter()
+        .zip(args.iter().skip(1))
+        .any(|(a, b)| a == "--format" && b == "json")
+        || args.iter().any(|a| a == "--format=json")
+}
+
+/// The number an exit code stands for (kin uses 0, 1 and 2; spec/cli.md).
+fn exit_number(code: ExitCode) -> u8 {
+    if code == ExitCode::SUCCESS {
+        0
+    } else if code == ExitCode::from(2) {
+        2
+    } else {
+        1
+    }
+}
+
 fn main() -> ExitCode {
     restore_default_sigpipe();
-    let cli = Cli::parse();
-    warnings::set(cli.allow, cli.quiet);
-    match cli.command {
+    let started = std::time::Instant::now();
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let json = asks_json(&args);
+    errors::set_json(json);
+    let mut command = help::document(Cli::command());
+    let parsed = command
+        .try_get_matches_from_mut(&args)
+        .and_then(|m| Cli::from_arg_matches(&m).map(|cli| (m, cli)))
+        .and_then(|(m, cli)| {
+            // clap checks a conflict within one command's arguments; `kin -q fit -v` puts
+            // the two global flags on different levels, so the rule is enforced here too.
+            if cli.quiet && cli.verbose {
+                Err(command.error(
+                    clap::error::ErrorKind::ArgumentConflict,
+                    "the argument '--quiet' cannot be used with '--verbose'",
+                ))
+            } else {
+                Ok((m, cli))
+            }
+        });
+    let (matches, cli) = match parsed {
+        Ok(parsed) => parsed,
+        Err(e) => {
+            // `--help` and `--version` are not failures; a usage error is (exit 2).
+            if json && e.use_stderr() {
+                let _ = e.print();
+                errors::record("usage", e.render().to_string().trim(), None, None);
+                errors::finish(2);
+                return ExitCode::from(2);
+            }
+            e.exit()
+        }
+    };
+    warnings::set(warnings::Switches {
+        allow: cli.allow,
+        quiet: cli.quiet,
+        verbose: cli.verbose,
+        strict: cli.strict,
+    });
+    let name = matches.subcommand_name().unwrap_or("").to_string();
+    if let Some((_, m)) = matches.subcommand() {
+        if let Ok(Some(engine)) = m.try_get_one::<kin_runtime::engine::Engine>("engine") {
+            warnings::note(&format!("engine: {}", engine.name()));
+        }
+    }
+    let code = run(cli.command);
+    let exit = exit_number(code);
+    errors::finish(exit);
+    warnings::note(&warnings::timed(
+        &format!("`kin {name}` ended with exit code {exit}"),
+        started,
+    ));
+    code
+}
+
+fn run(command: Command) -> ExitCode {
+    match command {
         Command::Check {
             file,
             format,
@@ -759,6 +862,7 @@ fn main() -> ExitCode {
             cycle,
             every,
             output,
+            format,
             noise,
             noise_tilt,
             seed,
@@ -776,6 +880,7 @@ fn main() -> ExitCode {
             cycle,
             every,
             output,
+            json: format == Format::Json,
             noise,
             noise_tilt,
             seed,
@@ -899,6 +1004,7 @@ fn main() -> ExitCode {
             poses,
             params,
             output,
+            format,
             components,
             engine,
             ignore,
@@ -910,6 +1016,7 @@ fn main() -> ExitCode {
             params: params.as_deref(),
             poses: &poses,
             output: output.as_deref(),
+            json: format == Format::Json,
             components,
             engine,
             ignore: &ignore.options(),
@@ -926,16 +1033,21 @@ fn main() -> ExitCode {
             compensation,
             ignore,
             color,
-        } => report::run(report::ReportArgs {
-            machine,
-            fit,
-            diagnose,
-            data,
-            output,
-            ignore: ignore.options(),
-            color: color.enabled(),
-            compensation,
-        }),
+        } => {
+            let bar = warnings::spinner("writing the report");
+            let code = report::run(report::ReportArgs {
+                machine,
+                fit,
+                diagnose,
+                data,
+                output,
+                ignore: ignore.options(),
+                color: color.enabled(),
+                compensation,
+            });
+            bar.finish_and_clear();
+            code
+        }
         Command::Compensate {
             machine,
             fit,
@@ -946,17 +1058,22 @@ fn main() -> ExitCode {
             output,
             ignore,
             color,
-        } => compensate::run(compensate::CompensateArgs {
-            machine,
-            fit,
-            poses,
-            grid,
-            correct,
-            table,
-            output,
-            ignore: ignore.options(),
-            color: color.enabled(),
-        }),
+        } => {
+            let bar = warnings::spinner("computing the corrections");
+            let code = compensate::run(compensate::CompensateArgs {
+                machine,
+                fit,
+                poses,
+                grid,
+                correct,
+                table,
+                output,
+                ignore: ignore.options(),
+                color: color.enabled(),
+            });
+            bar.finish_and_clear();
+            code
+        }
         Command::Correct {
             machine,
             fit,
@@ -1082,8 +1199,10 @@ fn main() -> ExitCode {
             tip,
             observe,
         }),
-        Command::Completions { shell } => manual::completions(Cli::command(), shell),
-        Command::Man { output } => manual::man(Cli::command(), output.as_deref()),
+        Command::Completions { shell } => {
+            manual::completions(help::document(Cli::command()), shell)
+        }
+        Command::Man { output } => manual::man(help::document(Cli::command()), output.as_deref()),
     }
 }
 
@@ -1105,6 +1224,56 @@ fn plane_arg(text: &str) -> Result<[String; 2], String> {
 mod tests {
     use super::*;
 
+    /// `kin help COMMAND` reads like `cargo help build`: every argument and option of every
+    /// command has help text, every command a description and examples.
+    #[test]
+    fn every_argument_has_help_and_every_command_examples() {
+        fn walk(cmd: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            for arg in cmd.get_arguments() {
+                if arg.is_hide_set() {
+                    continue;
+                }
+                if arg.get_help().is_none() && arg.get_long_help().is_none() {
+                    missing.push(format!("`{path}` {}: no help", arg.get_id()));
+                }
+            }
+            for sub in cmd.get_subcommands() {
+                let p = format!("{path} {}", sub.get_name());
+                if sub.get_about().is_none() && sub.get_long_about().is_none() {
+                    missing.push(format!("`{p}`: no description"));
+                }
+                let examples = [sub.get_after_help(), sub.get_after_long_help()]
+                    .into_iter()
+                    .flatten()
+                    .any(|t| {
+                        let t = t.to_string();
+                        t.contains("Examples:")
+                            && t.lines().any(|l| l.trim_start().starts_with("kin "))
+                    });
+                if !examples {
+                    missing.push(format!("`{p}`: no Examples section"));
+                }
+                walk(sub, &p, missing);
+            }
+        }
+        let mut missing = Vec::new();
+        walk(&help::document(Cli::command()), "kin", &mut missing);
+        assert!(missing.is_empty(), "{missing:#?}");
+        // The check itself can fail: the bare definition lacks the shared help.
+        let mut bare = Vec::new();
+        walk(&Cli::command(), "kin", &mut bare);
+        assert!(bare.iter().any(|m| m.contains("color")), "{bare:?}");
+    }
+
+    #[test]
+    fn json_is_recognised_in_both_spellings() {
+        let args = |v: &[&str]| v.iter().map(std::ffi::OsString::from).collect::<Vec<_>>();
+        assert!(asks_json(&args(&["kin", "fit", "--format", "json"])));
+        assert!(asks_json(&args(&["kin", "fit", "--format=json"])));
+        assert!(!asks_json(&args(&["kin", "fit", "--format", "human"])));
+        assert!(!asks_json(&args(&["kin", "fit", "json"])));
+    }
+
     /// Every example line in `--help` (`kin …`, a `#` starting a comment) is a valid command line:
     /// an option renamed or removed fails here before a user copies a stale example.
     #[test]
@@ -1119,6 +1288,7 @@ mod tests {
                     let line = line.split(" #").next().unwrap_or("");
                     let line = line.split(" >").next().unwrap_or("");
                     let line = line.split(" &&").next().unwrap_or("");
+                    let line = line.split(" |").next().unwrap_or("");
                     if !line.starts_with("kin ") {
                         continue;
                     }

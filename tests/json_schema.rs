@@ -197,3 +197,167 @@ fn every_documented_section_is_found() {
         assert!(fields.iter().all(|f| !f.contains(' ')), "{fields:?}");
     }
 }
+
+/// A command asked for JSON that fails prints the error document of spec/json.md ("Errors")
+/// on standard output, every field of it documented and every documented field written.
+#[test]
+fn failures_print_the_documented_error_document() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let text = std::fs::read_to_string(DATA).expect("data");
+    let data = dir.path().join("points.csv");
+    std::fs::write(
+        &data,
+        text.replacen("\n276.14629506687504,", "\n27x6.1,", 1),
+    )
+    .expect("write");
+    let mut seen = BTreeSet::new();
+    for (args, code) in [
+        (vec!["fit", MODEL, data.to_str().expect("utf-8")], 1),
+        (vec!["diagnose", MODEL, "no-such-file.csv"], 2),
+        (vec!["fit", MODEL, DATA, "--holdout", "NaN"], 2),
+    ] {
+        let mut args = args;
+        args.extend(["--format", "json"]);
+        let out = Command::new(env!("CARGO_BIN_EXE_kin"))
+            .args(&args)
+            .output()
+            .expect("kin runs");
+        assert_eq!(out.status.code(), Some(code), "{args:?}");
+        let doc: Value = serde_json::from_slice(&out.stdout).expect("one JSON document");
+        assert_eq!(doc["exit_code"], code);
+        let missing = undocumented(&doc, "Errors", str::to_string);
+        assert!(
+            missing.is_empty(),
+            "{args:?}: not in spec/json.md: {missing:?}"
+        );
+        paths(&doc, "", &mut seen);
+    }
+    let stale: Vec<String> = documented("Errors")
+        .into_iter()
+        .filter(|f| !seen.contains(f))
+        .collect();
+    assert!(stale.is_empty(), "documented but never written: {stale:?}");
+}
+
+/// `kin eval` and `kin simulate` with `--format json`: the file `-o` writes, as the document of
+/// spec/json.md ("Measurements"), cell for cell (the CSV read here as data.md describes it).
+#[test]
+fn eval_and_simulate_print_their_measurements_as_the_documented_document() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let fit = dir.path().join("fit.json");
+    let csv = dir.path().join("out.csv");
+    let (f, c) = (fit.to_str().expect("utf-8"), csv.to_str().expect("utf-8"));
+    kin(&["fit", MODEL, DATA, "-o", f]);
+    let mut seen = BTreeSet::new();
+    for args in [
+        vec![
+            "eval",
+            MODEL,
+            DATA,
+            "--params",
+            f,
+            "--uncertainty",
+            "-o",
+            c,
+            "--format",
+            "json",
+        ],
+        vec![
+            "simulate", MODEL, "--sample", "20", "--seed", "3", "-o", c, "--format", "json",
+        ],
+    ] {
+        let (stdout, _) = kin(&args);
+        let doc: Value = serde_json::from_str(&stdout).expect("one JSON document");
+        let missing = undocumented(&doc, "Measurements", str::to_string);
+        assert!(
+            missing.is_empty(),
+            "{args:?}: not in spec/json.md: {missing:?}"
+        );
+        paths(&doc, "", &mut seen);
+        // The file: `#` comment lines, a header of NAME[UNIT] cells, rows of cells.
+        let text = std::fs::read_to_string(&csv).expect("the -o file");
+        let mut lines = text
+            .lines()
+            .filter(|l| !l.starts_with('#') && !l.is_empty());
+        let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+        let columns = doc["columns"].as_array().expect("columns");
+        assert_eq!(columns.len(), header.len());
+        for (h, col) in header.iter().zip(columns) {
+            let name = h.split('[').next().expect("name");
+            assert_eq!(col["name"], name, "{h}");
+            match h.split_once('[') {
+                Some((_, unit)) => assert_eq!(col["unit"], unit.trim_end_matches(']')),
+                None => assert!(col["unit"].is_null(), "{h}"),
+            }
+        }
+        let rows = doc["rows"].as_array().expect("rows");
+        let file_rows: Vec<&str> = lines.collect();
+        assert_eq!(rows.len(), file_rows.len());
+        for (row, line) in rows.iter().zip(&file_rows) {
+            for (v, cell) in row.as_array().expect("row").iter().zip(line.split(',')) {
+                match cell.parse::<f64>() {
+                    Ok(x) => assert_eq!(v.as_f64(), Some(x), "{cell}"),
+                    Err(_) => assert_eq!(v.as_str(), Some(cell)),
+                }
+            }
+        }
+        assert_eq!(
+            doc["comments"].as_array().map(Vec::len),
+            Some(text.lines().filter(|l| l.starts_with('#')).count())
+        );
+    }
+    let stale: Vec<String> = documented("Measurements")
+        .into_iter()
+        .filter(|f| !seen.contains(f))
+        .collect();
+    assert!(stale.is_empty(), "documented but never written: {stale:?}");
+}
+
+/// `kin check --format json`: the report of spec/json.md ("Check report") for a model that
+/// compiles and for one that does not.
+#[test]
+fn check_prints_the_documented_report() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let bad = dir.path().join("bad.kin");
+    std::fs::write(
+        &bad,
+        "machine m {\n  axis X prismatic along x range 0..1 m\n  tool chain: Q\n}\n",
+    )
+    .expect("write");
+    // The units map's keys are the model's units: one documented entry stands for them.
+    let alias = |p: &str| match p.strip_prefix("summary.units.") {
+        Some(_) => "summary.units".to_string(),
+        None => p.to_string(),
+    };
+    let mut seen = BTreeSet::new();
+    for (file, code) in [
+        ("examples/milling_5axis.kin", 0),
+        (bad.to_str().expect("utf-8"), 1),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_kin"))
+            .args(["check", "--format", "json", file])
+            .output()
+            .expect("kin runs");
+        assert_eq!(out.status.code(), Some(code), "{file}");
+        let doc: Value = serde_json::from_slice(&out.stdout).expect("one JSON document");
+        assert_eq!(doc["ok"], code == 0);
+        let known = documented("Check report");
+        let mut found = BTreeSet::new();
+        paths(&doc, "", &mut found);
+        let missing: Vec<String> = found
+            .iter()
+            .map(|p| alias(p))
+            .filter(|p| !known.contains(p))
+            .collect();
+        assert!(
+            missing.is_empty(),
+            "{file}: not in spec/json.md: {missing:?}"
+        );
+        seen.extend(found.iter().map(|p| alias(p)));
+    }
+    let stale: Vec<String> = documented("Check report")
+        .into_iter()
+        .filter(|f| !seen.contains(f))
+        .collect();
+    assert!(stale.is_empty(), "documented but never written: {stale:?}");
+}

@@ -1189,6 +1189,34 @@ fn a_large_batch_streams_the_same_rows() {
     }
 }
 
+/// A model past one piece (`lower::PIECE`) is several functions handing running sums on; the
+/// code of a subset of the components cuts and hands on the same way.
+#[test]
+fn observed_rows_of_a_model_in_pieces_are_the_full_rows() {
+    let m = compile_source(&large_model(2_000));
+    let model = jit::compile(&m).expect("compiles");
+    let n = m.coefficients.len();
+    let mut rng = StdRng::seed_from_u64(12);
+    let beta: Vec<f64> = (0..n).map(|j| 1e-7 * (j as f64).cos()).collect();
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let observed = Observed::from_flags([true, false, true, false, true, true]);
+    let (mut full_err, mut full) = ([0.0; 6], vec![0.0; 6 * n]);
+    let (mut err, mut jac) = (vec![0.0; 4], vec![0.0; 4 * n]);
+    for _ in 0..3 {
+        let s = random_state(&mut rng, &m);
+        model
+            .error_and_jacobian(&s.get(), &beta, &nl, &mut full_err, &mut full)
+            .expect("full");
+        model
+            .observed_error_and_jacobian(&s.get(), &beta, &nl, observed, &mut err, &mut jac)
+            .expect("observed");
+        for (row, c) in observed.components().enumerate() {
+            assert_eq!(err[row].to_bits(), full_err[c].to_bits());
+            assert_eq!(&jac[row * n..(row + 1) * n], &full[c * n..(c + 1) * n]);
+        }
+    }
+}
+
 /// Owned row-major storage of `states` for the batch calls.
 struct JitRows {
     q: Vec<f64>,

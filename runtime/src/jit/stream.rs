@@ -13,9 +13,13 @@
 //! block out with `movntpd`, which SSE2 — part of every x86-64 CPU — provides. Elsewhere the
 //! copy is an ordinary one.
 
-/// Destinations smaller than this are written directly: they fit in the last-level cache of
-/// a common CPU, where a streaming store would only evict them before the caller reads them.
-const STREAM_BYTES: usize = 8 << 20;
+/// Destinations smaller than this are written directly: they fit in a core's second-level
+/// cache, where the caller reads them back from. A larger one leaves that cache as it is
+/// written, to the shared last level or to memory, and there the ordinary store's read of
+/// every line first costs more than it saves (`kin bench`: on the 5-axis example, 1000 poses
+/// — 8 MB of Jacobian, inside a 32 MB last-level cache — were written at 0.66× the
+/// hand-written evaluator's plain stores with ordinary stores).
+const STREAM_BYTES: usize = 1 << 20;
 
 /// Whether a destination of `values` f64s is large enough for streaming stores to pay.
 pub(super) fn worth_it(values: usize) -> bool {

@@ -1155,7 +1155,7 @@ fn observed_rows_are_the_full_rows_bit_for_bit() {
     );
 }
 
-/// A batch large enough to be written out with streaming stores (more than 1 MiB of
+/// A batch large enough to be written out with streaming stores (more than 32 MiB of
 /// Jacobian) gives exactly the single calls' rows, at every position in the buffer.
 #[test]
 fn a_large_batch_streams_the_same_rows() {
@@ -1163,8 +1163,8 @@ fn a_large_batch_streams_the_same_rows() {
     let model = jit::compile(&m).expect("compiles");
     let n = m.coefficients.len();
     let mut rng = StdRng::seed_from_u64(31);
-    let states: Vec<OwnedState> = (0..200).map(|_| random_state(&mut rng, &m)).collect();
-    assert!(6 * n * states.len() * 8 > 1 << 20, "the batch must stream");
+    let states: Vec<OwnedState> = (0..4200).map(|_| random_state(&mut rng, &m)).collect();
+    assert!(6 * n * states.len() * 8 > 32 << 20, "the batch must stream");
     let beta: Vec<f64> = (0..n).map(|j| 1e-6 * ((j % 5) as f64 - 2.0)).collect();
     let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
     let rows = jit_rows(&states);

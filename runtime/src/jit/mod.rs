@@ -673,6 +673,7 @@ impl JitModel {
 
     /// Checks everything a call relies on and calls. This is the only place generated code is
     /// entered.
+    #[allow(clippy::too_many_arguments)] // the generated functions' arguments, one each
     fn call(
         &self,
         f: Function,

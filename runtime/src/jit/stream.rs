@@ -34,7 +34,7 @@ pub(super) fn copy(dst: &mut [f64], src: &[f64]) {
     {
         use std::arch::x86_64::{_mm_loadu_pd, _mm_stream_pd};
         let mut i = 0;
-        if (dst.as_ptr() as usize) % 16 != 0 && len > 0 {
+        if !(dst.as_ptr() as usize).is_multiple_of(16) && len > 0 {
             if let (Some(d), Some(s)) = (dst.first_mut(), src.first()) {
                 *d = *s;
             }

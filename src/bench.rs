@@ -33,7 +33,7 @@ fn bench(path: &Path, poses: usize, seconds: f64, color: bool) -> Result<(), Fai
     eprintln!(
         "measuring {} (about {:.0} s)…",
         path.display(),
-        seconds * 10.0 + 0.5
+        seconds * 21.0 + 0.5
     );
     match measure(&source, &options) {
         Ok(figures) => {

@@ -674,17 +674,18 @@ enum Command {
         color: Color,
     },
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
-    /// hand-written evaluator), and the compile time, measured in one run and printed as ratios.
-    /// A measurement on this computer, not a test.
+    /// hand-written evaluator), and the compile time, measured in one run and printed as ratios;
+    /// the batch path against one pose per call, all six rows, position rows and error only,
+    /// in interleaved rounds. A measurement on this computer, not a test.
     #[command(after_help = "Examples:
   kin bench examples/milling_5axis.kin
-  kin bench mill.kin --poses 10000 --seconds 2")]
+  kin bench examples/milling_5axis.kin --poses 20000 --seconds 2   # a batch as large as a fit's")]
     Bench {
         machine: PathBuf,
         /// Poses sampled over the axis ranges, evaluated in turn (1 to 10⁸).
         #[arg(long, default_value_t = 1000, value_parser = args::poses)]
         poses: usize,
-        /// Seconds spent on each figure (best of 5 rounds), 0 < S ≤ 86400.
+        /// Seconds spent on each figure (5 rounds), 0 < S ≤ 86400.
         #[arg(long, default_value_t = 0.6, value_parser = args::seconds, allow_hyphen_values = true)]
         seconds: f64,
         #[arg(long, value_enum, default_value_t = Color::Auto)]

@@ -35,6 +35,9 @@ fn bench_prints_rates_ratios_and_compile_time() {
         "hand-written Rust",
         "baseline / JIT",
         "compile, source to callable functions",
+        "interleaved rounds",
+        "position rows",
+        "b / pp",
     ] {
         assert!(stdout.contains(expected), "missing `{expected}`:\n{stdout}");
     }

@@ -13,7 +13,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use kin_compiler::ir::Machine;
 use kin_runtime::bench::baseline_5axis;
 use kin_runtime::interp::Interpreter;
-use kin_runtime::jit;
+use kin_runtime::jit::{self, Observed};
 use kin_runtime::states::States;
 
 const POSES: usize = 1000;
@@ -235,6 +235,80 @@ fn bench(c: &mut Criterion) {
                             .error(&s.states.get(r), &s.beta, &s.nonlinear)
                             .expect("eval"),
                     );
+                }
+            })
+        });
+    }
+    group.finish();
+
+    // The paths a fit uses on the 5-axis example: the position rows only (`Observed`) and
+    // the batch call into N-row outputs, against the baseline's position rows.
+    let mut group = c.benchmark_group("paths");
+    group.throughput(Throughput::Elements(POSES as u64));
+    {
+        let s = setup("milling_5axis");
+        let n = s.m.coefficients.len();
+        let model = jit::compile(&s.m).expect("compiles");
+        model.prepare(Observed::POSITION);
+        let (mut e3, mut j3) = ([0.0; 3], vec![0.0; 3 * n]);
+        group.bench_function("jit position rows, per pose", |b| {
+            b.iter(|| {
+                for r in 0..POSES {
+                    model
+                        .observed_error_and_jacobian(
+                            &s.states.get(r),
+                            &s.beta,
+                            &s.nonlinear,
+                            Observed::POSITION,
+                            &mut e3,
+                            &mut j3,
+                        )
+                        .expect("eval");
+                }
+                black_box(&j3);
+            })
+        });
+        let mut base = baseline_5axis::Baseline::new(&s.m, baseline_5axis::Trig::Recurrence)
+            .expect("the 5-axis example");
+        group.bench_function("baseline position rows, recurrences, per pose", |b| {
+            b.iter(|| {
+                for r in 0..POSES {
+                    base.position_error_and_jacobian(&s.states.get(r), &s.beta, &mut e3, &mut j3);
+                }
+                black_box(&j3);
+            })
+        });
+        let buf = kin_runtime::RowsBuf::from_states(&s.states);
+        let rows = buf.rows();
+        let mut errs = vec![0.0; 6 * POSES];
+        let mut jacs = vec![0.0; 6 * n * POSES];
+        group.bench_function("jit six rows, batch", |b| {
+            b.iter(|| {
+                model
+                    .error_and_jacobian_rows(&rows, &s.beta, &s.nonlinear, &mut errs, &mut jacs)
+                    .expect("batch");
+                black_box(&jacs);
+            })
+        });
+        group.bench_function("jit position rows, batch", |b| {
+            b.iter(|| {
+                model
+                    .observed_error_and_jacobian_rows(
+                        &rows,
+                        &s.beta,
+                        &s.nonlinear,
+                        Observed::POSITION,
+                        &mut errs[..3 * POSES],
+                        &mut jacs[..3 * n * POSES],
+                    )
+                    .expect("batch");
+                black_box(&jacs);
+            })
+        });
+        group.bench_function("baseline error only, recurrences", |b| {
+            b.iter(|| {
+                for r in 0..POSES {
+                    black_box(base.error(&s.states.get(r), &s.beta));
                 }
             })
         });

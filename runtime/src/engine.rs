@@ -6,6 +6,69 @@ use kin_compiler::ir::Machine;
 use crate::interp::{EvalError, Interpreter, State};
 use crate::kinematics::{FirstOrderModel, Pose};
 
+/// The components of the tool-location error a data set observes — a subset of the six
+/// (`x y z` position, `rx ry rz` orientation, in that order) — so that an evaluator computes and
+/// stores only those rows. Built only from the six flags, so it cannot name a seventh
+/// component; the rows it selects keep the six's order ([`Observed::row`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Observed(u8);
+
+impl Observed {
+    /// All six components: a full pose (the layout of [`Evaluator::error_and_jacobian`]).
+    pub const FULL: Observed = Observed(0b11_1111);
+    /// The three position components: a position-only data set, or the two poses of a length
+    /// (eq. 4.5 reads only their position rows).
+    pub const POSITION: Observed = Observed(0b00_0111);
+
+    /// The components whose flag is set, flag `c` for component `c`.
+    pub fn from_flags(flags: [bool; 6]) -> Observed {
+        Observed(
+            flags
+                .iter()
+                .enumerate()
+                .fold(0, |bits, (c, &f)| bits | (u8::from(f) << c)),
+        )
+    }
+
+    /// Whether component `c` (0–5) is observed.
+    pub fn contains(self, c: usize) -> bool {
+        c < 6 && self.0 & (1 << c) != 0
+    }
+
+    /// The row component `c` has among the observed rows, if it is observed: `row(4)` of
+    /// `{x, y, rx, ry}` is 3.
+    pub fn row(self, c: usize) -> Option<usize> {
+        self.contains(c)
+            .then(|| (self.0 & ((1u8 << c) - 1)).count_ones() as usize)
+    }
+
+    /// The number of observed rows.
+    pub fn rows(self) -> usize {
+        self.0.count_ones() as usize
+    }
+
+    /// The observed components, in order.
+    pub fn components(self) -> impl Iterator<Item = usize> {
+        (0..6).filter(move |&c| self.contains(c))
+    }
+
+    /// A small number that tells the 64 subsets apart (for caches indexed by subset).
+    pub fn index(self) -> usize {
+        usize::from(self.0)
+    }
+}
+
+impl std::fmt::Display for Observed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        const NAMES: [&str; 6] = ["x", "y", "z", "rx", "ry", "rz"];
+        let names: Vec<&str> = self
+            .components()
+            .filter_map(|c| NAMES.get(c).copied())
+            .collect();
+        f.write_str(&names.join(" "))
+    }
+}
+
 /// Evaluation of one machine's tool-location error and its β-Jacobian.
 pub trait Evaluator {
     fn machine(&self) -> &Machine;
@@ -24,6 +87,52 @@ pub trait Evaluator {
         err: &mut [f64; 6],
         jac: &mut [f64],
     ) -> Result<(), EvalError>;
+
+    /// [`Evaluator::error_and_jacobian`] restricted to the `observed` components: `err[k]` and
+    /// Jacobian row `k` (`jac[k·n .. (k+1)·n]`) are those of the k-th observed component, so
+    /// `err` holds `observed.rows()` values and `jac` `observed.rows() · n`. The JIT computes
+    /// only these rows; each value equals the full evaluation's bit for bit.
+    fn observed_error_and_jacobian(
+        &mut self,
+        state: &State,
+        beta: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        // The generic path: the full evaluation, then the observed rows picked out of it.
+        let n = self.machine().coefficients.len();
+        let k = observed.rows();
+        if err.len() != k {
+            return Err(EvalError::Buffer {
+                what: "the observed error",
+                expected: k,
+                got: err.len(),
+            });
+        }
+        if jac.len() != k * n {
+            return Err(EvalError::Buffer {
+                what: "the observed Jacobian",
+                expected: k * n,
+                got: jac.len(),
+            });
+        }
+        let mut full_err = [0.0; 6];
+        let mut full = vec![0.0; 6 * n];
+        self.error_and_jacobian(state, beta, &mut full_err, &mut full)?;
+        for (row, c) in observed.components().enumerate() {
+            if let (Some(e), Some(&v)) = (err.get_mut(row), full_err.get(c)) {
+                *e = v;
+            }
+            if let (Some(dst), Some(src)) = (
+                jac.get_mut(row * n..(row + 1) * n),
+                full.get(c * n..(c + 1) * n),
+            ) {
+                dst.copy_from_slice(src);
+            }
+        }
+        Ok(())
+    }
 
     /// A length observation (eq. 4.5) and its design-matrix row.
     fn length_and_row(

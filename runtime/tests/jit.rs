@@ -9,7 +9,7 @@ use kin_compiler::ir::{JointKind, Machine};
 use kin_runtime::bench::baseline_5axis as baseline;
 use kin_runtime::engine::Evaluator;
 use kin_runtime::interp::{EvalError, Interpreter, State};
-use kin_runtime::jit::{self, BatchError, JitModel, StateRows};
+use kin_runtime::jit::{self, BatchError, JitModel, Observed, StateRows};
 use nalgebra::Vector6;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -949,6 +949,9 @@ fn evaluation_does_not_allocate() {
     let (mut jac, mut joint, mut row) =
         (vec![0.0; 6 * n], vec![0.0; 6 * m.axes.len()], vec![0.0; n]);
     let mut err = [0.0; 6];
+    // A subset's code is compiled at its first use (lengths use the position rows' code).
+    model.prepare(Observed::POSITION);
+    let (mut perr, mut pjac) = ([0.0; 3], vec![0.0; 3 * n]);
     let before = allocations();
     for pair in states.windows(2) {
         let (s1, mut s2) = (pair[0].get(), pair[1].get());
@@ -963,6 +966,8 @@ fn evaluation_does_not_allocate() {
             .expect("eval");
         std::hint::black_box(ev.length_and_row(&s1, &s2, &beta, &mut row).expect("eval"));
         std::hint::black_box(ev.nominal_position(&s1).expect("eval"));
+        ev.observed_error_and_jacobian(&s1, &beta, Observed::POSITION, &mut perr, &mut pjac)
+            .expect("eval");
     }
     assert_eq!(allocations(), before, "an evaluation allocated");
 }
@@ -1071,6 +1076,214 @@ fn batch_rows_match_single_calls() {
         model.error_rows(&bad, &beta, &nl, &mut plain),
         Err(BatchError::Row { row: 3, .. })
     ));
+}
+
+/// Every subset of the components, per pose and in batches, on random machines: the rows
+/// of the code compiled for a subset are the full evaluation's rows bit for bit (the same
+/// operations in the same order, only fewer of them), and the interpreter's generic path
+/// picks out the same rows.
+#[test]
+fn observed_rows_are_the_full_rows_bit_for_bit() {
+    let mut gen = Gen {
+        rng: StdRng::seed_from_u64(7071),
+        fourier_along: true,
+        shared: false,
+        no_fixed: false,
+    };
+    let mut rng = StdRng::seed_from_u64(5);
+    let mut subsets = std::collections::HashSet::new();
+    for index in 0..40 {
+        let src = gen.machine(index);
+        let m = compile_source(&src);
+        let model = jit::compile(&m).unwrap_or_else(|e| panic!("{src}\n{e}"));
+        let n = m.coefficients.len();
+        let states: Vec<OwnedState> = (0..5).map(|_| random_state(&mut rng, &m)).collect();
+        let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64 * 0.7).sin()).collect();
+        let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+        let mut interp = Interpreter::new(&m).expect("interpreter");
+        interp.set_nonlinear(&nl).expect("nonlinear");
+        // The two common subsets on every machine, and one random one.
+        let random = Observed::from_flags(std::array::from_fn(|_| rng.random_bool(0.5)));
+        for observed in [Observed::POSITION, Observed::FULL, random] {
+            subsets.insert(observed);
+            let k = observed.rows();
+            let (mut full_err, mut full) = ([0.0; 6], vec![0.0; 6 * n]);
+            let (mut err, mut jac) = (vec![0.0; k], vec![f64::NAN; k * n]);
+            let (mut ierr, mut ijac) = (vec![0.0; k], vec![0.0; k * n]);
+            let (mut ferr, mut fjac) = ([0.0; 6], vec![0.0; 6 * n]);
+            for s in &states {
+                let s = s.get();
+                model
+                    .error_and_jacobian(&s, &beta, &nl, &mut full_err, &mut full)
+                    .expect("full");
+                model
+                    .observed_error_and_jacobian(&s, &beta, &nl, observed, &mut err, &mut jac)
+                    .expect("observed");
+                interp
+                    .observed_error_and_jacobian(&s, &beta, observed, &mut ierr, &mut ijac)
+                    .expect("interpreter");
+                interp
+                    .error_and_jacobian(&s, &beta, &mut ferr, &mut fjac)
+                    .expect("interpreter");
+                for (row, c) in observed.components().enumerate() {
+                    assert_eq!(observed.row(c), Some(row));
+                    let what = format!("machine {index}, {observed}, component {c}");
+                    assert_eq!(err[row].to_bits(), full_err[c].to_bits(), "{what}");
+                    assert_eq!(ierr[row].to_bits(), ferr[c].to_bits(), "{what}");
+                    for j in 0..n {
+                        assert_eq!(
+                            jac[row * n + j].to_bits(),
+                            full[c * n + j].to_bits(),
+                            "{what}, coefficient {j}\n{src}"
+                        );
+                        assert_eq!(ijac[row * n + j].to_bits(), fjac[c * n + j].to_bits());
+                    }
+                }
+            }
+            // The batch call gives the single calls' rows.
+            let rows = jit_rows(&states);
+            let r = rows.rows();
+            let mut berr = vec![0.0; k * states.len()];
+            let mut bjac = vec![0.0; k * n * states.len()];
+            model
+                .observed_error_and_jacobian_rows(&r, &beta, &nl, observed, &mut berr, &mut bjac)
+                .expect("batch");
+            let mut eonly = vec![0.0; k * states.len()];
+            model
+                .observed_error_rows(&r, &beta, &nl, observed, &mut eonly)
+                .expect("batch");
+            for (i, s) in states.iter().enumerate() {
+                model
+                    .observed_error_and_jacobian(&s.get(), &beta, &nl, observed, &mut err, &mut jac)
+                    .expect("observed");
+                assert_eq!(&berr[k * i..k * (i + 1)], &err[..]);
+                assert_eq!(&bjac[k * n * i..k * n * (i + 1)], &jac[..]);
+                let e = model.error(&s.get(), &beta, &nl).expect("error");
+                for (row, c) in observed.components().enumerate() {
+                    assert_eq!(eonly[k * i + row].to_bits(), e[c].to_bits());
+                }
+            }
+            // Wrong sizes are errors.
+            assert!(matches!(
+                model.observed_error_and_jacobian_rows(
+                    &r,
+                    &beta,
+                    &nl,
+                    observed,
+                    &mut berr,
+                    &mut vec![0.0; bjac.len() + 1]
+                ),
+                Err(BatchError::Size { .. })
+            ));
+        }
+    }
+    assert!(
+        subsets.len() >= 10,
+        "too few subsets tried: {}",
+        subsets.len()
+    );
+}
+
+/// A batch large enough to be written out with streaming stores (more than 32 MiB of
+/// Jacobian) gives exactly the single calls' rows, at every position in the buffer.
+#[test]
+fn a_large_batch_streams_the_same_rows() {
+    let m = example("milling_5axis");
+    let model = jit::compile(&m).expect("compiles");
+    let n = m.coefficients.len();
+    let mut rng = StdRng::seed_from_u64(31);
+    let states: Vec<OwnedState> = (0..4200).map(|_| random_state(&mut rng, &m)).collect();
+    assert!(6 * n * states.len() * 8 > 32 << 20, "the batch must stream");
+    let beta: Vec<f64> = (0..n).map(|j| 1e-6 * ((j % 5) as f64 - 2.0)).collect();
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let rows = jit_rows(&states);
+    let mut err = vec![0.0; 6 * states.len()];
+    // One value more in front, so that the blocks start 8 bytes off a 16-byte boundary.
+    let mut buffer = vec![f64::NAN; 6 * n * states.len() + 1];
+    model
+        .error_and_jacobian_rows(&rows.rows(), &beta, &nl, &mut err, &mut buffer[1..])
+        .expect("batch");
+    assert!(buffer[0].is_nan());
+    let (mut e, mut one) = ([0.0; 6], vec![0.0; 6 * n]);
+    for (i, s) in states.iter().enumerate() {
+        model
+            .error_and_jacobian(&s.get(), &beta, &nl, &mut e, &mut one)
+            .expect("single");
+        assert_eq!(&err[6 * i..6 * i + 6], &e[..]);
+        assert_eq!(
+            &buffer[1 + 6 * n * i..1 + 6 * n * (i + 1)],
+            &one[..],
+            "row {i}"
+        );
+    }
+}
+
+/// A model past one piece (`lower::PIECE`) is several functions handing running sums on; the
+/// code of a subset of the components cuts and hands on the same way.
+#[test]
+fn observed_rows_of_a_model_in_pieces_are_the_full_rows() {
+    let m = compile_source(&large_model(2_000));
+    let model = jit::compile(&m).expect("compiles");
+    let n = m.coefficients.len();
+    let mut rng = StdRng::seed_from_u64(12);
+    let beta: Vec<f64> = (0..n).map(|j| 1e-7 * (j as f64).cos()).collect();
+    let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+    let observed = Observed::from_flags([true, false, true, false, true, true]);
+    let (mut full_err, mut full) = ([0.0; 6], vec![0.0; 6 * n]);
+    let (mut err, mut jac) = (vec![0.0; 4], vec![0.0; 4 * n]);
+    for _ in 0..3 {
+        let s = random_state(&mut rng, &m);
+        model
+            .error_and_jacobian(&s.get(), &beta, &nl, &mut full_err, &mut full)
+            .expect("full");
+        model
+            .observed_error_and_jacobian(&s.get(), &beta, &nl, observed, &mut err, &mut jac)
+            .expect("observed");
+        for (row, c) in observed.components().enumerate() {
+            assert_eq!(err[row].to_bits(), full_err[c].to_bits());
+            assert_eq!(&jac[row * n..(row + 1) * n], &full[c * n..(c + 1) * n]);
+        }
+    }
+}
+
+/// Owned row-major storage of `states` for the batch calls.
+struct JitRows {
+    q: Vec<f64>,
+    inputs: Vec<f64>,
+    lags: Vec<f64>,
+    dirs: Vec<f64>,
+    time: Vec<f64>,
+    tool: Vec<usize>,
+    tool_offset: Vec<Option<[f64; 3]>>,
+}
+
+impl JitRows {
+    fn rows(&self) -> StateRows<'_> {
+        StateRows {
+            q: &self.q,
+            inputs: &self.inputs,
+            lags: &self.lags,
+            time: &self.time,
+            dirs: &self.dirs,
+            tool: &self.tool,
+            tool_offset: &self.tool_offset,
+        }
+    }
+}
+
+fn jit_rows(states: &[OwnedState]) -> JitRows {
+    let flat = |f: &dyn Fn(&OwnedState) -> &[f64]| -> Vec<f64> {
+        states.iter().flat_map(|s| f(s).iter().copied()).collect()
+    };
+    JitRows {
+        q: flat(&|s| &s.q),
+        inputs: flat(&|s| &s.inputs),
+        lags: flat(&|s| &s.lags),
+        dirs: flat(&|s| &s.dirs),
+        time: states.iter().map(|s| s.time).collect(),
+        tool: states.iter().map(|s| s.tool).collect(),
+        tool_offset: states.iter().map(|s| s.tool_offset).collect(),
+    }
 }
 
 #[test]

@@ -276,11 +276,15 @@ fn scalar(s: &Scalar, st: &State) -> f64 {
     }
 }
 
-/// Writes a translation component's block (rows 0–2: `col·v`, rows 3–5: zero) from coefficient
-/// `j0` on and returns `Σ v·β`.
+/// Writes a translation component's block (rows 0–2: `col·v`, rows 3–5: zero, the first
+/// `rows` of them, none without `store`) from coefficient `j0` on and returns `Σ v·β`. Always
+/// inlined into a caller whose `rows` and `store` are constants, so the tests fold away.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn put_t<const K: usize>(
-    jac: &mut [f64; 6 * N],
+    jac: &mut [f64],
+    rows: usize,
+    store: bool,
     beta: &[f64; N],
     j0: usize,
     col: &[f64; 3],
@@ -289,12 +293,16 @@ fn put_t<const K: usize>(
     let mut value = 0.0;
     for (k, &vk) in v.iter().enumerate() {
         let j = j0 + k;
-        jac[j] = col[0] * vk;
-        jac[N + j] = col[1] * vk;
-        jac[2 * N + j] = col[2] * vk;
-        jac[3 * N + j] = 0.0;
-        jac[4 * N + j] = 0.0;
-        jac[5 * N + j] = 0.0;
+        if store {
+            jac[j] = col[0] * vk;
+            jac[N + j] = col[1] * vk;
+            jac[2 * N + j] = col[2] * vk;
+            if rows > 3 {
+                jac[3 * N + j] = 0.0;
+                jac[4 * N + j] = 0.0;
+                jac[5 * N + j] = 0.0;
+            }
+        }
         value += vk * beta[j];
     }
     value
@@ -302,8 +310,11 @@ fn put_t<const K: usize>(
 
 /// As [`put_t`] for a rotation component (six rows).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn put_r<const K: usize>(
-    jac: &mut [f64; 6 * N],
+    jac: &mut [f64],
+    rows: usize,
+    store: bool,
     beta: &[f64; N],
     j0: usize,
     col: &[f64; 6],
@@ -312,8 +323,10 @@ fn put_r<const K: usize>(
     let mut value = 0.0;
     for (k, &vk) in v.iter().enumerate() {
         let j = j0 + k;
-        for (r, c) in col.iter().enumerate() {
-            jac[r * N + j] = c * vk;
+        if store {
+            for (r, c) in col.iter().enumerate().take(rows) {
+                jac[r * N + j] = c * vk;
+            }
         }
         value += vk * beta[j];
     }
@@ -626,7 +639,42 @@ impl Baseline {
         err: &mut [f64; 6],
         jac: &mut [f64],
     ) {
-        let jac: &mut [f64; 6 * N] = jac.try_into().expect("6 × 173 Jacobian");
+        self.eval::<6, true>(st, beta, err, jac);
+    }
+
+    /// The position rows only: the error's three position components and the 3 × n
+    /// Jacobian of a position-only data set (what [`crate::jit::Observed::POSITION`] asks
+    /// the JIT for). Panics as [`Baseline::error_and_jacobian`].
+    pub fn position_error_and_jacobian(
+        &mut self,
+        st: &State,
+        beta: &[f64],
+        err: &mut [f64; 3],
+        jac: &mut [f64],
+    ) {
+        self.eval::<3, true>(st, beta, err, jac);
+    }
+
+    /// The six error components alone (what a compensation needs), no Jacobian.
+    pub fn error(&mut self, st: &State, beta: &[f64]) -> [f64; 6] {
+        let mut err = [0.0; 6];
+        self.eval::<6, false>(st, beta, &mut err, &mut []);
+        err
+    }
+
+    /// The first `R` error components and, with `JAC`, the first `R` rows of the Jacobian
+    /// (`R × n` row-major in `jac`): one body for the three ways the benchmark calls it, the
+    /// unused rows and stores removed by the compiler.
+    #[inline(always)]
+    fn eval<const R: usize, const JAC: bool>(
+        &mut self,
+        st: &State,
+        beta: &[f64],
+        err: &mut [f64; R],
+        jac: &mut [f64],
+    ) {
+        // A fixed length, so that the constant offsets below need no bounds check.
+        let jac = &mut jac[..if JAC { R * N } else { 0 }];
         let beta: &[f64; N] = beta.try_into().expect("173 coefficients");
         let [y, x, z, a, c] = [st.q[0], st.q[1], st.q[2], st.q[3], st.q[4]];
 
@@ -733,23 +781,23 @@ impl Baseline {
                 [st.dirs[0]],
             );
             let fixed = scalar(&self.y_scale, st);
-            let value = put_t(jac, beta, 0, &cty, &v) + fixed;
+            let value = put_t(jac, R, JAC, beta, 0, &cty, &v) + fixed;
             acc_t(&mut e, &cty, value);
             let s: [f64; 4] = self.y_str.straight(y);
-            let value = put_t(jac, beta, 9, &ctx, &s);
+            let value = put_t(jac, R, JAC, beta, 9, &ctx, &s);
             acc_t(&mut e, &ctx, value);
-            let value = put_t(jac, beta, 13, &ctz, &s);
+            let value = put_t(jac, R, JAC, beta, 13, &ctz, &s);
             acc_t(&mut e, &ctz, value);
             let r: [f64; 5] = self.y_rot.plain(y);
             let load = scalar(&self.y_load, st);
             let xl: [f64; 4] = self.x_load.plain(x);
             let v: [f64; 9] = cat::<5, 4, 9>(r, xl.map(|v| load * v));
             let col = rcol(nm[0], ay);
-            acc_r(&mut e, &col, put_r(jac, beta, 17, &col, &v));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 17, &col, &v));
             let col = rcol(nm[1], ay);
-            acc_r(&mut e, &col, put_r(jac, beta, 26, &col, &r));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 26, &col, &r));
             let col = rcol(nm[2], ay);
-            acc_r(&mut e, &col, put_r(jac, beta, 31, &col, &r));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 31, &col, &r));
         }
         // ---- X (−M).
         {
@@ -758,20 +806,20 @@ impl Baseline {
                 cat::<7, 2, 9>(self.x_tx.plain(x), self.x_per.values(x)),
                 [st.dirs[1]],
             );
-            acc_t(&mut e, &nm[0], put_t(jac, beta, 36, &nm[0], &v));
+            acc_t(&mut e, &nm[0], put_t(jac, R, JAC, beta, 36, &nm[0], &v));
             let s: [f64; 5] = self.x_str.straight(x);
-            acc_t(&mut e, &nm[1], put_t(jac, beta, 46, &nm[1], &s));
-            acc_t(&mut e, &nm[2], put_t(jac, beta, 51, &nm[2], &s));
+            acc_t(&mut e, &nm[1], put_t(jac, R, JAC, beta, 46, &nm[1], &s));
+            acc_t(&mut e, &nm[2], put_t(jac, R, JAC, beta, 51, &nm[2], &s));
             let r: [f64; 5] = self.x_rot.plain(x);
             let col = rcol(nm[0], ax);
-            acc_r(&mut e, &col, put_r(jac, beta, 56, &col, &r));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 56, &col, &r));
             let col = rcol(nm[1], ax);
-            acc_r(&mut e, &col, put_r(jac, beta, 61, &col, &r));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 61, &col, &r));
             let col = rcol(nm[2], ax);
             acc_r(
                 &mut e,
                 &col,
-                put_r(jac, beta, 66, &col, &cat::<5, 1, 6>(r, [1.0])),
+                put_r(jac, R, JAC, beta, 66, &col, &cat::<5, 1, 6>(r, [1.0])),
             );
         }
         // ---- Z (tool chain: +M).
@@ -785,18 +833,18 @@ impl Baseline {
             for k in 0..4 {
                 v[3 + k] = cube((s - knots[k]).max(0.0));
             }
-            acc_t(&mut e, &mc[2], put_t(jac, beta, 72, &mc[2], &v));
+            acc_t(&mut e, &mc[2], put_t(jac, R, JAC, beta, 72, &mc[2], &v));
             let st4: [f64; 4] = self.z_str.straight(z);
-            acc_t(&mut e, &mc[0], put_t(jac, beta, 79, &mc[0], &st4));
-            acc_t(&mut e, &mc[1], put_t(jac, beta, 83, &mc[1], &st4));
+            acc_t(&mut e, &mc[0], put_t(jac, R, JAC, beta, 79, &mc[0], &st4));
+            acc_t(&mut e, &mc[1], put_t(jac, R, JAC, beta, 83, &mc[1], &st4));
             let r: [f64; 4] = self.z_rot.plain(z);
             let r1: [f64; 5] = cat::<4, 1, 5>(r, [1.0]);
             let col = rcol(mc[0], az);
-            acc_r(&mut e, &col, put_r(jac, beta, 87, &col, &r1));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 87, &col, &r1));
             let col = rcol(mc[1], az);
-            acc_r(&mut e, &col, put_r(jac, beta, 92, &col, &r1));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 92, &col, &r1));
             let col = rcol(mc[2], az);
-            acc_r(&mut e, &col, put_r(jac, beta, 97, &col, &r));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 97, &col, &r));
         }
         // ---- A (−M).
         {
@@ -804,21 +852,33 @@ impl Baseline {
             let u = 2.0 * ((a - self.a_lo) / self.a_span) - 1.0;
             let p2 = (3.0 * u * u - 1.0) / 2.0;
             let p3 = (5.0 * u * p2 - 2.0 * u) / 3.0;
-            acc_t(&mut e, &nm[0], put_t(jac, beta, 101, &nm[0], &[u, p2, p3]));
+            acc_t(
+                &mut e,
+                &nm[0],
+                put_t(jac, R, JAC, beta, 101, &nm[0], &[u, p2, p3]),
+            );
             let sp: [f64; 4] = self.a_sp2.plain(a);
             let v: [f64; 5] = cat::<1, 4, 5>([1.0], sp);
-            acc_t(&mut e, &nm[1], put_t(jac, beta, 104, &nm[1], &v));
-            acc_t(&mut e, &nm[2], put_t(jac, beta, 109, &nm[2], &v));
+            acc_t(&mut e, &nm[1], put_t(jac, R, JAC, beta, 104, &nm[1], &v));
+            acc_t(&mut e, &nm[2], put_t(jac, R, JAC, beta, 109, &nm[2], &v));
             let col = rcol(nm[1], aa);
-            acc_r(&mut e, &col, put_r(jac, beta, 114, &col, &[1.0, u]));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 114, &col, &[1.0, u]));
             let col = rcol(nm[2], aa);
-            acc_r(&mut e, &col, put_r(jac, beta, 116, &col, &[1.0, u]));
+            acc_r(&mut e, &col, put_r(jac, R, JAC, beta, 116, &col, &[1.0, u]));
             let r: [f64; 5] = self.a_sp3.plain(a);
             let col = rcol(nm[0], aa);
             acc_r(
                 &mut e,
                 &col,
-                put_r(jac, beta, 118, &col, &cat::<5, 1, 6>(r, [st.dirs[3]])),
+                put_r(
+                    jac,
+                    R,
+                    JAC,
+                    beta,
+                    118,
+                    &col,
+                    &cat::<5, 1, 6>(r, [st.dirs[3]]),
+                ),
             );
         }
         // ---- C (−R_z(c)ᵀ).
@@ -833,30 +893,38 @@ impl Baseline {
             acc_t(
                 &mut e,
                 &nrc[0],
-                put_t(jac, beta, 124, &nrc[0], &[1.0, c2, s2, c3, s3, c4, s4]),
+                put_t(
+                    jac,
+                    R,
+                    JAC,
+                    beta,
+                    124,
+                    &nrc[0],
+                    &[1.0, c2, s2, c3, s3, c4, s4],
+                ),
             );
             let g: [f64; 8] = self.c_rev.no_rev(xc, rev.1, rev.0);
             acc_t(
                 &mut e,
                 &nrc[1],
-                put_t(jac, beta, 131, &nrc[1], &cat::<1, 8, 9>([1.0], g)),
+                put_t(jac, R, JAC, beta, 131, &nrc[1], &cat::<1, 8, 9>([1.0], g)),
             );
             acc_t(
                 &mut e,
                 &nrc[2],
-                put_t(jac, beta, 140, &nrc[2], &[c1, s1, c2, s2, c3, s3]),
+                put_t(jac, R, JAC, beta, 140, &nrc[2], &[c1, s1, c2, s2, c3, s3]),
             );
             let col = rcol(nrc[0], ac);
             acc_r(
                 &mut e,
                 &col,
-                put_r(jac, beta, 146, &col, &[1.0, c2, s2, c3, s3]),
+                put_r(jac, R, JAC, beta, 146, &col, &[1.0, c2, s2, c3, s3]),
             );
             let col = rcol(nrc[1], ac);
             acc_r(
                 &mut e,
                 &col,
-                put_r(jac, beta, 151, &col, &[1.0, c2, s2, c3, s3]),
+                put_r(jac, R, JAC, beta, 151, &col, &[1.0, c2, s2, c3, s3]),
             );
             let col = rcol(nrc[2], ac);
             acc_r(
@@ -864,6 +932,8 @@ impl Baseline {
                 &col,
                 put_r(
                     jac,
+                    R,
+                    JAC,
                     beta,
                     156,
                     &col,
@@ -874,16 +944,24 @@ impl Baseline {
         // ---- Tools (+M, no arm): thermal growth of every tool, offsets of the probe.
         {
             let col = mc[2];
-            acc_t(&mut e, &col, put_t(jac, beta, 168, &col, &[st.lags[0]]));
+            acc_t(
+                &mut e,
+                &col,
+                put_t(jac, R, JAC, beta, 168, &col, &[st.lags[0]]),
+            );
             let col = rcol(mc[1], [0.0; 3]);
-            acc_r(&mut e, &col, put_r(jac, beta, 169, &col, &[st.lags[1]]));
+            acc_r(
+                &mut e,
+                &col,
+                put_r(jac, R, JAC, beta, 169, &col, &[st.lags[1]]),
+            );
             let probe = st.tool == 1;
             let z3 = [0.0; 3];
             for (k, colp) in mc.iter().enumerate() {
                 let col = if probe { colp } else { &z3 };
-                acc_t(&mut e, col, put_t(jac, beta, 170 + k, col, &[1.0]));
+                acc_t(&mut e, col, put_t(jac, R, JAC, beta, 170 + k, col, &[1.0]));
             }
         }
-        *err = e;
+        err.copy_from_slice(&e[..R]);
     }
 }

@@ -89,6 +89,40 @@ pub struct Figures {
     pub debug_build: bool,
     /// Time per servo compensation call; the reason when the machine measures instead.
     pub compensation: Result<CompensationTimes, String>,
+    /// The batch path against one pose per call and against the baseline, for all six rows,
+    /// the position rows and the error alone: medians of interleaved rounds.
+    pub paths: Paths,
+}
+
+/// Poses per second of one piece of work by the JIT and (for the 5-axis example) by the
+/// hand-written baseline with harmonic recurrences: medians of interleaved rounds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathRates {
+    /// One pose per call, into a reused buffer.
+    pub per_pose: f64,
+    /// One call for all poses, each pose's rows into its own place of N-row outputs (what a
+    /// fit asks for).
+    pub batch: f64,
+    /// The baseline, one pose per call into a reused buffer.
+    pub baseline: Option<f64>,
+    /// The baseline writing each pose's rows into N-row outputs.
+    pub baseline_batch: Option<f64>,
+}
+
+/// The evaluation paths measured side by side: every contender runs for a slice of time in
+/// turn, round after round, so a change of load elsewhere affects them alike; each figure is
+/// the median over the rounds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Paths {
+    pub rounds: u32,
+    /// Error and Jacobian, all six components.
+    pub full: PathRates,
+    /// Error and Jacobian of the three position components (`Observed::POSITION`).
+    pub position: PathRates,
+    /// The six error components alone.
+    pub error: PathRates,
+    /// Why there is no baseline, when there is none.
+    pub no_baseline: Option<String>,
 }
 
 /// The distribution of the time of one call.
@@ -260,6 +294,7 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
     };
 
     let baseline = baseline_rates(m, options, &rows, &beta, &nonlinear);
+    let paths = paths(&model, options, &rows, &beta, &mut jacs, &mut errs)?;
     let compensation = compensation_times(&model, options, &rows, &beta)?;
     let write_only = rate(options, || {
         for r in 0..count {
@@ -283,6 +318,214 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
         jit_compile,
         debug_build: cfg!(debug_assertions),
         compensation,
+        paths,
+    })
+}
+
+/// A contender of [`interleaved`]: one pass over the poses.
+type Pass<'a> = Box<dyn FnMut() -> Result<(), BenchError> + 'a>;
+
+/// Poses per second of each pass (each evaluating `poses` poses): after one untimed pass of
+/// each, `rounds` rounds in which every pass runs in turn for `time / rounds`; the median
+/// over the rounds.
+fn interleaved(options: &Options, passes: &mut [Pass<'_>]) -> Result<Vec<f64>, BenchError> {
+    for pass in passes.iter_mut() {
+        pass()?;
+    }
+    let rounds = options.rounds.max(1);
+    let slice = options.time / rounds;
+    let mut rates = vec![Vec::with_capacity(rounds as usize); passes.len()];
+    for _ in 0..rounds {
+        for (pass, rates) in passes.iter_mut().zip(rates.iter_mut()) {
+            let start = Instant::now();
+            let mut calls = 0u32;
+            while calls == 0 || start.elapsed() < slice {
+                pass()?;
+                calls += 1;
+            }
+            rates.push(f64::from(calls) * options.poses as f64 / start.elapsed().as_secs_f64());
+        }
+    }
+    Ok(rates.into_iter().map(median).collect())
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v.get(n / 2).copied().unwrap_or(0.0),
+        n => {
+            (v.get(n / 2 - 1).copied().unwrap_or(0.0) + v.get(n / 2).copied().unwrap_or(0.0)) / 2.0
+        }
+    }
+}
+
+/// The batch path against one pose per call and against the baseline (with harmonic
+/// recurrences), interleaved: error and Jacobian of all six components and of the position
+/// rows, and the error alone. `jacs` and `errs` hold six rows per pose: the batch outputs,
+/// the baseline's as well as the JIT's.
+fn paths(
+    model: &Model,
+    options: &Options,
+    rows: &StateRows,
+    beta: &[f64],
+    jacs: &mut [f64],
+    errs: &mut [f64],
+) -> Result<Paths, BenchError> {
+    use crate::jit::Observed;
+    use baseline_5axis::{Baseline, Trig};
+    use std::cell::RefCell;
+    let m = model.machine();
+    let n = m.coefficients.len();
+    let count = rows.len();
+    let jit = model.jit();
+    let nonlinear = model.nonlinear();
+    jit.prepare(Observed::POSITION);
+    // The batch outputs, shared by the passes (which run one at a time).
+    let out_cell = RefCell::new((errs, jacs));
+    let out = &out_cell;
+    let no_baseline = Baseline::new(m, Trig::Recurrence)
+        .err()
+        .map(|e| e.to_string());
+    let mut passes: Vec<Pass<'_>> = Vec::new();
+    // 0–1: all six rows, per pose and batch.
+    let (mut e6, mut j6) = ([0.0; 6], vec![0.0; 6 * n]);
+    passes.push(Box::new(move || {
+        for r in 0..count {
+            jit.error_and_jacobian(&rows.get(r), beta, nonlinear, &mut e6, &mut j6)?;
+        }
+        black_box(&j6);
+        Ok(())
+    }));
+    passes.push(Box::new(|| {
+        let (e, j) = &mut *out.borrow_mut();
+        jit.error_and_jacobian_rows(rows, beta, nonlinear, e, j)?;
+        black_box(&j);
+        Ok(())
+    }));
+    // 2–3: the position rows.
+    let (mut e3, mut j3) = ([0.0; 3], vec![0.0; 3 * n]);
+    passes.push(Box::new(move || {
+        for r in 0..count {
+            jit.observed_error_and_jacobian(
+                &rows.get(r),
+                beta,
+                nonlinear,
+                Observed::POSITION,
+                &mut e3,
+                &mut j3,
+            )?;
+        }
+        black_box(&j3);
+        Ok(())
+    }));
+    passes.push(Box::new(|| {
+        let (e, j) = &mut *out.borrow_mut();
+        let (e, j) = (
+            e.get_mut(..3 * count).unwrap_or(&mut []),
+            j.get_mut(..3 * n * count).unwrap_or(&mut []),
+        );
+        jit.observed_error_and_jacobian_rows(rows, beta, nonlinear, Observed::POSITION, e, j)?;
+        black_box(&j);
+        Ok(())
+    }));
+    // 4–5: the error alone.
+    passes.push(Box::new(move || {
+        for r in 0..count {
+            black_box(jit.error(&rows.get(r), beta, nonlinear)?);
+        }
+        Ok(())
+    }));
+    passes.push(Box::new(|| {
+        let (e, _) = &mut *out.borrow_mut();
+        jit.error_rows(rows, beta, nonlinear, e)?;
+        black_box(&e);
+        Ok(())
+    }));
+    // 6–10: the baseline, each pass with its own (it holds no state between calls).
+    if let (Ok(mut b6), Ok(mut b6b), Ok(mut b3), Ok(mut b3b), Ok(mut be)) = (
+        Baseline::new(m, Trig::Recurrence),
+        Baseline::new(m, Trig::Recurrence),
+        Baseline::new(m, Trig::Recurrence),
+        Baseline::new(m, Trig::Recurrence),
+        Baseline::new(m, Trig::Recurrence),
+    ) {
+        let (mut e6, mut j6) = ([0.0; 6], vec![0.0; 6 * n]);
+        passes.push(Box::new(move || {
+            for r in 0..count {
+                b6.error_and_jacobian(&rows.get(r), beta, nonlinear, &mut e6, &mut j6);
+            }
+            black_box(&j6);
+            Ok(())
+        }));
+        passes.push(Box::new(move || {
+            let (e, j) = &mut *out.borrow_mut();
+            for ((r, e), j) in e
+                .chunks_exact_mut(6)
+                .enumerate()
+                .zip(j.chunks_exact_mut(6 * n))
+            {
+                let mut row = [0.0; 6];
+                b6b.error_and_jacobian(&rows.get(r), beta, nonlinear, &mut row, j);
+                e.copy_from_slice(&row);
+            }
+            black_box(&j);
+            Ok(())
+        }));
+        let (mut e3, mut j3) = ([0.0; 3], vec![0.0; 3 * n]);
+        passes.push(Box::new(move || {
+            for r in 0..count {
+                b3.position_error_and_jacobian(&rows.get(r), beta, &mut e3, &mut j3);
+            }
+            black_box(&j3);
+            Ok(())
+        }));
+        passes.push(Box::new(move || {
+            let (e, j) = &mut *out.borrow_mut();
+            let rows3 = e
+                .chunks_exact_mut(3)
+                .zip(j.chunks_exact_mut(3 * n))
+                .take(count);
+            for (r, (e, j)) in rows3.enumerate() {
+                let mut row = [0.0; 3];
+                b3b.position_error_and_jacobian(&rows.get(r), beta, &mut row, j);
+                e.copy_from_slice(&row);
+            }
+            black_box(&j);
+            Ok(())
+        }));
+        passes.push(Box::new(move || {
+            for r in 0..count {
+                black_box(be.error(&rows.get(r), beta));
+            }
+            Ok(())
+        }));
+    }
+    let rates = interleaved(options, &mut passes)?;
+    drop(passes);
+    let at = |i: usize| rates.get(i).copied().unwrap_or(0.0);
+    let base = |i: usize| rates.get(i).copied();
+    Ok(Paths {
+        rounds: options.rounds.max(1),
+        full: PathRates {
+            per_pose: at(0),
+            batch: at(1),
+            baseline: base(6),
+            baseline_batch: base(7),
+        },
+        position: PathRates {
+            per_pose: at(2),
+            batch: at(3),
+            baseline: base(8),
+            baseline_batch: base(9),
+        },
+        error: PathRates {
+            per_pose: at(4),
+            batch: at(5),
+            baseline: base(10),
+            baseline_batch: None,
+        },
+        no_baseline,
     })
 }
 
@@ -533,6 +776,8 @@ impl fmt::Display for Figures {
             ms(self.jit_compile)
         )?;
         writeln!(f)?;
+        self.paths.show(f)?;
+        writeln!(f)?;
         match &self.compensation {
             Ok(c) => {
                 writeln!(
@@ -569,6 +814,50 @@ impl fmt::Display for Figures {
     }
 }
 
+impl Paths {
+    fn show(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "{:<34} {:>11} {:>11} {:>8} {:>11} {:>11} {:>8} {:>8}",
+            format!("medians of {} interleaved rounds", self.rounds),
+            "per pose",
+            "batch",
+            "b / pp",
+            "baseline",
+            "base batch",
+            "pp / b",
+            "b / bb"
+        )?;
+        let opt = |x: Option<f64>| x.map_or("-".to_string(), grouped);
+        let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}", a / b));
+        for (name, r) in [
+            ("error + β-Jacobian, six rows", &self.full),
+            ("error + β-Jacobian, position rows", &self.position),
+            ("error only, six components", &self.error),
+        ] {
+            writeln!(
+                f,
+                "{name:<34} {:>11} {:>11} {:>8.2} {:>11} {:>11} {:>8} {:>8}",
+                grouped(r.per_pose),
+                grouped(r.batch),
+                r.batch / r.per_pose,
+                opt(r.baseline),
+                opt(r.baseline_batch),
+                ratio(r.per_pose, r.baseline),
+                ratio(r.batch, r.baseline_batch.or(r.baseline)),
+            )?;
+        }
+        writeln!(
+            f,
+            "(poses/s; batch: one call for all poses into N-row outputs; baseline: hand-written, harmonic recurrences; b / pp: batch ÷ per pose; pp / b: JIT ÷ baseline per pose; b / bb: JIT batch ÷ baseline batch, or ÷ baseline per pose for the error)"
+        )?;
+        if let Some(why) = &self.no_baseline {
+            writeln!(f, "no baseline in this comparison: {why}")?;
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -596,6 +885,14 @@ mod tests {
             assert!(r.jacobian > 0.0 && r.error > 0.0, "{figures:?}");
         }
         assert!(figures.write_only > 0.0, "{figures:?}");
+        let p = &figures.paths;
+        for r in [p.full, p.position, p.error] {
+            assert!(
+                r.per_pose > 0.0 && r.batch > 0.0 && r.baseline.is_none(),
+                "{p:?}"
+            );
+        }
+        assert!(p.no_baseline.is_some());
         assert!(figures.baseline.is_err());
         let c = figures
             .compensation

@@ -12,7 +12,7 @@ use kin_compiler::ir::Machine;
 use serde::Serialize;
 
 use crate::data::Observations;
-use crate::engine::Evaluator;
+use crate::engine::{Evaluator, Observed};
 use crate::interp::EvalError;
 use crate::states::{StateError, States};
 
@@ -469,11 +469,22 @@ pub fn for_each_row(
         let rows = file.observations.rows();
         match (&file.observations, st) {
             (Observations::Points(p), FileStates::Points(s)) => {
+                // Only the rows of the components the file has a column for are evaluated.
+                let observed = Observed::from_flags(std::array::from_fn(|c| {
+                    p.observed.get(c).is_some_and(Option::is_some)
+                }));
+                let k = observed.rows();
                 for r in 0..s.len() {
                     let line = s.line.get(r).copied().unwrap_or(0);
                     let state = s.get(r);
                     engine
-                        .error_and_jacobian(&state, &zero, &mut err, &mut jac)
+                        .observed_error_and_jacobian(
+                            &state,
+                            &zero,
+                            observed,
+                            &mut err[..k],
+                            &mut jac[..k * n],
+                        )
                         .map_err(|source| DesignError::Eval {
                             path: path(),
                             line,
@@ -491,18 +502,20 @@ pub fn for_each_row(
                         None => None,
                     };
                     for (c, column) in p.observed.iter().enumerate() {
-                        let Some(obs) = column
-                            .as_ref()
-                            .and_then(|v| v.get(r))
-                            .copied()
-                            .filter(|v| !v.is_nan())
-                        else {
+                        let (Some(obs), Some(k)) = (
+                            column
+                                .as_ref()
+                                .and_then(|v| v.get(r))
+                                .copied()
+                                .filter(|v| !v.is_nan()),
+                            observed.row(c),
+                        ) else {
                             continue;
                         };
                         let w = weights.of(c as u8);
                         x.fill(0.0);
                         for (slot, v) in
-                            x.iter_mut().zip(jac.get(c * n..(c + 1) * n).unwrap_or(&[]))
+                            x.iter_mut().zip(jac.get(k * n..(k + 1) * n).unwrap_or(&[]))
                         {
                             *slot = v * w;
                         }
@@ -520,7 +533,7 @@ pub fn for_each_row(
                                 set(&mut x, first + c, w);
                             }
                         }
-                        let y = (obs - err[c]) * w;
+                        let y = (obs - err[k]) * w;
                         finite_row(&x, y, path, line)?;
                         row(
                             RowMeta {

@@ -25,6 +25,7 @@ use kin_compiler::ir::{
 use super::graph::{Cmp, Dst, Graph, Id, Src};
 use super::JitError;
 use crate::interp::frame_order;
+use crate::engine::Observed;
 
 /// Which function a graph is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -191,9 +192,20 @@ const CARRY: usize = 9;
 /// than [`PIECE`] coefficients, several to be called in order on the same arguments.
 /// `tool_rotation` is the tools' common rotation when they all share one (it is then folded in
 /// as constants), else `None` and it is loaded with the tool offset.
-pub(super) fn build(m: &Machine, kind: Kind, tool_rotation: Option<[[f64; 3]; 3]>) -> Vec<Graph> {
+///
+/// The error functions compute and store only the `observed` components: error component `c`
+/// in `out[c]` as always, its Jacobian row as row `observed.row(c)` of a compact
+/// `observed.rows() × n` block. Dropping a row drops only stores, so every kept value is
+/// computed by the same operations in the same order as with all six (bit for bit equal), and
+/// what fed only the dropped rows is never emitted (`Graph::live`).
+pub(super) fn build(
+    m: &Machine,
+    kind: Kind,
+    tool_rotation: Option<[[f64; 3]; 3]>,
+    observed: Observed,
+) -> Vec<Graph> {
     match kind {
-        Kind::Error | Kind::Jacobian => errors(m, kind == Kind::Jacobian, tool_rotation),
+        Kind::Error | Kind::Jacobian => errors(m, kind == Kind::Jacobian, tool_rotation, observed),
         Kind::Nominal => {
             let mut b = Builder {
                 g: Graph::default(),
@@ -238,7 +250,12 @@ impl<'m> Piece<'m> {
 
 /// The error (eq. 2.24 with the task sign of eq. 2.31/2.34), optionally the β-Jacobian, as
 /// one graph or (past [`PIECE`] coefficients) several.
-fn errors(m: &Machine, jacobian: bool, tool_rotation: Option<[[f64; 3]; 3]>) -> Vec<Graph> {
+fn errors(
+    m: &Machine,
+    jacobian: bool,
+    tool_rotation: Option<[[f64; 3]; 3]>,
+    observed: Observed,
+) -> Vec<Graph> {
     let n = m.coefficients.len();
     let sign = m.task.sign();
     // Several pieces keep the error's running sums in `out` (each piece adds to them); one
@@ -297,7 +314,7 @@ fn errors(m: &Machine, jacobian: bool, tool_rotation: Option<[[f64; 3]; 3]>) -> 
                     // in `out`; the next recomputes the column and the term's values (the
                     // same operations, so the same numbers) and goes on adding to it.
                     if let Some((i, u)) = pending.take() {
-                        piece.b.jac_single(&col, only, n, i, u);
+                        piece.b.jac_single(&col, only, observed, n, i, u);
                     }
                     if let Some(v) = value {
                         piece.b.g.store(Dst::Out, CARRY, v);
@@ -329,13 +346,14 @@ fn errors(m: &Machine, jacobian: bool, tool_rotation: Option<[[f64; 3]; 3]>) -> 
                     // go out in pairs (another tool's gated ones one by one).
                     match pending.take() {
                         Some((i, u)) if i + 1 == j && only.is_none() => {
-                            for (r, &c) in col.iter().enumerate() {
-                                piece.b.g.store_pair(Dst::Jac, r * n + i, c, u, v);
+                            for (row, r) in observed.components().enumerate() {
+                                let c = col[r];
+                                piece.b.g.store_pair(Dst::Jac, row * n + i, c, u, v);
                             }
                         }
                         other => {
                             if let Some((i, u)) = other {
-                                piece.b.jac_single(&col, only, n, i, u);
+                                piece.b.jac_single(&col, only, observed, n, i, u);
                             }
                             pending = Some((j, v));
                         }
@@ -347,11 +365,14 @@ fn errors(m: &Machine, jacobian: bool, tool_rotation: Option<[[f64; 3]; 3]>) -> 
             }
         }
         if let Some((i, u)) = pending.take() {
-            piece.b.jac_single(&col, only, n, i, u);
+            piece.b.jac_single(&col, only, observed, n, i, u);
         }
         let g = &mut piece.b.g;
         let value = value.unwrap_or_else(|| g.konst(0.0));
         for (r, &c) in col.iter().enumerate() {
+            if !observed.contains(r) {
+                continue;
+            }
             let p = g.mul(c, value);
             let p = match only {
                 Some(i) => g.if_tool(i, p),
@@ -378,13 +399,13 @@ fn errors(m: &Machine, jacobian: bool, tool_rotation: Option<[[f64; 3]; 3]>) -> 
     let zero = g.konst(0.0);
     if jacobian {
         for (j, _) in written.iter().enumerate().filter(|(_, w)| !**w) {
-            for r in 0..6 {
-                g.store(Dst::Jac, r * n + j, zero);
+            for row in 0..observed.rows() {
+                g.store(Dst::Jac, row * n + j, zero);
             }
         }
     }
     for (r, e) in error.into_iter().enumerate() {
-        if !started.get(r).copied().unwrap_or(false) {
+        if observed.contains(r) && !started.get(r).copied().unwrap_or(false) {
             // With several pieces `error` was never used (and its zeros belong to the first).
             g.store(Dst::Out, r, if memory { zero } else { e });
         }
@@ -873,15 +894,23 @@ impl Builder<'_> {
         values
     }
 
-    /// The six Jacobian entries of coefficient `j` with basis value `v`, one by one.
-    fn jac_single(&mut self, col: &[Id; 6], only: Option<usize>, n: usize, j: usize, v: Id) {
-        for (r, &c) in col.iter().enumerate() {
-            let p = self.g.mul(c, v);
+    /// The observed Jacobian entries of coefficient `j` with basis value `v`, one by one.
+    fn jac_single(
+        &mut self,
+        col: &[Id; 6],
+        only: Option<usize>,
+        observed: Observed,
+        n: usize,
+        j: usize,
+        v: Id,
+    ) {
+        for (row, r) in observed.components().enumerate() {
+            let p = self.g.mul(col[r], v);
             let p = match only {
                 Some(i) => self.g.if_tool(i, p),
                 None => p,
             };
-            self.g.store(Dst::Jac, r * n + j, p);
+            self.g.store(Dst::Jac, row * n + j, p);
         }
     }
 

@@ -9,6 +9,9 @@
 //!    (eq. 2.35–2.38), the F-matrix columns of the components that carry errors (eq. 2.24–2.28),
 //!    the basis values of `kin_compiler::basis` operation for operation, and per coefficient its
 //!    six Jacobian entries.
+//!    Restricted to the components a data set observes ([`Observed`]: position only for
+//!    points without orientation and for lengths), the error functions store only those
+//!    rows, and nothing that feeds only the others is emitted.
 //! 2. `emit`: each graph as one straight-line Cranelift function, `sin`/`cos`/`%` through the
 //!    same `libm` routines the interpreter uses. Past `lower::PIECE` coefficients the error
 //!    and Jacobian functions are several such functions called in turn, because the register
@@ -18,7 +21,8 @@
 //!
 //! The generated code reads and writes only at offsets fixed at compile time, all inside the
 //! buffers whose lengths this module checks before every call; a call allocates nothing and
-//! takes no lock. A [`JitModel`] is `Send + Sync` and cheap to clone: many threads may call it
+//! takes no lock — except the first call for a subset of the components other than all six
+//! ([`Observed`]), which compiles that subset's code ([`JitModel::prepare`] does it ahead). A [`JitModel`] is `Send + Sync` and cheap to clone: many threads may call it
 //! at once, each with its own output buffers (or its own [`JitEvaluator`]).
 //!
 //! ```
@@ -42,8 +46,9 @@
 mod emit;
 mod graph;
 mod lower;
+mod stream;
 
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use cranelift_jit::JITModule;
@@ -52,6 +57,7 @@ use nalgebra::{Matrix3, Vector3};
 use thiserror::Error;
 
 use crate::engine::Evaluator;
+pub use crate::engine::Observed;
 use crate::interp::{var_name, EvalError, State};
 use crate::kinematics::{length_direction, length_error, KinematicsError, ToolLocation};
 use emit::{Args, RawFn};
@@ -177,6 +183,7 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
             .map(|g| g.live().iter().filter(|l| **l).count())
             .sum(),
         compile_time: Duration::ZERO,
+        observed: std::array::from_fn(|_| OnceLock::new()),
         module: Mutex::new(Some(emitted.module)),
     };
     inner.compile_time = start.elapsed();
@@ -235,12 +242,69 @@ impl Graphs {
 fn graphs(machine: &Machine, tools: &[[f64; 12]]) -> Result<Graphs, JitError> {
     lower::validate(machine)?;
     let rotation = common_rotation(tools);
-    let mut nominal = lower::build(machine, Kind::Nominal, rotation);
+    let mut nominal = lower::build(machine, Kind::Nominal, rotation, Observed::FULL);
     Ok(Graphs {
-        error: lower::build(machine, Kind::Error, rotation),
-        jacobian: lower::build(machine, Kind::Jacobian, rotation),
+        error: lower::build(machine, Kind::Error, rotation, Observed::FULL),
+        jacobian: lower::build(machine, Kind::Jacobian, rotation, Observed::FULL),
         nominal: nominal.pop().unwrap_or_default(),
     })
+}
+
+/// The error and error-and-Jacobian functions of `machine` restricted to `observed`
+/// (`lower::build`), compiled into a module of their own.
+fn compile_observed(machine: &Machine, tools: &[[f64; 12]], observed: Observed) -> Option<Code> {
+    let rotation = common_rotation(tools);
+    let error = lower::build(machine, Kind::Error, rotation, observed);
+    let jacobian = lower::build(machine, Kind::Jacobian, rotation, observed);
+    let named: Vec<(String, &graph::Graph)> = error
+        .iter()
+        .enumerate()
+        .map(|(i, g)| (format!("error.{observed}.{}", i + 1), g))
+        .chain(
+            jacobian
+                .iter()
+                .enumerate()
+                .map(|(i, g)| (format!("error_jacobian.{observed}.{}", i + 1), g)),
+        )
+        .collect();
+    let emitted = emit::compile(&named, None).ok()?;
+    let e = error.len();
+    if emitted.functions.len() != e + jacobian.len() {
+        // SAFETY: no pointer into the module survives this branch.
+        unsafe { emitted.module.free_memory() };
+        return None;
+    }
+    // SAFETY: as in `compile`: each pointer is a function just compiled with the signature
+    // `RawFn`, valid while the module lives, which the returned `Code` owns.
+    let raw = |p: &*const u8| unsafe { std::mem::transmute::<*const u8, RawFn>(*p) };
+    let (error, jacobian) = emitted.functions.split_at(e);
+    Some(Code {
+        error: error.iter().map(raw).collect(),
+        jacobian: jacobian.iter().map(raw).collect(),
+        module: Mutex::new(Some(emitted.module)),
+    })
+}
+
+/// The error functions of one subset of the components, with the module that owns them.
+struct Code {
+    error: Vec<RawFn>,
+    jacobian: Vec<RawFn>,
+    /// Touched only when dropped (see `Inner::module`).
+    module: Mutex<Option<JITModule>>,
+}
+
+impl Drop for Code {
+    fn drop(&mut self) {
+        let module = match self.module.get_mut() {
+            Ok(m) => m.take(),
+            Err(poisoned) => poisoned.into_inner().take(),
+        };
+        if let Some(module) = module {
+            // SAFETY: the pointers live only in this `Code`, which lives in an `Inner`; every
+            // call borrows that `Inner`, so none is running once it is dropped.
+            unsafe { module.free_memory() };
+        }
+    }
 }
 
 /// A compiled machine. Cloning shares the code.
@@ -262,6 +326,10 @@ struct Inner {
     used: Vec<Vec<Var>>,
     nodes: usize,
     compile_time: Duration,
+    /// Per subset of the components ([`Observed::index`]): its own error functions, compiled
+    /// at the first call that asks for them (`None`: the compilation failed, and the full
+    /// functions serve instead). All six use `error` and `jacobian` above.
+    observed: [OnceLock<Option<Code>>; 64],
     /// Owns the code; touched only when dropped. The mutex makes the model `Sync` (the module
     /// itself is only `Send`); no call ever locks it.
     module: Mutex<Option<JITModule>>,
@@ -346,7 +414,15 @@ impl JitModel {
         nonlinear: &[f64],
     ) -> Result<[f64; 6], EvalError> {
         let mut out = [0.0; 12];
-        self.call(Function::Error, state, beta, nonlinear, &mut out, &mut [])?;
+        self.call(
+            Function::Error,
+            state,
+            beta,
+            nonlinear,
+            Observed::FULL,
+            &mut out,
+            &mut [],
+        )?;
         Ok(first6(&out))
     }
 
@@ -361,7 +437,15 @@ impl JitModel {
         jac: &mut [f64],
     ) -> Result<(), EvalError> {
         let mut out = [0.0; 12];
-        self.call(Function::Jacobian, state, beta, nonlinear, &mut out, jac)?;
+        self.call(
+            Function::Jacobian,
+            state,
+            beta,
+            nonlinear,
+            Observed::FULL,
+            &mut out,
+            jac,
+        )?;
         *err = first6(&out);
         Ok(())
     }
@@ -375,13 +459,56 @@ impl JitModel {
         jac: &mut [f64],
     ) -> Result<ToolLocation, EvalError> {
         let mut out = [0.0; 12];
-        self.call(Function::Nominal, state, &[], &[], &mut out, jac)?;
+        self.call(
+            Function::Nominal,
+            state,
+            &[],
+            &[],
+            Observed::FULL,
+            &mut out,
+            jac,
+        )?;
         Ok(ToolLocation {
             position: Vector3::new(out[0], out[1], out[2]),
             rotation: Matrix3::new(
                 out[3], out[4], out[5], out[6], out[7], out[8], out[9], out[10], out[11],
             ),
         })
+    }
+
+    /// [`JitModel::error_and_jacobian`] restricted to the `observed` components (see
+    /// [`Evaluator::observed_error_and_jacobian`]): `err` holds `observed.rows()` values and
+    /// `jac` `observed.rows() × n`, row k that of the k-th observed component. Code for the
+    /// subset is compiled at the first call that asks for it; the values equal the full
+    /// evaluation's bit for bit.
+    pub fn observed_error_and_jacobian(
+        &self,
+        state: &State,
+        beta: &[f64],
+        nonlinear: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        buffer("the observed error", observed.rows(), err.len())?;
+        let mut out = [0.0; 12];
+        self.call(
+            Function::Jacobian,
+            state,
+            beta,
+            nonlinear,
+            observed,
+            &mut out,
+            jac,
+        )?;
+        pick(&out, observed, err);
+        Ok(())
+    }
+
+    /// Compiles the code of `observed` now rather than at its first call (so that a timing
+    /// leaves the compilation out). Nothing happens for all six, which [`compile`] compiled.
+    pub fn prepare(&self, observed: Observed) {
+        let _ = self.functions(Function::Error, observed);
     }
 
     /// [`JitModel::error`] over many rows: `err` holds 6 values per row.
@@ -392,20 +519,39 @@ impl JitModel {
         nonlinear: &[f64],
         err: &mut [f64],
     ) -> Result<(), BatchError> {
+        self.observed_error_rows(rows, beta, nonlinear, Observed::FULL, err)
+    }
+
+    /// [`JitModel::error_rows`] restricted to the `observed` components: `err` holds
+    /// `observed.rows()` values per row.
+    pub fn observed_error_rows(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        nonlinear: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+    ) -> Result<(), BatchError> {
         self.check_rows(rows)?;
-        check_len("the error rows", rows.len(), 6 * rows.len(), err.len())?;
+        let k = observed.rows();
+        check_len("the error rows", rows.len(), k * rows.len(), err.len())?;
         let mut out = [0.0; 12];
-        for (r, e) in err.chunks_exact_mut(6).enumerate() {
+        // A subset of no component has empty rows; chunks of 0 are not allowed.
+        let mut chunks = err.chunks_exact_mut(k.max(1));
+        for r in 0..rows.len() {
             self.call(
                 Function::Error,
                 &rows.get(r),
                 beta,
                 nonlinear,
+                observed,
                 &mut out,
                 &mut [],
             )
             .map_err(|source| BatchError::Row { row: r, source })?;
-            e.copy_from_slice(&out[..6]);
+            if k > 0 {
+                pick(&out, observed, chunks.next().unwrap_or(&mut []));
+            }
         }
         Ok(())
     }
@@ -420,9 +566,31 @@ impl JitModel {
         err: &mut [f64],
         jac: &mut [f64],
     ) -> Result<(), BatchError> {
+        self.observed_error_and_jacobian_rows(rows, beta, nonlinear, Observed::FULL, err, jac)
+    }
+
+    /// [`JitModel::error_and_jacobian_rows`] restricted to the `observed` components: `err`
+    /// holds `observed.rows()` values per row and `jac` one `observed.rows() × n` block per
+    /// row, so nothing is computed or stored that the data set does not observe.
+    ///
+    /// When the blocks add up to more than a cache holds, each pose's block is computed into
+    /// a scratch block that stays in the first-level cache and then written out with
+    /// streaming (non-temporal) stores: the destination's lines are written without first
+    /// being read into the cache, which halves the memory traffic of a store-bound loop
+    /// (see `stream`). A small destination is written directly.
+    pub fn observed_error_and_jacobian_rows(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        nonlinear: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), BatchError> {
         self.check_rows(rows)?;
-        let block = 6 * self.inner.machine.coefficients.len();
-        check_len("the error rows", rows.len(), 6 * rows.len(), err.len())?;
+        let k = observed.rows();
+        let block = k * self.inner.machine.coefficients.len();
+        check_len("the error rows", rows.len(), k * rows.len(), err.len())?;
         check_len(
             "the Jacobian rows",
             rows.len(),
@@ -430,26 +598,63 @@ impl JitModel {
             jac.len(),
         )?;
         let mut out = [0.0; 12];
-        // A machine without coefficients has empty Jacobian blocks; chunks of 0 are not allowed.
+        let streaming = stream::worth_it(jac.len());
+        let mut scratch = vec![0.0; if streaming { block } else { 0 }];
+        // Empty blocks (no coefficient, or no component): chunks of 0 are not allowed.
         let mut blocks = jac.chunks_exact_mut(block.max(1));
-        for (r, e) in err.chunks_exact_mut(6).enumerate() {
+        let mut errs = err.chunks_exact_mut(k.max(1));
+        for r in 0..rows.len() {
             let j: &mut [f64] = if block == 0 {
                 &mut []
             } else {
                 blocks.next().unwrap_or(&mut [])
             };
+            let target: &mut [f64] = if streaming { &mut scratch } else { j };
             self.call(
                 Function::Jacobian,
                 &rows.get(r),
                 beta,
                 nonlinear,
+                observed,
                 &mut out,
-                j,
+                target,
             )
             .map_err(|source| BatchError::Row { row: r, source })?;
-            e.copy_from_slice(&out[..6]);
+            if streaming {
+                stream::copy(j, &scratch);
+            }
+            if k > 0 {
+                pick(&out, observed, errs.next().unwrap_or(&mut []));
+            }
+        }
+        if streaming {
+            stream::fence();
         }
         Ok(())
+    }
+
+    /// The functions of `f` for the `observed` components; `None` when that subset's code
+    /// could not be compiled (the caller then uses the full functions).
+    fn functions(&self, f: Function, observed: Observed) -> Option<&[RawFn]> {
+        let inner = &*self.inner;
+        if f == Function::Nominal {
+            return Some(std::slice::from_ref(&inner.nominal));
+        }
+        let (error, jacobian) = if observed == Observed::FULL {
+            (inner.error.as_slice(), inner.jacobian.as_slice())
+        } else {
+            let code = inner
+                .observed
+                .get(observed.index())?
+                .get_or_init(|| compile_observed(&inner.machine, &inner.tools, observed))
+                .as_ref()?;
+            (code.error.as_slice(), code.jacobian.as_slice())
+        };
+        Some(if f == Function::Error {
+            error
+        } else {
+            jacobian
+        })
     }
 
     fn check_rows(&self, rows: &StateRows) -> Result<(), BatchError> {
@@ -468,12 +673,14 @@ impl JitModel {
 
     /// Checks everything a call relies on and calls. This is the only place generated code is
     /// entered.
+    #[allow(clippy::too_many_arguments)] // the generated functions' arguments, one each
     fn call(
         &self,
         f: Function,
         state: &State,
         beta: &[f64],
         nonlinear: &[f64],
+        observed: Observed,
         out: &mut Out,
         jac: &mut [f64],
     ) -> Result<(), EvalError> {
@@ -505,7 +712,7 @@ impl JitModel {
         }
         match f {
             Function::Error => {}
-            Function::Jacobian => buffer("the Jacobian", 6 * n, jac.len())?,
+            Function::Jacobian => buffer("the Jacobian", observed.rows() * n, jac.len())?,
             Function::Nominal => buffer("the joint Jacobian", 6 * m.axes.len(), jac.len())?,
         }
         let Some(tool) = inner.tools.get(state.tool) else {
@@ -529,10 +736,19 @@ impl JitModel {
                 }
             }
         }
-        let functions = match f {
-            Function::Error => inner.error.as_slice(),
-            Function::Jacobian => inner.jacobian.as_slice(),
-            Function::Nominal => std::slice::from_ref(&inner.nominal),
+        let Some(functions) = self.functions(f, observed) else {
+            // The subset's code could not be compiled: the full functions, then its rows.
+            let mut full = vec![0.0; if f == Function::Jacobian { 6 * n } else { 0 }];
+            self.call(f, state, beta, nonlinear, Observed::FULL, out, &mut full)?;
+            for (row, c) in observed.components().enumerate() {
+                if let (Some(dst), Some(src)) = (
+                    jac.get_mut(row * n..(row + 1) * n),
+                    full.get(c * n..(c + 1) * n),
+                ) {
+                    dst.copy_from_slice(src);
+                }
+            }
+            return Ok(());
         };
         let args = Args {
             q: state.q.as_ptr(),
@@ -552,7 +768,8 @@ impl JitModel {
         // `beta` below n, `nonlinear` below the parameter count and `tool_tf` below 12 — all
         // checked by `lower::validate` against the machine and above against the slices (β and
         // the parameters only for the error functions, which alone read them). It writes `out`
-        // below 12 and `jac` below 6·n (error functions) or 6·axes (nominal), the lengths
+        // below 12 and `jac` below k·n (error functions of k observed components, `lower::
+        // build`) or 6·axes (nominal), the lengths
         // checked above; the error function writes no `jac`. Every slice outlives the call and
         // the outputs are exclusively borrowed, so nothing else touches them meanwhile. The
         // pieces of one function are called in order on the same arguments: a piece reads
@@ -589,6 +806,14 @@ fn zero_upper() {
 
 fn first6(out: &Out) -> [f64; 6] {
     [out[0], out[1], out[2], out[3], out[4], out[5]]
+}
+
+/// The observed components of the error in `out` (where the functions leave component `c` at
+/// `out[c]`), in order, into `err`.
+fn pick(out: &Out, observed: Observed, err: &mut [f64]) {
+    for (slot, c) in err.iter_mut().zip(observed.components()) {
+        *slot = out.get(c).copied().unwrap_or(f64::NAN);
+    }
 }
 
 fn buffer(what: &'static str, expected: usize, got: usize) -> Result<(), EvalError> {
@@ -755,8 +980,21 @@ impl Evaluator for JitEvaluator {
             .error_and_jacobian(state, beta, &self.nonlinear, err, jac)
     }
 
+    fn observed_error_and_jacobian(
+        &mut self,
+        state: &State,
+        beta: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.model
+            .observed_error_and_jacobian(state, beta, &self.nonlinear, observed, err, jac)
+    }
+
     /// Eq. 4.5: `dL = u·(Δp₂ − Δp₁)` and its row `uᵀ(J₂ − J₁)` over the position rows, from
-    /// two calls of the Jacobian function (which also returns the nominal positions for `u`).
+    /// two calls of the position-only Jacobian function (which also returns the nominal
+    /// positions for `u`): the rotation rows a length does not read are never computed.
     fn length_and_row(
         &mut self,
         s1: &State,
@@ -767,21 +1005,28 @@ impl Evaluator for JitEvaluator {
         let n = self.model.machine().coefficients.len();
         buffer("the length row", n, row.len())?;
         let (mut o1, mut o2) = ([0.0; 12], [0.0; 12]);
+        let rows = Observed::POSITION.rows() * n;
+        let (jac1, jac2) = (
+            self.jac1.get_mut(..rows).unwrap_or(&mut []),
+            self.jac2.get_mut(..rows).unwrap_or(&mut []),
+        );
         self.model.call(
             Function::Jacobian,
             s1,
             beta,
             &self.nonlinear,
+            Observed::POSITION,
             &mut o1,
-            &mut self.jac1,
+            jac1,
         )?;
         self.model.call(
             Function::Jacobian,
             s2,
             beta,
             &self.nonlinear,
+            Observed::POSITION,
             &mut o2,
-            &mut self.jac2,
+            jac2,
         )?;
         let p1 = Vector3::new(o1[6], o1[7], o1[8]);
         let p2 = Vector3::new(o2[6], o2[7], o2[8]);

@@ -9,13 +9,14 @@
 //!   become one, none after `{` or before `}`;
 //! - indentation: four spaces per open `{` for each statement (a child of a braced block), a
 //!   closing `}` at its block's level; a continuation line that starts with an operator lines
-//!   up under the statement's `=` / `+=`, other continuation lines go four spaces in per open
-//!   bracket;
+//!   up under the statement's `=` / `+=`; other continuation lines line up after the open
+//!   bracket when something follows it on its line, else go four spaces in per open bracket;
 //! - within a line: one space around `=`, `+=`, binary operators and `:`, after `,`, inside
 //!   `{ … }`; none after `(`/`[`, before `)`/`]`/`,`, around `.` and in `1..2`, before a call's
 //!   `(` and an index's `[`; elsewhere one space where there was space and none where there was
 //!   none (`5mm` stays as written, so a unit never leaves its number);
-//! - every comment is kept: one on its own line is indented like the line after it; one
+//! - every comment is kept: one on its own line is indented like the line after it (one
+//!   indented deeper than that line stays a level deeper: it annotates the line before); one
 //!   after code keeps its column (moved with the line's indentation), so aligned comments stay
 //!   aligned, with at least one space before it;
 //! - trailing whitespace goes, the file ends with one newline.
@@ -234,8 +235,11 @@ fn column(source: &str, at: usize) -> (usize, usize) {
 struct Out {
     text: String,
     depth: usize,
-    /// Open `(` and `[` of the current statement.
-    brackets: usize,
+    /// Open `(` and `[` of the current statement: the column after each when what follows it
+    /// on its line is lined up there, `None` when a line break follows it (block indent).
+    brackets: Vec<Option<usize>>,
+    /// The last token written was an opening bracket.
+    after_open: bool,
     /// Column of the current statement's first token and of its `=` / `+=`.
     stmt_col: usize,
     assign_col: Option<usize>,
@@ -278,13 +282,20 @@ impl Out {
         match tok.rule {
             Rule::rbrace => self.depth.saturating_sub(1) * INDENT,
             _ if tok.stmt => self.depth * INDENT,
-            Rule::add_op | Rule::mul_op if self.brackets == 0 && self.assign_col.is_some() => {
+            Rule::add_op | Rule::mul_op
+                if self.brackets.is_empty() && self.assign_col.is_some() =>
+            {
                 self.assign_col.unwrap_or(self.stmt_col + INDENT)
             }
-            Rule::rparen | Rule::rbrack => {
-                self.stmt_col + INDENT * self.brackets.saturating_sub(1).max(1)
-            }
-            _ => self.stmt_col + INDENT * self.brackets.max(1),
+            // A closing bracket under its opening one, or back at the opening line's level.
+            Rule::rparen | Rule::rbrack => match self.brackets.last() {
+                Some(Some(col)) => col.saturating_sub(1),
+                _ => self.stmt_col + INDENT * self.brackets.len().saturating_sub(1),
+            },
+            _ => match self.brackets.last() {
+                Some(Some(col)) => *col,
+                _ => self.stmt_col + INDENT * self.brackets.len().max(1),
+            },
         }
     }
 }
@@ -313,7 +324,8 @@ fn render(source: &str, tokens: &[Tok]) -> String {
     let mut out = Out {
         text: String::with_capacity(source.len() + source.len() / 8),
         depth: 0,
-        brackets: 0,
+        brackets: Vec::new(),
+        after_open: false,
         stmt_col: 0,
         assign_col: None,
         after_lbrace: false,
@@ -326,21 +338,27 @@ fn render(source: &str, tokens: &[Tok]) -> String {
         let text = &source[tok.start..tok.end];
         if tok.stmt {
             out.stmt_col = out.line_indent();
-            out.brackets = 0;
+            out.brackets.clear();
             out.assign_col = None;
         }
         match tok.rule {
-            Rule::assign if out.assign_col.is_none() && out.brackets == 0 => {
+            Rule::assign if out.assign_col.is_none() && out.brackets.is_empty() => {
                 out.assign_col = Some(out.col());
             }
-            Rule::lparen | Rule::lbrack => out.brackets += 1,
-            Rule::rparen | Rule::rbrack => out.brackets = out.brackets.saturating_sub(1),
+            Rule::lparen | Rule::lbrack => {
+                let after = out.col() + text.chars().count();
+                out.brackets.push(Some(after));
+            }
+            Rule::rparen | Rule::rbrack => {
+                out.brackets.pop();
+            }
             Rule::lbrace => out.depth += 1,
             Rule::rbrace => out.depth = out.depth.saturating_sub(1),
             _ => {}
         }
         out.text.push_str(text);
         out.after_lbrace = tok.rule == Rule::lbrace;
+        out.after_open = matches!(tok.rule, Rule::lparen | Rule::lbrack);
         out.after_comment = false;
         from = tok.end;
         prev = Some(tok);
@@ -366,6 +384,12 @@ fn gap(
     prev: Option<&Tok>,
 ) {
     let items = trivia(&source[from..to]).unwrap_or_default();
+    if out.after_open && items.contains(&Trivia::Newline) {
+        // Nothing follows the bracket on its line: what is inside takes the block indent.
+        if let Some(top) = out.brackets.last_mut() {
+            *top = None;
+        }
+    }
     let mut newlines = 0usize;
     let blank_before_next = next.is_some_and(|t| t.rule != Rule::rbrace);
     for item in items {
@@ -385,12 +409,17 @@ fn gap(
                         out.text.push(' ');
                     }
                 } else {
-                    let indent = match next {
-                        Some(t) if t.rule == Rule::rbrace => out.depth * INDENT,
-                        Some(t) => out.indent_for(t),
-                        None => 0,
+                    let (indent, usual) = match next {
+                        Some(t) if t.rule == Rule::rbrace => {
+                            (out.depth * INDENT, column(source, t.start).1 + INDENT)
+                        }
+                        Some(t) => (out.indent_for(t), column(source, t.start).1),
+                        None => (0, 0),
                     };
-                    out.new_line(newlines >= 2, indent);
+                    // A comment indented deeper than the line after it annotates the line
+                    // before (`J1 moving …` / `    // joint J1`): it stays one level deeper.
+                    let deeper = newlines == 1 && column(source, at).0 > usual;
+                    out.new_line(newlines >= 2, indent + if deeper { INDENT } else { 0 });
                 }
                 out.text.push_str(&trim_lines(c));
                 out.after_lbrace = false;
@@ -407,7 +436,11 @@ fn gap(
         out.text.push(' ');
     } else if let Some(prev) = prev {
         let had_space = from < to;
-        if space(prev, next, &source[next.start..next.end], had_space) {
+        // `phase -2 mm`: an operator glued to what follows but not to what precedes reads as a
+        // sign; it is left as written (spacing it out would change how it reads, not what).
+        let sign_like =
+            prev.rule == Rule::add_op && !had_space && source[..prev.start].ends_with([' ', '\t']);
+        if !sign_like && space(prev, next, &source[next.start..next.end], had_space) {
             out.text.push(' ');
         }
     }
@@ -439,6 +472,24 @@ mod tests {
         let got = fmt(src);
         assert_eq!(got, want);
         assert_eq!(fmt(&got), got);
+    }
+
+    #[test]
+    fn a_deeper_comment_annotates_the_line_before() {
+        let src = "machine m {\n tool chain {\n  X moving\n      // the X carriage\n  tool t\n      // the tool\n }\n}\n";
+        let want = "machine m {\n    tool chain {\n        X moving\n            // the X carriage\n        tool t\n            // the tool\n    }\n}\n";
+        assert_eq!(fmt(src), want);
+        assert_eq!(fmt(want), want);
+    }
+
+    #[test]
+    fn lines_inside_brackets_line_up() {
+        let src = "machine m {\n errors {\n  X.tx = spline(X, knots at (100,\n 250) mm)\n }\n}\nparams {\n X.tx = [\n 1,\n 2\n ] um\n}\n";
+        let want = "machine m {\n    errors {\n        X.tx = spline(X, knots at (100,\n                                   250) mm)\n    }\n}\nparams {\n    X.tx = [\n        1,\n        2\n    ] um\n}\n";
+        assert_eq!(fmt(src), want);
+        assert_eq!(fmt(want), want);
+        let signed = "machine m { errors { X.tx = periodic(X, wavelength 10 mm, phase -2 mm) } }\n";
+        assert_eq!(fmt(signed), signed);
     }
 
     #[test]

@@ -12,7 +12,7 @@
 //!   up under the statement's `=` / `+=`; other continuation lines line up after the open
 //!   bracket when something follows it on its line, else go four spaces in per open bracket;
 //! - within a line: one space around `=`, `+=`, binary operators and `:`, after `,`, inside
-//!   `{ … }`; none after `(`/`[`, before `)`/`]`/`,`, around `.` and in `1..2`, before a call's
+//!   `{ … }`, two between statements that share a line; none after `(`/`[`, before `)`/`]`/`,`, around `.` and in `1..2`, before a call's
 //!   `(` and an index's `[`; elsewhere one space where there was space and none where there was
 //!   none (`5mm` stays as written, so a unit never leaves its number);
 //! - every comment is kept: one on its own line is indented like the line after it (one
@@ -440,7 +440,10 @@ fn gap(
         // sign; it is left as written (spacing it out would change how it reads, not what).
         let sign_like =
             prev.rule == Rule::add_op && !had_space && source[..prev.start].ends_with([' ', '\t']);
-        if !sign_like && space(prev, next, &source[next.start..next.end], had_space) {
+        if next.stmt && !matches!(prev.rule, Rule::lbrace | Rule::comma) {
+            // Statements sharing a line (`{ Y fixed  X moving }`) stand two spaces apart.
+            out.text.push_str("  ");
+        } else if !sign_like && space(prev, next, &source[next.start..next.end], had_space) {
             out.text.push(' ');
         }
     }
@@ -490,6 +493,9 @@ mod tests {
         assert_eq!(fmt(want), want);
         let signed = "machine m { errors { X.tx = periodic(X, wavelength 10 mm, phase -2 mm) } }\n";
         assert_eq!(fmt(signed), signed);
+        let shared = "machine m { workpiece chain { Y fixed X moving  workpiece } }\n";
+        let want = "machine m { workpiece chain { Y fixed  X moving  workpiece } }\n";
+        assert_eq!(fmt(shared), want);
     }
 
     #[test]

@@ -88,7 +88,7 @@ async def main():
     value = hover.contents.value if hover else ""
     check("hover: a family's formula and thesis equation", "fourier" in value and "eq. 3." in value, value)
 
-    at = position(text, "Z.tz", 0)
+    at = position(text, "Z.tx", 0)
     found = await client.text_document_definition_async(
         t.DefinitionParams(text_document=doc, position=at))
     where = found if isinstance(found, t.Location) else (found[0] if found else None)

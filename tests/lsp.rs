@@ -64,6 +64,20 @@ impl Client {
         serde_json::from_slice(&body).unwrap_or_else(|e| panic!("JSON: {e}"))
     }
 
+    /// The whole response (`result` or `error`).
+    fn response(&mut self, method: &str, params: Value) -> Value {
+        let id = self.next_id;
+        self.next_id += 1;
+        self.send(&json!({"jsonrpc": "2.0", "id": id, "method": method, "params": params}));
+        loop {
+            let msg = self.receive();
+            if msg.get("id") == Some(&json!(id)) {
+                return msg;
+            }
+            self.notifications.push(msg);
+        }
+    }
+
     fn request(&mut self, method: &str, params: Value) -> Value {
         let id = self.next_id;
         self.next_id += 1;
@@ -300,6 +314,28 @@ fn an_editor_session() {
         "{:?}",
         later.diagnostics
     );
+
+    // Bad input is answered with an error, or skipped, and the session goes on.
+    c.notify("textDocument/didOpen", json!({"nonsense": true}));
+    let r = c.response(
+        "textDocument/hover",
+        json!({"textDocument": {"uri": "file:///nowhere.kin"}, "position": {"line": 0, "character": 0}}),
+    );
+    assert!(
+        r["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("not open")),
+        "{r}"
+    );
+    let r = c.response("kin/unknown", json!({}));
+    assert_eq!(r["error"]["code"], json!(-32601), "{r}");
+    let r = c.response("textDocument/hover", json!({"textDocument": 5}));
+    assert_eq!(r["error"]["code"], json!(-32602), "{r}");
+    let h = c.request(
+        "textDocument/hover",
+        json!({"textDocument": doc, "position": {"line": 100000, "character": 99999}}),
+    );
+    assert_eq!(h, Value::Null);
 
     let _ = c.request("shutdown", Value::Null);
     c.notify("exit", Value::Null);

@@ -173,8 +173,8 @@ fn trivia(gap: &str) -> Option<Vec<Trivia<'_>>> {
             let len = rest.find('\n').unwrap_or(rest.len());
             out.push(Trivia::Comment(rest[..len].trim_end()));
             i += len;
-        } else if rest.starts_with("/*") {
-            let len = rest[2..].find("*/")? + 4;
+        } else if let Some(body) = rest.strip_prefix("/*") {
+            let len = body.find("*/")? + 4;
             out.push(Trivia::Comment(&rest[..len]));
             i += len;
         } else if bytes[i] == b'\n' {

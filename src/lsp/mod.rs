@@ -32,7 +32,11 @@ use lsp_types::{
 /// How long a document must stay unchanged before the identifiability analysis runs.
 const QUIET: Duration = Duration::from_millis(300);
 
+/// The open documents, by their URI's text.
+type Docs = HashMap<String, Doc>;
+
 struct Doc {
+    uri: Uri,
     text: String,
     version: i32,
     /// The last compiled form of this text (hover on model facts needs it).
@@ -90,7 +94,7 @@ fn serve(connection: &Connection) -> Result<(), Error> {
         },
     });
     connection.initialize_finish(id, result)?;
-    let mut docs: HashMap<Uri, Doc> = HashMap::new();
+    let mut docs: Docs = HashMap::new();
     loop {
         let due = docs.values().filter_map(|d| d.identify_at).min();
         let msg = match due {
@@ -118,17 +122,19 @@ fn serve(connection: &Connection) -> Result<(), Error> {
                 let response = answer(&docs, req);
                 connection.sender.send(Message::Response(response))?;
             }
-            Message::Notification(n) => notified(connection, &mut docs, n)?,
+            // A notification the server cannot read is reported and skipped: there is no one to
+            // answer, and the session goes on (a closed connection ends it at the next read).
+            Message::Notification(n) => {
+                if let Err(e) = notified(connection, &mut docs, n) {
+                    eprintln!("kin lsp: {e}");
+                }
+            }
             Message::Response(_) => {}
         }
     }
 }
 
-fn notified(
-    connection: &Connection,
-    docs: &mut HashMap<Uri, Doc>,
-    n: Notification,
-) -> Result<(), Error> {
+fn notified(connection: &Connection, docs: &mut Docs, n: Notification) -> Result<(), Error> {
     match n.method.as_str() {
         DidOpenTextDocument::METHOD => {
             let p: lsp_types::DidOpenTextDocumentParams = serde_json::from_value(n.params)?;
@@ -150,7 +156,7 @@ fn notified(
         }
         DidCloseTextDocument::METHOD => {
             let p: lsp_types::DidCloseTextDocumentParams = serde_json::from_value(n.params)?;
-            docs.remove(&p.text_document.uri);
+            docs.remove(p.text_document.uri.as_str());
             publish(connection, &p.text_document.uri, Vec::new(), None)?;
         }
         _ => {}
@@ -162,13 +168,13 @@ fn notified(
 /// scheduled.
 fn changed(
     connection: &Connection,
-    docs: &mut HashMap<Uri, Doc>,
+    docs: &mut Docs,
     uri: Uri,
     text: String,
     version: i32,
 ) -> Result<(), Error> {
     let out = compile(&text);
-    let previous = docs.remove(&uri).and_then(|d| d.compiled);
+    let previous = docs.remove(uri.as_str()).and_then(|d| d.compiled);
     let identify_at = out
         .compiled
         .as_ref()
@@ -177,8 +183,9 @@ fn changed(
     let diagnostics = analysis::diagnostics(&text, &uri, &out.diagnostics);
     publish(connection, &uri, diagnostics, Some(version))?;
     docs.insert(
-        uri,
+        uri.as_str().to_string(),
         Doc {
+            uri,
             // A text that does not compile keeps the last compiled model for hover.
             compiled: out.compiled.or(previous),
             found: out.diagnostics,
@@ -192,9 +199,9 @@ fn changed(
 
 /// Runs the identifiability analysis of every document that has been quiet long enough and
 /// publishes its diagnostics with the compiler's.
-fn identify_due(connection: &Connection, docs: &mut HashMap<Uri, Doc>) -> Result<(), Error> {
+fn identify_due(connection: &Connection, docs: &mut Docs) -> Result<(), Error> {
     let now = Instant::now();
-    for (uri, doc) in docs.iter_mut() {
+    for doc in docs.values_mut() {
         if doc.identify_at.is_none_or(|at| at > now) {
             continue;
         }
@@ -207,8 +214,8 @@ fn identify_due(connection: &Connection, docs: &mut HashMap<Uri, Doc>) -> Result
             false,
             kin_runtime::engine::Engine::Jit,
         ));
-        let diagnostics = analysis::diagnostics(&doc.text, uri, &all);
-        publish(connection, uri, diagnostics, Some(doc.version))?;
+        let diagnostics = analysis::diagnostics(&doc.text, &doc.uri, &all);
+        publish(connection, &doc.uri, diagnostics, Some(doc.version))?;
     }
     Ok(())
 }
@@ -233,7 +240,7 @@ fn publish(
     Ok(())
 }
 
-fn answer(docs: &HashMap<Uri, Doc>, req: Request) -> Response {
+fn answer(docs: &Docs, req: Request) -> Response {
     match respond(docs, &req) {
         Ok(value) => Response::new_ok(req.id, value),
         Err((code, message)) => Response::new_err(req.id, code as i32, message),
@@ -257,16 +264,16 @@ fn not_open(uri: &Uri) -> Refusal {
 
 /// The document and byte offset a position request points at.
 fn locate<'d>(
-    docs: &'d HashMap<Uri, Doc>,
+    docs: &'d Docs,
     p: &lsp_types::TextDocumentPositionParams,
 ) -> Result<(&'d Doc, usize), Refusal> {
     let doc = docs
-        .get(&p.text_document.uri)
+        .get(p.text_document.uri.as_str())
         .ok_or_else(|| not_open(&p.text_document.uri))?;
     Ok((doc, analysis::offset(&doc.text, p.position)))
 }
 
-fn respond(docs: &HashMap<Uri, Doc>, req: &Request) -> Result<serde_json::Value, Refusal> {
+fn respond(docs: &Docs, req: &Request) -> Result<serde_json::Value, Refusal> {
     let json = |v: serde_json::Result<serde_json::Value>| {
         v.map_err(|e| (ErrorCode::InternalError, e.to_string()))
     };
@@ -310,7 +317,7 @@ fn respond(docs: &HashMap<Uri, Doc>, req: &Request) -> Result<serde_json::Value,
         DocumentSymbolRequest::METHOD => {
             let p: lsp_types::DocumentSymbolParams = params(req)?;
             let doc = docs
-                .get(&p.text_document.uri)
+                .get(p.text_document.uri.as_str())
                 .ok_or_else(|| not_open(&p.text_document.uri))?;
             json(serde_json::to_value(DocumentSymbolResponse::Nested(
                 analysis::symbols(&doc.text),
@@ -319,7 +326,7 @@ fn respond(docs: &HashMap<Uri, Doc>, req: &Request) -> Result<serde_json::Value,
         Formatting::METHOD => {
             let p: lsp_types::DocumentFormattingParams = params(req)?;
             let doc = docs
-                .get(&p.text_document.uri)
+                .get(p.text_document.uri.as_str())
                 .ok_or_else(|| not_open(&p.text_document.uri))?;
             json(serde_json::to_value(analysis::formatting(&doc.text)))
         }

@@ -32,7 +32,7 @@ impl From<ObserveArg> for Observe {
 
 /// Identifiability on states sampled over the ranges: about two rows per coefficient, with a
 /// fixed seed so `kin check` is reproducible.
-fn identify(
+pub(crate) fn identify(
     c: &Compiled,
     observe: Observe,
     aligned: bool,

@@ -11,6 +11,7 @@ mod diagnose;
 mod errors;
 mod files;
 mod fit;
+mod fmt;
 mod generate;
 mod grid;
 mod help;
@@ -18,6 +19,7 @@ mod import;
 mod iso;
 mod iso_html;
 mod load;
+mod lsp;
 mod manual;
 mod predict;
 mod render;
@@ -673,6 +675,32 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// Format .kin files in place: indentation, spacing, blank lines; every comment and line
+    /// break kept, the meaning unchanged (spec/tooling.md). Without files, standard input to
+    /// standard output.
+    #[command(after_help = "Examples:
+  kin fmt examples/bridge_cmm.kin         # rewrite the file (atomically) if it changes
+  kin fmt --check examples tests          # CI: exit 1 and show a diff for each file that would change
+  kin fmt < mill.kin > mill.formatted.kin")]
+    Fmt {
+        /// Files to format, or folders searched for `*.kin` files.
+        #[arg(value_name = "FILE")]
+        files: Vec<PathBuf>,
+        /// Change nothing: list the files that would change, with a diff, on standard error,
+        /// and exit 1 if there are any.
+        #[arg(long)]
+        check: bool,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
+    /// A Language Server Protocol server on standard input and output, for editors: diagnostics
+    /// as you type, hover, go to definition, references, completion, outline, formatting
+    /// (spec/tooling.md).
+    #[command(
+        after_help = "Example (any LSP client; editors/vscode starts it for VS Code):
+  kin lsp"
+    )]
+    Lsp,
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios;
     /// the batch path against one pose per call, all six rows, position rows and error only,
@@ -1134,6 +1162,12 @@ fn run(command: Command) -> ExitCode {
             ignore: ignore.options(),
             color: color.enabled(),
         })),
+        Command::Fmt {
+            files,
+            check,
+            color,
+        } => load::Failed::exit(fmt::run(&files, check, color.enabled())),
+        Command::Lsp => lsp::run(),
         Command::Bench {
             machine,
             poses,

@@ -10,6 +10,7 @@
 pub mod basis;
 mod check;
 pub mod diagnostic;
+pub mod format;
 pub mod ir;
 mod lower;
 mod params;

@@ -1,6 +1,6 @@
 //! Syntax: source text to a typed tree. Knows nothing of later stages.
 pub mod ast;
-mod parse;
+pub(crate) mod parse;
 mod recover;
 
 pub use parse::{parse_file, parse_file_all, parse_params};

@@ -14,7 +14,7 @@ use crate::diagnostic::{Diagnostic, Span};
 
 #[derive(pest_derive::Parser)]
 #[grammar = "../grammar/kin.pest"]
-pub(super) struct KinParser;
+pub(crate) struct KinParser;
 
 type P<'i> = Pair<'i, Rule>;
 type Result<T> = std::result::Result<T, Diagnostic>;

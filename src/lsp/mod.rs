@@ -1,0 +1,338 @@
+//! `kin lsp`: a Language Server Protocol server on standard input and output.
+//!
+//! One thread reads messages in order (lsp-server's transport); documents are synchronised
+//! whole (`TextDocumentSyncKind::FULL`). After each change the document is compiled and its
+//! diagnostics published at once; the identifiability analysis, which evaluates the model at
+//! sampled poses, runs only once the document has been left alone for [`QUIET`], and its
+//! warnings are published then (a newer edit cancels the pending run). The answers themselves
+//! are the pure functions of [`analysis`].
+
+mod analysis;
+
+use std::collections::HashMap;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use kin_compiler::{compile, Compiled};
+use lsp_server::{Connection, ErrorCode, Message, Notification, Request, Response};
+use lsp_types::notification::{
+    DidChangeTextDocument, DidCloseTextDocument, DidOpenTextDocument, Notification as _,
+    PublishDiagnostics,
+};
+use lsp_types::request::{
+    Completion, DocumentSymbolRequest, Formatting, GotoDefinition, HoverRequest, References,
+    Request as _,
+};
+use lsp_types::{
+    CompletionOptions, CompletionResponse, DocumentSymbolResponse, GotoDefinitionResponse,
+    HoverProviderCapability, Location, OneOf, PublishDiagnosticsParams, ServerCapabilities,
+    ServerInfo, TextDocumentSyncCapability, TextDocumentSyncKind, Uri,
+};
+
+/// How long a document must stay unchanged before the identifiability analysis runs.
+const QUIET: Duration = Duration::from_millis(300);
+
+/// The open documents, by their URI's text.
+type Docs = HashMap<String, Doc>;
+
+struct Doc {
+    uri: Uri,
+    text: String,
+    version: i32,
+    /// The last compiled form of this text (hover on model facts needs it).
+    compiled: Option<Compiled>,
+    /// The compiler's diagnostics of `text`.
+    found: Vec<kin_compiler::Diagnostic>,
+    /// When the identifiability analysis is due, if it is.
+    identify_at: Option<Instant>,
+}
+
+/// Runs the server until the client says `exit`. Exit code 0 after a `shutdown` request, 2 if
+/// the connection broke or the client exited without one.
+pub fn run() -> ExitCode {
+    let (connection, io_threads) = Connection::stdio();
+    let code = match serve(&connection) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: kin lsp: {e}");
+            ExitCode::from(2)
+        }
+    };
+    drop(connection);
+    if let Err(e) = io_threads.join() {
+        eprintln!("error: kin lsp: {e}");
+        return ExitCode::from(2);
+    }
+    code
+}
+
+fn capabilities() -> ServerCapabilities {
+    ServerCapabilities {
+        text_document_sync: Some(TextDocumentSyncCapability::Kind(TextDocumentSyncKind::FULL)),
+        hover_provider: Some(HoverProviderCapability::Simple(true)),
+        definition_provider: Some(OneOf::Left(true)),
+        references_provider: Some(OneOf::Left(true)),
+        completion_provider: Some(CompletionOptions {
+            trigger_characters: Some(vec![".".into()]),
+            ..Default::default()
+        }),
+        document_symbol_provider: Some(OneOf::Left(true)),
+        document_formatting_provider: Some(OneOf::Left(true)),
+        ..Default::default()
+    }
+}
+
+type Error = Box<dyn std::error::Error + Send + Sync>;
+
+fn serve(connection: &Connection) -> Result<(), Error> {
+    let (id, _params) = connection.initialize_start()?;
+    let result = serde_json::json!({
+        "capabilities": capabilities(),
+        "serverInfo": ServerInfo {
+            name: "kin".into(),
+            version: Some(env!("CARGO_PKG_VERSION").into()),
+        },
+    });
+    connection.initialize_finish(id, result)?;
+    let mut docs: Docs = HashMap::new();
+    loop {
+        let due = docs.values().filter_map(|d| d.identify_at).min();
+        let msg = match due {
+            Some(at) => {
+                let wait = at.saturating_duration_since(Instant::now());
+                match connection.receiver.recv_timeout(wait) {
+                    Ok(m) => m,
+                    Err(crossbeam_timeout) if crossbeam_timeout.is_timeout() => {
+                        identify_due(connection, &mut docs)?;
+                        continue;
+                    }
+                    Err(_) => return Err("the client closed the connection".into()),
+                }
+            }
+            None => connection
+                .receiver
+                .recv()
+                .map_err(|_| "the client closed the connection")?,
+        };
+        match msg {
+            Message::Request(req) => {
+                if connection.handle_shutdown(&req)? {
+                    return Ok(());
+                }
+                let response = answer(&docs, req);
+                connection.sender.send(Message::Response(response))?;
+            }
+            // A notification the server cannot read is reported and skipped: there is no one to
+            // answer, and the session goes on (a closed connection ends it at the next read).
+            Message::Notification(n) => {
+                if let Err(e) = notified(connection, &mut docs, n) {
+                    eprintln!("kin lsp: {e}");
+                }
+            }
+            Message::Response(_) => {}
+        }
+    }
+}
+
+fn notified(connection: &Connection, docs: &mut Docs, n: Notification) -> Result<(), Error> {
+    match n.method.as_str() {
+        DidOpenTextDocument::METHOD => {
+            let p: lsp_types::DidOpenTextDocumentParams = serde_json::from_value(n.params)?;
+            let doc = p.text_document;
+            changed(connection, docs, doc.uri, doc.text, doc.version)?;
+        }
+        DidChangeTextDocument::METHOD => {
+            let p: lsp_types::DidChangeTextDocumentParams = serde_json::from_value(n.params)?;
+            // Full synchronisation: the last change holds the whole text.
+            if let Some(change) = p.content_changes.into_iter().last() {
+                changed(
+                    connection,
+                    docs,
+                    p.text_document.uri,
+                    change.text,
+                    p.text_document.version,
+                )?;
+            }
+        }
+        DidCloseTextDocument::METHOD => {
+            let p: lsp_types::DidCloseTextDocumentParams = serde_json::from_value(n.params)?;
+            docs.remove(p.text_document.uri.as_str());
+            publish(connection, &p.text_document.uri, Vec::new(), None)?;
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// A document's new text: compiled, its diagnostics published, the identifiability analysis
+/// scheduled.
+fn changed(
+    connection: &Connection,
+    docs: &mut Docs,
+    uri: Uri,
+    text: String,
+    version: i32,
+) -> Result<(), Error> {
+    let out = compile(&text);
+    let previous = docs.remove(uri.as_str()).and_then(|d| d.compiled);
+    let identify_at = out
+        .compiled
+        .as_ref()
+        .filter(|c| !c.machine.coefficients.is_empty())
+        .map(|_| Instant::now() + QUIET);
+    let diagnostics = analysis::diagnostics(&text, &uri, &out.diagnostics);
+    publish(connection, &uri, diagnostics, Some(version))?;
+    docs.insert(
+        uri.as_str().to_string(),
+        Doc {
+            uri,
+            // A text that does not compile keeps the last compiled model for hover.
+            compiled: out.compiled.or(previous),
+            found: out.diagnostics,
+            text,
+            version,
+            identify_at,
+        },
+    );
+    Ok(())
+}
+
+/// Runs the identifiability analysis of every document that has been quiet long enough and
+/// publishes its diagnostics with the compiler's.
+fn identify_due(connection: &Connection, docs: &mut Docs) -> Result<(), Error> {
+    let now = Instant::now();
+    for doc in docs.values_mut() {
+        if doc.identify_at.is_none_or(|at| at > now) {
+            continue;
+        }
+        doc.identify_at = None;
+        let Some(c) = &doc.compiled else { continue };
+        let mut all = doc.found.clone();
+        all.extend(crate::check::identify(
+            c,
+            kin_runtime::identify::Observe::Pose,
+            false,
+            kin_runtime::engine::Engine::Jit,
+        ));
+        let diagnostics = analysis::diagnostics(&doc.text, &doc.uri, &all);
+        publish(connection, &doc.uri, diagnostics, Some(doc.version))?;
+    }
+    Ok(())
+}
+
+fn publish(
+    connection: &Connection,
+    uri: &Uri,
+    diagnostics: Vec<lsp_types::Diagnostic>,
+    version: Option<i32>,
+) -> Result<(), Error> {
+    let params = PublishDiagnosticsParams {
+        uri: uri.clone(),
+        diagnostics,
+        version,
+    };
+    connection
+        .sender
+        .send(Message::Notification(Notification::new(
+            PublishDiagnostics::METHOD.into(),
+            params,
+        )))?;
+    Ok(())
+}
+
+fn answer(docs: &Docs, req: Request) -> Response {
+    match respond(docs, &req) {
+        Ok(value) => Response::new_ok(req.id, value),
+        Err((code, message)) => Response::new_err(req.id, code as i32, message),
+    }
+}
+
+/// A failed request: the JSON-RPC error code and a message.
+type Refusal = (ErrorCode, String);
+
+fn params<P: serde::de::DeserializeOwned>(req: &Request) -> Result<P, Refusal> {
+    serde_json::from_value(req.params.clone())
+        .map_err(|e| (ErrorCode::InvalidParams, format!("{}: {e}", req.method)))
+}
+
+fn not_open(uri: &Uri) -> Refusal {
+    (
+        ErrorCode::InvalidParams,
+        format!("`{}` is not open", uri.as_str()),
+    )
+}
+
+/// The document and byte offset a position request points at.
+fn locate<'d>(
+    docs: &'d Docs,
+    p: &lsp_types::TextDocumentPositionParams,
+) -> Result<(&'d Doc, usize), Refusal> {
+    let doc = docs
+        .get(p.text_document.uri.as_str())
+        .ok_or_else(|| not_open(&p.text_document.uri))?;
+    Ok((doc, analysis::offset(&doc.text, p.position)))
+}
+
+fn respond(docs: &Docs, req: &Request) -> Result<serde_json::Value, Refusal> {
+    let json = |v: serde_json::Result<serde_json::Value>| {
+        v.map_err(|e| (ErrorCode::InternalError, e.to_string()))
+    };
+    match req.method.as_str() {
+        HoverRequest::METHOD => {
+            let p: lsp_types::HoverParams = params(req)?;
+            let (doc, at) = locate(docs, &p.text_document_position_params)?;
+            json(serde_json::to_value(analysis::hover(
+                &doc.text,
+                doc.compiled.as_ref(),
+                at,
+            )))
+        }
+        GotoDefinition::METHOD => {
+            let p: lsp_types::GotoDefinitionParams = params(req)?;
+            let uri = p.text_document_position_params.text_document.uri.clone();
+            let (doc, at) = locate(docs, &p.text_document_position_params)?;
+            let found = analysis::definition(&doc.text, at).map(|s| {
+                GotoDefinitionResponse::Scalar(Location::new(uri, analysis::range(&doc.text, s)))
+            });
+            json(serde_json::to_value(found))
+        }
+        References::METHOD => {
+            let p: lsp_types::ReferenceParams = params(req)?;
+            let uri = p.text_document_position.text_document.uri.clone();
+            let (doc, at) = locate(docs, &p.text_document_position)?;
+            let found: Vec<Location> =
+                analysis::references(&doc.text, at, p.context.include_declaration)
+                    .into_iter()
+                    .map(|s| Location::new(uri.clone(), analysis::range(&doc.text, s)))
+                    .collect();
+            json(serde_json::to_value(found))
+        }
+        Completion::METHOD => {
+            let p: lsp_types::CompletionParams = params(req)?;
+            let (doc, at) = locate(docs, &p.text_document_position)?;
+            json(serde_json::to_value(CompletionResponse::Array(
+                analysis::completion(&doc.text, at),
+            )))
+        }
+        DocumentSymbolRequest::METHOD => {
+            let p: lsp_types::DocumentSymbolParams = params(req)?;
+            let doc = docs
+                .get(p.text_document.uri.as_str())
+                .ok_or_else(|| not_open(&p.text_document.uri))?;
+            json(serde_json::to_value(DocumentSymbolResponse::Nested(
+                analysis::symbols(&doc.text),
+            )))
+        }
+        Formatting::METHOD => {
+            let p: lsp_types::DocumentFormattingParams = params(req)?;
+            let doc = docs
+                .get(p.text_document.uri.as_str())
+                .ok_or_else(|| not_open(&p.text_document.uri))?;
+            json(serde_json::to_value(analysis::formatting(&doc.text)))
+        }
+        _ => Err((
+            ErrorCode::MethodNotFound,
+            format!("`{}` is not supported", req.method),
+        )),
+    }
+}

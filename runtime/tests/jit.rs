@@ -1088,6 +1088,7 @@ fn observed_rows_are_the_full_rows_bit_for_bit() {
         rng: StdRng::seed_from_u64(7071),
         fourier_along: true,
         shared: false,
+        heat: true,
         no_fixed: false,
     };
     let mut rng = StdRng::seed_from_u64(5);

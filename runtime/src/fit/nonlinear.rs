@@ -797,7 +797,8 @@ machine m {
             )
             .expect("covariance")
         };
-        let (se_p, se_q) = (se(&mut engine, Some(&split)), se(&mut engine, None));
+        // The joint covariance (`.1`) is checked against FIT.json's use by tests/predict.rs.
+        let (se_p, se_q) = (se(&mut engine, Some(&split)).0, se(&mut engine, None).0);
         for (a, b) in se_p.iter().zip(&se_q) {
             match (a, b) {
                 (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-6 * b.abs(), "se {a} vs {b}"),

@@ -7,7 +7,10 @@
 //! at a time and through the batch call — and, when the machine is `examples/milling_5axis.kin`,
 //! for the [hand-written baseline](baseline_5axis) of that machine; and the time from source text
 //! to callable native functions. Every figure is the best of a few rounds, so a moment of load
-//! elsewhere shows less.
+//! elsewhere shows less. Then the evaluation paths side by side ([`Paths`]): one pose per call
+//! against the batch call, all six rows, the position rows ([`crate::jit::Observed`]) and the
+//! error alone, against the baseline with harmonic recurrences, as medians of interleaved
+//! rounds, so that the ratios compare runs under the same load.
 //!
 //! For a positioning machine it also times the servo compensation
 //! ([`ServoCompensator`](crate::embed::ServoCompensator)) call by call, JIT and interpreter, and

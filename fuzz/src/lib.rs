@@ -178,6 +178,7 @@ fn tiny_poses() -> Option<&'static Observations> {
                 poses: true,
                 ignore: Vec::new(),
                 delimiter: None,
+                series: false,
             };
             let m = &tiny()?.machine;
             data::read(TINY_POSES.as_bytes(), Path::new("poses.csv"), m, &options).ok()

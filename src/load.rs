@@ -414,6 +414,35 @@ pub fn observations(
     Ok(obs)
 }
 
+/// The axis positions of a file of poses (`--poses`), one vector a row in the model's axis
+/// order (NaN where a column is absent); `option` names the flag in the error when the file
+/// is a length file, which has no single pose a row.
+pub fn pose_list(
+    path: &Path,
+    compiled: &Compiled,
+    data: &crate::args::DataOptions,
+    option: &str,
+) -> Result<Vec<Vec<f64>>, Failed> {
+    match observations(path, compiled, true, data)? {
+        Observations::Points(p) => Ok((0..p.rows.len())
+            .map(|r| {
+                p.pose
+                    .axes
+                    .iter()
+                    .map(|c| c.get(r).copied().unwrap_or(f64::NAN))
+                    .collect()
+            })
+            .collect()),
+        Observations::Lengths(_) => {
+            eprintln!(
+                "error: `{}`: {option} takes a point file of poses",
+                path.display()
+            );
+            Err(Failed::INPUT)
+        }
+    }
+}
+
 /// Files at least this large show a spinner while they are read (some 10⁵ rows: about a
 /// second).
 const LARGE_FILE: u64 = 16 << 20;

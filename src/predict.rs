@@ -68,24 +68,7 @@ fn run(a: PredictArgs) -> Result<(), Failed> {
         }
     };
     let poses: Vec<Vec<f64>> = match &a.poses {
-        Some(p) => match load::observations(p, &compiled, true, &a.data)? {
-            Observations::Points(p) => (0..p.rows.len())
-                .map(|r| {
-                    p.pose
-                        .axes
-                        .iter()
-                        .map(|c| c.get(r).copied().unwrap_or(f64::NAN))
-                        .collect()
-                })
-                .collect(),
-            Observations::Lengths(_) => {
-                eprintln!(
-                    "error: `{}`: --poses takes a point file of poses",
-                    p.display()
-                );
-                return Err(Failed::INPUT);
-            }
-        },
+        Some(p) => load::pose_list(p, &compiled, &a.data, "--poses")?,
         None => Vec::new(),
     };
     let (drifts, coverage) =

@@ -170,24 +170,7 @@ fn cycle_poses(
         return Err(Failed::USAGE);
     }
     let poses: Vec<Vec<f64>> = match &a.poses {
-        Some(p) => match load::observations(p, compiled, true, &a.ignore)? {
-            Observations::Points(p) => (0..p.rows.len())
-                .map(|r| {
-                    p.pose
-                        .axes
-                        .iter()
-                        .map(|c| c.get(r).copied().unwrap_or(f64::NAN))
-                        .collect()
-                })
-                .collect(),
-            Observations::Lengths(_) => {
-                eprintln!(
-                    "error: `{}`: --cycle takes a point file of poses",
-                    p.display()
-                );
-                return Err(Failed::USAGE);
-            }
-        },
+        Some(p) => load::pose_list(p, compiled, &a.ignore, "--poses")?,
         None => vec![kin_runtime::predict::midpoint_pose(m)],
     };
     if is_file {

@@ -175,6 +175,48 @@ pub(crate) fn text(bytes: &[u8]) -> Result<&str, RunProblem> {
     Ok(text.strip_prefix('\u{feff}').unwrap_or(text))
 }
 
+/// The lines of a test file that carry something, by role, each with its 1-based line number.
+pub(crate) struct Layout<'a> {
+    /// `#` comments before the header: where a test states its setup (`# radius: 150 mm`).
+    pub setup: Vec<(usize, &'a str)>,
+    /// The first line that is neither blank nor a comment.
+    pub header: (usize, &'a str),
+    /// Every later line that is neither blank nor a comment.
+    pub rows: Vec<(usize, &'a str)>,
+}
+
+/// Sorts a test file's lines into setup comments, header and rows (CRLF or LF; blank lines and
+/// comments after the header skipped); `None` when there is no header. Every ISO test file kin
+/// reads shares this layout, so they agree on what a comment or a blank line is.
+pub(crate) fn layout(text: &str) -> Option<Layout<'_>> {
+    let mut setup = Vec::new();
+    let mut header = None;
+    let mut rows = Vec::new();
+    for (i, l) in text.split('\n').enumerate() {
+        let l = l.strip_suffix('\r').unwrap_or(l);
+        let t = l.trim_start();
+        if t.is_empty() {
+            continue;
+        }
+        if t.starts_with('#') {
+            if header.is_none() {
+                setup.push((i + 1, t));
+            }
+            continue;
+        }
+        if header.is_none() {
+            header = Some((i + 1, l));
+        } else {
+            rows.push((i + 1, l));
+        }
+    }
+    Some(Layout {
+        setup,
+        header: header?,
+        rows,
+    })
+}
+
 /// Splits line `n` of a test file into `cells` (text in `buf`); a quoting problem is reported
 /// at its line and column.
 pub(crate) fn split_line(
@@ -257,15 +299,12 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<Run, Iso2302Error> {
         problems,
     };
     let text = text(bytes).map_err(|p| invalid(vec![p]))?;
-    let mut lines = text
-        .split('\n')
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.strip_suffix('\r').unwrap_or(l)))
-        .filter(|(_, l)| {
-            let t = l.trim_start();
-            !t.is_empty() && !t.starts_with('#')
-        });
-    let Some((header_line, header)) = lines.next() else {
+    let Some(Layout {
+        header: (header_line, header),
+        rows: lines,
+        ..
+    }) = layout(text)
+    else {
         return Err(invalid(vec![RunProblem::NoHeader]));
     };
     let dialect = Dialect::detect(header);

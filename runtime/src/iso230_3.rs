@@ -18,7 +18,7 @@ use thiserror::Error;
 
 use crate::data::csv::{Cell, Dialect};
 use crate::iso230_2::{
-    column_of, header_cell, length_unit, number, push, read_bytes, split_line, text, Listing,
+    column_of, header_cell, layout, Layout, length_unit, number, push, read_bytes, split_line, text, Listing,
     RunProblem,
 };
 
@@ -182,47 +182,37 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
         problems,
     };
     let text = text(bytes).map_err(|p| invalid(vec![p]))?;
-    let mut problems = Vec::new();
-    let mut run = ThermalRun::default();
-    let mut header = None;
-    let mut rows = Vec::new();
-    for (i, l) in text.split('\n').enumerate() {
-        let l = l.strip_suffix('\r').unwrap_or(l);
-        let t = l.trim_start();
-        if t.is_empty() {
-            continue;
-        }
-        if let Some(c) = t.strip_prefix('#') {
-            if header.is_none() {
-                if let Some((k, v)) = c.split_once(':') {
-                    if k.trim().eq_ignore_ascii_case("separation") {
-                        match crate::iso230_3::quantity(v.trim(), Dim::LENGTH) {
-                            Some(x) if x > 0.0 => run.separation = Some(x),
-                            _ => push(
-                                &mut problems,
-                                RunProblem::Line {
-                                    line: i + 1,
-                                    what: format!(
-                                        "`{}`: expected a positive length, e.g. `separation: 100 mm`",
-                                        v.trim()
-                                    ),
-                                },
-                            ),
-                        }
-                    }
-                }
-            }
-            continue;
-        }
-        if header.is_none() {
-            header = Some((i + 1, l));
-        } else {
-            rows.push((i + 1, l));
-        }
-    }
-    let Some((header_line, header)) = header else {
+    let Some(Layout {
+        setup: comments,
+        header: (header_line, header),
+        rows,
+    }) = layout(text)
+    else {
         return Err(invalid(vec![RunProblem::NoHeader]));
     };
+    let mut problems = Vec::new();
+    let mut run = ThermalRun::default();
+    for (line, comment) in comments {
+        let Some((k, v)) = comment.trim_start_matches('#').split_once(':') else {
+            continue;
+        };
+        if !k.trim().eq_ignore_ascii_case("separation") {
+            continue;
+        }
+        match quantity(v.trim(), Dim::LENGTH) {
+            Some(x) if x > 0.0 => run.separation = Some(x),
+            _ => push(
+                &mut problems,
+                RunProblem::Line {
+                    line,
+                    what: format!(
+                        "`{}`: expected a positive length, e.g. `separation: 100 mm`",
+                        v.trim()
+                    ),
+                },
+            ),
+        }
+    }
     let dialect = Dialect::detect(header);
     let mut buf = String::new();
     let mut cells: Vec<Cell> = Vec::new();

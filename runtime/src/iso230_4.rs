@@ -18,7 +18,7 @@ use thiserror::Error;
 
 use crate::data::csv::{Cell, Dialect};
 use crate::iso230_2::{
-    column_of, header_cell, length_unit, number, push, read_bytes, split_line, text, Listing,
+    column_of, header_cell, layout, Layout, length_unit, number, push, read_bytes, split_line, text, Listing,
     RunProblem, MAX_PROBLEMS,
 };
 
@@ -244,32 +244,20 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<CircularRun, Iso2304Error> {
         problems,
     };
     let text = text(bytes).map_err(|p| invalid(vec![p]))?;
-    let mut problems = Vec::new();
-    let mut setup = Setup::default();
-    let mut header = None;
-    let mut rows = Vec::new();
-    for (i, l) in text.split('\n').enumerate() {
-        let l = l.strip_suffix('\r').unwrap_or(l);
-        let t = l.trim_start();
-        if t.is_empty() {
-            continue;
-        }
-        if t.starts_with('#') {
-            // Only the comments before the header describe the test.
-            if header.is_none() {
-                setup_line(&mut setup, t, i + 1, &mut problems);
-            }
-            continue;
-        }
-        if header.is_none() {
-            header = Some((i + 1, l));
-        } else {
-            rows.push((i + 1, l));
-        }
-    }
-    let Some((header_line, header)) = header else {
+    let Some(Layout {
+        setup: comments,
+        header: (header_line, header),
+        rows,
+    }) = layout(text)
+    else {
         return Err(invalid(vec![RunProblem::NoHeader]));
     };
+    let mut problems = Vec::new();
+    let mut setup = Setup::default();
+    // Only the comments before the header describe the test.
+    for (line, comment) in comments {
+        setup_line(&mut setup, comment, line, &mut problems);
+    }
     let dialect = Dialect::detect(header);
     let mut buf = String::new();
     let mut cells: Vec<Cell> = Vec::new();

@@ -7,7 +7,7 @@
 //! that compiled.
 
 use kin_compiler::ir::{self, JointKind, Machine};
-use kin_compiler::syntax::ast;
+use kin_compiler::syntax::{ast, KEYWORDS};
 use kin_compiler::{Compiled, Severity, Span};
 use lsp_types::{
     CompletionItem, CompletionItemKind, DiagnosticRelatedInformation, DiagnosticSeverity,
@@ -19,32 +19,6 @@ use lsp_types::{
 /// offers the families and options its headings name. One text, so the two cannot drift.
 const FACTORS_MD: &str = include_str!("../../spec/factors.md");
 
-const KEYWORDS: [&str; 24] = [
-    "machine",
-    "params",
-    "task",
-    "units",
-    "axis",
-    "input",
-    "tool",
-    "workpiece",
-    "chain",
-    "errors",
-    "prismatic",
-    "revolute",
-    "along",
-    "about",
-    "range",
-    "continuous",
-    "moving",
-    "fixed",
-    "at",
-    "rot",
-    "const",
-    "fit",
-    "measure",
-    "position",
-];
 
 // ---------------------------------------------------------------- positions
 

@@ -18,6 +18,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use kin_compiler::ir::{Component, FrameRef};
+use kin_compiler::syntax::KEYWORDS;
 use nalgebra::{Matrix3, Matrix4, Rotation3, Vector3};
 
 use super::{is_moving, Chain, Imported, JointType, Options, Robot, UrdfError};
@@ -392,33 +393,6 @@ struct Names {
     taken: HashSet<String>,
 }
 
-const RESERVED: [&str; 25] = [
-    "machine",
-    "params",
-    "task",
-    "units",
-    "axis",
-    "input",
-    "tool",
-    "workpiece",
-    "chain",
-    "errors",
-    "prismatic",
-    "revolute",
-    "along",
-    "about",
-    "range",
-    "continuous",
-    "moving",
-    "fixed",
-    "at",
-    "rot",
-    "const",
-    "fit",
-    "measure",
-    "position",
-    "time",
-];
 
 impl Names {
     fn claim(&mut self, raw: &str, fallback: &str) -> String {
@@ -432,7 +406,8 @@ impl Names {
         if name.starts_with(|c: char| c.is_ascii_digit()) {
             name.insert(0, '_');
         }
-        if RESERVED.contains(&name.as_str()) {
+        // `time` is not a keyword but names the time column of a measurement file.
+        if KEYWORDS.contains(&name.as_str()) || name == "time" {
             name.push('_');
         }
         let mut unique = name.clone();

@@ -680,7 +680,7 @@ enum Command {
     /// standard output.
     #[command(after_help = "Examples:
   kin fmt examples/bridge_cmm.kin         # rewrite the file (atomically) if it changes
-  kin fmt --check examples tests          # CI: exit 1 and show a diff for each file that would change
+  kin fmt --check examples                # CI: exit 1 and show a diff for each file that would change
   kin fmt < mill.kin > mill.formatted.kin")]
     Fmt {
         /// Files to format, or folders searched for `*.kin` files.
@@ -690,6 +690,7 @@ enum Command {
         /// and exit 1 if there are any.
         #[arg(long)]
         check: bool,
+        /// Colour in the syntax errors of files that cannot be formatted.
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },

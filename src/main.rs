@@ -697,10 +697,8 @@ enum Command {
     /// A Language Server Protocol server on standard input and output, for editors: diagnostics
     /// as you type, hover, go to definition, references, completion, outline, formatting
     /// (spec/tooling.md).
-    #[command(
-        after_help = "Example (any LSP client; editors/vscode starts it for VS Code):
-  kin lsp"
-    )]
+    #[command(after_help = "Examples:
+  kin lsp   # started by the editor's LSP client; editors/vscode starts it for VS Code")]
     Lsp,
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios;
@@ -1328,7 +1326,30 @@ mod tests {
                     if !line.starts_with("kin ") {
                         continue;
                     }
-                    let words: Vec<&str> = line.split_whitespace().collect();
+                    // Words as a POSIX shell splits them: a '…' or "…" span is one word.
+                    let mut words: Vec<String> = Vec::new();
+                    let (mut word, mut quote, mut started) = (String::new(), None, false);
+                    for c in line.chars() {
+                        match (quote, c) {
+                            (Some(q), c) if c == q => quote = None,
+                            (Some(_), c) => word.push(c),
+                            (None, '\'' | '"') => (quote, started) = (Some(c), true),
+                            (None, c) if c.is_whitespace() => {
+                                if started {
+                                    words.push(std::mem::take(&mut word));
+                                }
+                                started = false;
+                            }
+                            (None, c) => {
+                                word.push(c);
+                                started = true;
+                            }
+                        }
+                    }
+                    if started {
+                        words.push(word);
+                    }
+                    assert!(quote.is_none(), "`{line}`: an unclosed quote");
                     if let Err(e) = Cli::try_parse_from(&words) {
                         panic!("`{line}` in the help of `kin {}`: {e}", sub.get_name());
                     }

@@ -7,6 +7,9 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+mod common;
+use common::{browser, run_browser};
+
 fn kin(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kin"))
         .args(args)
@@ -1255,54 +1258,4 @@ fn the_compensation_section_renders_in_a_browser_and_agrees_with_kin_compensate(
         );
         assert_eq!(shown(r, 5), 3.0, "{r}");
     }
-}
-
-/// A Chromium to render with: `/usr/bin/chromium`, or one of the usual names on `PATH`.
-fn browser() -> Option<PathBuf> {
-    let fixed = PathBuf::from("/usr/bin/chromium");
-    if fixed.is_file() {
-        return Some(fixed);
-    }
-    let path = std::env::var_os("PATH")?;
-    [
-        "chromium",
-        "chromium-browser",
-        "google-chrome",
-        "google-chrome-stable",
-    ]
-    .iter()
-    .flat_map(|name| std::env::split_paths(&path).map(move |d| d.join(name)))
-    .find(|p| p.is_file())
-}
-
-/// Runs the browser with `args` and returns its standard output; a browser that hangs must not
-/// hang the test suite (killed after 180 s).
-fn run_browser(chromium: &Path, args: &[&str]) -> Vec<u8> {
-    use std::io::Read as _;
-    use std::process::Stdio;
-    let mut child = Command::new(chromium)
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("chromium starts");
-    let mut stdout = child.stdout.take().expect("stdout");
-    let reader = std::thread::spawn(move || {
-        let mut out = Vec::new();
-        let _ = stdout.read_to_end(&mut out);
-        out
-    });
-    let start = std::time::Instant::now();
-    loop {
-        match child.try_wait().expect("wait for chromium") {
-            Some(_) => break,
-            None if start.elapsed() > std::time::Duration::from_secs(180) => {
-                let _ = child.kill();
-                let _ = child.wait();
-                panic!("{} did not finish in 180 s", chromium.display());
-            }
-            None => std::thread::sleep(std::time::Duration::from_millis(100)),
-        }
-    }
-    reader.join().expect("reader")
 }

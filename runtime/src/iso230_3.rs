@@ -18,8 +18,8 @@ use thiserror::Error;
 
 use crate::data::csv::{Cell, Dialect};
 use crate::iso230_2::{
-    column_of, header_cell, layout, Layout, length_unit, number, push, read_bytes, split_line, text, Listing,
-    RunProblem,
+    column_of, header_cell, layout, length_unit, number, push, read_bytes, split_line, text,
+    Layout, Listing, RunProblem,
 };
 
 #[derive(Debug, Error)]

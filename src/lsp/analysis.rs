@@ -19,7 +19,6 @@ use lsp_types::{
 /// offers the families and options its headings name. One text, so the two cannot drift.
 const FACTORS_MD: &str = include_str!("../../spec/factors.md");
 
-
 // ---------------------------------------------------------------- positions
 
 /// The LSP position (line, UTF-16 code unit) of byte `at` of `text`.

@@ -193,3 +193,35 @@ pub fn screenshot(page: &std::path::Path, dir: &std::path::Path, height: u32, mi
         .expect("keep the screenshot");
     }
 }
+
+/// Runs the browser with `args` and returns its standard output; a browser that hangs must not
+/// hang the test suite (killed after 180 s).
+pub fn run_browser(chromium: &std::path::Path, args: &[&str]) -> Vec<u8> {
+    use std::io::Read as _;
+    use std::process::Stdio;
+    let mut child = Command::new(chromium)
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("chromium starts");
+    let mut stdout = child.stdout.take().expect("stdout");
+    let reader = std::thread::spawn(move || {
+        let mut out = Vec::new();
+        let _ = stdout.read_to_end(&mut out);
+        out
+    });
+    let start = std::time::Instant::now();
+    loop {
+        match child.try_wait().expect("wait for chromium") {
+            Some(_) => break,
+            None if start.elapsed() > std::time::Duration::from_secs(180) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("{} did not finish in 180 s", chromium.display());
+            }
+            None => std::thread::sleep(std::time::Duration::from_millis(100)),
+        }
+    }
+    reader.join().expect("reader")
+}

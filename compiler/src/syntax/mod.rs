@@ -56,11 +56,7 @@ mod tests {
             .nth(1)
             .and_then(|r| r.split("~ !ident_char").next())
             .expect("the keyword rule");
-        let mut words: Vec<&str> = rule
-            .split('"')
-            .skip(1)
-            .step_by(2)
-            .collect();
+        let mut words: Vec<&str> = rule.split('"').skip(1).step_by(2).collect();
         words.sort_unstable();
         let mut ours = KEYWORDS.to_vec();
         ours.sort_unstable();

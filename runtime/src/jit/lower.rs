@@ -24,8 +24,8 @@ use kin_compiler::ir::{
 
 use super::graph::{Cmp, Dst, Graph, Id, Src};
 use super::JitError;
-use crate::interp::frame_order;
 use crate::engine::Observed;
+use crate::interp::frame_order;
 
 /// Which function a graph is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

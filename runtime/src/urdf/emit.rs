@@ -393,7 +393,6 @@ struct Names {
     taken: HashSet<String>,
 }
 
-
 impl Names {
     fn claim(&mut self, raw: &str, fallback: &str) -> String {
         let mut name: String = raw

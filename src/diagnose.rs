@@ -38,24 +38,44 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         files::check(out, &inputs)?;
     }
     let fitted = fitcmd::fit_quietly(&a.fit)?;
+    // The pass over the rows and the refits report how far they are: a bar on a terminal
+    // (tens of seconds at 10⁵ poses), a spinner until the first report.
+    let bar = indicatif::ProgressBar::new_spinner();
+    crate::warnings::hush(&bar);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} diagnosing ({elapsed})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    let progress = {
+        let bar = bar.clone();
+        let style = indicatif::ProgressStyle::with_template(
+            "{msg:>28} [{bar:30}] {human_pos}/{human_len} ({elapsed}, {eta} left)",
+        )
+        .map(|s| s.progress_chars("=> "))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+        diagnose::Progress::new(move |step, done, total| {
+            let msg = match step {
+                diagnose::Step::Rows => "testing the candidate effects",
+                diagnose::Step::Refits => "refitting what was found",
+            };
+            if bar.length() != Some(total) || bar.message() != msg {
+                bar.set_style(style.clone());
+                bar.set_message(msg);
+                bar.set_length(total);
+                bar.reset_elapsed();
+            }
+            bar.set_position(done);
+        })
+    };
     let settings = Settings {
         alpha: a.alpha,
         engine: a.fit.engine,
         noise: a.noise.as_ref().map(|n| n.si),
         noise_tilt: a.noise_tilt.as_ref().map(|n| n.si),
+        progress,
         ..Settings::default()
     };
-    // The scan reports no steps of its own yet: a spinner with the elapsed time shows it is
-    // alive (drawn on a terminal only; 45 s at 3·10⁵ observations).
-    let bar = indicatif::ProgressBar::new_spinner();
-    crate::warnings::hush(&bar);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} testing the candidate effects ({elapsed})",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
-    );
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let diagnosis = diagnose::diagnose(
         &fitted.compiled,
         &fitted.source,

@@ -38,6 +38,15 @@ fn compiled(src: &str) -> Compiled {
 
 /// Simulates `truth` (the base plus a hidden line), fits `BASE`, diagnoses.
 fn case(hidden: &str, values: &[(&str, f64)], seed: u64) -> diagnose::Diagnosis {
+    case_with(hidden, values, seed, &Settings::default())
+}
+
+fn case_with(
+    hidden: &str,
+    values: &[(&str, f64)],
+    seed: u64,
+    settings: &Settings,
+) -> diagnose::Diagnosis {
     let truth_src = BASE.replace(
         "        Z.tz = linear(Z)\n",
         &format!("        Z.tz = linear(Z)\n        {hidden}\n"),
@@ -80,15 +89,50 @@ fn case(hidden: &str, values: &[(&str, f64)], seed: u64) -> diagnose::Diagnosis 
         &mut |_, _| {},
     )
     .expect("fit");
-    diagnose::diagnose(
-        &base,
-        BASE,
-        &files,
-        &r,
-        &Options::default(),
-        &Settings::default(),
-    )
-    .expect("diagnose")
+    diagnose::diagnose(&base, BASE, &files, &r, &Options::default(), settings).expect("diagnose")
+}
+
+/// The progress a diagnosis reports (the command line's bar) counts the measured rows up to
+/// their number, then the refits, and watching it changes nothing found.
+#[test]
+fn progress_counts_the_rows_and_changes_nothing() {
+    use std::sync::{Arc, Mutex};
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let settings = Settings {
+        progress: diagnose::Progress::new({
+            let seen = Arc::clone(&seen);
+            move |step, done, total| seen.lock().unwrap().push((step, done, total))
+        }),
+        ..Settings::default()
+    };
+    let hidden = "X.tx += backlash(X)";
+    let values = [("X.tx[0]", 3.0), ("X.tx[4]", 1.0)];
+    let watched = case_with(hidden, &values, 2, &settings);
+    let plain = case(hidden, &values, 2);
+    let texts = |d: &diagnose::Diagnosis| {
+        d.findings
+            .iter()
+            .map(|f| (f.candidate.text.clone(), f.significant))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(texts(&watched), texts(&plain));
+    let seen = seen.lock().unwrap();
+    let rows: Vec<_> = seen
+        .iter()
+        .filter(|r| r.0 == diagnose::Step::Rows)
+        .collect();
+    assert_eq!(
+        rows.last().map(|r| (r.1, r.2)),
+        Some((600, 600)),
+        "{seen:?}"
+    );
+    assert!(rows.windows(2).all(|w| w[0].1 <= w[1].1), "{seen:?}");
+    let refits: Vec<_> = seen
+        .iter()
+        .filter(|r| r.0 == diagnose::Step::Refits)
+        .collect();
+    assert!(refits.iter().all(|r| r.1 <= r.2), "{seen:?}");
+    assert_eq!(refits.last().map(|r| r.1 == r.2), Some(true), "{seen:?}");
 }
 
 #[test]

@@ -31,6 +31,43 @@ pub enum DiagnoseError {
     Engine(#[from] crate::engine::EngineError),
 }
 
+/// Which part of a diagnosis a [`Progress`] report is about: the long ones.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Step {
+    /// The one pass over every measured row with the candidates' columns (`done` of `total`
+    /// rows).
+    Rows,
+    /// The refits of significant findings whose wavelength or time constant is fitted.
+    Refits,
+}
+
+/// Where a diagnosis is: called with the step, how much of it is done and its total, from the
+/// diagnosing thread, at most every few thousand rows. The command line draws it as a bar.
+#[derive(Clone, Default)]
+pub struct Progress(Option<std::sync::Arc<dyn Fn(Step, u64, u64) + Send + Sync>>);
+
+impl Progress {
+    pub fn new(report: impl Fn(Step, u64, u64) + Send + Sync + 'static) -> Self {
+        Progress(Some(std::sync::Arc::new(report)))
+    }
+
+    fn report(&self, step: Step, done: u64, total: u64) {
+        if let Some(report) = &self.0 {
+            report(step, done, total);
+        }
+    }
+}
+
+impl std::fmt::Debug for Progress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "Progress(reported)"
+        } else {
+            "Progress(none)"
+        })
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct Settings {
     /// Family-wise significance level over all candidates (Holm–Bonferroni).
@@ -45,6 +82,8 @@ pub struct Settings {
     /// rotations (rad): the absolute reference of the region tests and of the verdict.
     pub noise: Option<f64>,
     pub noise_tilt: Option<f64>,
+    /// Told how far the long steps are (nothing by default).
+    pub progress: Progress,
 }
 
 impl Default for Settings {
@@ -56,6 +95,7 @@ impl Default for Settings {
             engine: crate::engine::Engine::default(),
             noise: None,
             noise_tilt: None,
+            progress: Progress::default(),
         }
     }
 }
@@ -816,9 +856,20 @@ fn test_candidates(
     layout.weights = base.layout.weights;
     let states = fit::states_with(&sup.machine, files, &values)?;
     let mut acc = StreamingQr::with_threads(layout.columns(), options.block, options.threads);
-    fit::for_each_row(engine.as_mut(), files, &states, &layout, |_, x, y| {
+    let total: u64 = files.iter().map(|f| f.observations.len() as u64).sum();
+    let (mut done, mut last) = (0u64, None);
+    fit::for_each_row(engine.as_mut(), files, &states, &layout, |meta, x, y| {
+        // Several rows (components) share a measured row: count the measured rows.
+        if last != Some((meta.file, meta.line)) {
+            last = Some((meta.file, meta.line));
+            done += 1;
+            if done % 4096 == 0 {
+                settings.progress.report(Step::Rows, done, total);
+            }
+        }
         acc.push(x, y)
     })?;
+    settings.progress.report(Step::Rows, total, total);
     let red = acc.finish();
     let n_base = m.coefficients.len();
     let width = layout.columns();
@@ -1003,10 +1054,16 @@ fn test_candidates(
     }
     let mut out: Vec<Finding> = findings.into_iter().map(|t| t.finding).collect();
     // What a line with a fitted wavelength or time constant states comes from its refit.
-    for f in out
+    let refits = out
+        .iter()
+        .filter(|f| f.significant && f.candidate.text.contains(" fit "))
+        .count() as u64;
+    for (i, f) in out
         .iter_mut()
         .filter(|f| f.significant && f.candidate.text.contains(" fit "))
+        .enumerate()
     {
+        settings.progress.report(Step::Refits, i as u64, refits);
         refit::restate(
             f,
             compiled,
@@ -1017,6 +1074,7 @@ fn test_candidates(
             settings.alpha,
         )?;
     }
+    settings.progress.report(Step::Refits, refits, refits);
     refit::one_per_effect(&mut out);
     out.sort_by(rank_order);
     Ok(out)

@@ -248,4 +248,4 @@ mod motions;
 mod periodic;
 mod refit;
 
-pub use analyse::{diagnose, lack_of_fit, DiagnoseError, Settings};
+pub use analyse::{diagnose, lack_of_fit, DiagnoseError, Progress, Settings, Step};

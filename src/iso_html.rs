@@ -424,22 +424,6 @@ pub fn iso230_4_page(
     Ok(page(&format!("kin iso230-4: {name}"), &s))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn ring_steps_are_1_2_5() {
-        assert_eq!(nice(0.7), 1.0);
-        assert_eq!(nice(1.0), 1.0);
-        assert_eq!(nice(1.3), 2.0);
-        assert_eq!(nice(3.0), 5.0);
-        assert_eq!(nice(6.0), 10.0);
-        assert_eq!(nice(0.0), 1.0);
-        assert_eq!(nice(f64::NAN), 1.0);
-    }
-}
-
 /// The ISO 230-3 page: the displacements and tilts over time (the standard's drift plot) and
 /// the temperatures over time on their own chart, with the figures as a table.
 pub fn iso230_3_page(
@@ -562,4 +546,20 @@ fn legend<'a>(names: impl Iterator<Item = &'a str>) -> String {
     }
     s.push_str("</p>\n");
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ring_steps_are_1_2_5() {
+        assert_eq!(nice(0.7), 1.0);
+        assert_eq!(nice(1.0), 1.0);
+        assert_eq!(nice(1.3), 2.0);
+        assert_eq!(nice(3.0), 5.0);
+        assert_eq!(nice(6.0), 10.0);
+        assert_eq!(nice(0.0), 1.0);
+        assert_eq!(nice(f64::NAN), 1.0);
+    }
 }

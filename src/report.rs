@@ -1574,9 +1574,9 @@ fn compensation_section(
         }
     }
     s.push_str("</div>\n<table>\n<tr><th class=\"l\">axis swept</th>");
-    let _ = write!(
+    let _ = writeln!(
         s,
-        "<th>max position error before [{0}]</th><th>after [{0}]</th><th>max orientation error before [{1}]</th><th>after [{1}]</th><th>rank</th></tr>\n",
+        "<th>max position error before [{0}]</th><th>after [{0}]</th><th>max orientation error before [{1}]</th><th>after [{1}]</th><th>rank</th></tr>",
         esc(&v.error_unit),
         esc(&v.tilt_unit)
     );

@@ -478,7 +478,7 @@ fn a_step_gauge_along_x_determines_its_positioning_but_not_its_straightness() {
         );
         let k = (x2 - x1) / 20.0;
         assert!(
-            (k - k.round()).abs() < 1e-9 && k >= 1.0 && k <= 21.0,
+            (k - k.round()).abs() < 1e-9 && (1.0..=21.0).contains(&k),
             "{r:?}"
         );
         assert_eq!(cell(&h, r, "Y_1"), cell(&h, r, "Y_2"));

@@ -1225,6 +1225,141 @@ pub unsafe extern "C" fn kin_eval_batch(
     })
 }
 
+/// Makes the compensation function of a positioning machine with the model's bound values
+/// (thesis §2.3.5): the joint corrections that cancel the predicted tool-location error. The
+/// compensator keeps its own copy of the model (later changes to `model` do not reach it).
+/// `weights` (`n_weights` = 6, or NULL and 0 for every component with a rotation weighed as the
+/// fit weighs it) weigh `(ex, ey, ez, erx, ery, erz)` in SI; 0 leaves a component out.
+/// `iterations` bounds the linear solves per call (0: the default, 4).
+///
+/// # Safety
+///
+/// `model` is a live model, `weights` valid for `n_weights` doubles, `out` valid for writing.
+#[no_mangle]
+pub unsafe extern "C" fn kin_compensator_new(
+    model: *const kin_model,
+    weights: *const f64,
+    n_weights: usize,
+    iterations: usize,
+    out: *mut *mut kin_compensator,
+) -> c_int {
+    guard(|| {
+        if out.is_null() {
+            return Err(Fail(KIN_ERR_POINTER, "`out` is NULL".into()));
+        }
+        if !out.is_aligned() {
+            return Err(Fail(KIN_ERR_POINTER, "`out` is not aligned".into()));
+        }
+        // SAFETY: caller's contract.
+        let m = unsafe { self::model(model)? };
+        let mut options = kin_runtime::compensate::Options::pose(m.machine());
+        if !(weights.is_null() && n_weights == 0) {
+            // SAFETY: caller's contract.
+            let w = unsafe { slice(weights, n_weights, "weights")? };
+            check("weights", 6, w.len())?;
+            options.weights.copy_from_slice(w);
+        }
+        if iterations > 0 {
+            options.iterations = iterations;
+        }
+        let comp = m.compensator(options).map_err(compensate_error)?;
+        // SAFETY: checked above; valid for writing (caller's contract).
+        unsafe { *out = Box::into_raw(Box::new(kin_compensator { comp })) };
+        Ok(())
+    })
+}
+
+/// Frees a compensator; NULL is ignored.
+///
+/// # Safety
+///
+/// `comp` is NULL or a live compensator no other thread is using; it is invalid afterwards.
+#[no_mangle]
+pub unsafe extern "C" fn kin_compensator_free(comp: *mut kin_compensator) {
+    if !comp.is_null() {
+        let _ = catch_unwind(AssertUnwindSafe(|| {
+            // SAFETY: from `Box::into_raw` in this library, not freed before (caller's contract).
+            drop(unsafe { Box::from_raw(comp) });
+        }));
+    }
+}
+
+/// The correction of the commanded pose `state`: `dq` (`n_dq` = axes) receives the values to add
+/// to the commanded joint positions (m, rad). `before` and `after` (6 each, or NULL and 0)
+/// receive the predicted error at the commanded pose and that of the compensated pose (what the
+/// joints cannot correct); `rank` (or NULL) how many independent combinations of the weighted
+/// components the joints can move. Allocates nothing on success and takes no lock: many threads
+/// may call it on one compensator at once.
+///
+/// # Safety
+///
+/// `comp` is a live compensator, `state` a valid `kin_state`, each output valid for its length.
+#[no_mangle]
+pub unsafe extern "C" fn kin_compensate(
+    comp: *const kin_compensator,
+    state: *const kin_state,
+    dq: *mut f64,
+    n_dq: usize,
+    before: *mut f64,
+    n_before: usize,
+    after: *mut f64,
+    n_after: usize,
+    rank: *mut usize,
+) -> c_int {
+    guard(|| {
+        if comp.is_null() {
+            return Err(Fail(KIN_ERR_POINTER, "the compensator is NULL".into()));
+        }
+        // SAFETY: caller's contract.
+        let st = unsafe { read_state(state)? };
+        disjoint(
+            &[
+                region(dq.cast_const(), n_dq, "dq"),
+                region(before.cast_const(), n_before, "before"),
+                region(after.cast_const(), n_after, "after"),
+                region(rank.cast_const(), usize::from(!rank.is_null()), "rank"),
+            ],
+            &state_regions(state, &st),
+        )?;
+        if !rank.is_null() && !rank.is_aligned() {
+            return Err(Fail(KIN_ERR_POINTER, "`rank` is not aligned".into()));
+        }
+        // SAFETY: a live compensator (caller's contract); the outputs overlap nothing.
+        let (c, s, dq, before, after) = unsafe {
+            (
+                &(*comp).comp,
+                self::state(state)?,
+                slice_mut(dq, n_dq, "dq")?,
+                slice_mut(before, n_before, "before")?,
+                slice_mut(after, n_after, "after")?,
+            )
+        };
+        for (what, n) in [("before", before.len()), ("after", after.len())] {
+            if n != 0 && n != 6 {
+                return Err(Fail(
+                    KIN_ERR_SIZE,
+                    format!("`{what}` has length {n}, 6 (or 0 with NULL) are needed"),
+                ));
+            }
+        }
+        check_state(&s)?;
+        let done = c
+            .compensate(&s, dq)
+            .map_err(|e| servo_error(c.model(), e))?;
+        if before.len() == 6 {
+            before.copy_from_slice(&done.before);
+        }
+        if after.len() == 6 {
+            after.copy_from_slice(&done.after);
+        }
+        if !rank.is_null() {
+            // SAFETY: non-NULL, aligned, valid for writing (caller's contract).
+            unsafe { *rank = done.rank };
+        }
+        Ok(())
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1921,139 +2056,4 @@ mod tests {
             }
         }
     }
-}
-
-/// Makes the compensation function of a positioning machine with the model's bound values
-/// (thesis §2.3.5): the joint corrections that cancel the predicted tool-location error. The
-/// compensator keeps its own copy of the model (later changes to `model` do not reach it).
-/// `weights` (`n_weights` = 6, or NULL and 0 for every component with a rotation weighed as the
-/// fit weighs it) weigh `(ex, ey, ez, erx, ery, erz)` in SI; 0 leaves a component out.
-/// `iterations` bounds the linear solves per call (0: the default, 4).
-///
-/// # Safety
-///
-/// `model` is a live model, `weights` valid for `n_weights` doubles, `out` valid for writing.
-#[no_mangle]
-pub unsafe extern "C" fn kin_compensator_new(
-    model: *const kin_model,
-    weights: *const f64,
-    n_weights: usize,
-    iterations: usize,
-    out: *mut *mut kin_compensator,
-) -> c_int {
-    guard(|| {
-        if out.is_null() {
-            return Err(Fail(KIN_ERR_POINTER, "`out` is NULL".into()));
-        }
-        if !out.is_aligned() {
-            return Err(Fail(KIN_ERR_POINTER, "`out` is not aligned".into()));
-        }
-        // SAFETY: caller's contract.
-        let m = unsafe { self::model(model)? };
-        let mut options = kin_runtime::compensate::Options::pose(m.machine());
-        if !(weights.is_null() && n_weights == 0) {
-            // SAFETY: caller's contract.
-            let w = unsafe { slice(weights, n_weights, "weights")? };
-            check("weights", 6, w.len())?;
-            options.weights.copy_from_slice(w);
-        }
-        if iterations > 0 {
-            options.iterations = iterations;
-        }
-        let comp = m.compensator(options).map_err(compensate_error)?;
-        // SAFETY: checked above; valid for writing (caller's contract).
-        unsafe { *out = Box::into_raw(Box::new(kin_compensator { comp })) };
-        Ok(())
-    })
-}
-
-/// Frees a compensator; NULL is ignored.
-///
-/// # Safety
-///
-/// `comp` is NULL or a live compensator no other thread is using; it is invalid afterwards.
-#[no_mangle]
-pub unsafe extern "C" fn kin_compensator_free(comp: *mut kin_compensator) {
-    if !comp.is_null() {
-        let _ = catch_unwind(AssertUnwindSafe(|| {
-            // SAFETY: from `Box::into_raw` in this library, not freed before (caller's contract).
-            drop(unsafe { Box::from_raw(comp) });
-        }));
-    }
-}
-
-/// The correction of the commanded pose `state`: `dq` (`n_dq` = axes) receives the values to add
-/// to the commanded joint positions (m, rad). `before` and `after` (6 each, or NULL and 0)
-/// receive the predicted error at the commanded pose and that of the compensated pose (what the
-/// joints cannot correct); `rank` (or NULL) how many independent combinations of the weighted
-/// components the joints can move. Allocates nothing on success and takes no lock: many threads
-/// may call it on one compensator at once.
-///
-/// # Safety
-///
-/// `comp` is a live compensator, `state` a valid `kin_state`, each output valid for its length.
-#[no_mangle]
-pub unsafe extern "C" fn kin_compensate(
-    comp: *const kin_compensator,
-    state: *const kin_state,
-    dq: *mut f64,
-    n_dq: usize,
-    before: *mut f64,
-    n_before: usize,
-    after: *mut f64,
-    n_after: usize,
-    rank: *mut usize,
-) -> c_int {
-    guard(|| {
-        if comp.is_null() {
-            return Err(Fail(KIN_ERR_POINTER, "the compensator is NULL".into()));
-        }
-        // SAFETY: caller's contract.
-        let st = unsafe { read_state(state)? };
-        disjoint(
-            &[
-                region(dq.cast_const(), n_dq, "dq"),
-                region(before.cast_const(), n_before, "before"),
-                region(after.cast_const(), n_after, "after"),
-                region(rank.cast_const(), usize::from(!rank.is_null()), "rank"),
-            ],
-            &state_regions(state, &st),
-        )?;
-        if !rank.is_null() && !rank.is_aligned() {
-            return Err(Fail(KIN_ERR_POINTER, "`rank` is not aligned".into()));
-        }
-        // SAFETY: a live compensator (caller's contract); the outputs overlap nothing.
-        let (c, s, dq, before, after) = unsafe {
-            (
-                &(*comp).comp,
-                self::state(state)?,
-                slice_mut(dq, n_dq, "dq")?,
-                slice_mut(before, n_before, "before")?,
-                slice_mut(after, n_after, "after")?,
-            )
-        };
-        for (what, n) in [("before", before.len()), ("after", after.len())] {
-            if n != 0 && n != 6 {
-                return Err(Fail(
-                    KIN_ERR_SIZE,
-                    format!("`{what}` has length {n}, 6 (or 0 with NULL) are needed"),
-                ));
-            }
-        }
-        check_state(&s)?;
-        let done = c
-            .compensate(&s, dq)
-            .map_err(|e| servo_error(c.model(), e))?;
-        if before.len() == 6 {
-            before.copy_from_slice(&done.before);
-        }
-        if after.len() == 6 {
-            after.copy_from_slice(&done.after);
-        }
-        if !rank.is_null() {
-            // SAFETY: non-NULL, aligned, valid for writing (caller's contract).
-            unsafe { *rank = done.rank };
-        }
-        Ok(())
-    })
 }

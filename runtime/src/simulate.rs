@@ -573,6 +573,57 @@ pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
     }
 }
 
+/// The poses table of a time series (`kin simulate --cycle`): at each row of `series` (its
+/// time, run and inputs), one row per pose of `poses`, all at the row's time, so each pose is
+/// measured once per sample as a thermal test does. Lines number the rows from 1.
+pub fn series_points(m: &Machine, series: &Rows, poses: &[Vec<f64>]) -> PointData {
+    let n = series.len() * poses.len();
+    let mut rows = Rows {
+        line: (1..=n).collect(),
+        tool: vec![0; n],
+        inputs: series
+            .inputs
+            .iter()
+            .map(|c| c.as_ref().map(|_| Vec::with_capacity(n)))
+            .collect(),
+        time: series.time.as_ref().map(|_| Vec::with_capacity(n)),
+        ..Rows::default()
+    };
+    rows.inputs.resize(m.inputs.len(), None);
+    let mut run = series.run.as_ref().map(|g| crate::data::Groups {
+        of_row: Vec::with_capacity(n),
+        labels: g.labels.clone(),
+    });
+    let mut pose = DataPose {
+        axes: vec![Vec::with_capacity(n); m.axes.len()],
+        dir: vec![None; m.axes.len()],
+    };
+    for r in 0..series.len() {
+        for q in poses {
+            if let (Some(t), Some(src)) = (rows.time.as_mut(), series.time.as_ref()) {
+                t.push(src.get(r).copied().unwrap_or(f64::NAN));
+            }
+            for (dst, src) in rows.inputs.iter_mut().zip(&series.inputs) {
+                if let (Some(d), Some(s)) = (dst.as_mut(), src.as_ref()) {
+                    d.push(s.get(r).copied().unwrap_or(f64::NAN));
+                }
+            }
+            if let Some(g) = run.as_mut() {
+                g.of_row.push(series.run_of(r));
+            }
+            for (col, x) in pose.axes.iter_mut().zip(q) {
+                col.push(*x);
+            }
+        }
+    }
+    rows.run = run;
+    PointData {
+        rows,
+        pose,
+        observed: Default::default(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -666,56 +717,5 @@ mod tests {
         assert!(Ellipsoid::of(&covariance(), 1.0).is_err());
         assert!(Ellipsoid::of(&covariance(), 0.0).is_err());
         assert!(Ellipsoid::of(&covariance(), f64::NAN).is_err());
-    }
-}
-
-/// The poses table of a time series (`kin simulate --cycle`): at each row of `series` (its
-/// time, run and inputs), one row per pose of `poses`, all at the row's time, so each pose is
-/// measured once per sample as a thermal test does. Lines number the rows from 1.
-pub fn series_points(m: &Machine, series: &Rows, poses: &[Vec<f64>]) -> PointData {
-    let n = series.len() * poses.len();
-    let mut rows = Rows {
-        line: (1..=n).collect(),
-        tool: vec![0; n],
-        inputs: series
-            .inputs
-            .iter()
-            .map(|c| c.as_ref().map(|_| Vec::with_capacity(n)))
-            .collect(),
-        time: series.time.as_ref().map(|_| Vec::with_capacity(n)),
-        ..Rows::default()
-    };
-    rows.inputs.resize(m.inputs.len(), None);
-    let mut run = series.run.as_ref().map(|g| crate::data::Groups {
-        of_row: Vec::with_capacity(n),
-        labels: g.labels.clone(),
-    });
-    let mut pose = DataPose {
-        axes: vec![Vec::with_capacity(n); m.axes.len()],
-        dir: vec![None; m.axes.len()],
-    };
-    for r in 0..series.len() {
-        for q in poses {
-            if let (Some(t), Some(src)) = (rows.time.as_mut(), series.time.as_ref()) {
-                t.push(src.get(r).copied().unwrap_or(f64::NAN));
-            }
-            for (dst, src) in rows.inputs.iter_mut().zip(&series.inputs) {
-                if let (Some(d), Some(s)) = (dst.as_mut(), src.as_ref()) {
-                    d.push(s.get(r).copied().unwrap_or(f64::NAN));
-                }
-            }
-            if let Some(g) = run.as_mut() {
-                g.of_row.push(series.run_of(r));
-            }
-            for (col, x) in pose.axes.iter_mut().zip(q) {
-                col.push(*x);
-            }
-        }
-    }
-    rows.run = run;
-    PointData {
-        rows,
-        pose,
-        observed: Default::default(),
     }
 }

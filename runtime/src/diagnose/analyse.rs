@@ -44,7 +44,10 @@ pub enum Step {
 /// Where a diagnosis is: called with the step, how much of it is done and its total, from the
 /// diagnosing thread, at most every few thousand rows. The command line draws it as a bar.
 #[derive(Clone, Default)]
-pub struct Progress(Option<std::sync::Arc<dyn Fn(Step, u64, u64) + Send + Sync>>);
+pub struct Progress(Option<std::sync::Arc<Report>>);
+
+/// What [`Progress`] calls: the step, how much of it is done, its total.
+type Report = dyn Fn(Step, u64, u64) + Send + Sync;
 
 impl Progress {
     pub fn new(report: impl Fn(Step, u64, u64) + Send + Sync + 'static) -> Self {
@@ -350,7 +353,7 @@ fn reversals(m: &Machine, files: &[DataSet], sampled: &[Option<Sampling>]) -> Ve
     // seen[a][b][part]: bit 0 a moving +, bit 1 a moving −.
     let mut seen = vec![vec![vec![0u8; parts]; n]; n];
     let mut visit = |pose: &crate::data::Pose, rows: usize| {
-        for a in 0..n {
+        for (a, seen_a) in seen.iter_mut().enumerate() {
             let Some(Some(dir)) = pose.dir.get(a) else {
                 continue;
             };
@@ -377,7 +380,7 @@ fn reversals(m: &Machine, files: &[DataSet], sampled: &[Option<Sampling>]) -> Ve
                     };
                     let part = (((x - s.lo) / s.span() * parts as f64).floor().max(0.0) as usize)
                         .min(parts - 1);
-                    seen[a][b][part] |= bit;
+                    seen_a[b][part] |= bit;
                 }
             }
         }

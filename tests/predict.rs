@@ -480,3 +480,38 @@ fn simulate_takes_a_cycle_file_at_each_pose() {
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("no such file"));
 }
+
+/// A model with backlash reads each axis's direction of motion: a generated cycle holds its pose
+/// as reached moving in + (spec/cli.md, "Duty cycles"), so the 5-axis example, which has
+/// backlash on X, Y and A, simulates a warm-up and predicts it back.
+#[test]
+fn a_held_pose_counts_as_reached_moving_plus() {
+    let dir = scratch("predict_held_pose");
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/milling_5axis.kin");
+    let warm = p(&dir, "warm.csv");
+    ok(&kin(&[
+        "simulate",
+        model,
+        "--cycle",
+        "spindle T_spindle 2 K per 1000 rpm tau 40 min; warmup 8000 rpm 2 h; stop 1 h",
+        "--every",
+        "10min",
+        "-o",
+        &warm,
+    ]));
+    let cols = read_csv(Path::new(&warm));
+    for axis in ["X", "Y", "A"] {
+        let d = cols
+            .get(&format!("dir_{axis}"))
+            .unwrap_or_else(|| panic!("no dir_{axis}: {:?}", cols.keys()));
+        assert!(d.len() >= 18, "3 h every 10 min: {} rows", d.len());
+        assert!(d.iter().all(|&v| v == 1.0), "dir_{axis}: {d:?}");
+    }
+    for axis in ["Z", "C"] {
+        assert!(
+            !cols.contains_key(&format!("dir_{axis}")),
+            "dir_{axis} written"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -80,7 +80,8 @@ pub fn midpoint_pose(m: &Machine) -> Vec<f64> {
 }
 
 /// The rows of the cycle at one fixed pose: the cycle's time, runs and inputs, the pose on
-/// every row, the first tool.
+/// every row (reached moving in +, [`held_directions`](crate::states::held_directions)), the
+/// first tool.
 fn at_pose(cycle: &Rows, m: &Machine, q: &[f64]) -> (Rows, Pose) {
     let n = cycle.len();
     let mut rows = cycle.clone();
@@ -89,7 +90,7 @@ fn at_pose(cycle: &Rows, m: &Machine, q: &[f64]) -> (Rows, Pose) {
     rows.artifact = None;
     let pose = Pose {
         axes: q.iter().map(|&x| vec![x; n]).collect(),
-        dir: vec![None; m.axes.len()],
+        dir: crate::states::held_directions(m, n),
     };
     (rows, pose)
 }

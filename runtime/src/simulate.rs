@@ -526,7 +526,8 @@ pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
     let states = States::sample(m, n, seed);
     let mut pose = DataPose {
         axes: vec![Vec::with_capacity(n); m.axes.len()],
-        dir: vec![None; m.axes.len()],
+        // Each pose is held still: reached moving in + where the model reads a direction.
+        dir: crate::states::held_directions(m, n),
     };
     let mut dirs: Vec<Vec<f64>> = vec![Vec::with_capacity(n); m.axes.len()];
     let mut rows = Rows {
@@ -596,7 +597,8 @@ pub fn series_points(m: &Machine, series: &Rows, poses: &[Vec<f64>]) -> PointDat
     });
     let mut pose = DataPose {
         axes: vec![Vec::with_capacity(n); m.axes.len()],
-        dir: vec![None; m.axes.len()],
+        // Each pose is held still: reached moving in + where the model reads a direction.
+        dir: crate::states::held_directions(m, n),
     };
     for r in 0..series.len() {
         for q in poses {

@@ -37,6 +37,17 @@ pub struct States {
     pub line: Vec<usize>,
 }
 
+/// The direction columns of `n` rows held at one pose: each axis whose direction of motion the
+/// model reads (a `backlash`, say) as reached moving in + (`+1`), the others absent. A pose a
+/// duty cycle holds still has no motion of its own; + is the convention the tables and grids
+/// of `kin compensate` use too (spec/cli.md).
+pub fn held_directions(m: &Machine, n: usize) -> Vec<Option<Vec<f64>>> {
+    let used = used_vars(m);
+    (0..m.axes.len())
+        .map(|a| used.contains(&Var::Direction(a)).then(|| vec![1.0; n]))
+        .collect()
+}
+
 /// Every state variable the model reads.
 pub fn used_vars(m: &Machine) -> Vec<Var> {
     fn walk(s: &Scalar, out: &mut Vec<Var>) {

@@ -776,7 +776,10 @@ struct PyStreamingFit {
 
 impl PyStreamingFit {
     fn total(&self, py: Python<'_>) -> PyResult<Reduced> {
-        let now = self.acc.clone().finish();
+        // `acc` is single-threaded (`StreamingQr::new`): it always has a snapshot.
+        let now = self.acc.snapshot().ok_or_else(|| {
+            kin_error(py, "the streaming fit's triangle is held by worker threads")
+        })?;
         match &self.merged {
             Some(m) => merge::merge(m, &now).map_err(|e| kin_error(py, e)),
             None => Ok(now),
@@ -895,7 +898,7 @@ impl PyStreamingFit {
     /// Observation rows so far (merged partitions included).
     #[getter]
     fn rows(&self) -> usize {
-        self.merged.as_ref().map_or(0, |m| m.rows) + self.acc.clone().finish().rows
+        self.merged.as_ref().map_or(0, |m| m.rows) + self.acc.rows()
     }
 
     /// The triangle R (k × k, k = coefficients + 1, the last column that of y) of every row so

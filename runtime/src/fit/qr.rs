@@ -17,6 +17,7 @@
 //! the process parallel by default; here the threads belong to one fit.
 
 use std::sync::mpsc::{self, Receiver, SyncSender};
+use std::sync::Mutex;
 use std::thread::JoinHandle;
 
 use faer::Mat;
@@ -25,7 +26,9 @@ use faer::Mat;
 #[derive(Debug)]
 struct Workers {
     to: Vec<SyncSender<(Mat<f64>, usize)>>,
-    spare: Receiver<Mat<f64>>,
+    // Behind a mutex only so that a `StreamingQr` is `Sync` (a binding's object may be shared
+    // between threads); `send` has `&mut self` and reaches it without locking.
+    spare: Mutex<Receiver<Mat<f64>>>,
     handles: Vec<JoinHandle<Mat<f64>>>,
     /// Blocks sent so far: the next goes to worker `sent mod T`.
     sent: usize,
@@ -53,7 +56,7 @@ impl Workers {
         }
         Workers {
             to,
-            spare,
+            spare: Mutex::new(spare),
             handles,
             sent: 0,
         }
@@ -72,9 +75,11 @@ impl Workers {
             // Only a worker that died (a bug) drops its end; `finish` reports it.
             return Mat::zeros(rows, cols);
         }
-        self.spare
-            .try_recv()
-            .unwrap_or_else(|_| Mat::zeros(rows, cols))
+        let spare = match self.spare.get_mut() {
+            Ok(spare) => spare.try_recv().ok(),
+            Err(_) => None,
+        };
+        spare.unwrap_or_else(|| Mat::zeros(rows, cols))
     }
 
     /// The workers' triangles, stacked and factored in worker order.
@@ -216,10 +221,34 @@ impl StreamingQr {
         if let Some(w) = self.workers.take() {
             self.r = w.finish(k);
         }
+        let r = std::mem::replace(&mut self.r, Mat::zeros(0, 0));
+        self.reduced(r)
+    }
+
+    /// Rows pushed so far.
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// The triangle of every row pushed so far, the stream going on: a copy of the triangle
+    /// with the pending block folded in, as [`finish`](Self::finish) would give now. `None`
+    /// once worker threads hold parts of the triangle (`threads > 1` and a full block seen):
+    /// those parts are only joined at the end.
+    pub fn snapshot(&self) -> Option<Reduced> {
+        if self.workers.is_some() {
+            return None;
+        }
+        let mut r = self.r.clone();
+        fold(&mut r, &self.block, self.filled);
+        Some(self.reduced(r))
+    }
+
+    fn reduced(&self, r: Mat<f64>) -> Reduced {
+        let k = self.k;
         // ‖y‖² is the squared norm of R's last column (RᵀR = [X y]ᵀ[X y]).
-        let y_sumsq = (0..k).map(|i| self.r[(i, k - 1)].powi(2)).sum();
+        let y_sumsq = (0..k).map(|i| r[(i, k - 1)].powi(2)).sum();
         Reduced {
-            r: self.r,
+            r,
             rows: self.rows,
             norms: self.norms2.iter().map(|v| v.sqrt()).collect(),
             y_sum: self.y_sum,
@@ -231,6 +260,34 @@ impl StreamingQr {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A snapshot mid-stream is what finishing there gives, bit for bit, and the stream goes
+    /// on; an accumulator can be held by an object shared between threads.
+    #[test]
+    fn a_snapshot_is_the_finish_of_the_rows_so_far() {
+        fn shared<T: Send + Sync>() {}
+        shared::<StreamingQr>();
+        let row = |i: usize| -> (Vec<f64>, f64) {
+            let t = i as f64 * 0.37;
+            (vec![1.0, t.sin(), t.cos(), t * 1e-3], (2.0 * t).sin())
+        };
+        let (mut a, mut b) = (StreamingQr::new(4, 16), StreamingQr::new(4, 16));
+        for i in 0..50 {
+            let (x, y) = row(i);
+            a.push(&x, y);
+            b.push(&x, y);
+        }
+        let snap = a.snapshot().expect("single-threaded");
+        let done = b.finish();
+        assert_eq!(snap.rows, 50);
+        assert_eq!(snap.r, done.r);
+        assert_eq!(snap.norms, done.norms);
+        assert_eq!(snap.y_sumsq.to_bits(), done.y_sumsq.to_bits());
+        let (x, y) = row(50);
+        a.push(&x, y);
+        assert_eq!(a.rows(), 51);
+        assert_eq!(a.finish().rows, 51);
+    }
     use rand::{Rng, SeedableRng};
 
     #[test]

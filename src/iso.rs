@@ -193,6 +193,7 @@ fn lack_of_fit(a: &Iso2302Args, model: &Path, run: &iso230_2::Run) -> Result<Lof
             Failed::USAGE
         })?;
     }
+    outside_ranges(m, axis, &fixed, run)?;
     // The approaches as a file of poses in SI units, read by the measurement-file reader so
     // the model sees exactly what a point file would give it.
     let mut csv = String::new();
@@ -244,6 +245,80 @@ fn lack_of_fit(a: &Iso2302Args, model: &Path, run: &iso230_2::Run) -> Result<Lof
         test: iso230_2::lack_of_fit(run, &values, 0.0, a.alpha),
         alpha: a.alpha,
     })
+}
+
+/// W0801 (an error with `--strict`) where `--at` or the run's targets put an axis outside its
+/// declared range, as every command that reads poses says: the model is extrapolated there (a
+/// spline's end piece continued), and a target in the wrong unit usually shows up this way.
+fn outside_ranges(
+    m: &kin_compiler::ir::Machine,
+    axis: usize,
+    fixed: &[f64],
+    run: &iso230_2::Run,
+) -> Result<(), Failed> {
+    use kin_runtime::data::ranges::within;
+    let length = &m.units.length;
+    let declared = |i: usize| {
+        let x = &m.axes[i];
+        let unit = match x.kind {
+            kin_compiler::ir::JointKind::Prismatic => length,
+            kin_compiler::ir::JointKind::Revolute => &m.units.angle,
+        };
+        let [lo, hi] = x.range;
+        format!(
+            "its declared range {} .. {} {}",
+            unit.from_si(lo),
+            unit.from_si(hi),
+            unit.name
+        )
+    };
+    let mut found = Vec::new();
+    for (i, (x, v)) in m.axes.iter().zip(fixed).enumerate() {
+        if i != axis && !x.continuous && !within(x.range, *v) {
+            found.push(format!(
+                "{} is held outside {}{}: the model is extrapolated there",
+                x.name,
+                declared(i),
+                if x.kind == kin_compiler::ir::JointKind::Prismatic {
+                    format!(" (at {} {})", length.from_si(*v), length.name)
+                } else {
+                    String::new()
+                }
+            ));
+        }
+    }
+    let range = m.axes[axis].range;
+    let beyond: Vec<&iso230_2::Sample> = run
+        .samples
+        .iter()
+        .filter(|s| !within(range, s.target))
+        .collect();
+    if let Some(first) = beyond.first() {
+        found.push(format!(
+            "{} of {} approaches put {} outside {} (first at line {}: {} {}): the model is extrapolated there",
+            beyond.len(),
+            run.samples.len(),
+            m.axes[axis].name,
+            declared(axis),
+            first.line,
+            length.from_si(first.target),
+            length.name
+        ));
+    }
+    if crate::warnings::strict() && !found.is_empty() {
+        for message in &found {
+            eprintln!(
+                "error[{}]: {message} (--strict)",
+                crate::warnings::OUTSIDE_RANGE
+            );
+            crate::errors::record("data", message.clone(), None, None);
+        }
+        return Err(Failed::INPUT);
+    }
+    for message in &found {
+        crate::warnings::say(crate::warnings::OUTSIDE_RANGE, message);
+    }
+    Ok(())
 }
 
 fn lof_text(l: &Lof, unit: &kin_compiler::units::Unit) -> String {

@@ -535,7 +535,7 @@ fn paths(
             let dst = j.get_mut(..block * count).unwrap_or(&mut []);
             for (r, b) in dst.chunks_exact_mut(block.max(1)).enumerate() {
                 if ahead {
-                    prefetch_for_writing(b.as_ptr_range().end, block);
+                    crate::jit::stream::prefetch_for_writing(b.as_ptr_range().end, block);
                 }
                 jit.error_and_jacobian(&rows.get(r), beta, nonlinear, &mut e6, b)?;
             }
@@ -643,22 +643,6 @@ fn paths(
         direct: at(14),
         direct_prefetch: at(15),
     })
-}
-
-/// Asks for the `len` f64s from `start` to be brought into the cache for writing
-/// (`prefetchw`), a line at a time; a hint, which touches nothing.
-fn prefetch_for_writing(start: *const f64, len: usize) {
-    #[cfg(target_arch = "x86_64")]
-    for i in (0..len).step_by(8) {
-        // SAFETY: a prefetch never faults and changes no memory; the address is only computed
-        // (`wrapping_add`), never dereferenced here.
-        unsafe {
-            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_ET0};
-            _mm_prefetch::<_MM_HINT_ET0>(start.wrapping_add(i).cast::<i8>());
-        }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = (start, len);
 }
 
 /// The servo compensation of every sampled pose in turn, each call timed alone, for about

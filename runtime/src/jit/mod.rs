@@ -630,6 +630,10 @@ impl JitModel {
             } else {
                 blocks.next().unwrap_or(&mut [])
             };
+            if !streaming {
+                // The next pose's block, requested for writing while this pose is evaluated.
+                stream::prefetch_for_writing(j.as_ptr_range().end, block);
+            }
             let target: &mut [f64] = if streaming { &mut scratch } else { j };
             self.call(
                 Function::Jacobian,

@@ -101,6 +101,27 @@ unsafe fn copy_avx(dst: &mut [f64], src: &[f64]) {
     }
 }
 
+/// Asks for the `len` f64s from `start` to be brought into the cache for writing
+/// (`prefetchw`), a line at a time: a hint, which reads and changes no memory. The batch path
+/// requests the next pose's block before evaluating a pose, so that the reads for ownership
+/// of its lines overlap with the evaluation instead of stalling its stores (`kin bench`,
+/// 5-axis example, 1000 poses into 8 MB: the generated code storing straight into the output
+/// at 0.68 × the rate per pose without, 0.81 × with; no change past the last-level cache,
+/// where the memory's rate bounds either).
+pub(crate) fn prefetch_for_writing(start: *const f64, len: usize) {
+    #[cfg(target_arch = "x86_64")]
+    for i in (0..len).step_by(8) {
+        // SAFETY: a prefetch never faults and changes no memory; the address is only computed
+        // (`wrapping_add`), never dereferenced.
+        unsafe {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_ET0};
+            _mm_prefetch::<_MM_HINT_ET0>(start.wrapping_add(i).cast::<i8>());
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (start, len);
+}
+
 /// Orders the streaming stores before every later store, so that whoever reads the
 /// destination next (another thread included, once it is handed over) sees them.
 pub(crate) fn fence() {

@@ -120,7 +120,7 @@ impl<'a> StateRows<'a> {
         let (start, end) = (start.min(n), end.min(n));
         let end = end.max(start);
         let part = |v: &'a [f64]| -> &'a [f64] {
-            let width = if n == 0 { 0 } else { v.len() / n };
+            let width = v.len().checked_div(n).unwrap_or(0);
             v.get(start * width..end * width).unwrap_or(&[])
         };
         StateRows {

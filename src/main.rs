@@ -702,8 +702,9 @@ enum Command {
     Lsp,
     /// Poses per second of the interpreter and the JIT (and, for examples/milling_5axis.kin, a
     /// hand-written evaluator), and the compile time, measured in one run and printed as ratios;
-    /// the batch path against one pose per call, all six rows, position rows and error only,
-    /// in interleaved rounds. A measurement on this computer, not a test.
+    /// the batch path (into one N-row output, and in cache-sized blocks) against one pose per
+    /// call, all six rows, position rows and error only, and the memory's write floor for the
+    /// batch's rows, in interleaved rounds. A measurement on this computer, not a test.
     #[command(after_help = "Examples:
   kin bench examples/milling_5axis.kin
   kin bench examples/milling_5axis.kin --poses 20000 --seconds 2   # a batch as large as a fit's")]

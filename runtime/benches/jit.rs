@@ -155,7 +155,86 @@ fn summary() {
     eprintln!();
 }
 
+/// The rate per pose against the place of the Jacobian buffer: six rows of the 5-axis example,
+/// JIT and baseline, one pose per call into one buffer placed at 256 offsets 16 bytes apart
+/// (every 16-byte alignment within a 4 KiB page), in interleaved rounds, medians; run with
+/// `KIN_BENCH_PLACEMENT=1 cargo bench -p kin-runtime --bench jit`. It checks whether the rate
+/// per pose depends on where the caller's buffer lies (4 KiB aliasing between the Jacobian's
+/// stores and the code's stack reads would show as slow placements): measured, it does not
+/// (spec/performance.md, "Run-to-run variation").
+fn placement() {
+    let s = setup("milling_5axis");
+    let n = s.m.coefficients.len();
+    let model = jit::compile(&s.m).expect("compiles");
+    let Ok(mut base) = baseline_5axis::Baseline::new(&s.m, baseline_5axis::Trig::Recurrence) else {
+        return;
+    };
+    let mut area = vec![0.0; 6 * n + 512];
+    let start = area.as_ptr() as usize;
+    let mut err = [0.0; 6];
+    let offsets: Vec<usize> = (0..256).map(|k| 2 * k).collect();
+    let mut jit_rates = vec![Vec::new(); offsets.len()];
+    let mut base_rates = vec![Vec::new(); offsets.len()];
+    let time = |f: &mut dyn FnMut()| {
+        let t = Instant::now();
+        f();
+        POSES as f64 / t.elapsed().as_secs_f64()
+    };
+    for _ in 0..5 {
+        for (k, &o) in offsets.iter().enumerate() {
+            let jac = &mut area[o..o + 6 * n];
+            jit_rates[k].push(time(&mut || {
+                for r in 0..POSES {
+                    model
+                        .error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, jac)
+                        .expect("eval");
+                }
+                black_box(&jac);
+            }));
+            base_rates[k].push(time(&mut || {
+                for r in 0..POSES {
+                    base.error_and_jacobian(&s.states.get(r), &s.beta, &s.nonlinear, &mut err, jac);
+                }
+                black_box(&jac);
+            }));
+        }
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    eprintln!("six rows per pose against the Jacobian's address mod 4096 (poses/s, medians of 5 interleaved rounds):");
+    eprintln!("{:>6} {:>12} {:>12} {:>8}", "mod 4K", "jit", "baseline", "jit/base");
+    let mut pairs: Vec<(usize, f64, f64)> = offsets
+        .iter()
+        .zip(jit_rates.into_iter().zip(base_rates))
+        .map(|(&o, (j, b))| ((start + 8 * o) % 4096, median(j), median(b)))
+        .collect();
+    pairs.sort_by_key(|p| p.0);
+    for &(at, j, b) in &pairs {
+        eprintln!("{at:>6} {j:>12.0} {b:>12.0} {:>8.2}", j / b);
+    }
+    let mut j: Vec<f64> = pairs.iter().map(|p| p.1).collect();
+    let mut b: Vec<f64> = pairs.iter().map(|p| p.2).collect();
+    j.sort_by(f64::total_cmp);
+    b.sort_by(f64::total_cmp);
+    eprintln!(
+        "jit: min {:.0}, median {:.0}, max {:.0}; baseline: min {:.0}, median {:.0}, max {:.0}; medians jit/base {:.2}\n",
+        j[0],
+        j[j.len() / 2],
+        j[j.len() - 1],
+        b[0],
+        b[b.len() / 2],
+        b[b.len() - 1],
+        j[j.len() / 2] / b[b.len() / 2]
+    );
+}
+
 fn bench(c: &mut Criterion) {
+    if std::env::var_os("KIN_BENCH_PLACEMENT").is_some() {
+        placement();
+        return;
+    }
     summary();
     let mut group = c.benchmark_group("error+jacobian");
     group.throughput(Throughput::Elements(POSES as u64));

@@ -106,6 +106,9 @@ pub struct PathRates {
     /// One call for all poses, each pose's rows into its own place of N-row outputs (what a
     /// fit asks for).
     pub batch: f64,
+    /// One batch call per block of poses whose rows fit in [`BLOCK_BYTES`], into one reused
+    /// block: the rows of a fit that consumes them a block at a time (`None` for the error).
+    pub blocked: Option<f64>,
     /// The baseline, one pose per call into a reused buffer.
     pub baseline: Option<f64>,
     /// The baseline writing each pose's rows into N-row outputs.
@@ -126,7 +129,36 @@ pub struct Paths {
     pub error: PathRates,
     /// Why there is no baseline, when there is none.
     pub no_baseline: Option<String>,
+    /// Writing the six rows' Jacobian blocks of all poses into the batch's N-row output and
+    /// nothing else: the floor of the batch path of all six rows.
+    pub floor_full: Floor,
+    /// The same for the position rows' blocks.
+    pub floor_position: Floor,
+    /// Six rows, the generated code storing straight into the N-row output, one call per pose.
+    pub direct: f64,
+    /// As `direct`, each pose's destination requested for writing before the pose before it
+    /// is evaluated.
+    pub direct_prefetch: f64,
 }
+
+/// The time to write a batch's Jacobian rows to its N-row output without evaluating anything,
+/// as poses per second: the memory's write rate, which bounds any batch path into fresh
+/// memory.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Floor {
+    /// Ordinary stores (each line is read into the cache before it is written).
+    pub plain: f64,
+    /// Streaming stores of 16 bytes (`movntpd`) from a block in the first-level cache, as the
+    /// batch path writes a large destination.
+    pub streaming: f64,
+    /// Streaming stores of 32 bytes (`vmovntpd`), where the CPU has AVX.
+    pub streaming_wide: f64,
+}
+
+/// The bytes of the rows one batch call writes when a fit consumes them a block at a time
+/// ([`PathRates::blocked`]): well inside a core's second-level cache (256 KiB to 2 MiB on
+/// current x86-64 CPUs), so the block is written and read back without going to memory.
+pub const BLOCK_BYTES: usize = 256 << 10;
 
 /// The distribution of the time of one call.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -445,7 +477,73 @@ fn paths(
         black_box(&e);
         Ok(())
     }));
-    // 6–10: the baseline, each pass with its own (it holds no state between calls).
+    // 6–7: batch calls over cache-sized blocks of poses into one reused block: six rows,
+    // position rows.
+    for k in [6usize, 3] {
+        let observed = if k == 6 {
+            Observed::FULL
+        } else {
+            Observed::POSITION
+        };
+        let per_block = (BLOCK_BYTES / (8 * k * n).max(1)).max(1);
+        let (mut eb, mut jb) = (vec![0.0; k * per_block], vec![0.0; k * n * per_block]);
+        passes.push(Box::new(move || {
+            let mut start = 0;
+            while start < count {
+                let end = (start + per_block).min(count);
+                let block = rows.rows(start, end);
+                let (e, j) = (
+                    eb.get_mut(..k * (end - start)).unwrap_or(&mut []),
+                    jb.get_mut(..k * n * (end - start)).unwrap_or(&mut []),
+                );
+                jit.observed_error_and_jacobian_rows(&block, beta, nonlinear, observed, e, j)?;
+                black_box(&j);
+                start = end;
+            }
+            Ok(())
+        }));
+    }
+    // 8–13: the write floor: each pose's block of the Jacobian written into its place of the
+    // batch output, nothing evaluated; six rows, then position rows, each with plain stores
+    // and with 16- and 32-byte streaming stores from a block in the first-level cache.
+    for (k, kind) in [(6usize, 0u8), (6, 1), (6, 2), (3, 0), (3, 1), (3, 2)] {
+        let block = k * n;
+        let source: Vec<f64> = (0..block).map(|i| i as f64).collect();
+        passes.push(Box::new(move || {
+            let (_, j) = &mut *out.borrow_mut();
+            let dst = j.get_mut(..block * count).unwrap_or(&mut []);
+            for (r, b) in dst.chunks_exact_mut(block.max(1)).enumerate() {
+                match kind {
+                    0 => b.fill(black_box(r as f64)),
+                    1 => crate::jit::stream::copy(b, &source),
+                    _ => crate::jit::stream::copy_wide(b, &source),
+                }
+            }
+            crate::jit::stream::fence();
+            black_box(&dst);
+            Ok(())
+        }));
+    }
+    // 14–15: all six rows written by the generated code straight into the batch output (one
+    // call per pose), without and with the destination of the next pose requested for
+    // writing (`prefetchw`) before the pose is evaluated.
+    for ahead in [false, true] {
+        let mut e6 = [0.0; 6];
+        passes.push(Box::new(move || {
+            let (_, j) = &mut *out.borrow_mut();
+            let block = 6 * n;
+            let dst = j.get_mut(..block * count).unwrap_or(&mut []);
+            for (r, b) in dst.chunks_exact_mut(block.max(1)).enumerate() {
+                if ahead {
+                    crate::jit::stream::prefetch_for_writing(b.as_ptr_range().end, block);
+                }
+                jit.error_and_jacobian(&rows.get(r), beta, nonlinear, &mut e6, b)?;
+            }
+            black_box(&dst);
+            Ok(())
+        }));
+    }
+    // 16–20: the baseline, each pass with its own (it holds no state between calls).
     if let (Ok(mut b6), Ok(mut b6b), Ok(mut b3), Ok(mut b3b), Ok(mut be)) = (
         Baseline::new(m, Trig::Recurrence),
         Baseline::new(m, Trig::Recurrence),
@@ -513,22 +611,37 @@ fn paths(
         full: PathRates {
             per_pose: at(0),
             batch: at(1),
-            baseline: base(6),
-            baseline_batch: base(7),
+            blocked: base(6),
+            baseline: base(16),
+            baseline_batch: base(17),
         },
         position: PathRates {
             per_pose: at(2),
             batch: at(3),
-            baseline: base(8),
-            baseline_batch: base(9),
+            blocked: base(7),
+            baseline: base(18),
+            baseline_batch: base(19),
         },
         error: PathRates {
             per_pose: at(4),
             batch: at(5),
-            baseline: base(10),
+            blocked: None,
+            baseline: base(20),
             baseline_batch: None,
         },
         no_baseline,
+        floor_full: Floor {
+            plain: at(8),
+            streaming: at(9),
+            streaming_wide: at(10),
+        },
+        floor_position: Floor {
+            plain: at(11),
+            streaming: at(12),
+            streaming_wide: at(13),
+        },
+        direct: at(14),
+        direct_prefetch: at(15),
     })
 }
 
@@ -821,11 +934,13 @@ impl Paths {
     fn show(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{:<34} {:>11} {:>11} {:>8} {:>11} {:>11} {:>8} {:>8}",
+            "{:<34} {:>11} {:>11} {:>7} {:>11} {:>7} {:>11} {:>11} {:>7} {:>7}",
             format!("medians of {} interleaved rounds", self.rounds),
             "per pose",
             "batch",
             "b / pp",
+            "blocks",
+            "bl / pp",
             "baseline",
             "base batch",
             "pp / b",
@@ -840,19 +955,46 @@ impl Paths {
         ] {
             writeln!(
                 f,
-                "{name:<34} {:>11} {:>11} {:>8.2} {:>11} {:>11} {:>8} {:>8}",
+                "{name:<34} {:>11} {:>11} {:>7.2} {:>11} {:>7} {:>11} {:>11} {:>7} {:>7}",
                 grouped(r.per_pose),
                 grouped(r.batch),
                 r.batch / r.per_pose,
+                opt(r.blocked),
+                r.blocked
+                    .map_or("-".to_string(), |b| format!("{:.2}", b / r.per_pose)),
                 opt(r.baseline),
                 opt(r.baseline_batch),
                 ratio(r.per_pose, r.baseline),
                 ratio(r.batch, r.baseline_batch.or(r.baseline)),
             )?;
         }
+        for (name, fl, r) in [
+            ("write floor, six rows", &self.floor_full, &self.full),
+            ("write floor, position rows", &self.floor_position, &self.position),
+        ] {
+            let best = fl.streaming.max(fl.streaming_wide).max(fl.plain);
+            writeln!(
+                f,
+                "{name:<34} plain {:>11}, streaming {:>11} (16 B) {:>11} (32 B); batch at {:.0} % of the best, per pose at {:.0} %",
+                grouped(fl.plain),
+                grouped(fl.streaming),
+                grouped(fl.streaming_wide),
+                100.0 * r.batch / best,
+                100.0 * r.per_pose / best,
+            )?;
+        }
         writeln!(
             f,
-            "(poses/s; batch: one call for all poses into N-row outputs; baseline: hand-written, harmonic recurrences; b / pp: batch ÷ per pose; pp / b: JIT ÷ baseline per pose; b / bb: JIT batch ÷ baseline batch, or ÷ baseline per pose for the error)"
+            "(poses/s; batch: one call for all poses into N-row outputs; blocks: one call per {} KiB block of rows into a reused block; baseline: hand-written, harmonic recurrences; b / pp: batch ÷ per pose; bl / pp: blocks ÷ per pose; pp / b: JIT ÷ baseline per pose; b / bb: JIT batch ÷ baseline batch, or ÷ baseline per pose for the error; write floor: the batch's Jacobian bytes written to its output, nothing evaluated)",
+            BLOCK_BYTES >> 10
+        )?;
+        writeln!(
+            f,
+            "six rows stored by the generated code straight into the N-row output: {} poses/s ({:.2} × per pose), with the next pose's rows prefetched for writing {} ({:.2} ×)",
+            grouped(self.direct),
+            self.direct / self.full.per_pose,
+            grouped(self.direct_prefetch),
+            self.direct_prefetch / self.full.per_pose,
         )?;
         if let Some(why) = &self.no_baseline {
             writeln!(f, "no baseline in this comparison: {why}")?;
@@ -895,6 +1037,17 @@ mod tests {
                 "{p:?}"
             );
         }
+        for r in [p.full, p.position] {
+            assert!(r.blocked.is_some_and(|b| b > 0.0), "{p:?}");
+        }
+        assert!(p.error.blocked.is_none());
+        assert!(p.direct > 0.0 && p.direct_prefetch > 0.0, "{p:?}");
+        for fl in [p.floor_full, p.floor_position] {
+            assert!(
+                fl.plain > 0.0 && fl.streaming > 0.0 && fl.streaming_wide > 0.0,
+                "{p:?}"
+            );
+        }
         assert!(p.no_baseline.is_some());
         assert!(figures.baseline.is_err());
         let c = figures
@@ -912,7 +1065,8 @@ mod tests {
             text.contains("not a test")
                 && text.contains("no hand-written baseline")
                 && text.contains("time per compensation call")
-                && text.contains("slowest path: all 4 solves"),
+                && text.contains("slowest path: all 4 solves")
+                && text.contains("write floor, six rows"),
             "{text}"
         );
         assert!(matches!(

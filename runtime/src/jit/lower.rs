@@ -17,7 +17,9 @@
 
 use std::f64::consts::TAU;
 
-use kin_compiler::basis::{Basis, Detrend, Power, Wavelength};
+use kin_compiler::basis::{
+    harmonic_step, Basis, Detrend, Harmonic, HarmonicOperand, Power, Wavelength,
+};
 use kin_compiler::ir::{
     Component, ErrorModel, FrameKind, FrameRef, JointKind, Machine, Scalar, Shape, Term, Var,
 };
@@ -734,6 +736,33 @@ impl Builder<'_> {
         }
     }
 
+    /// `(sin, cos)` of harmonic `harmonics[i]` of the angle `x`, obtained as
+    /// `basis::harmonic_step` says (as `Basis::eval` does). An operand built twice is the same
+    /// node (the graph is hash-consed), so the recursion costs nothing at run time.
+    fn harmonic(&mut self, harmonics: &[u32], i: usize, x: Id) -> (Id, Id) {
+        match harmonic_step(harmonics, i) {
+            Harmonic::Fundamental => (self.g.sin(x), self.g.cos(x)),
+            Harmonic::Direct => {
+                let h = harmonics.get(i).copied().unwrap_or(0);
+                let hc = self.c(f64::from(h));
+                let a = self.g.mul(hc, x);
+                (self.g.sin(a), self.g.cos(a))
+            }
+            Harmonic::Sum(a, b) => {
+                let mut operand = |o: HarmonicOperand| match o {
+                    HarmonicOperand::Fundamental => (self.g.sin(x), self.g.cos(x)),
+                    HarmonicOperand::Listed(j) => self.harmonic(harmonics, j, x),
+                };
+                let (sa, ca) = operand(a);
+                let (sb, cb) = operand(b);
+                // `basis::angle_sum`: (sa·cb + ca·sb, ca·cb − sa·sb).
+                let (sa_cb, ca_sb) = (self.g.mul(sa, cb), self.g.mul(ca, sb));
+                let (ca_cb, sa_sb) = (self.g.mul(ca, cb), self.g.mul(sa, sb));
+                (self.g.add(sa_cb, ca_sb), self.g.sub(ca_cb, sa_sb))
+            }
+        }
+    }
+
     /// The values of `basis` at `x`, as `Basis::eval` computes them (thesis §3.2.2–3.2.5).
     fn basis(&mut self, basis: &Basis, x: Id) -> Vec<Id> {
         match basis {
@@ -822,11 +851,10 @@ impl Builder<'_> {
                     }
                 };
                 let mut out = Vec::with_capacity(2 * harmonics.len());
-                for h in harmonics {
-                    let hc = self.c(f64::from(*h));
-                    let a = self.g.mul(hc, x);
-                    out.push(self.g.cos(a));
-                    out.push(self.g.sin(a));
+                for i in 0..harmonics.len() {
+                    let (s, c) = self.harmonic(harmonics, i, x);
+                    out.push(c);
+                    out.push(s);
                 }
                 out
             }

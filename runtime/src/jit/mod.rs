@@ -46,7 +46,7 @@
 mod emit;
 mod graph;
 mod lower;
-mod stream;
+pub(crate) mod stream;
 
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
@@ -111,6 +111,27 @@ impl<'a> StateRows<'a> {
 
     pub fn is_empty(&self) -> bool {
         self.time.is_empty()
+    }
+
+    /// Rows `start..end` (clamped to the rows there are): a block of a larger batch, evaluated
+    /// on its own into outputs sized for the block.
+    pub fn rows(&self, start: usize, end: usize) -> StateRows<'a> {
+        let n = self.len();
+        let (start, end) = (start.min(n), end.min(n));
+        let end = end.max(start);
+        let part = |v: &'a [f64]| -> &'a [f64] {
+            let width = v.len().checked_div(n).unwrap_or(0);
+            v.get(start * width..end * width).unwrap_or(&[])
+        };
+        StateRows {
+            q: part(self.q),
+            inputs: part(self.inputs),
+            lags: part(self.lags),
+            time: self.time.get(start..end).unwrap_or(&[]),
+            dirs: part(self.dirs),
+            tool: self.tool.get(start..end).unwrap_or(&[]),
+            tool_offset: self.tool_offset.get(start..end).unwrap_or(&[]),
+        }
     }
 
     /// Row `r`; a row outside the arrays gives empty slices, which the evaluation rejects.
@@ -609,6 +630,10 @@ impl JitModel {
             } else {
                 blocks.next().unwrap_or(&mut [])
             };
+            if !streaming {
+                // The next pose's block, requested for writing while this pose is evaluated.
+                stream::prefetch_for_writing(j.as_ptr_range().end, block);
+            }
             let target: &mut [f64] = if streaming { &mut scratch } else { j };
             self.call(
                 Function::Jacobian,

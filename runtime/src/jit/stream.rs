@@ -22,13 +22,13 @@
 const STREAM_BYTES: usize = 32 << 20;
 
 /// Whether a destination of `values` f64s is large enough for streaming stores to pay.
-pub(super) fn worth_it(values: usize) -> bool {
+pub(crate) fn worth_it(values: usize) -> bool {
     cfg!(target_arch = "x86_64") && values.saturating_mul(8) >= STREAM_BYTES
 }
 
 /// Copies `src` to `dst` (the shorter length) with streaming stores where the destination is
 /// 16-byte aligned, ordinary ones for an unaligned first and a last value.
-pub(super) fn copy(dst: &mut [f64], src: &[f64]) {
+pub(crate) fn copy(dst: &mut [f64], src: &[f64]) {
     let len = dst.len().min(src.len());
     #[cfg(target_arch = "x86_64")]
     {
@@ -61,9 +61,70 @@ pub(super) fn copy(dst: &mut [f64], src: &[f64]) {
     }
 }
 
+/// [`copy`] with 32-byte streaming stores (`vmovntpd`), where the CPU has AVX; [`copy`]
+/// elsewhere. Used by `kin bench` to measure whether the wider store writes faster.
+pub(crate) fn copy_wide(dst: &mut [f64], src: &[f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX, checked just above.
+        unsafe { copy_avx(dst, src) };
+        return;
+    }
+    copy(dst, src);
+}
+
+/// The body of [`copy_wide`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn copy_avx(dst: &mut [f64], src: &[f64]) {
+    use std::arch::x86_64::{_mm256_loadu_pd, _mm256_stream_pd};
+    let len = dst.len().min(src.len());
+    let mut i = 0;
+    // Ordinary stores up to the first 32-byte boundary.
+    while i < len && !(dst.as_ptr().wrapping_add(i) as usize).is_multiple_of(32) {
+        if let (Some(d), Some(s)) = (dst.get_mut(i), src.get(i)) {
+            *d = *s;
+        }
+        i += 1;
+    }
+    while i + 4 <= len {
+        // SAFETY: `i + 4 <= len` keeps the reads inside `src` and the writes inside `dst`;
+        // `dst + i` is 32-byte aligned (the loop above), as `vmovntpd` requires.
+        unsafe {
+            let v = _mm256_loadu_pd(src.as_ptr().add(i));
+            _mm256_stream_pd(dst.as_mut_ptr().add(i), v);
+        }
+        i += 4;
+    }
+    if let (Some(d), Some(s)) = (dst.get_mut(i..len), src.get(i..len)) {
+        d.copy_from_slice(s);
+    }
+}
+
+/// Asks for the `len` f64s from `start` to be brought into the cache for writing
+/// (`prefetchw`), a line at a time: a hint, which reads and changes no memory. The batch path
+/// requests the next pose's block before evaluating a pose, so that the reads for ownership
+/// of its lines overlap with the evaluation instead of stalling its stores (`kin bench`,
+/// 5-axis example, 1000 poses into 8 MB: the generated code storing straight into the output
+/// at 0.68 × the rate per pose without, 0.81 × with; no change past the last-level cache,
+/// where the memory's rate bounds either).
+pub(crate) fn prefetch_for_writing(start: *const f64, len: usize) {
+    #[cfg(target_arch = "x86_64")]
+    for i in (0..len).step_by(8) {
+        // SAFETY: a prefetch never faults and changes no memory; the address is only computed
+        // (`wrapping_add`), never dereferenced.
+        unsafe {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_ET0};
+            _mm_prefetch::<_MM_HINT_ET0>(start.wrapping_add(i).cast::<i8>());
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (start, len);
+}
+
 /// Orders the streaming stores before every later store, so that whoever reads the
 /// destination next (another thread included, once it is handed over) sees them.
-pub(super) fn fence() {
+pub(crate) fn fence() {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: `sfence` has no operands and SSE is part of the x86-64 base.
     unsafe {
@@ -79,17 +140,22 @@ mod tests {
     fn copies_every_value_at_any_alignment_and_length() {
         let src: Vec<f64> = (0..37).map(|i| i as f64 * 1.5 - 7.0).collect();
         let mut big = vec![0.0; 64];
-        for start in 0..3 {
-            for len in [0, 1, 2, 3, 8, 33, 37] {
-                big.fill(f64::NAN);
-                let dst = &mut big[start..start + len];
+        for (start, len, wide) in (0..5)
+            .flat_map(|s| [0, 1, 2, 3, 5, 8, 33, 37].map(|l| (s, l)))
+            .flat_map(|(s, l)| [(s, l, false), (s, l, true)])
+        {
+            big.fill(f64::NAN);
+            let dst = &mut big[start..start + len];
+            if wide {
+                copy_wide(dst, &src[..len]);
+            } else {
                 copy(dst, &src[..len]);
-                fence();
-                assert_eq!(&big[start..start + len], &src[..len], "at {start}, {len}");
-                assert!(big[start + len].is_nan(), "wrote past the end");
-                if start > 0 {
-                    assert!(big[start - 1].is_nan(), "wrote before the start");
-                }
+            }
+            fence();
+            assert_eq!(&big[start..start + len], &src[..len], "at {start}, {len}");
+            assert!(big[start + len].is_nan(), "wrote past the end");
+            if start > 0 {
+                assert!(big[start - 1].is_nan(), "wrote before the start");
             }
         }
     }

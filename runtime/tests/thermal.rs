@@ -277,3 +277,149 @@ fn a_gradient_growing_along_the_beam_integrates_exactly() {
     assert!((bed_error(&c, 2, x, t) - eps).abs() < 1e-12 * eps.abs().max(1e-9));
     assert!((bed_error(&c, 1, x, t) - delta).abs() < 1e-9 * delta.abs());
 }
+
+/// A table on a bed along X and a head on Y; the tool point at the bed's level. Two
+/// temperatures, of the bed's upper and lower faces, in every file; the model follows the upper
+/// one as an expansion of the tool, but knows nothing of the bed's bending.
+const TABLE: &str = r#"
+machine table {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 500 mm
+    input T_top : temperature rise
+    input T_low : temperature rise
+    workpiece chain {
+        X moving
+        workpiece at (0, 0, 0) mm
+    }
+    tool chain {
+        Y moving
+        tool spindle at (0, 0, 0) mm
+    }
+    errors {
+        X.tx = linear(X)
+        X.tz = straightness(X, knots 2)
+        Y.ty = linear(Y)
+        Y.tz = straightness(Y, knots 2)
+        tool.tz = T_top * const
+    }
+}
+"#;
+
+const TABLE_NOISE: f64 = 0.2e-6;
+
+/// Rows of the table's data: poses at random, the two faces warming at different rates (the
+/// upper to 3 K, the lower to 1.5 K, more slowly), so that their difference comes and goes.
+/// With `bend`, the truth adds the bed's deflection under that difference: a stress-free beam
+/// over the travel, the faces 200 mm apart, α = 11.5 µm/m/K.
+fn table_data(bend: bool, seed: u64) -> [DataSet; 1] {
+    let line = "X.tz += beam(X, ends at (0, 1000) mm, upper at (T_top, T_top), lower at (T_low, T_low), gap 200 mm, across z) * const";
+    let src = if bend {
+        TABLE.replace(
+            "        tool.tz = T_top * const\n",
+            &format!("        tool.tz = T_top * const\n        {line}\n"),
+        )
+    } else {
+        TABLE.to_string()
+    };
+    let c = machine(&src);
+    let n = 400;
+    let mut p = sample_points(&c.machine, n, seed);
+    let f = |r: usize| r as f64 / n as f64;
+    let top: Vec<f64> = (0..n).map(|r| 3.0 * (1.0 - (-4.0 * f(r)).exp())).collect();
+    let low: Vec<f64> = (0..n).map(|r| 1.5 * (1.0 - (-1.2 * f(r)).exp())).collect();
+    p.rows.inputs = vec![Some(top), Some(low)];
+    // The beam's coefficient (the last, its line is the last) is α; the others a few µm.
+    let count = c.machine.coefficients.len();
+    let beta: Vec<f64> = c
+        .machine
+        .coefficients
+        .iter()
+        .enumerate()
+        .map(|(j, k)| {
+            if bend && j + 1 == count {
+                11.5e-6
+            } else {
+                (2.0 - 0.7 * j as f64) * k.unit.scale
+            }
+        })
+        .collect();
+    let options = simulate::Options {
+        noise: TABLE_NOISE,
+        seed: seed + 1,
+        ..simulate::Options::default()
+    };
+    let obs = simulate::simulate(&c.machine, &beta, &Observations::Points(p), &options)
+        .expect("simulate");
+    [DataSet {
+        path: "table.csv".into(),
+        observations: obs,
+    }]
+}
+
+fn table_diagnosis(files: &[DataSet]) -> kin_runtime::diagnose::Diagnosis {
+    let c = machine(TABLE);
+    let r = run(&c, files, &Options::default()).expect("fit");
+    kin_runtime::diagnose::diagnose(
+        &c,
+        TABLE,
+        files,
+        &r,
+        &Options::default(),
+        &kin_runtime::diagnose::Settings::default(),
+    )
+    .expect("diagnose")
+}
+
+fn rms(r: &fit::FitResult) -> f64 {
+    let ss: f64 = r.residuals.iter().map(|x| x.residual * x.residual).sum();
+    (ss / r.residuals.len() as f64).sqrt()
+}
+
+#[test]
+fn a_bending_bed_is_found_as_a_beam_and_fixes_the_fit() {
+    let files = table_data(true, 11);
+    let d = table_diagnosis(&files);
+    let top = d.findings.first().expect("a finding");
+    let listed: Vec<String> = d
+        .findings
+        .iter()
+        .take(5)
+        .map(|f| format!("{} (sig {}, bic {:.1})", f.candidate.text, f.significant, f.bic))
+        .collect();
+    assert!(
+        top.significant && top.candidate.text.contains("beam(X, ends at (0, 1000) mm"),
+        "{listed:#?}"
+    );
+    assert!(
+        top.candidate.text.contains("upper at (T_top, T_top), lower at (T_low, T_low)"),
+        "{}",
+        top.candidate.text
+    );
+    // Added to the model and refitted: the residuals are the noise again.
+    let at = TABLE.rfind("    }\n}").expect("errors block");
+    let src = format!("{}        {}\n{}", &TABLE[..at], top.candidate.text, &TABLE[at..]);
+    let c = machine(&src);
+    let before = rms(&run(&machine(TABLE), &files, &Options::default()).expect("fit"));
+    let after = rms(&run(&c, &files, &Options::default()).expect("refit"));
+    assert!(before > 5.0 * TABLE_NOISE, "the bending is visible: {before}");
+    assert!(
+        after <= 1.1 * TABLE_NOISE,
+        "rms after {} um, noise {} um",
+        after * 1e6,
+        TABLE_NOISE * 1e6
+    );
+}
+
+#[test]
+fn without_a_gradient_effect_no_beam_is_proposed() {
+    let d = table_diagnosis(&table_data(false, 12));
+    let beams: Vec<&str> = d
+        .findings
+        .iter()
+        .filter(|f| f.significant && f.candidate.text.contains("beam("))
+        .map(|f| f.candidate.text.as_str())
+        .collect();
+    assert!(beams.is_empty(), "{beams:#?}");
+}

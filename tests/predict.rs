@@ -650,7 +650,7 @@ fn iso230_3_figures_match_closed_forms_and_the_definitions() {
 /// direction is `2kΔT cos φ`, attenuated and delayed by the lag, the temperature range 2ΔT.
 /// Samples every 15 min, and at the displacement's extrema `ωt = φ + π/2, φ + 3π/2`.
 #[test]
-fn the_etve_of_a_lagged_daily_cycle_is_its_closed_form() {
+fn iso230_3_etve_of_a_lagged_daily_cycle_is_its_closed_form() {
     let dir = scratch("iso230_3_etve");
     let (dt, tau, day) = (1.2, 3.0 * 3600.0, 86_400.0);
     let omega = std::f64::consts::TAU / day;

@@ -397,12 +397,26 @@ fn a_bending_bed_is_found_as_a_beam_and_fixes_the_fit() {
         "{}",
         top.candidate.text
     );
+    // The bed's deflection, or its rotation: seen at the bed's level, the rotation moves the
+    // point by its distance along X times the angle, the same column on these data.
+    let named: Vec<&str> = std::iter::once(&top.candidate)
+        .chain(&top.alternatives)
+        .map(|c| c.target.as_str())
+        .collect();
+    assert!(named.contains(&"X.tz"), "{named:?}");
     // Added to the model and refitted: the residuals are the noise again.
     let at = TABLE.rfind("    }\n}").expect("errors block");
     let src = format!("{}        {}\n{}", &TABLE[..at], top.candidate.text, &TABLE[at..]);
     let c = machine(&src);
     let before = rms(&run(&machine(TABLE), &files, &Options::default()).expect("fit"));
     let after = rms(&run(&c, &files, &Options::default()).expect("refit"));
+    println!(
+        "{}\nrms before {:.3} um, after {:.3} um, noise {:.3} um",
+        listed.join("\n"),
+        before * 1e6,
+        after * 1e6,
+        TABLE_NOISE * 1e6
+    );
     assert!(before > 5.0 * TABLE_NOISE, "the bending is visible: {before}");
     assert!(
         after <= 1.1 * TABLE_NOISE,

@@ -604,7 +604,10 @@ fn iso230_3_figures_match_closed_forms_and_the_definitions() {
     let mut csv = String::from("# 8000 rpm for 4 h, then stopped\n# separation: 150 mm\ntime[s],X1[um],X2[um],Z[um],T_spindle[degC]\n");
     let (mut x1s, mut x2s, mut zs, mut ts) = (vec![], vec![], vec![], vec![]);
     for &t in &times {
-        let (x1, x2) = (round(2e-6 * w(t, t1)), round(2e-6 * w(t, t1) + l * theta * w(t, t2)));
+        let (x1, x2) = (
+            round(2e-6 * w(t, t1)),
+            round(2e-6 * w(t, t1) + l * theta * w(t, t2)),
+        );
         let (zv, temp) = (round(z(t)), 20.0 + (6.0 * w(t, t1) * 1e3).round() / 1e3);
         csv += &format!("{t},{},{},{},{temp}\n", x1 * 1e6, x2 * 1e6, zv * 1e6);
         x1s.push(x1);
@@ -617,9 +620,19 @@ fn iso230_3_figures_match_closed_forms_and_the_definitions() {
     let v: serde_json::Value = serde_json::from_str(&ok(&out)).expect("json");
     let exact = [1e-12, 1e-12, 1e-9, 1e-12];
     // The file's readings by the definitions: the same figures to rounding.
-    close("Z", figures_of(&v, "displacements", "Z"), by_definition(&times, &zs), exact);
+    close(
+        "Z",
+        figures_of(&v, "displacements", "Z"),
+        by_definition(&times, &zs),
+        exact,
+    );
     let tilt: Vec<f64> = x1s.iter().zip(&x2s).map(|(a, b)| (b - a) / l).collect();
-    close("tilt X", figures_of(&v, "tilts", "tilt X"), by_definition(&times, &tilt), [1e-9; 4]);
+    close(
+        "tilt X",
+        figures_of(&v, "tilts", "tilt X"),
+        by_definition(&times, &tilt),
+        [1e-9; 4],
+    );
     close(
         "T_spindle",
         figures_of(&v, "temperatures", "T_spindle"),
@@ -639,7 +652,12 @@ fn iso230_3_figures_match_closed_forms_and_the_definitions() {
     close(
         "tilt X (closed form)",
         figures_of(&v, "tilts", "tilt X"),
-        (theta * w(on, t2), theta * w(on, t2), on, theta * w(total, t2)),
+        (
+            theta * w(on, t2),
+            theta * w(on, t2),
+            on,
+            theta * w(total, t2),
+        ),
         [2.0 * nm / l; 4],
     );
 }

@@ -386,14 +386,21 @@ fn a_bending_bed_is_found_as_a_beam_and_fixes_the_fit() {
         .findings
         .iter()
         .take(5)
-        .map(|f| format!("{} (sig {}, bic {:.1})", f.candidate.text, f.significant, f.bic))
+        .map(|f| {
+            format!(
+                "{} (sig {}, bic {:.1})",
+                f.candidate.text, f.significant, f.bic
+            )
+        })
         .collect();
     assert!(
         top.significant && top.candidate.text.contains("beam(X, ends at (0, 1000) mm"),
         "{listed:#?}"
     );
     assert!(
-        top.candidate.text.contains("upper at (T_top, T_top), lower at (T_low, T_low)"),
+        top.candidate
+            .text
+            .contains("upper at (T_top, T_top), lower at (T_low, T_low)"),
         "{}",
         top.candidate.text
     );
@@ -406,7 +413,12 @@ fn a_bending_bed_is_found_as_a_beam_and_fixes_the_fit() {
     assert!(named.contains(&"X.tz"), "{named:?}");
     // Added to the model and refitted: the residuals are the noise again.
     let at = TABLE.rfind("    }\n}").expect("errors block");
-    let src = format!("{}        {}\n{}", &TABLE[..at], top.candidate.text, &TABLE[at..]);
+    let src = format!(
+        "{}        {}\n{}",
+        &TABLE[..at],
+        top.candidate.text,
+        &TABLE[at..]
+    );
     let c = machine(&src);
     let before = rms(&run(&machine(TABLE), &files, &Options::default()).expect("fit"));
     let after = rms(&run(&c, &files, &Options::default()).expect("refit"));
@@ -417,7 +429,10 @@ fn a_bending_bed_is_found_as_a_beam_and_fixes_the_fit() {
         after * 1e6,
         TABLE_NOISE * 1e6
     );
-    assert!(before > 5.0 * TABLE_NOISE, "the bending is visible: {before}");
+    assert!(
+        before > 5.0 * TABLE_NOISE,
+        "the bending is visible: {before}"
+    );
     assert!(
         after <= 1.1 * TABLE_NOISE,
         "rms after {} um, noise {} um",

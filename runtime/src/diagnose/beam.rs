@@ -394,7 +394,12 @@ machine one {
         a.inputs = vec![true, false, false, false, true];
         let mut out = Vec::new();
         propose(&m, &a, &Beams::of(SRC), &mut out);
-        assert_eq!(out.iter().filter(|p| p.candidate.target.starts_with("Y.")).count(), 4);
+        assert_eq!(
+            out.iter()
+                .filter(|p| p.candidate.target.starts_with("Y."))
+                .count(),
+            4
+        );
         // Nor along an axis the data hold at two positions.
         let mut a = available(&m);
         a.sampled[1] = Sampling::of([0.0, 0.4].into_iter());

@@ -1,7 +1,9 @@
 //! Lag states over long time series: `States::integrate_lags` (thesis eq. 3.41–3.48, exact
 //! ramp updates per run) over 10 k, 100 k and 1 M rows of a two-input, two-lag model. The
 //! integration is one pass per lag and run, so the time per row must not grow with the rows:
-//! criterion's throughput (rows/s) of the three sizes should agree within noise.
+//! criterion's throughput (rows/s) of the three sizes should agree within noise. After the
+//! group, the CPU time per row of each size (this thread's, which the load of other processes
+//! does not inflate as it does wall time) is printed too.
 
 use std::hint::black_box;
 
@@ -66,6 +68,42 @@ fn bench(c: &mut Criterion) {
         });
     }
     group.finish();
+    cpu_per_row(&m);
+}
+
+/// The CPU time this thread has used, s (Linux: utime + stime of /proc/thread-self/stat, in
+/// clock ticks of 1/100 s); `None` elsewhere.
+fn thread_cpu() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/thread-self/stat").ok()?;
+    // The fields after the command name, which is in parentheses and may hold spaces.
+    let rest = stat.rsplit_once(')')?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// On a loaded machine wall time counts the time other processes hold the CPU; the CPU time of
+/// this thread does not. About 2·10⁷ rows per size (a second or so), the CPU time per row.
+fn cpu_per_row(m: &kin_compiler::ir::Machine) {
+    let taus = [1700.0, 5100.0];
+    for n in [10_000usize, 100_000, 1_000_000] {
+        let (rows, pose) = rows(n);
+        let Ok(mut states) = States::new(m, &rows, &pose, "") else {
+            return;
+        };
+        let passes = 20_000_000 / n;
+        let Some(start) = thread_cpu() else { return };
+        for _ in 0..passes {
+            states.integrate_lags(m, &rows, black_box(&taus));
+            black_box(&states);
+        }
+        let Some(end) = thread_cpu() else { return };
+        println!(
+            "lag_integration/{n}: CPU {:.1} ns per row ({passes} passes, {:.2} s)",
+            (end - start) / (passes * n) as f64 * 1e9,
+            end - start
+        );
+    }
 }
 
 criterion_group!(benches, bench);

@@ -277,3 +277,214 @@ fn a_gradient_growing_along_the_beam_integrates_exactly() {
     assert!((bed_error(&c, 2, x, t) - eps).abs() < 1e-12 * eps.abs().max(1e-9));
     assert!((bed_error(&c, 1, x, t) - delta).abs() < 1e-9 * delta.abs());
 }
+
+/// A table on a bed along X and a head on Y; the tool point at the bed's level. Two
+/// temperatures, of the bed's upper and lower faces, in every file; the model follows the upper
+/// one as an expansion of the tool, but knows nothing of the bed's bending.
+const TABLE: &str = r#"
+machine table {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 500 mm
+    input T_top : temperature rise
+    input T_low : temperature rise
+    workpiece chain {
+        X moving
+        workpiece at (0, 0, 0) mm
+    }
+    tool chain {
+        Y moving
+        tool spindle at (0, 0, 0) mm
+    }
+    errors {
+        X.tx = linear(X)
+        X.tz = straightness(X, knots 2)
+        Y.ty = linear(Y)
+        Y.tz = straightness(Y, knots 2)
+        tool.tz = T_top * const
+    }
+}
+"#;
+
+const TABLE_NOISE: f64 = 0.2e-6;
+
+/// `src` with `line` added at the end of its errors block.
+fn with_line(src: &str, line: &str) -> String {
+    let at = src.rfind("    }\n}").expect("errors block");
+    format!("{}        {line}\n{}", &src[..at], &src[at..])
+}
+
+/// Rows of a table's data: poses at random, the upper faces warming faster and further (to
+/// about 3 K) than the lower ones (to about 1.5 K), so that their difference comes and goes.
+/// With `hidden`, a line whose one coefficient is the bed's expansion coefficient, α =
+/// 11.5 µm/m/K: the truth adds it.
+fn table_data(src: &str, hidden: Option<&str>, seed: u64) -> [DataSet; 1] {
+    let src = hidden.map_or(src.to_string(), |line| with_line(src, line));
+    let c = machine(&src);
+    let n = 400;
+    let mut p = sample_points(&c.machine, n, seed);
+    let f = |r: usize| r as f64 / n as f64;
+    p.rows.inputs = c
+        .machine
+        .inputs
+        .iter()
+        .enumerate()
+        .map(|(k, input)| {
+            let (a, rate) = if input.name.starts_with("T_top") {
+                (3.0, 4.0)
+            } else {
+                (1.5, 1.2)
+            };
+            // Each end of a face a little apart from the other.
+            let (a, rate) = (a * (1.0 - 0.1 * k as f64), rate * (1.0 - 0.15 * k as f64));
+            Some((0..n).map(|r| a * (1.0 - (-rate * f(r)).exp())).collect())
+        })
+        .collect();
+    // The hidden line's coefficient (the last, its line is the last) is α; the others a few µm.
+    let count = c.machine.coefficients.len();
+    let beta: Vec<f64> = c
+        .machine
+        .coefficients
+        .iter()
+        .enumerate()
+        .map(|(j, k)| {
+            if hidden.is_some() && j + 1 == count {
+                11.5e-6
+            } else {
+                (2.0 - 0.7 * j as f64) * k.unit.scale
+            }
+        })
+        .collect();
+    let options = simulate::Options {
+        noise: TABLE_NOISE,
+        seed: seed + 1,
+        ..simulate::Options::default()
+    };
+    let obs = simulate::simulate(&c.machine, &beta, &Observations::Points(p), &options)
+        .expect("simulate");
+    [DataSet {
+        path: "table.csv".into(),
+        observations: obs,
+    }]
+}
+
+fn table_diagnosis(src: &str, files: &[DataSet]) -> kin_runtime::diagnose::Diagnosis {
+    let c = machine(src);
+    let r = run(&c, files, &Options::default()).expect("fit");
+    kin_runtime::diagnose::diagnose(
+        &c,
+        src,
+        files,
+        &r,
+        &Options::default(),
+        &kin_runtime::diagnose::Settings::default(),
+    )
+    .expect("diagnose")
+}
+
+/// The top finding of `d` is significant, is `expected` on `X.tz` (or the same on `X.ry`, with
+/// `X.tz` an alternative: seen at the bed's level, the bed's rotation moves the point by its
+/// distance along X times the angle, the same column on these data), and added to `src` and
+/// refitted it leaves the noise.
+fn assert_beam_fixes(
+    src: &str,
+    files: &[DataSet],
+    d: &kin_runtime::diagnose::Diagnosis,
+    expected: &str,
+) {
+    let top = d.findings.first().expect("a finding");
+    let listed: Vec<String> = d
+        .findings
+        .iter()
+        .take(5)
+        .map(|f| {
+            format!(
+                "{} (sig {}, bic {:.1})",
+                f.candidate.text, f.significant, f.bic
+            )
+        })
+        .collect();
+    let text = &top.candidate.text;
+    assert!(
+        top.significant
+            && (text == &format!("X.tz += {expected}") || text == &format!("X.ry += {expected}")),
+        "{listed:#?}"
+    );
+    let named: Vec<&str> = std::iter::once(&top.candidate)
+        .chain(&top.alternatives)
+        .map(|c| c.target.as_str())
+        .collect();
+    assert!(named.contains(&"X.tz"), "{named:?}");
+    let before = rms(&run(&machine(src), files, &Options::default()).expect("fit"));
+    let after =
+        rms(&run(&machine(&with_line(src, text)), files, &Options::default()).expect("refit"));
+    println!(
+        "{}\nrms before {:.3} um, after {:.3} um, noise {:.3} um",
+        listed.join("\n"),
+        before * 1e6,
+        after * 1e6,
+        TABLE_NOISE * 1e6
+    );
+    assert!(
+        before > 5.0 * TABLE_NOISE,
+        "the bending is visible: {before}"
+    );
+    assert!(
+        after <= 1.1 * TABLE_NOISE,
+        "rms after {} um, noise {} um",
+        after * 1e6,
+        TABLE_NOISE * 1e6
+    );
+}
+
+fn rms(r: &fit::FitResult) -> f64 {
+    let ss: f64 = r.residuals.iter().map(|x| x.residual * x.residual).sum();
+    (ss / r.residuals.len() as f64).sqrt()
+}
+
+#[test]
+fn a_bending_bed_is_found_as_a_beam_and_fixes_the_fit() {
+    let hidden = "X.tz += beam(X, ends at (0, 1000) mm, upper at (T_top, T_top), lower at (T_low, T_low), gap 200 mm, across z) * const";
+    let files = table_data(TABLE, Some(hidden), 11);
+    let d = table_diagnosis(TABLE, &files);
+    // Proposed with a gap of 1 m: the coefficient is α × 1 m / 200 mm.
+    assert_beam_fixes(
+        TABLE,
+        &files,
+        &d,
+        "beam(X, ends at (0, 1000) mm, upper at (T_top, T_top), lower at (T_low, T_low), gap 1000 mm, across z) * const",
+    );
+}
+
+/// The bed of spec/factors.md: its expansion modelled through a declared beam with the four
+/// face temperatures, its bending not. The diagnosis offers the declared call on the bending
+/// components.
+#[test]
+fn a_declared_beam_that_also_bends_is_found_with_its_own_call() {
+    let call = "beam(X, ends at (-100, 1100) mm, upper at (T_top0, T_top1), lower at (T_low0, T_low1), gap 250 mm, across z)";
+    let src = TABLE
+        .replace(
+            "    input T_top : temperature rise\n    input T_low : temperature rise\n",
+            "    input T_top0 : temperature rise\n    input T_top1 : temperature rise\n    input T_low0 : temperature rise\n    input T_low1 : temperature rise\n",
+        )
+        .replace(
+            "        tool.tz = T_top * const\n",
+            &format!("        tool.tz = T_top0 * const\n        X.tx += 11.5 um/m/K * {call}\n"),
+        );
+    let files = table_data(&src, Some(&format!("X.tz += {call} * const")), 13);
+    let d = table_diagnosis(&src, &files);
+    assert_beam_fixes(&src, &files, &d, &format!("{call} * const"));
+}
+
+#[test]
+fn without_a_gradient_effect_no_beam_is_proposed() {
+    let d = table_diagnosis(TABLE, &table_data(TABLE, None, 12));
+    let beams: Vec<&str> = d
+        .findings
+        .iter()
+        .filter(|f| f.significant && f.candidate.text.contains("beam("))
+        .map(|f| f.candidate.text.as_str())
+        .collect();
+    assert!(beams.is_empty(), "{beams:#?}");
+}

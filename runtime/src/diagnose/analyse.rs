@@ -131,7 +131,13 @@ pub fn diagnose(
             Some((a, unit.to_si(*sp.wavelengths.get(k)?) - unit.to_si(0.0)))
         })
         .collect();
-    let proposals = library::propose(m, &available, &peaks, &settings.taus);
+    let mut proposals = library::propose(m, &available, &peaks, &settings.taus);
+    super::beam::propose(
+        m,
+        &available,
+        &super::beam::Beams::of(source),
+        &mut proposals,
+    );
     let findings = test_candidates(compiled, source, files, base, options, &proposals, settings)?;
     let (regions, bins) = regions(m, &rows, base, settings);
     // σ̂ and the RMS as the fit weighs its rows: with a stated noise, multiples of it.

@@ -35,6 +35,9 @@ pub(super) enum Components {
     All,
     /// tx, ty, tz.
     Translations,
+    /// The translations across the axis and the rotations about the directions across it: how
+    /// a beam along the axis bends.
+    Bending,
 }
 
 /// One row of the coverage table.
@@ -158,6 +161,13 @@ pub(super) const ROWS: &[Row] = &[
         form: "T * linear(A) | lag(T, tau fit τ) * linear(A)",
     },
     Row {
+        key: "beam-bending",
+        element: Element::Prismatic,
+        components: Components::Bending,
+        family: Family::Thermal,
+        form: "beam(A, ends at (…), upper at (T, T), lower at (T', T'), gap d, across g) * const",
+    },
+    Row {
         key: "location",
         element: Element::Revolute,
         components: Components::All,
@@ -274,6 +284,7 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
         Components::All => true,
         Components::Rotations => rotation,
         Components::Translations => !rotation,
+        Components::Bending => matches!(relation, Components::Across | Components::Tilt),
         c => c == relation,
     };
     let text = &p.test_text;
@@ -288,6 +299,7 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
             })
         });
     let first = text.contains("harmonics 1)") || text.contains("harmonics 1..");
+    let beam = text.contains("beam(");
     let input = axis.is_some_and(|(_, a)| {
         m.inputs
             .iter()
@@ -308,6 +320,8 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
                 "once-per-rev" | "once-per-rev-angular" => first,
                 "coupling-axis" | "rotary-coupling-axis" => !input,
                 "coupling-input" | "rotary-coupling-input" => input,
+                "thermal-scale" => !beam,
+                "beam-bending" => beam,
                 _ => true,
             }
     })
@@ -335,6 +349,7 @@ machine cover {{
     axis C revolute about z continuous
     axis A revolute about x range -30 deg .. 30 deg
     input T : temperature rise
+    input T_low : temperature rise
     input load : force range 0 N .. 500 N
     workpiece chain {{
         Y moving
@@ -388,7 +403,8 @@ machine cover {{
     fn rows(m: &Machine) -> BTreeSet<&'static str> {
         let a = available(m);
         // A spectral peak along X of 100 mm, which 36 positions over 800 mm resolve.
-        let proposals = propose(m, &a, &[(0, 0.1)], &[600.0]);
+        let mut proposals = propose(m, &a, &[(0, 0.1)], &[600.0]);
+        super::super::beam::propose(m, &a, &Default::default(), &mut proposals);
         let mut keys = BTreeSet::new();
         for p in &proposals {
             match classify(m, p) {

@@ -239,6 +239,7 @@ pub struct Diagnosis {
 }
 
 mod analyse;
+mod beam;
 // The coverage table the library is audited against (its tests; spec/diagnosis.md for users).
 #[cfg(test)]
 mod coverage;

@@ -144,8 +144,9 @@ fn projected_fit(
 }
 
 /// The fixed columns' triangle for [`projected_fit`], from one pass over the rows; `None`
-/// when the plain path must be taken (a moving known term, dependent fixed columns, nothing
-/// moving), with `true` when the reason is dependent fixed columns.
+/// when the plain path must be taken (a moving known term, nothing moving, fixed columns too
+/// ill-conditioned for the completion). The flag is `true` when the fixed columns are
+/// dependent (some left out of the split) or the split was refused for their conditioning.
 fn split_for(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
@@ -175,8 +176,8 @@ fn split_for(
     if !base.is_finite() {
         return Err(FitError::Overflow);
     }
-    let split = Split::new(&moving, base);
-    let dependent = split.is_none();
+    let split = Split::new(&moving, base, options.tolerance);
+    let dependent = split.as_ref().is_none_or(|s| s.dropped() > 0);
     Ok((split, dependent))
 }
 
@@ -345,7 +346,8 @@ fn covariance(
     // The derivative columns join the moving ones of the split: the triangle of [X | D | y]
     // without factoring X again. Its trailing block is all the covariance needs, and the
     // trailing block does not depend on the order of the columns before it.
-    let red = match split {
+    // `order[i]`: the design column of the triangle's column i (D's columns after the design's).
+    let (red, order) = match split {
         Some(split) => {
             let ext = split.extended(p, k);
             let mut products = ext.products();
@@ -353,7 +355,7 @@ fn covariance(
                 fill(x, &mut row);
                 ext.push(&mut products, &row, y);
             })?;
-            ext.complete(&products)
+            (ext.complete(&products), ext.order)
         }
         None => {
             let mut acc = StreamingQr::with_threads(p + k, options.block, options.threads);
@@ -361,12 +363,15 @@ fn covariance(
                 fill(x, &mut row);
                 acc.push(&row, y);
             })?;
-            acc.finish()
+            (acc.finish(), (0..p + k).collect())
         }
     };
+    // Columns of the triangle before D's: the design's, less the dependent fixed columns a
+    // split leaves out (which change nothing below: they add nothing to X's span).
+    let q = order.len().saturating_sub(k);
     // Cov(θ) = σ̂² (R₂₂ᵀR₂₂)⁻¹ = σ̂² R₂₂⁻¹R₂₂⁻ᵀ: from the triangle itself, never its normal
     // matrix, whose entries span the squares of the parameters' very different scales.
-    let r22 = Mat::from_fn(k, k, |a, b| red.r[(p + a, p + b)]);
+    let r22 = Mat::from_fn(k, k, |a, b| red.r[(q + a, q + b)]);
     let mut inv = Mat::<f64>::zeros(k, k);
     for c in 0..k {
         for i in (0..=c).rev() {
@@ -389,24 +394,26 @@ fn covariance(
             f64::INFINITY
         });
     }
-    Ok((se, joint(&red.r, m, p, fitted, &inv, sigma2)))
+    Ok((se, joint(&red.r, m, &order[..q], fitted, &inv, sigma2)))
 }
 
-/// [`Joint`] from the triangle of `[X | D_θ]` (`p` columns of X, the model's coefficients
-/// first) and `R₂₂⁻¹`: `S = σ̂²R₂₂⁻¹R₂₂⁻ᵀ`, `A = R₁₁⁻¹R₁₂`. A coefficient whose pivot vanishes
-/// (a column the data cannot see) gets a zero row of A: it is not estimated from these data,
-/// so it cannot carry their θ.
+/// [`Joint`] from the triangle of `[X | D_θ]` (X's columns first, `order[i]` the design column
+/// of the triangle's column i) and `R₂₂⁻¹`: `S = σ̂²R₂₂⁻¹R₂₂⁻ᵀ`, `A = R₁₁⁻¹R₁₂`. A coefficient
+/// whose pivot vanishes or that the triangle leaves out (a column the data cannot see apart
+/// from others) gets a zero row of A: it is not estimated from these data, so it cannot carry
+/// their θ.
 fn joint(
     r: &Mat<f64>,
     m: &kin_compiler::ir::Machine,
-    p: usize,
+    order: &[usize],
     fitted: &[usize],
     inv: &Mat<f64>,
     sigma2: f64,
 ) -> Joint {
     let kk = m.nonlinear.len();
     let k = fitted.len();
-    let n = m.coefficients.len().min(p);
+    let p = order.len();
+    let n = m.coefficients.len();
     let mut s = vec![0.0; kk * kk];
     for (a, &i) in fitted.iter().enumerate() {
         for (b, &j) in fitted.iter().enumerate() {
@@ -431,11 +438,11 @@ fn joint(
             a_full[i * k + c] = v / d;
         }
     }
-    let mut a = vec![0.0; m.coefficients.len() * kk];
-    for row in 0..n {
+    let mut a = vec![0.0; n * kk];
+    for (i, &row) in order.iter().enumerate().filter(|(_, &row)| row < n) {
         for (c, &j) in fitted.iter().enumerate() {
             if let Some(slot) = a.get_mut(row * kk + j) {
-                *slot = a_full[row * k + c];
+                *slot = a_full[i * k + c];
             }
         }
     }
@@ -496,6 +503,17 @@ pub fn optimise(
     files: &[DataSet],
     options: &Options,
 ) -> Result<Option<NonlinearFit>, FitError> {
+    optimise_with(compiled, engine, files, options, true)
+}
+
+/// [`optimise`]; `reuse` false factors every column at each evaluation (the tests' reference).
+fn optimise_with(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    options: &Options,
+    reuse: bool,
+) -> Result<Option<NonlinearFit>, FitError> {
     let m = &compiled.machine;
     let fitted: Vec<usize> = m
         .nonlinear
@@ -520,7 +538,11 @@ pub fn optimise(
     // The fixed columns' triangle, factored once for every evaluation below (the start's
     // included): after it no full factorisation of the design is made until the fit at the
     // optimum.
-    let (split, dependent) = split_for(compiled, engine, files, &values, options, &fitted)?;
+    let (split, dependent) = if reuse {
+        split_for(compiled, engine, files, &values, options, &fitted)?
+    } else {
+        (None, true)
+    };
     let split = split.as_ref();
     if dependent && !options.min_norm {
         // Fixed columns the others explain: a plain QR decides at once whether the design
@@ -797,8 +819,23 @@ machine m {
             )
             .expect("covariance")
         };
-        // The joint covariance (`.1`) is checked against FIT.json's use by tests/predict.rs.
-        let (se_p, se_q) = (se(&mut engine, Some(&split)).0, se(&mut engine, None).0);
+        let ((se_p, joint_p), (se_q, joint_q)) =
+            (se(&mut engine, Some(&split)), se(&mut engine, None));
+        // The joint covariance: the split's triangle has its columns in another order, and
+        // A's rows belong to the coefficients, not to the triangle's positions.
+        assert_eq!(joint_p.a.len(), joint_q.a.len());
+        let top = joint_q.a.iter().fold(0.0f64, |t, v| t.max(v.abs()));
+        for (a, b) in joint_p
+            .a
+            .iter()
+            .zip(&joint_q.a)
+            .chain(joint_p.s.iter().zip(&joint_q.s))
+        {
+            assert!(
+                (a - b).abs() <= 1e-6 * b.abs().max(1e-9 * top),
+                "joint {a} vs {b}"
+            );
+        }
         for (a, b) in se_p.iter().zip(&se_q) {
             match (a, b) {
                 (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-6 * b.abs(), "se {a} vs {b}"),
@@ -841,6 +878,124 @@ machine m {
             for (a, b) in bp.iter().zip(&bq) {
                 assert!((a - b).abs() <= 1e-7 * b.abs().max(1e-9), "{a} vs {b}");
             }
+        }
+    }
+
+    /// Dependent fixed columns (two constants the positions cannot tell apart), fitted by
+    /// minimum norm: the split leaves one out, and every linear fit of the optimiser, the
+    /// optimum, σ̂ and the coefficients there equal those of the path that factors every
+    /// column at each evaluation.
+    #[test]
+    fn dependent_fixed_columns_give_the_plain_fit() {
+        let src = r#"
+machine m {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 300 mm
+    input T : temperature rise range 0 K .. 5 K
+    tool chain {
+        X moving
+        Y moving
+        tool t at (0, 0, -300) mm
+    }
+    errors {
+        X.tx = const + linear(X)
+        Y.tx = const
+        Y.ty = spline(Y, knots 3)
+        X.rz = const
+        tool.tz = lag(T, tau fit 25 min) * const
+        X.ry = lag(T, tau fit 60 min) * const
+    }
+}
+"#;
+        let out = kin_compiler::compile(src);
+        let Some(c) = out.compiled else {
+            panic!("{:?}", out.diagnostics)
+        };
+        let m = &c.machine;
+        let beta: Vec<f64> = (0..m.coefficients.len())
+            .map(|j| 1e-5 * (1.0 + j as f64).sin())
+            .collect();
+        // The truth's time constants away from the start values, so the optimiser moves.
+        let truth = kin_compiler::compile(
+            &src.replace("tau fit 25 min", "tau 33 min")
+                .replace("tau fit 60 min", "tau 45 min"),
+        )
+        .compiled
+        .expect("compiles");
+        let poses = Observations::Points(sample_points(&truth.machine, 600, 2));
+        let sim = simulate::Options {
+            noise: 0.3e-6,
+            seed: 3,
+            ..simulate::Options::default()
+        };
+        let obs = simulate::simulate(&truth.machine, &beta, &poses, &sim).expect("simulate");
+        let files = [DataSet {
+            path: "sim.csv".into(),
+            observations: obs,
+        }];
+        let mut engine = crate::interp::Interpreter::new(m).expect("interpreter");
+        let fitted = [0usize, 1];
+        let start: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+        let options = Options {
+            min_norm: true,
+            ..Options::default()
+        };
+        let split = split_for(&c, &mut engine, &files, &start, &options, &fitted)
+            .expect("passes")
+            .0
+            .expect("a split");
+        assert_eq!(split.dropped(), 1, "one of the two x constants left out");
+        let rel = |a: f64, b: f64| (a - b).abs() / b.abs().max(f64::MIN_POSITIVE);
+        for values in [
+            start.clone(),
+            vec![30.0 * 60.0, 50.0 * 60.0],
+            vec![900.0, 7000.0],
+        ] {
+            let (rp, rank_p, _) =
+                linear_fit(&c, &mut engine, &files, &values, &options, Some(&split)).expect("fit");
+            let (rq, rank_q, _) =
+                linear_fit(&c, &mut engine, &files, &values, &options, None).expect("fit");
+            assert_eq!(rank_p, rank_q);
+            assert!(rank_q < m.coefficients.len(), "a dependent design");
+            let (a, b) = (sumsq(&rp), sumsq(&rq));
+            assert!(rel(a, b) <= 1e-10, "{values:?}: objective {a} vs {b}");
+        }
+        let run = |engine: &mut crate::interp::Interpreter, reuse: bool| {
+            optimise_with(&c, engine, &files, &options, reuse)
+                .expect("optimises")
+                .expect("fitted parameters")
+        };
+        let (new, old) = (run(&mut engine, true), run(&mut engine, false));
+        assert!(new.iterations > 1, "the optimiser moved");
+        // The same steps on objectives equal to rounding: the optimum differs only by the
+        // rounding the forward-difference Jacobian magnifies (a step of 1e-6), far below a
+        // standard error.
+        assert_eq!(new.iterations, old.iterations);
+        assert!(
+            rel(new.rss, old.rss) <= 1e-10,
+            "rss {} vs {}",
+            new.rss,
+            old.rss
+        );
+        let truth_tau = [33.0 * 60.0, 45.0 * 60.0];
+        for (i, ((a, b), se)) in new.values.iter().zip(&old.values).zip(&new.se).enumerate() {
+            let se = se.expect("fitted");
+            assert!((a - b).abs() <= 1e-6 * se, "τ {a} vs {b} (se {se})");
+            // The unpivoted QR of [X | D] on a dependent X gave an unbounded error here; the
+            // split's is the trailing block of the independent columns' problem.
+            assert!((a - truth_tau[i]).abs() < 4.0 * se, "τ {a}, se {se}");
+        }
+        // The linear fit at each optimum: σ̂ and the minimum-norm coefficients.
+        let (rn, _, bn) =
+            linear_fit(&c, &mut engine, &files, &new.values, &options, None).expect("fit");
+        let (ro, _, bo) =
+            linear_fit(&c, &mut engine, &files, &old.values, &options, None).expect("fit");
+        assert!(rel(sumsq(&rn), sumsq(&ro)) <= 1e-10);
+        let scale = bo.iter().map(|v| v * v).sum::<f64>().sqrt();
+        for (a, b) in bn.iter().zip(&bo) {
+            assert!((a - b).abs() <= 1e-8 * scale, "β {a} vs {b}");
         }
     }
 

@@ -498,6 +498,7 @@ enum Steps {
     /// residual vectors.
     Plain,
     /// Evaluations through the split; steps from forward differences of the residual vectors.
+    #[cfg_attr(not(test), allow(dead_code))]
     Differences,
     /// Evaluations through the split; Kaufman's steps (falls back to differences when the
     /// moving columns are too many to keep).

@@ -1022,6 +1022,32 @@ mod tests {
     use crate::data::Observations;
     use crate::simulate::{self, sample_points};
 
+    fn compiled(src: &str) -> Compiled {
+        let out = kin_compiler::compile(src);
+        let Some(c) = out.compiled else {
+            panic!("{:?}", out.diagnostics)
+        };
+        c
+    }
+
+    /// `poses` simulated points of `m` with coefficients of size `size` (SI) and 0.3 µm noise.
+    fn simulated(m: &kin_compiler::ir::Machine, size: f64, poses: usize) -> [DataSet; 1] {
+        let beta: Vec<f64> = (0..m.coefficients.len())
+            .map(|j| size * (1.0 + j as f64).sin())
+            .collect();
+        let poses = Observations::Points(sample_points(m, poses, 2));
+        let options = simulate::Options {
+            noise: 0.3e-6,
+            seed: 3,
+            ..simulate::Options::default()
+        };
+        let obs = simulate::simulate(m, &beta, &poses, &options).expect("simulate");
+        [DataSet {
+            path: "sim.csv".into(),
+            observations: obs,
+        }]
+    }
+
     /// The optimiser's fits from the fixed columns' triangle equal the plain QR's, at values
     /// away from the ones the triangle was made at.
     #[test]
@@ -1045,25 +1071,9 @@ machine m {
     }
 }
 "#;
-        let out = kin_compiler::compile(src);
-        let Some(c) = out.compiled else {
-            panic!("{:?}", out.diagnostics)
-        };
+        let c = compiled(src);
         let m = &c.machine;
-        let beta: Vec<f64> = (0..m.coefficients.len())
-            .map(|j| 1e-6 * (1.0 + j as f64).sin())
-            .collect();
-        let poses = Observations::Points(sample_points(m, 400, 2));
-        let options = simulate::Options {
-            noise: 0.3e-6,
-            seed: 3,
-            ..simulate::Options::default()
-        };
-        let obs = simulate::simulate(m, &beta, &poses, &options).expect("simulate");
-        let files = [DataSet {
-            path: "sim.csv".into(),
-            observations: obs,
-        }];
+        let files = simulated(m, 1e-6, 400);
         let mut engine = crate::interp::Interpreter::new(m).expect("interpreter");
         let fitted = [0usize, 1];
         let start: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
@@ -1175,32 +1185,14 @@ machine m {
     }
 }
 "#;
-        let out = kin_compiler::compile(src);
-        let Some(c) = out.compiled else {
-            panic!("{:?}", out.diagnostics)
-        };
+        let c = compiled(src);
         let m = &c.machine;
-        let beta: Vec<f64> = (0..m.coefficients.len())
-            .map(|j| 1e-5 * (1.0 + j as f64).sin())
-            .collect();
         // The truth's time constants away from the start values, so the optimiser moves.
-        let truth = kin_compiler::compile(
+        let truth = compiled(
             &src.replace("tau fit 25 min", "tau 33 min")
                 .replace("tau fit 60 min", "tau 45 min"),
-        )
-        .compiled
-        .expect("compiles");
-        let poses = Observations::Points(sample_points(&truth.machine, 600, 2));
-        let sim = simulate::Options {
-            noise: 0.3e-6,
-            seed: 3,
-            ..simulate::Options::default()
-        };
-        let obs = simulate::simulate(&truth.machine, &beta, &poses, &sim).expect("simulate");
-        let files = [DataSet {
-            path: "sim.csv".into(),
-            observations: obs,
-        }];
+        );
+        let files = simulated(&truth.machine, 1e-5, 600);
         let mut engine = crate::interp::Interpreter::new(m).expect("interpreter");
         let fitted = [0usize, 1];
         let start: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
@@ -1298,10 +1290,7 @@ machine m {
     }
 }
 "#;
-        let out = kin_compiler::compile(src);
-        let Some(c) = out.compiled else {
-            panic!("{:?}", out.diagnostics)
-        };
+        let c = compiled(src);
         let columns = c.machine.coefficients.len();
         assert!(projection::moving_columns(&c.machine, &[0], columns).is_none());
     }

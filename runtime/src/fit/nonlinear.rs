@@ -4,9 +4,11 @@
 //! nonlinear fashion").
 //!
 //! The parameters are positive, so the search runs over their logarithms. The Jacobian of the
-//! projected residual `r(θ) = y − X(θ)β̂(θ)` is taken by forward differences; at the optimum
-//! `σ̂²(JᵀJ)⁻¹` is the covariance of the non-linear parameters with β profiled out
-//! (Golub & Pereyra), mapped back by the delta method.
+//! projected residual `r(θ) = y − X(θ)β̂(θ)` is Kaufman's `−(I − P_X)∂(Xβ̂)/∂θ`, its products
+//! taken from the fixed columns' triangle ([`projection`]); without that triangle, forward
+//! differences of the residual vectors. At the optimum `σ̂²(JᵀJ)⁻¹` is the covariance of the
+//! non-linear parameters with β profiled out (Golub & Pereyra), mapped back by the delta
+//! method.
 
 use faer::Mat;
 use kin_compiler::Compiled;
@@ -682,11 +684,18 @@ impl Problem<'_> {
                 }
                 if last {
                     // The row of [X(φ) | D]: fixed columns as evaluated, moving ones as kept.
-                    row[..columns].copy_from_slice(&x[..columns.min(x.len())]);
-                    for (&j, b) in moving.iter().zip(b0) {
-                        row[j] = *b;
+                    for (dst, v) in row.iter_mut().zip(x) {
+                        *dst = *v;
                     }
-                    row[columns..].copy_from_slice(&d[i * k..(i + 1) * k]);
+                    for (&j, b) in moving.iter().zip(b0) {
+                        if let Some(dst) = row.get_mut(j) {
+                            *dst = *b;
+                        }
+                    }
+                    let di = d.get(i * k..(i + 1) * k).unwrap_or(&[]);
+                    for (dst, v) in row.iter_mut().skip(columns).zip(di) {
+                        *dst = *v;
+                    }
                     ext.push(&mut products, &row, y);
                 }
                 i += 1;

@@ -978,7 +978,35 @@ fn fitted_tau(poses: usize) {
         );
         walls.push((t.wall.as_secs_f64(), cpu.as_secs_f64()));
     }
+    // What one pass over the rows costs (the lag states at the start values, every row
+    // evaluated, nothing accumulated): the unit of the optimiser's work.
+    let pass = {
+        let m = &free.machine;
+        let mut engine =
+            kin_runtime::engine::make(m, kin_runtime::engine::Engine::default()).expect("engine");
+        let values: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+        let layout = fit::Layout::new(m, &files).weighted(m, opts.noise);
+        let clock = Clock::start();
+        let cpu0 = process_cpu();
+        let states = fit::states_with(m, &files, &values).expect("states");
+        let mut sum = 0.0;
+        fit::for_each_row(engine.as_mut(), &files, &states, &layout, |_, x, y| {
+            sum += x.first().copied().unwrap_or(0.0) + y
+        })
+        .expect("rows");
+        black_box(sum);
+        (
+            clock.elapsed().wall.as_secs_f64(),
+            process_cpu().saturating_sub(cpu0).as_secs_f64(),
+        )
+    };
     let fixed = |f: fn(&(f64, f64)) -> f64| (f(&walls[0]) + f(&walls[2])) / 2.0;
+    println!(
+        "  one pass over the rows: {:.2} s wall, {:.2} s CPU; the fitted fit's extra CPU is {:.1} passes",
+        pass.0,
+        pass.1,
+        (walls[1].1 - fixed(|w| w.1)) / pass.1.max(1e-9)
+    );
     println!(
         "  fitted ÷ fixed (mean of the two fixed fits around it): {:.2}× wall, {:.2}× CPU, load {}",
         walls[1].0 / fixed(|w| w.0),

@@ -20,6 +20,7 @@ use kin_compiler::basis::{Basis, Wavelength};
 use kin_compiler::ir::{Machine, Scalar, Var};
 
 use super::qr::Reduced;
+use super::solve;
 
 /// Which columns move with the fitted non-linear parameters `fitted` (indices into
 /// `Machine::nonlinear`), for `columns` design columns (coefficients first, then nuisance
@@ -70,40 +71,84 @@ fn scalar_moves(s: &Scalar, moves_lag: &impl Fn(usize) -> bool) -> bool {
     }
 }
 
-/// The fixed part, factored: the triangle of `[A | y]` over the columns that do not move.
+/// The fixed part, factored: the triangle of `[A₁ | y]`, `A₁` the fixed columns the fit's rank
+/// decision keeps.
+///
+/// When the fixed columns are dependent (data that do not see every direction, fitted by
+/// minimum norm) only an independent subset `A₁` of them is kept: the optimiser needs the
+/// residual of the fit, and the projection of `y` (and of the moving columns) onto
+/// `span(A) = span(A₁)` does not depend on which basis of the span is used. The subset comes
+/// from the same column-pivoted QR of the unit-scaled triangle, at the same tolerance, as the
+/// fit's own rank decision ([`solve::pivoted_rank`]); the triangle of `[A₁ | y]` is that of the
+/// kept columns of `A`'s triangle (`R_Aᵀ R_A = AᵀA`), with no pass over the rows.
 #[derive(Debug, Clone)]
 pub struct Split {
-    /// Column indices of the design, fixed ones first then moving ones: the order of the
-    /// completed triangle.
+    /// Column indices of the design, kept fixed ones first then moving ones: the order of the
+    /// completed triangle. Dropped fixed columns are not in it (their coefficient is zero).
     pub order: Vec<usize>,
     fixed: usize,
+    dropped: usize,
     base: Reduced,
 }
 
+/// The kept fixed columns' triangle must be well conditioned: [`Split::complete`] divides by
+/// it, and the moving block's Schur complement loses about this factor times the rounding of
+/// the products. Above it, the plain QR is taken.
+const CONDITION: f64 = 1e8;
+
 impl Split {
     /// `base` is the triangle of the rows restricted to the columns `moving` marks false, in
-    /// column order, with `y`. `None` when the fixed columns are not independent to well above
-    /// rounding (a minimum-norm problem): the plain QR handles those.
-    pub fn new(moving: &[bool], base: Reduced) -> Option<Split> {
+    /// column order, with `y`; `tol` the fit's relative rank tolerance. `None` when the kept
+    /// fixed columns are too ill-conditioned for the completion (see [`CONDITION`]): the plain
+    /// QR handles those.
+    pub fn new(moving: &[bool], base: Reduced, tol: f64) -> Option<Split> {
         let fixed: Vec<usize> = (0..moving.len()).filter(|&j| !moving[j]).collect();
         let na = fixed.len();
-        if base.r.nrows() != na + 1 {
+        if base.r.nrows() != na + 1 || base.norms.len() != na {
             return None;
         }
-        let independent = (0..na).all(|j| {
-            let n = base.norms.get(j).copied().unwrap_or(0.0);
-            n > 0.0 && base.r[(j, j)].abs() > 1e-8 * n
-        });
-        if !independent {
+        let (rs, _) = solve::scaled_triangle(&base);
+        let rs = Mat::from_fn(na, na, |i, j| rs[i * na + j]);
+        let (rank, condition, pivots) = solve::pivoted_rank(&rs, tol);
+        if na > 0 && !(condition <= CONDITION) {
             return None;
         }
-        let mut order = fixed;
+        let mut keep: Vec<usize> = pivots.get(..rank)?.to_vec();
+        keep.sort_unstable();
+        let base = if rank == na {
+            base
+        } else {
+            // [A₁ y] = Q [R_A's kept columns | its last column]: the QR of that small matrix
+            // is the triangle of [A₁ y].
+            let cols: Vec<usize> = keep.iter().copied().chain([na]).collect();
+            let m = Mat::from_fn(na + 1, rank + 1, |i, c| base.r[(i, cols[c])]);
+            let qr = m.qr();
+            let t = qr.thin_R();
+            Reduced {
+                r: Mat::from_fn(
+                    rank + 1,
+                    rank + 1,
+                    |i, j| if j >= i { t[(i, j)] } else { 0.0 },
+                ),
+                rows: base.rows,
+                norms: keep.iter().map(|&c| base.norms[c]).collect(),
+                y_sum: base.y_sum,
+                y_sumsq: base.y_sumsq,
+            }
+        };
+        let mut order: Vec<usize> = keep.iter().map(|&c| fixed[c]).collect();
         order.extend((0..moving.len()).filter(|&j| moving[j]));
         Some(Split {
             order,
-            fixed: na,
+            fixed: rank,
+            dropped: na - rank,
             base,
         })
+    }
+
+    /// How many fixed columns were left out as dependent on the kept ones.
+    pub fn dropped(&self) -> usize {
+        self.dropped
     }
 
     /// The same fixed part with `extra` more moving columns after the design's `columns`
@@ -115,6 +160,7 @@ impl Split {
         Split {
             order,
             fixed: self.fixed,
+            dropped: self.dropped,
             base: self.base.clone(),
         }
     }
@@ -311,7 +357,7 @@ mod tests {
                 .collect();
             acc.push(&a, *y);
         }
-        let split = Split::new(moving, acc.finish())?;
+        let split = Split::new(moving, acc.finish(), 1e-10)?;
         let mut products = split.products();
         for (x, y) in rows {
             split.push(&mut products, x, *y);
@@ -399,13 +445,33 @@ mod tests {
             .is_none());
     }
 
+    /// Dependent fixed columns: one is left out, and the completed problem's residual sum of
+    /// squares is the minimum-norm fit's of every column. Fails if the kept triangle were not
+    /// that of the kept columns (a wrong basis of the span leaves a different residual).
     #[test]
-    fn dependent_fixed_columns_take_the_plain_path() {
-        let moving = [false, false, true];
-        let mut data = rows(200, 3, 7);
+    fn dependent_fixed_columns_are_left_out_with_the_same_residual() {
+        let moving = [false, false, true, false, true];
+        let mut data = rows(300, moving.len(), 7);
         for r in &mut data {
-            r.0[1] = r.0[0];
+            // Column 3 a combination of columns 0 and 1, in other units.
+            r.0[3] = 1e3 * r.0[0] - 0.5 * r.0[1];
+            // y partly explained by fixed and moving columns, so a wrong projection would
+            // show.
+            r.1 += 2.0 * r.0[0] - r.0[2] + 3e-3 * r.0[4];
         }
-        assert!(split(&data, &moving).is_none());
+        let (split, red) = split(&data, &moving).expect("split");
+        assert_eq!(split.dropped(), 1);
+        assert_eq!(split.order.len(), moving.len() - 1);
+        let mut full = StreamingQr::new(moving.len(), 64);
+        for (x, y) in &data {
+            full.push(x, *y);
+        }
+        let full = full.finish();
+        let of = |red: &Reduced| match solve::solve(red, solve::Solver::Svd, 1e-10, true) {
+            Ok(s) | Err(s) => (s.rss, s.rank),
+        };
+        let ((rss, rank), (want, want_rank)) = (of(&red), of(&full));
+        assert_eq!(rank, want_rank);
+        assert!((rss - want).abs() <= 1e-10 * want, "{rss} vs {want}");
     }
 }

@@ -61,6 +61,29 @@ pub fn scaled_triangle(red: &Reduced) -> (Vec<f64>, Vec<f64>) {
     (rs, scale)
 }
 
+/// The rank decision of the thesis' procedure on a unit-scaled triangle `rs` (see
+/// [`scaled_triangle`]): a column-pivoted QR, and the columns whose pivot exceeds `tol` times
+/// the first. Returns the rank, the ratio of the first to the last retained pivot, and the
+/// columns in pivot order (the first `rank` of them independent).
+pub fn pivoted_rank(rs: &Mat<f64>, tol: f64) -> (usize, f64, Vec<usize>) {
+    let p = rs.ncols();
+    if p == 0 {
+        return (0, f64::INFINITY, Vec::new());
+    }
+    let piv = rs.col_piv_qr();
+    let r2 = piv.R();
+    let d0 = r2[(0, 0)].abs();
+    let rank = (0..p.min(rs.nrows()))
+        .take_while(|&i| r2[(i, i)].abs() > tol * d0)
+        .count();
+    let cond = if rank > 0 {
+        d0 / r2[(rank - 1, rank - 1)].abs()
+    } else {
+        f64::INFINITY
+    };
+    (rank, cond, piv.P().arrays().0.to_vec())
+}
+
 // Both outcomes carry a whole solution, once per fit: boxing it would buy nothing.
 #[allow(clippy::result_large_err)]
 /// Solves with the rank decided at relative tolerance `tol`. `min_norm` gives the minimum-norm
@@ -79,15 +102,7 @@ pub fn solve(
     let rss_full = red.r[(p, p)].powi(2);
 
     let qr_rank = |tol: f64| -> (usize, f64) {
-        let piv = rs.col_piv_qr();
-        let r2 = piv.R();
-        let d0 = r2[(0, 0)].abs();
-        let rank = (0..p).take_while(|&i| r2[(i, i)].abs() > tol * d0).count();
-        let cond = if rank > 0 {
-            d0 / r2[(rank - 1, rank - 1)].abs()
-        } else {
-            f64::INFINITY
-        };
+        let (rank, cond, _) = pivoted_rank(&rs, tol);
         (rank, cond)
     };
 

@@ -231,7 +231,6 @@ pub(super) fn accumulate<E>(
             if filled > 0 {
                 send(&mut buf, &mut filled);
             }
-            drop(send);
             drop(to);
             let mut merged: Option<State> = None;
             for h in handles {

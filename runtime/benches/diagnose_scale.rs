@@ -6,10 +6,12 @@
 //!   lag, a continuous C table; ≈ 140 candidates);
 //! - `examples/bridge_cmm.kin` without `Y.ty += backlash(Y)`.
 //!
-//! Reports per phase the wall time and the CPU time of the (single) working thread: everything
-//! runs on the main thread, so CPU time is the figure that does not depend on what else the
-//! machine runs. The diagnosis is timed as `diagnose::diagnose` (what `kin diagnose` does after
-//! its fit), and its phases as the spectra, the candidate tests and the refits.
+//! Reports per phase the wall time, the CPU time of the calling thread and that of the whole
+//! process (every thread: the figure that does not depend on what else the machine runs). The diagnosis is
+//! timed as `diagnose::diagnose` (what `kin diagnose` does after its fit), and its phases from
+//! the progress it reports: up to the first row of the candidates' pass (the spectra, the
+//! candidate library, the super-model's compilation), the pass itself, the candidate algebra
+//! up to the first refit, the refits, and the rest (regions, noise, outliers).
 //!
 //! ```text
 //! cargo bench -p kin-runtime --bench diagnose_scale             # 10 000 poses
@@ -21,7 +23,9 @@ use std::time::{Duration, Instant};
 
 use kin_compiler::{compile, Compiled};
 use kin_runtime::data::Observations;
-use kin_runtime::diagnose::{self, Settings};
+use std::sync::{Arc, Mutex};
+
+use kin_runtime::diagnose::{self, Settings, Step};
 use kin_runtime::fit::{self, DataSet, Options};
 use kin_runtime::simulate::{self, sample_points};
 use rand::{Rng, SeedableRng};
@@ -35,16 +39,52 @@ fn cpu_now() -> Duration {
         .unwrap_or_default()
 }
 
+/// CPU time of the whole process, every thread (user + system, clock ticks of 10 ms).
+fn process_cpu() -> Duration {
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            // Fields after the command's closing parenthesis; utime and stime are 14 and 15.
+            let rest = s.rsplit_once(')')?.1;
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            let ticks = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
+            Some(Duration::from_millis(ticks * 10))
+        })
+        .unwrap_or_default()
+}
+
 fn timed<T>(what: &str, f: impl FnOnce() -> T) -> (T, Duration) {
-    let (w, c) = (Instant::now(), cpu_now());
+    let (w, c, p) = (Instant::now(), cpu_now(), process_cpu());
     let out = f();
     let (wall, cpu) = (w.elapsed(), cpu_now().saturating_sub(c));
     println!(
-        "  {what:<28} wall {:>8.3} s   cpu {:>8.3} s",
+        "  {what:<28} wall {:>8.3} s   cpu {:>8.3} s   all threads {:>8.3} s",
         wall.as_secs_f64(),
-        cpu.as_secs_f64()
+        cpu.as_secs_f64(),
+        process_cpu().saturating_sub(p).as_secs_f64()
     );
     (out, cpu)
+}
+
+/// A progress report that marks the phases' ends (wall clock, CPU time of the reporting
+/// thread, which is the diagnosing one).
+/// A phase's end: its name, the wall clock, this thread's and the process's CPU time.
+type Mark = (&'static str, Instant, Duration, Duration);
+
+fn phases(marks: Arc<Mutex<Vec<Mark>>>) -> diagnose::Progress {
+    diagnose::Progress::new(move |step, done, total| {
+        let Ok(mut m) = marks.lock() else { return };
+        let mark = match step {
+            Step::Rows if m.is_empty() => "spectra, library, compile",
+            Step::Rows if done == total => "candidate pass",
+            Step::Refits if done == 0 => "candidate algebra",
+            Step::Refits if done == total => "refits",
+            _ => return,
+        };
+        if !m.iter().any(|(w, _, _, _)| *w == mark) {
+            m.push((mark, Instant::now(), cpu_now(), process_cpu()));
+        }
+    })
 }
 
 fn compiled(src: &str) -> Compiled {
@@ -121,10 +161,28 @@ fn case(name: &str, path: &str, hidden: &str, value: f64, noise: f64, n: usize, 
     };
     let mut best = Duration::MAX;
     for _ in 0..repeat.max(1) {
+        let marks = Arc::new(Mutex::new(Vec::<Mark>::new()));
+        let settings = Settings {
+            progress: phases(marks.clone()),
+            ..settings.clone()
+        };
+        let (t0, c0, p0) = (Instant::now(), cpu_now(), process_cpu());
         let (d, cpu) = timed("diagnose", || {
             diagnose::diagnose(&start, &start_src, &files, &base, &options, &settings)
                 .expect("diagnose")
         });
+        let mut last = (t0, c0, p0);
+        let mut marks = marks.lock().map(|m| m.clone()).unwrap_or_default();
+        marks.push(("rest", Instant::now(), cpu_now(), process_cpu()));
+        for (what, w, c, p) in marks {
+            println!(
+                "    {what:<26} wall {:>8.3} s   cpu {:>8.3} s   all threads {:>8.3} s",
+                w.duration_since(last.0).as_secs_f64(),
+                c.saturating_sub(last.1).as_secs_f64(),
+                p.saturating_sub(last.2).as_secs_f64()
+            );
+            last = (w, c, p);
+        }
         best = best.min(cpu);
         if let Some(top) = d.findings.first() {
             println!(

@@ -8,14 +8,14 @@ use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 use thiserror::Error;
 
 use super::library::{self, Available, Proposal, Sampling};
-use super::{periodic, refit};
+use super::{pass, periodic, refit, spectrum};
 use super::{
     Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, LackOfFit, NoiseCheck, Outlier,
     Plausibility, Region, Spectrum,
 };
 use crate::data::Observations;
 use crate::fit::report::{component_name, model_hash};
-use crate::fit::{self, DataSet, FitResult, Layout, StreamingQr, Weights, LENGTH};
+use crate::fit::{self, DataSet, FitResult, Layout, Weights, LENGTH};
 
 #[derive(Debug, Error)]
 pub enum DiagnoseError {
@@ -116,7 +116,7 @@ pub fn diagnose(
     let s = m.units.error.scale;
     let available = available(m, files);
     let rows = positions(m, files, base);
-    let spectra = spectra(m, &rows, &available.sampled);
+    let spectra = spectra(m, &rows, &available.sampled, options.threads);
     let peaks: Vec<(usize, f64)> = spectra
         .iter()
         .filter(|sp| sp.peak_false_alarm < 0.01)
@@ -545,59 +545,15 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
         .collect()
 }
 
-/// The normalised Lomb–Scargle power of the residuals `pts` (position, residual; mean and
-/// variance given) at one wavelength. `trig` is scratch space.
-fn periodogram(
-    pts: &[(f64, f64)],
-    mean: f64,
-    var: f64,
-    lambda: f64,
-    trig: &mut Vec<(f64, f64)>,
-) -> f64 {
-    let w = std::f64::consts::TAU / lambda;
-    // One sincos per point: the double angle gives τ's sums, the angle difference
-    // the projections (four trigonometric calls per point otherwise).
-    sincos_all(w, pts, trig);
-    let (s2, c2): (f64, f64) = trig.iter().fold((0.0, 0.0), |(s, c), (sn, cs)| {
-        (s + 2.0 * sn * cs, c + cs * cs - sn * sn)
-    });
-    let (st, ct) = libm::sincos(0.5 * libm::atan2(s2, c2));
-    let (mut yc, mut ys, mut cc, mut ss) = (0.0, 0.0, 0.0, 0.0);
-    for ((_, y), (sn, cs)) in pts.iter().zip(trig.iter()) {
-        // sin(w(x − τ)) and cos(w(x − τ)) with wτ = atan2(s2, c2)/2.
-        let (sn, cs) = (sn * ct - cs * st, cs * ct + sn * st);
-        yc += (y - mean) * cs;
-        ys += (y - mean) * sn;
-        cc += cs * cs;
-        ss += sn * sn;
-    }
-    if cc > 0.0 && ss > 0.0 {
-        (yc * yc / cc + ys * ys / ss) / (2.0 * var)
-    } else {
-        0.0
-    }
-}
-
-/// `(sin, cos)` of `w x` for every point's `x`, into `trig`: four at a time (`wide`'s
-/// vectorised sin/cos, a three-part Cody–Waite reduction and minimax polynomials, within a few
-/// ulp of libm for the arguments a spectrum has, |w x| below 2π × 10⁵). This is the spectra's
-/// inner loop: 600 wavelengths × every residual × every component and prismatic axis.
-fn sincos_all(w: f64, pts: &[(f64, f64)], trig: &mut Vec<(f64, f64)>) {
-    trig.clear();
-    trig.reserve(pts.len());
-    let mut chunks = pts.chunks_exact(4);
-    for c in &mut chunks {
-        let a = wide::f64x4::new([w * c[0].0, w * c[1].0, w * c[2].0, w * c[3].0]);
-        let (sn, cs) = a.sin_cos();
-        let (sn, cs) = (sn.to_array(), cs.to_array());
-        trig.extend(sn.into_iter().zip(cs));
-    }
-    trig.extend(chunks.remainder().iter().map(|(x, _)| libm::sincos(w * x)));
-}
-
-/// Lomb–Scargle periodogram (Scargle 1982) of the residuals along each prismatic axis, per
-/// translation component: for non-uniform sampling, which is what real measurement plans are.
-fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<Spectrum> {
+/// The residual spectra along each prismatic axis, per translation component and length
+/// ([`spectrum`]: Lomb–Scargle, for the non-uniform sampling real measurement plans have).
+fn spectra(
+    m: &Machine,
+    rows: &[Located],
+    sampled: &[Option<Sampling>],
+    threads: usize,
+) -> Vec<Spectrum> {
+    const COMPONENTS: [u8; 4] = [0, 1, 2, LENGTH];
     let mut out = Vec::new();
     for (a, axis) in m.axes.iter().enumerate() {
         if axis.kind != JointKind::Prismatic {
@@ -610,83 +566,20 @@ fn spectra(m: &Machine, rows: &[Located], sampled: &[Option<Sampling>]) -> Vec<S
         let range = unit.from_si(sampling.hi) - unit.from_si(sampling.lo);
         // Nothing shorter than the sampling resolves (Nyquist on the distinct positions).
         let nyquist = unit.from_si(sampling.shortest()) - unit.from_si(0.0);
-        for c in [0u8, 1, 2, LENGTH] {
-            let pts: Vec<(f64, f64)> = rows
-                .iter()
-                .filter(|r| r.component == c)
-                .filter_map(|r| Some((*r.values.get(a)?, r.residual)))
-                .filter(|(x, _)| x.is_finite())
-                .collect();
-            if pts.len() < 30 {
-                continue;
-            }
-            let n = pts.len() as f64;
-            let mean = pts.iter().map(|p| p.1).sum::<f64>() / n;
-            let var = pts.iter().map(|p| (p.1 - mean).powi(2)).sum::<f64>() / (n - 1.0);
-            if var <= 0.0 {
-                continue;
-            }
-            // Wavelengths that repeat at least three times over the covered range, down to
-            // about four samples per period and never below twice the median spacing of the
-            // distinct positions (`Sampling::resolves`).
-            let longest = range / Sampling::PERIODS;
-            let shortest = (4.0 * range / n).max(range / 2000.0).max(nyquist);
-            if !(shortest < longest) {
-                continue;
-            }
-            let count = 600;
-            let mut wavelengths = Vec::with_capacity(count);
-            let mut trig: Vec<(f64, f64)> = Vec::with_capacity(pts.len());
-            let mut power = Vec::with_capacity(count);
-            for k in 0..count {
-                let lambda = longest * (shortest / longest).powf(k as f64 / (count - 1) as f64);
-                wavelengths.push(lambda);
-                power.push(periodogram(&pts, mean, var, lambda, &mut trig));
-            }
-            // The grid is ~1 % apart, but over tens of periods a wavelength off by that much
-            // drifts out of phase, and a candidate tested at it needs spurious harmonics to
-            // follow: the peak moves to the maximum between its neighbours (golden section).
-            if let Some(k) = (1..count.saturating_sub(1))
-                .max_by(|&a, &b| power[a].total_cmp(&power[b]))
-                .filter(|&k| power[k] >= power[k - 1] && power[k] >= power[k + 1])
-            {
-                let (mut a, mut b) = (wavelengths[k + 1], wavelengths[k - 1]);
-                let g = (5f64.sqrt() - 1.0) / 2.0;
-                // Each step keeps one inner point and its power: one new evaluation per step.
-                let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
-                let mut pc = periodogram(&pts, mean, var, c, &mut trig);
-                let mut pd = periodogram(&pts, mean, var, d, &mut trig);
-                for _ in 0..40 {
-                    if pc >= pd {
-                        b = d;
-                        (d, pd) = (c, pc);
-                        c = b - g * (b - a);
-                        pc = periodogram(&pts, mean, var, c, &mut trig);
-                    } else {
-                        a = c;
-                        (c, pc) = (d, pd);
-                        d = a + g * (b - a);
-                        pd = periodogram(&pts, mean, var, d, &mut trig);
-                    }
-                }
-                let best = 0.5 * (a + b);
-                let p = periodogram(&pts, mean, var, best, &mut trig);
-                if p > power[k] {
-                    wavelengths[k] = best;
-                    power[k] = p;
-                }
-            }
-            let peak = power.iter().copied().fold(0.0, f64::max);
-            // Independent frequencies ≈ the number of periods the grid spans over the range.
-            let independent = (range / shortest).max(1.0);
-            let fap = 1.0 - (1.0 - (-peak).exp()).powf(independent);
+        let along = rows.iter().filter_map(|r| {
+            let slot = COMPONENTS.iter().position(|&c| c == r.component)?;
+            let x = *r.values.get(a)?;
+            x.is_finite().then_some((slot, x, r.residual))
+        });
+        let (positions, moments) = spectrum::Positions::group(COMPONENTS.len(), along);
+        for s in spectrum::spectra(&positions, &moments, range, nyquist, threads) {
             out.push(Spectrum {
-                component: component_name(c).to_string(),
+                component: component_name(COMPONENTS[s.slot]).to_string(),
                 variable: axis.name.clone(),
                 unit: unit.name.clone(),
-                wavelengths,
-                power,
-                peak_false_alarm: fap.clamp(0.0, 1.0),
+                wavelengths: s.wavelengths,
+                power: s.power,
+                peak_false_alarm: s.false_alarm,
             });
         }
     }
@@ -864,81 +757,84 @@ fn test_candidates(
     let mut layout = Layout::new(&sup.machine, files);
     layout.weights = base.layout.weights;
     let states = fit::states_with(&sup.machine, files, &values)?;
-    let mut acc = StreamingQr::with_threads(layout.columns(), options.block, options.threads);
-    let total: u64 = files.iter().map(|f| f.observations.len() as u64).sum();
-    let (mut done, mut last) = (0u64, None);
-    fit::for_each_row(engine.as_mut(), files, &states, &layout, |meta, x, y| {
-        // Several rows (components) share a measured row: count the measured rows.
-        if last != Some((meta.file, meta.line)) {
-            last = Some((meta.file, meta.line));
-            done += 1;
-            if done % 4096 == 0 {
-                settings.progress.report(Step::Rows, done, total);
-            }
-        }
-        acc.push(x, y)
-    })?;
-    settings.progress.report(Step::Rows, total, total);
-    let red = acc.finish();
     let n_base = m.coefficients.len();
     let width = layout.columns();
-    let base_mask: Vec<bool> = (0..width)
-        .map(|j| j < n_base || j >= layout.coefficients)
-        .collect();
-    // Everything is done on the columns of R, whose inner products are those of the columns of
-    // X. An orthonormal basis of the base model's columns first; then each candidate column
-    // with the base projected out, once. A candidate column the base (or the candidate's own
-    // earlier columns) already spans is dropped: a spline with more knots shares its `s`, `s²`
-    // with the one in the model. (An unpivoted re-triangularisation of the restricted columns
-    // cannot be used here: after a dependent column its triangle is meaningless.)
-    let column = |j: usize| -> Vec<f64> { (0..red.r.nrows()).map(|i| red.r[(i, j)]).collect() };
+    // The base model's columns (its coefficients, then the nuisance parameters), and every
+    // candidate column once, in the order the candidates name them.
+    let mut split = pass::Split {
+        base: (0..width)
+            .filter(|&j| j < n_base || j >= layout.coefficients)
+            .collect(),
+        candidates: Vec::new(),
+    };
+    let mut slot_of: HashMap<usize, usize> = HashMap::new();
+    for &j in columns.iter().flat_map(|(_, terms)| terms.iter().flatten()) {
+        slot_of.entry(j).or_insert_with(|| {
+            split.candidates.push(j);
+            split.candidates.len() - 1
+        });
+    }
+    let total: u64 = files.iter().map(|f| f.observations.len() as u64).sum();
+    let (mut done, mut last) = (0u64, None);
+    let acc = pass::accumulate(
+        &split,
+        width,
+        options.block,
+        options.threads,
+        |push| {
+            fit::for_each_row(engine.as_mut(), files, &states, &layout, |meta, x, y| {
+                // Several rows (components) share a measured row: count the measured rows.
+                if last != Some((meta.file, meta.line)) {
+                    last = Some((meta.file, meta.line));
+                    done += 1;
+                    if done % 4096 == 0 {
+                        settings.progress.report(Step::Rows, done, total);
+                    }
+                }
+                push(x, y)
+            })
+        },
+    )?;
+    settings.progress.report(Step::Rows, total, total);
+    let kb = split.base.len();
+    // Everything is done on columns of factors whose inner products are those of the columns
+    // of X ([`pass`]). An orthonormal basis of the base model's columns first, in the base's
+    // coordinates (the first `kb` of every factor); then each candidate's columns with the base
+    // projected out. A candidate column the base (or the candidate's own earlier columns)
+    // already spans is dropped: a spline with more knots shares its `s`, `s²` with the one in
+    // the model. (An unpivoted re-triangularisation of the restricted columns cannot be used
+    // here: after a dependent column its triangle is meaningless.)
     let mut base_basis: Vec<Vec<f64>> = Vec::new();
     // The base columns that keep a direction of their own: the refit's columns for the
     // plausibility check.
     let mut base_cols: Vec<usize> = Vec::new();
-    for j in (0..width).filter(|&j| base_mask[j]) {
-        let mut v = column(j);
+    for (c, &j) in split.base.iter().enumerate() {
+        let mut v: Vec<f64> = (0..kb).map(|i| acc.r[(i, c)]).collect();
         project_out(&mut v, &base_basis);
-        if extend(&mut base_basis, v, red.norms[j]) {
+        if extend(&mut base_basis, v, acc.norms[j]) {
             base_cols.push(j);
         }
     }
     let base_rank = base_basis.len();
-    let mut y = column(width);
-    project_out(&mut y, &base_basis);
-    let rss_base = dot(&y, &y);
-    let mut outside: HashMap<usize, Vec<f64>> = HashMap::new();
-    let rows = red.rows as f64;
+    let rss_base = {
+        let mut z: Vec<f64> = (0..kb).map(|i| acc.s[(i, split.candidates.len())]).collect();
+        project_out(&mut z, &base_basis);
+        dot(&z, &z) + acc.ee
+    };
+    let rows = acc.rows as f64;
     let s = m.units.error.scale;
+    let space = Space {
+        acc: &acc,
+        base: &base_basis,
+        slot_of: &slot_of,
+        rss_base,
+    };
 
     let mut tested: Vec<Tested> = Vec::new();
     for (k, terms) in &columns {
-        let mut own: Vec<Vec<f64>> = Vec::new();
-        let mut own_cols: Vec<usize> = Vec::new();
-        let mut kept = Vec::with_capacity(terms.len());
-        // Whether the line can be written to add exactly what is new (see below).
-        let mut appliable = true;
-        for cols in terms {
-            let before = own.len();
-            for &j in cols {
-                let mut v = outside
-                    .entry(j)
-                    .or_insert_with(|| {
-                        let mut v = column(j);
-                        project_out(&mut v, &base_basis);
-                        v
-                    })
-                    .clone();
-                project_out(&mut v, &own);
-                if extend(&mut own, v, red.norms[j]) {
-                    own_cols.push(j);
-                }
-            }
-            let new = own.len() - before;
-            kept.push(new > 0);
-            appliable &= !cols.is_empty() && (new == 0 || new == cols.len());
-        }
-        let added = own.len();
+        let Some(added) = space.added(terms) else {
+            continue;
+        };
         // A candidate the model already contains, or one the data cannot see, adds nothing.
         // Terms the model wholly spans are left out of the line (`restate`), so that what is
         // applied adds exactly `added` coefficients and the refit stays identifiable. A term
@@ -946,39 +842,38 @@ fn test_candidates(
         // elsewhere already make) cannot be: a line adds all of a term's functions or none,
         // and with all of them the refit would be rank-deficient (E0601). Such a candidate is
         // not proposed, nor one whose terms could not be told apart in the super-model.
-        if added == 0 || !appliable {
+        if added.basis.is_empty() || !added.appliable {
             continue;
         }
-        let mut e = y.clone();
-        project_out(&mut e, &own);
-        let rss = dot(&e, &e);
-        let dof = rows - (base_rank + added) as f64;
+        let n_added = added.basis.len();
+        let rss = added.rss;
+        let dof = rows - (base_rank + n_added) as f64;
         if dof <= 0.0 || rss <= 0.0 {
             continue;
         }
-        let f = ((rss_base - rss) / added as f64) / (rss / dof);
-        let p = FisherSnedecor::new(added as f64, dof)
+        let f = ((rss_base - rss) / n_added as f64) / (rss / dof);
+        let p = FisherSnedecor::new(n_added as f64, dof)
             .map(|d| 1.0 - d.cdf(f.max(0.0)))
             .unwrap_or(1.0);
         tested.push(Tested {
             proposal: *k,
             finding: Finding {
-                candidate: library::restate(&proposals[*k], &kept),
+                candidate: library::restate(&proposals[*k], &added.kept),
                 alternatives: Vec::new(),
                 separation: None,
-                columns: added,
+                columns: n_added,
                 explained: ((rss_base - rss) / rss_base).max(0.0),
                 f,
                 p,
                 p_adjusted: 1.0,
                 significant: false,
                 rms_after: (rss / rows).sqrt() / s,
-                bic: rows * (rss / rss_base).ln() + added as f64 * rows.ln(),
+                bic: rows * (rss / rss_base).ln() + n_added as f64 * rows.ln(),
                 plausibility: None,
                 fitted: Vec::new(),
             },
-            basis: own,
-            columns: own_cols,
+            terms: terms.clone(),
+            columns: added.columns,
             rss,
         });
     }
@@ -1047,12 +942,12 @@ fn test_candidates(
         all.extend(best);
     }
     all.sort_by(|a, b| rank_order(&a.finding, &b.finding));
-    let mut findings = equivalent_groups(all, rss_base);
+    let mut findings = equivalent_groups(all, rss_base, &space);
     // The plausibility of the refit, for what the user may act on.
     let size = machine_size(m);
     for f in findings.iter_mut().filter(|f| f.finding.significant) {
         let p = plausibility(
-            &red,
+            &space.reduced(&f.columns),
             &base_cols,
             &f.columns,
             &sup.machine,
@@ -1089,14 +984,150 @@ fn test_candidates(
     Ok(out)
 }
 
-/// A candidate as tested: its finding, the orthonormal basis of what it adds (base projected
-/// out), the super-model columns behind it, and its refit RSS.
+/// A candidate as tested: its finding, its terms' super-model columns, the columns that add a
+/// direction of their own, and its refit RSS.
 struct Tested {
     proposal: usize,
     finding: Finding,
-    basis: Vec<Vec<f64>>,
+    terms: Vec<Vec<usize>>,
     columns: Vec<usize>,
     rss: f64,
+}
+
+/// What a candidate adds to the base: an orthonormal basis of it (base projected out), the
+/// super-model columns behind it, per term whether it adds anything, whether the line can be
+/// written to add exactly that, and the RSS with it.
+struct Added {
+    basis: Vec<Vec<f64>>,
+    columns: Vec<usize>,
+    kept: Vec<bool>,
+    appliable: bool,
+    rss: f64,
+}
+
+/// The pass's products seen as columns of factors ([`pass::Accumulated::factor`]): the base's
+/// orthonormal basis in the base's coordinates, and the candidate columns' slots.
+struct Space<'a> {
+    acc: &'a pass::Accumulated,
+    base: &'a [Vec<f64>],
+    slot_of: &'a HashMap<usize, usize>,
+    rss_base: f64,
+}
+
+impl Space<'_> {
+    /// The factor of the base with the super-model columns `cols` (each once), and where each
+    /// column is in it.
+    fn factor(&self, cols: impl Iterator<Item = usize>) -> (faer::Mat<f64>, HashMap<usize, usize>) {
+        let kb = self.acc.r.nrows();
+        let mut slots = Vec::new();
+        let mut at = HashMap::new();
+        for j in cols {
+            if let (Some(&slot), false) = (self.slot_of.get(&j), at.contains_key(&j)) {
+                at.insert(j, kb + slots.len());
+                slots.push(slot);
+            }
+        }
+        (self.acc.factor(&slots), at)
+    }
+
+    /// What the terms (super-model columns per term) add to the base; `None` when a column
+    /// was not in the pass.
+    fn added(&self, terms: &[Vec<usize>]) -> Option<Added> {
+        let (f, at) = self.factor(terms.iter().flatten().copied());
+        self.added_in(&f, &at, terms)
+    }
+
+    fn added_in(
+        &self,
+        f: &faer::Mat<f64>,
+        at: &HashMap<usize, usize>,
+        terms: &[Vec<usize>],
+    ) -> Option<Added> {
+        let k = f.nrows();
+        let column = |c: usize| -> Vec<f64> { (0..k).map(|i| f[(i, c)]).collect() };
+        let base: Vec<Vec<f64>> = self
+            .base
+            .iter()
+            .map(|b| {
+                let mut v = b.clone();
+                v.resize(k, 0.0);
+                v
+            })
+            .collect();
+        let mut y = column(k.checked_sub(1)?);
+        project_out(&mut y, &base);
+        let mut own: Vec<Vec<f64>> = Vec::new();
+        let mut columns = Vec::new();
+        let mut kept = Vec::with_capacity(terms.len());
+        // Whether the line can be written to add exactly what is new (see the caller).
+        let mut appliable = true;
+        for cols in terms {
+            let before = own.len();
+            for &j in cols {
+                let mut v = column(*at.get(&j)?);
+                project_out(&mut v, &base);
+                project_out(&mut v, &own);
+                if extend(&mut own, v, self.acc.norms.get(j).copied().unwrap_or(0.0)) {
+                    columns.push(j);
+                }
+            }
+            let new = own.len() - before;
+            kept.push(new > 0);
+            appliable &= !cols.is_empty() && (new == 0 || new == cols.len());
+        }
+        // The RSS with the candidate, against the base's RSS of the whole pass (this factor's
+        // `y` has it up to the rounding of its Gram root).
+        let mut e = y.clone();
+        project_out(&mut e, &own);
+        let rss = dot(&e, &e) + (self.rss_base - dot(&y, &y));
+        Some(Added {
+            basis: own,
+            columns,
+            kept,
+            appliable,
+            rss: rss.max(0.0),
+        })
+    }
+
+    /// Whether two candidates add the same space: both bases in one factor.
+    fn same(&self, a: &Tested, b: &Tested) -> bool {
+        let (f, at) = self.factor(a.terms.iter().chain(&b.terms).flatten().copied());
+        match (
+            self.added_in(&f, &at, &a.terms),
+            self.added_in(&f, &at, &b.terms),
+        ) {
+            (Some(x), Some(y)) => same_space(&x.basis, &y.basis),
+            _ => false,
+        }
+    }
+
+    /// A reduced problem of the base and the super-model columns `cols`, at their design
+    /// positions (y at the last), for [`plausibility`].
+    fn reduced(&self, cols: &[usize]) -> fit::Reduced {
+        let (f, at) = self.factor(cols.iter().copied());
+        let width = self.acc.norms.len();
+        let k = f.nrows();
+        let mut r = faer::Mat::zeros(k, width + 1);
+        let mut place = |from: usize, to: usize| {
+            for i in 0..k {
+                r[(i, to)] = f[(i, from)];
+            }
+        };
+        for (c, &j) in self.acc.base.iter().enumerate() {
+            place(c, j);
+        }
+        for (&j, &c) in &at {
+            place(c, j);
+        }
+        place(k - 1, width);
+        fit::Reduced {
+            r,
+            rows: self.acc.rows,
+            norms: self.acc.norms.clone(),
+            y_sum: 0.0,
+            y_sumsq: 0.0,
+        }
+    }
 }
 
 /// The ranking: significant before not; a significant finding whose refit is implausible after
@@ -1137,21 +1168,20 @@ fn simplicity(f: Family) -> u8 {
 /// these rows: the data cannot decide between them.
 const SAME_SPACE: f64 = 1e-6;
 
-fn same_space(a: &Tested, b: &Tested) -> bool {
-    if a.basis.len() != b.basis.len() {
+fn same_space(a: &[Vec<f64>], b: &[Vec<f64>]) -> bool {
+    if a.len() != b.len() {
         return false;
     }
     let captured: f64 = a
-        .basis
         .iter()
-        .map(|u| b.basis.iter().map(|v| dot(u, v).powi(2)).sum::<f64>())
+        .map(|u| b.iter().map(|v| dot(u, v).powi(2)).sum::<f64>())
         .sum();
-    a.basis.len() as f64 - captured < SAME_SPACE * a.basis.len() as f64
+    a.len() as f64 - captured < SAME_SPACE * a.len() as f64
 }
 
 /// Groups indistinguishable candidates (given in rank order) into one finding each: the
 /// canonical line by [`simplicity`] then text, the others as alternatives.
-fn equivalent_groups(all: Vec<Tested>, rss_base: f64) -> Vec<Tested> {
+fn equivalent_groups(all: Vec<Tested>, rss_base: f64, space: &Space) -> Vec<Tested> {
     let mut groups: Vec<Vec<Tested>> = Vec::new();
     for t in all {
         // Equal RSS (to rounding) first: a cheap necessary condition.
@@ -1159,7 +1189,8 @@ fn equivalent_groups(all: Vec<Tested>, rss_base: f64) -> Vec<Tested> {
             g.first().is_some_and(|h| {
                 (h.rss - t.rss).abs() <= 1e-9 * rss_base.max(f64::MIN_POSITIVE)
                     && h.finding.significant == t.finding.significant
-                    && same_space(h, &t)
+                    && h.finding.columns == t.finding.columns
+                    && space.same(h, &t)
             })
         };
         match groups.iter_mut().find(|g| close(g)) {
@@ -1663,6 +1694,7 @@ fn nice(v: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fit::StreamingQr;
 
     fn region(component: &str, cond: &str, ratio: f64) -> Region {
         Region {
@@ -1752,27 +1784,6 @@ machine cmm3 {
         }
         let p = plausibility(&qr.finish(), &[0], &[1], m, size, m.coefficients.len());
         assert!(p.warnings.is_empty(), "{p:?}");
-    }
-
-    /// The four-lane sin/cos against libm's, over the arguments of a spectrum (positions of a
-    /// metre in mm at wavelengths down to a tenth of a mm) and beyond.
-    #[test]
-    fn vectorised_sincos_matches_libm() {
-        let pts: Vec<(f64, f64)> = (0..1003)
-            .map(|i| (-200.0 + 1.234567 * i as f64, 0.0))
-            .collect();
-        let mut trig = Vec::new();
-        for w in [1e-3, 0.7, std::f64::consts::TAU / 0.1, 400.0] {
-            sincos_all(w, &pts, &mut trig);
-            assert_eq!(trig.len(), pts.len());
-            for ((x, _), (sn, cs)) in pts.iter().zip(&trig) {
-                let (s0, c0) = libm::sincos(w * x);
-                assert!(
-                    (sn - s0).abs() < 1e-14 && (cs - c0).abs() < 1e-14,
-                    "w {w} x {x}: {sn} {cs} against {s0} {c0}"
-                );
-            }
-        }
     }
 
     #[test]

@@ -246,7 +246,9 @@ mod coverage;
 mod heat;
 pub mod library;
 mod motions;
+mod pass;
 mod periodic;
 mod refit;
+mod spectrum;
 
 pub use analyse::{diagnose, lack_of_fit, DiagnoseError, Progress, Settings, Step};

@@ -10,6 +10,7 @@ pub mod merge;
 pub mod nonlinear;
 mod projection;
 mod qr;
+mod tpqr;
 pub mod report;
 mod solve;
 pub mod stations;

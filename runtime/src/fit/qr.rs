@@ -1,7 +1,7 @@
 //! Streaming QR: the triangular factor of `[X | y]` accumulated block by block, so memory grows
 //! with the number of columns, not of rows.
 //!
-//! Each block of rows is stacked under the current `R` and refactored (Householder, faer):
+//! Each block of rows is stacked under the current `R` and refactored (Householder, [`tpqr`]):
 //! `QR([R; B]) = Q' R'`, and `R'ᵀR' = RᵀR + BᵀB`, so the final `R` is that of the whole matrix
 //! and `R[p, p]²` is the residual sum of squares of the full least-squares problem.
 //!
@@ -22,14 +22,16 @@ use std::thread::JoinHandle;
 
 use faer::Mat;
 
+use super::tpqr;
+
 /// The parallel half: one channel and one thread per worker, and the emptied blocks coming back.
 #[derive(Debug)]
 struct Workers {
-    to: Vec<SyncSender<(Mat<f64>, usize)>>,
+    to: Vec<SyncSender<(Rows, usize)>>,
     // Behind a mutex only so that a `StreamingQr` is `Sync` (a binding's object may be shared
     // between threads); `send` has `&mut self` and reaches it without locking.
-    spare: Mutex<Receiver<Mat<f64>>>,
-    handles: Vec<JoinHandle<Mat<f64>>>,
+    spare: Mutex<Receiver<Rows>>,
+    handles: Vec<JoinHandle<Triangle>>,
     /// Blocks sent so far: the next goes to worker `sent mod T`.
     sent: usize,
 }
@@ -41,12 +43,12 @@ impl Workers {
         let mut handles = Vec::with_capacity(threads);
         for _ in 0..threads {
             // One block queued per worker: the reader never runs more than a block ahead.
-            let (tx, rx) = mpsc::sync_channel::<(Mat<f64>, usize)>(1);
+            let (tx, rx) = mpsc::sync_channel::<(Rows, usize)>(1);
             let back = back.clone();
             handles.push(std::thread::spawn(move || {
-                let mut r = Mat::zeros(k, k);
-                for (block, filled) in rx {
-                    fold(&mut r, &block, filled);
+                let mut r = Triangle::new(k);
+                for (mut block, filled) in rx {
+                    r.fold(&mut block, filled);
                     // The reader may have finished and dropped its end: nothing to return to.
                     let _ = back.send(block);
                 }
@@ -63,8 +65,8 @@ impl Workers {
     }
 
     /// Hands a block to its worker; returns an empty block to fill next.
-    fn send(&mut self, block: Mat<f64>, filled: usize) -> Mat<f64> {
-        let (rows, cols) = (block.nrows(), block.ncols());
+    fn send(&mut self, block: Rows, filled: usize) -> Rows {
+        let (rows, len) = (block.rows, block.data.len());
         let t = self.sent % self.to.len();
         self.sent += 1;
         let failed = match self.to.get(t) {
@@ -73,22 +75,22 @@ impl Workers {
         };
         if failed {
             // Only a worker that died (a bug) drops its end; `finish` reports it.
-            return Mat::zeros(rows, cols);
+            return Rows { data: vec![0.0; len], rows };
         }
         let spare = match self.spare.get_mut() {
             Ok(spare) => spare.try_recv().ok(),
             Err(_) => None,
         };
-        spare.unwrap_or_else(|| Mat::zeros(rows, cols))
+        spare.unwrap_or_else(|| Rows { data: vec![0.0; len], rows })
     }
 
     /// The workers' triangles, stacked and factored in worker order.
-    fn finish(self, k: usize) -> Mat<f64> {
+    fn finish(self, k: usize) -> Triangle {
         drop(self.to);
-        let mut r = Mat::zeros(k, k);
+        let mut r = Triangle::new(k);
         for h in self.handles {
             match h.join() {
-                Ok(part) => fold(&mut r, &part, k),
+                Ok(part) => r.merge(&part),
                 // A worker panicked: a bug in this module, carried to the caller as it was.
                 Err(e) => std::panic::resume_unwind(e),
             }
@@ -97,29 +99,68 @@ impl Workers {
     }
 }
 
-/// `r` := the triangle of `[r; block[..filled]]`.
-fn fold(r: &mut Mat<f64>, block: &Mat<f64>, filled: usize) {
-    if filled == 0 {
-        return;
-    }
-    let k = r.ncols();
-    let stacked = Mat::from_fn(k + filled, k, |i, j| {
-        if i < k {
-            r[(i, j)]
-        } else {
-            block[(i - k, j)]
+/// A block of rows waiting to be folded in: `rows × k`, column-major (what [`tpqr::update`]
+/// works on in place).
+#[derive(Debug, Clone)]
+struct Rows {
+    data: Vec<f64>,
+    rows: usize,
+}
+
+impl Rows {
+    fn new(rows: usize, k: usize) -> Rows {
+        Rows {
+            data: vec![0.0; rows * k],
+            rows,
         }
-    });
-    let qr = stacked.qr();
-    let t = qr.thin_R();
-    *r = Mat::from_fn(k, k, |i, j| if j >= i { t[(i, j)] } else { 0.0 });
+    }
+}
+
+/// The running triangle: `k × k`, column-major, zero below the diagonal, with the scratch
+/// memory of its updates.
+#[derive(Debug, Clone)]
+struct Triangle {
+    r: Vec<f64>,
+    k: usize,
+    work: tpqr::Work,
+}
+
+impl Triangle {
+    fn new(k: usize) -> Triangle {
+        Triangle {
+            r: vec![0.0; k * k],
+            k,
+            work: tpqr::Work::default(),
+        }
+    }
+
+    /// `self` := the triangle of `[self; block[..filled]]`; the block's rows are consumed
+    /// (overwritten by reflectors).
+    fn fold(&mut self, block: &mut Rows, filled: usize) {
+        let filled = filled.min(block.rows);
+        tpqr::update(&mut self.r, self.k, &mut block.data, block.rows, filled, &mut self.work);
+    }
+
+    /// `self` := the triangle of `[self; other]`.
+    fn merge(&mut self, other: &Triangle) {
+        let mut rows = Rows {
+            data: other.r.clone(),
+            rows: self.k,
+        };
+        self.fold(&mut rows, self.k);
+    }
+
+    fn to_mat(&self) -> Mat<f64> {
+        let k = self.k;
+        Mat::from_fn(k, k, |i, j| if j >= i { self.r[j * k + i] } else { 0.0 })
+    }
 }
 
 #[derive(Debug)]
 pub struct StreamingQr {
     k: usize,
-    r: Mat<f64>,
-    block: Mat<f64>,
+    r: Triangle,
+    block: Rows,
     filled: usize,
     rows: usize,
     norms2: Vec<f64>,
@@ -169,8 +210,8 @@ impl StreamingQr {
         let block = block.max(k);
         StreamingQr {
             k,
-            r: Mat::zeros(k, k),
-            block: Mat::zeros(block, k),
+            r: Triangle::new(k),
+            block: Rows::new(block, k),
             filled: 0,
             rows: 0,
             norms2: vec![0.0; columns],
@@ -181,18 +222,20 @@ impl StreamingQr {
     }
 
     pub fn push(&mut self, x: &[f64], y: f64) {
-        let i = self.filled;
-        for (j, v) in x.iter().take(self.k - 1).enumerate() {
-            self.block[(i, j)] = *v;
-            if let Some(n) = self.norms2.get_mut(j) {
-                *n += v * v;
-            }
+        let (i, ld) = (self.filled, self.block.rows);
+        // Column-major: value j of row i at j·ld + i (the kernel's layout).
+        let cells = self.block.data.iter_mut().skip(i).step_by(ld);
+        for ((cell, v), n) in cells.zip(x).zip(&mut self.norms2) {
+            *cell = *v;
+            *n += v * v;
         }
-        self.block[(i, self.k - 1)] = y;
+        if let Some(cell) = self.block.data.get_mut((self.k - 1) * ld + i) {
+            *cell = y;
+        }
         self.y_sum += y;
         self.filled += 1;
         self.rows += 1;
-        if self.filled == self.block.nrows() {
+        if self.filled == self.block.rows {
             if self.threads > 1 && self.workers.is_none() {
                 self.workers = Some(Workers::start(self.threads, self.k));
             }
@@ -206,11 +249,11 @@ impl StreamingQr {
         }
         match &mut self.workers {
             Some(w) => {
-                let empty = Mat::zeros(0, 0);
+                let empty = Rows::new(0, 0);
                 let full = std::mem::replace(&mut self.block, empty);
                 self.block = w.send(full, self.filled);
             }
-            None => fold(&mut self.r, &self.block, self.filled),
+            None => self.r.fold(&mut self.block, self.filled),
         }
         self.filled = 0;
     }
@@ -221,7 +264,7 @@ impl StreamingQr {
         if let Some(w) = self.workers.take() {
             self.r = w.finish(k);
         }
-        let r = std::mem::replace(&mut self.r, Mat::zeros(0, 0));
+        let r = self.r.to_mat();
         self.reduced(r)
     }
 
@@ -239,8 +282,8 @@ impl StreamingQr {
             return None;
         }
         let mut r = self.r.clone();
-        fold(&mut r, &self.block, self.filled);
-        Some(self.reduced(r))
+        r.fold(&mut self.block.clone(), self.filled);
+        Some(self.reduced(r.to_mat()))
     }
 
     fn reduced(&self, r: Mat<f64>) -> Reduced {

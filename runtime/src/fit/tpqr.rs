@@ -28,6 +28,8 @@ const LEAF: usize = 8;
 #[derive(Debug, Default, Clone)]
 pub(super) struct Work {
     tau: Vec<f64>,
+    /// `n × n`, column-major: for every range of columns the recursion factors, its
+    /// reflectors' `T` is the diagonal block of the range.
     t: Vec<f64>,
     z: Vec<f64>,
     w: Vec<f64>,
@@ -42,17 +44,21 @@ pub(super) fn update(r: &mut [f64], n: usize, b: &mut [f64], ldb: usize, rows: u
     }
     work.tau.clear();
     work.tau.resize(n, 0.0);
+    work.t.clear();
+    work.t.resize(n * n, 0.0);
+    let panel = panel_width();
     let mut m = Mats { r, n, b, ldb, rows };
     let mut j0 = 0;
     while j0 < n {
-        let j1 = (j0 + PANEL).min(n);
+        let j1 = (j0 + panel).min(n);
         factor(&mut m, j0, j1, work);
-        if j1 < n {
-            t_factor(&m, j0, j1, work);
-            apply(&mut m, j0, j1, j1, n, work);
-        }
+        apply(&mut m, j0, j1, j1, n, work);
         j0 = j1;
     }
+}
+
+fn panel_width() -> usize {
+    std::env::var("KIN_TPQR_PANEL").ok().and_then(|v| v.parse().ok()).unwrap_or(PANEL)
 }
 
 /// The two matrices being updated.
@@ -75,19 +81,21 @@ impl Mats<'_> {
     }
 }
 
-/// Factors columns `j0..j1`, applying each reflector only to the others of that range.
+/// Factors columns `j0..j1`, applying each reflector only to the others of that range, and
+/// leaves their `T` in `work.t`.
 fn factor(m: &mut Mats, j0: usize, j1: usize, work: &mut Work) {
     if j1 - j0 <= LEAF {
         for j in j0..j1 {
             reflect(m, j, j1, work);
         }
+        leaf_t(m, j0, j1, work);
         return;
     }
     let mid = j0 + (j1 - j0) / 2;
     factor(m, j0, mid, work);
-    t_factor(m, j0, mid, work);
     apply(m, j0, mid, mid, j1, work);
     factor(m, mid, j1, work);
+    join_t(m, j0, mid, j1, work);
 }
 
 /// The reflector of column `j` (stored in `b[:, j]`, its scalar in `tau[j]`), applied to
@@ -138,11 +146,12 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     ((s[0] + s[4]) + (s[1] + s[5])) + ((s[2] + s[6]) + (s[3] + s[7])) + tail
 }
 
-/// `T` of the reflectors `j0..j1` (`nb × nb`, upper, column-major in `work.t`):
-/// `H_{j0} ⋯ H_{j1−1} = I − Y T Yᵀ`. The reflectors' parts in the triangle are distinct unit
-/// vectors, so `YᵀY = VᵀV` of their parts in the block.
-fn t_factor(m: &Mats, j0: usize, j1: usize, work: &mut Work) {
-    let nb = j1 - j0;
+/// `T` of the reflectors `j0..j1` from scratch (LAPACK's `dlarft`, forward):
+/// `H_{j0} ⋯ H_{j1−1} = I − Y T Yᵀ`, `T[i, i] = τᵢ`, `T[..i, i] = −τᵢ T[..i, ..i] Y[:, ..i]ᵀ yᵢ`.
+/// The reflectors' parts in the triangle are distinct unit vectors, so `YᵀY = VᵀV` of their
+/// parts in the block.
+fn leaf_t(m: &Mats, j0: usize, j1: usize, work: &mut Work) {
+    let (nb, n) = (j1 - j0, m.n);
     work.z.clear();
     work.z.resize(nb * nb, 0.0);
     let v = m.b_cols(j0, j1);
@@ -154,15 +163,46 @@ fn t_factor(m: &Mats, j0: usize, j1: usize, work: &mut Work) {
         1.0,
         Par::Seq,
     );
-    work.t.clear();
-    work.t.resize(nb * nb, 0.0);
     let (t, z, tau) = (&mut work.t, &work.z, &work.tau[j0..j1]);
+    // T[a, b] of the range at t[(j0 + b)·n + j0 + a].
+    let at = |a: usize, b: usize| (j0 + b) * n + j0 + a;
     for i in 0..nb {
-        t[i * nb + i] = tau[i];
-        // T[0..i, i] = −τᵢ T[0..i, 0..i] z[0..i, i], T upper: row l sums from column l.
+        t[at(i, i)] = tau[i];
         for l in 0..i {
-            let s: f64 = (l..i).map(|c| t[c * nb + l] * z[i * nb + c]).sum();
-            t[i * nb + l] = -tau[i] * s;
+            let s: f64 = (l..i).map(|c| t[at(l, c)] * z[i * nb + c]).sum();
+            t[at(l, i)] = -tau[i] * s;
+        }
+    }
+}
+
+/// `T` of `j0..j1` from those of `j0..mid` and `mid..j1`:
+/// `T = [T₁  −T₁ (V₁ᵀV₂) T₂; 0  T₂]` (only the off-diagonal block is new).
+fn join_t(m: &Mats, j0: usize, mid: usize, j1: usize, work: &mut Work) {
+    let (n1, n2, n) = (mid - j0, j1 - mid, m.n);
+    work.z.clear();
+    work.z.resize(n1 * n2, 0.0);
+    matmul(
+        MatMut::from_column_major_slice_mut(&mut work.z, n1, n2),
+        Accum::Replace,
+        m.b_cols(j0, mid).transpose(),
+        m.b_cols(mid, j1),
+        1.0,
+        Par::Seq,
+    );
+    let t = &mut work.t;
+    let z = &mut work.z;
+    // z := z T₂ (T₂ upper: column c of the product reads columns ≤ c; right to left).
+    for c in (0..n2).rev() {
+        for a in 0..n1 {
+            let s: f64 = (0..=c).map(|l| z[l * n1 + a] * t[(mid + c) * n + mid + l]).sum();
+            z[c * n1 + a] = s;
+        }
+    }
+    // T₁₂ = −T₁ z (T₁ upper: row a reads rows ≥ a).
+    for c in 0..n2 {
+        for a in 0..n1 {
+            let s: f64 = (a..n1).map(|l| t[(j0 + l) * n + j0 + a] * z[c * n1 + l]).sum();
+            t[(mid + c) * n + j0 + a] = -s;
         }
     }
 }
@@ -194,7 +234,8 @@ fn apply(m: &mut Mats, j0: usize, j1: usize, c0: usize, c1: usize, work: &mut Wo
     for c in 0..nc {
         let w = &mut work.w[c * nb..(c + 1) * nb];
         for i in (0..nb).rev() {
-            w[i] = (0..=i).map(|l| t[i * nb + l] * w[l]).sum();
+            let col = &t[(j0 + i) * n + j0..];
+            w[i] = (0..=i).map(|l| col[l] * w[l]).sum();
         }
     }
     // R[j0..j1, c0..c1] −= W; B[:, c0..c1] −= V W.

@@ -36,7 +36,9 @@ fn main() {
     let rows = if rows.is_empty() { vec![1024, 4096, 16384] } else { rows };
     println!("load {}", std::fs::read_to_string("/proc/loadavg").unwrap());
     for &b in &rows {
-        let blk = Mat::from_fn(b, n, |i, j| (((i * 7 + j * 13) % 17) as f64 - 8.0) + 0.01 * ((i * j) % 5) as f64);
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(b as u64);
+        let blk = Mat::from_fn(b, n, |_, _| rng.random_range(-1.0..1.0));
         let flops = 2.0 * b as f64 * (n * n) as f64;
         let g = time(|| {
             let mut c = Mat::<f64>::zeros(n, n);
@@ -47,12 +49,13 @@ fn main() {
         let mut r0 = blk.get(..n, ..).qr().thin_R().to_owned();
         for i in 0..n { for j in 0..i { r0[(i, j)] = 0.0; } }
         // current fold
-        let t = time(|| {
+        let only = std::env::var("QRK_ONLY").is_ok();
+        let t = if only { 0.0 } else { time(|| {
             let stacked = Mat::from_fn(n + b, n, |i, j| if i < n { r0[(i, j)] } else { blk[(i - n, j)] });
             let qr = stacked.qr();
             let t = qr.thin_R();
             black_box(Mat::from_fn(n, n, |i, j| if j >= i { t[(i, j)] } else { 0.0 }));
-        });
+        }) };
         println!("  current fold: {:.2}× GEMM time", t / g);
         // The streaming QR (structured kernel) through its public API, rows pushed one by one.
         let rowsv: Vec<Vec<f64>> = (0..b).map(|i| (0..n).map(|j| blk[(i, j)]).collect()).collect();
@@ -64,6 +67,30 @@ fn main() {
         });
         black_box(acc.rows());
         println!("  StreamingQr (push + tpqr): {:.2}× GEMM time", t / g);
+        {
+            use faer::linalg::matmul::matmul;
+            use faer::Accum;
+            for (nb, nc) in [(32usize, 142usize), (16, 158), (48, 126), (8, 8), (16, 16)] {
+                let v = blk.get(.., ..nb);
+                let c = blk.get(.., nb..nb + nc);
+                let f = 2.0 * b as f64 * (nb * nc) as f64;
+                let mut w = Mat::<f64>::zeros(nb, nc);
+                let ta = time(|| matmul(w.as_mut(), Accum::Replace, v.transpose(), c, 1.0, Par::Seq));
+                let mut vt = Mat::<f64>::zeros(nb, b);
+                let tb = time(|| {
+                    vt.copy_from(v.transpose());
+                    matmul(w.as_mut(), Accum::Replace, vt.as_ref(), c, 1.0, Par::Seq)
+                });
+                let mut wt = Mat::<f64>::zeros(nc, nb);
+                let tc = time(|| matmul(wt.as_mut(), Accum::Replace, c.transpose(), v, 1.0, Par::Seq));
+                let mut cc = c.to_owned();
+                let td = time(|| matmul(cc.as_mut(), Accum::Add, v, w.as_ref(), -1e-9, Par::Seq));
+                println!("  nb {nb} nc {nc}: VᵀC {:.1} GF/s, packed Vᵀ {:.1}, CᵀV {:.1}; C −= VW {:.1}", f / ta / 1e9, f / tb / 1e9, f / tc / 1e9, f / td / 1e9);
+            }
+        }
+        if std::env::var("QRK_ONLY").is_ok() {
+            continue;
+        }
         let mut st = Mat::<f64>::zeros(n + b, n);
         for bs in [8usize, 16, 32, 48, 64, 96] {
             for thr in [48 * 48, usize::MAX] {

@@ -385,16 +385,19 @@ fn check_noise(files: &[DataSet], noise: Option<Noise>) -> Result<(), FitError> 
     Ok(())
 }
 
-/// Rows buffered for the residual pass.
+/// Rows buffered for the residual pass, one per column (`p × rows`): a row is copied in as
+/// one contiguous run, and `G' xᵢ` is column `i` of one product.
 struct Block {
     x: Mat<f64>,
     y: Vec<f64>,
     meta: Vec<RowMeta>,
     threads: usize,
-    /// β as a column.
+    /// β as a row.
     beta: Mat<f64>,
     /// `G` of the solution brought to upper-trapezoidal form (see [`trapezoid`]).
     g: Mat<f64>,
+    /// Per thread: room for its rows' `G' x` (reused, so no block allocates it again).
+    gx: Vec<Mat<f64>>,
 }
 
 /// Rows of a block each thread of the residual pass takes at least: below it a thread costs
@@ -417,28 +420,35 @@ fn trapezoid(g: &Mat<f64>) -> Mat<f64> {
 
 impl Block {
     fn new(rows: usize, p: usize, threads: usize, s: &Solution) -> Self {
+        let rows = rows.max(1);
+        let threads = threads.max(1);
+        let g = trapezoid(&s.g);
+        // As wide as the block: a short block is cut into fewer, wider slices.
         Block {
-            x: Mat::zeros(rows.max(1), p),
+            x: Mat::zeros(p, rows),
             y: Vec::with_capacity(rows),
             meta: Vec::with_capacity(rows),
-            threads: threads.max(1),
-            beta: Mat::from_fn(s.beta.len(), 1, |i, _| s.beta[i]),
-            g: trapezoid(&s.g),
+            threads,
+            beta: Mat::from_fn(1, s.beta.len(), |_, j| s.beta[j]),
+            gx: (0..threads).map(|_| Mat::zeros(g.nrows(), rows)).collect(),
+            g,
         }
     }
     fn full(&self) -> bool {
-        self.y.len() == self.x.nrows()
+        self.y.len() == self.x.ncols()
     }
     fn push(&mut self, meta: RowMeta, x: &[f64], y: f64) {
         let i = self.y.len();
-        for (j, v) in x.iter().enumerate().take(self.x.ncols()) {
-            self.x[(i, j)] = *v;
+        let column = self.x.col_mut(i);
+        for (cell, v) in column.iter_mut().zip(x) {
+            *cell = *v;
         }
         self.y.push(y);
         self.meta.push(meta);
     }
     fn drain(&mut self, out: &mut Vec<ResidualRow>) {
         use faer::linalg::matmul::triangular::{self, BlockStructure};
+        use faer::reborrow::{Reborrow, ReborrowMut};
         let b = self.y.len();
         if b == 0 {
             return;
@@ -449,59 +459,61 @@ impl Block {
         let mut leverage = vec![0.0; b];
         let threads = self.threads.min(b / ROWS_PER_THREAD).max(1);
         let per = b.div_ceil(threads);
-        let x = self.x.get(..b, ..);
+        let x = self.x.get(.., ..b);
         let (beta, g) = (&self.beta, &self.g);
         let rank = g.nrows();
-        let work = |from: usize, f: &mut [f64], h: &mut [f64]| {
-            let rows = x.subrows(from, f.len());
-            let fit = rows * beta;
-            // G'x = G'[:, ..rank] x[..rank] (lower-triangular factor on the right) +
-            // G'[:, rank..] x[rank..].
-            let mut gx = Mat::<f64>::zeros(f.len(), rank);
+        let work = |from: usize, f: &mut [f64], h: &mut [f64], gx: &mut Mat<f64>| {
+            let n = f.len();
+            let rows = x.subcols(from, n);
+            let fit = beta * rows;
+            // G'x = G'[:, ..rank] x[..rank] (upper triangular) + G'[:, rank..] x[rank..],
+            // one column per row.
+            let mut gx = gx.get_mut(.., ..n);
             triangular::matmul(
-                gx.as_mut(),
+                gx.rb_mut(),
                 BlockStructure::Rectangular,
                 faer::Accum::Replace,
-                rows.get(.., ..rank),
+                g.get(.., ..rank),
+                BlockStructure::TriangularUpper,
+                rows.get(..rank, ..),
                 BlockStructure::Rectangular,
-                g.get(.., ..rank).transpose(),
-                BlockStructure::TriangularLower,
                 1.0,
                 faer::Par::Seq,
             );
             if rank < g.ncols() {
                 faer::linalg::matmul::matmul(
-                    gx.as_mut(),
+                    gx.rb_mut(),
                     faer::Accum::Add,
-                    rows.get(.., rank..),
-                    g.get(.., rank..).transpose(),
+                    g.get(.., rank..),
+                    rows.get(rank.., ..),
                     1.0,
                     faer::Par::Seq,
                 );
             }
-            for (i, f) in f.iter_mut().enumerate() {
-                *f = fit[(i, 0)];
-            }
-            // Column by column: contiguous in the column-major product.
-            for k in 0..rank {
-                for (h, v) in h.iter_mut().zip(gx.col(k).iter()) {
-                    *h += v * v;
-                }
+            for (i, (f, h)) in f.iter_mut().zip(h.iter_mut()).enumerate() {
+                *f = fit[(0, i)];
+                *h = gx.rb().col(i).squared_norm_l2();
             }
         };
+        let mut bufs = self.gx.iter_mut();
         if threads == 1 {
-            work(0, &mut fitted, &mut leverage);
+            if let Some(gx) = bufs.next() {
+                work(0, &mut fitted, &mut leverage, gx);
+            }
         } else {
             std::thread::scope(|scope| {
-                let mut parts = fitted.chunks_mut(per).zip(leverage.chunks_mut(per));
+                let mut parts = fitted
+                    .chunks_mut(per)
+                    .zip(leverage.chunks_mut(per))
+                    .zip(bufs);
                 let first = parts.next();
-                for (t, (f, h)) in parts.enumerate() {
+                for (t, ((f, h), gx)) in parts.enumerate() {
                     let work = &work;
-                    scope.spawn(move || work((t + 1) * per, f, h));
+                    scope.spawn(move || work((t + 1) * per, f, h, gx));
                 }
                 // The first slice on the calling thread.
-                if let Some((f, h)) = first {
-                    work(0, f, h);
+                if let Some(((f, h), gx)) = first {
+                    work(0, f, h, gx);
                 }
             });
         }

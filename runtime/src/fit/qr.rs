@@ -156,12 +156,33 @@ impl Triangle {
     }
 }
 
+/// Rows staged before they are copied into the block.
+const STAGE: usize = 32;
+
+/// Copies the first `staged` rows of `stage` (row-major, `k` wide) into `block` from row
+/// `filled` on (as many as fit); returns the rows the block then holds.
+fn unstage(stage: &[f64], staged: usize, k: usize, block: &mut Rows, filled: usize) -> usize {
+    let n = staged.min(block.rows.saturating_sub(filled));
+    for (j, column) in block.data.chunks_exact_mut(block.rows).enumerate().take(k) {
+        let dst = &mut column[filled..filled + n];
+        for (s, cell) in dst.iter_mut().enumerate() {
+            *cell = stage[s * k + j];
+        }
+    }
+    filled + n
+}
+
 #[derive(Debug)]
 pub struct StreamingQr {
     k: usize,
     r: Triangle,
     block: Rows,
     filled: usize,
+    /// The latest rows, row-major (`STAGE × k`), copied into `block` a few at a time: written
+    /// one row at a time, the column-major block would take a cache line (and, a column being
+    /// `block` rows long, a page) per value.
+    stage: Vec<f64>,
+    staged: usize,
     rows: usize,
     norms2: Vec<f64>,
     y_sum: f64,
@@ -213,6 +234,8 @@ impl StreamingQr {
             r: Triangle::new(k),
             block: Rows::new(block, k),
             filled: 0,
+            stage: vec![0.0; STAGE * k],
+            staged: 0,
             rows: 0,
             norms2: vec![0.0; columns],
             y_sum: 0.0,
@@ -222,19 +245,23 @@ impl StreamingQr {
     }
 
     pub fn push(&mut self, x: &[f64], y: f64) {
-        let (i, ld) = (self.filled, self.block.rows);
-        // Column-major: value j of row i at j·ld + i (the kernel's layout).
-        let cells = self.block.data.iter_mut().skip(i).step_by(ld);
-        for ((cell, v), n) in cells.zip(x).zip(&mut self.norms2) {
-            *cell = *v;
-            *n += v * v;
-        }
-        if let Some(cell) = self.block.data.get_mut((self.k - 1) * ld + i) {
-            *cell = y;
+        let k = self.k;
+        let from = self.staged * k;
+        if let Some(row) = self.stage.get_mut(from..from + k) {
+            row.fill(0.0);
+            for ((cell, v), n) in row.iter_mut().zip(x).zip(&mut self.norms2) {
+                *cell = *v;
+                *n += v * v;
+            }
+            row[k - 1] = y;
         }
         self.y_sum += y;
-        self.filled += 1;
+        self.staged += 1;
         self.rows += 1;
+        if self.staged == STAGE || self.filled + self.staged == self.block.rows {
+            self.filled = unstage(&self.stage, self.staged, k, &mut self.block, self.filled);
+            self.staged = 0;
+        }
         if self.filled == self.block.rows {
             if self.threads > 1 && self.workers.is_none() {
                 self.workers = Some(Workers::start(self.threads, self.k));
@@ -259,6 +286,8 @@ impl StreamingQr {
     }
 
     pub fn finish(mut self) -> Reduced {
+        self.filled = unstage(&self.stage, self.staged, self.k, &mut self.block, self.filled);
+        self.staged = 0;
         self.flush();
         let k = self.k;
         if let Some(w) = self.workers.take() {
@@ -282,7 +311,9 @@ impl StreamingQr {
             return None;
         }
         let mut r = self.r.clone();
-        r.fold(&mut self.block.clone(), self.filled);
+        let mut block = self.block.clone();
+        let filled = unstage(&self.stage, self.staged, self.k, &mut block, self.filled);
+        r.fold(&mut block, filled);
         Some(self.reduced(r.to_mat()))
     }
 

@@ -46,19 +46,14 @@ pub(super) fn update(r: &mut [f64], n: usize, b: &mut [f64], ldb: usize, rows: u
     work.tau.resize(n, 0.0);
     work.t.clear();
     work.t.resize(n * n, 0.0);
-    let panel = panel_width();
     let mut m = Mats { r, n, b, ldb, rows };
     let mut j0 = 0;
     while j0 < n {
-        let j1 = (j0 + panel).min(n);
+        let j1 = (j0 + PANEL).min(n);
         factor(&mut m, j0, j1, work);
         apply(&mut m, j0, j1, j1, n, work);
         j0 = j1;
     }
-}
-
-fn panel_width() -> usize {
-    std::env::var("KIN_TPQR_PANEL").ok().and_then(|v| v.parse().ok()).unwrap_or(PANEL)
 }
 
 /// The two matrices being updated.

@@ -838,7 +838,12 @@ fn reference_fit(c: &Compiled, files: &[DataSet]) -> (Vec<f64>, Vec<f64>) {
         Ok(s) | Err(s) => s,
     };
     let g_norms = (0..p)
-        .map(|j| (0..s.g.nrows()).map(|i| s.g[(i, j)].powi(2)).sum::<f64>().sqrt())
+        .map(|j| {
+            (0..s.g.nrows())
+                .map(|i| s.g[(i, j)].powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
         .collect();
     (s.beta, g_norms)
 }

@@ -1,6 +1,5 @@
 //! Scratch: rates of QR update kernels for [R; B] (n = 174), against a GEMM BᵀB of B's shape.
 use std::hint::black_box;
-use std::time::Instant;
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::qr::no_pivoting::factor::{qr_in_place, qr_in_place_scratch, QrParams};
@@ -33,7 +32,11 @@ fn main() {
         .skip(1)
         .filter_map(|a| a.parse().ok())
         .collect();
-    let rows = if rows.is_empty() { vec![1024, 4096, 16384] } else { rows };
+    let rows = if rows.is_empty() {
+        vec![1024, 4096, 16384]
+    } else {
+        rows
+    };
     println!("load {}", std::fs::read_to_string("/proc/loadavg").unwrap());
     for &b in &rows {
         use rand::{Rng, SeedableRng};
@@ -42,23 +45,49 @@ fn main() {
         let flops = 2.0 * b as f64 * (n * n) as f64;
         let g = time(|| {
             let mut c = Mat::<f64>::zeros(n, n);
-            faer::linalg::matmul::matmul(c.as_mut(), faer::Accum::Add, blk.transpose(), blk.as_ref(), 1.0, Par::Seq);
+            faer::linalg::matmul::matmul(
+                c.as_mut(),
+                faer::Accum::Add,
+                blk.transpose(),
+                blk.as_ref(),
+                1.0,
+                Par::Seq,
+            );
             black_box(c);
         });
         println!("b {b}: GEMM BᵀB {:.1} GF/s", flops / g / 1e9);
         let mut r0 = blk.get(..n, ..).qr().thin_R().to_owned();
-        for i in 0..n { for j in 0..i { r0[(i, j)] = 0.0; } }
+        for i in 0..n {
+            for j in 0..i {
+                r0[(i, j)] = 0.0;
+            }
+        }
         // current fold
         let only = std::env::var("QRK_ONLY").is_ok();
-        let t = if only { 0.0 } else { time(|| {
-            let stacked = Mat::from_fn(n + b, n, |i, j| if i < n { r0[(i, j)] } else { blk[(i - n, j)] });
-            let qr = stacked.qr();
-            let t = qr.thin_R();
-            black_box(Mat::from_fn(n, n, |i, j| if j >= i { t[(i, j)] } else { 0.0 }));
-        }) };
+        let t = if only {
+            0.0
+        } else {
+            time(|| {
+                let stacked =
+                    Mat::from_fn(
+                        n + b,
+                        n,
+                        |i, j| if i < n { r0[(i, j)] } else { blk[(i - n, j)] },
+                    );
+                let qr = stacked.qr();
+                let t = qr.thin_R();
+                black_box(Mat::from_fn(
+                    n,
+                    n,
+                    |i, j| if j >= i { t[(i, j)] } else { 0.0 },
+                ));
+            })
+        };
         println!("  current fold: {:.2}× GEMM time", t / g);
         // The streaming QR (structured kernel) through its public API, rows pushed one by one.
-        let rowsv: Vec<Vec<f64>> = (0..b).map(|i| (0..n).map(|j| blk[(i, j)]).collect()).collect();
+        let rowsv: Vec<Vec<f64>> = (0..b)
+            .map(|i| (0..n).map(|j| blk[(i, j)]).collect())
+            .collect();
         let mut acc = kin_runtime::fit::StreamingQr::new(n - 1, b);
         let t = time(|| {
             for r in &rowsv {
@@ -75,17 +104,25 @@ fn main() {
                 let c = blk.get(.., nb..nb + nc);
                 let f = 2.0 * b as f64 * (nb * nc) as f64;
                 let mut w = Mat::<f64>::zeros(nb, nc);
-                let ta = time(|| matmul(w.as_mut(), Accum::Replace, v.transpose(), c, 1.0, Par::Seq));
+                let ta =
+                    time(|| matmul(w.as_mut(), Accum::Replace, v.transpose(), c, 1.0, Par::Seq));
                 let mut vt = Mat::<f64>::zeros(nb, b);
                 let tb = time(|| {
                     vt.copy_from(v.transpose());
                     matmul(w.as_mut(), Accum::Replace, vt.as_ref(), c, 1.0, Par::Seq)
                 });
                 let mut wt = Mat::<f64>::zeros(nc, nb);
-                let tc = time(|| matmul(wt.as_mut(), Accum::Replace, c.transpose(), v, 1.0, Par::Seq));
+                let tc =
+                    time(|| matmul(wt.as_mut(), Accum::Replace, c.transpose(), v, 1.0, Par::Seq));
                 let mut cc = c.to_owned();
                 let td = time(|| matmul(cc.as_mut(), Accum::Add, v, w.as_ref(), -1e-9, Par::Seq));
-                println!("  nb {nb} nc {nc}: VᵀC {:.1} GF/s, packed Vᵀ {:.1}, CᵀV {:.1}; C −= VW {:.1}", f / ta / 1e9, f / tb / 1e9, f / tc / 1e9, f / td / 1e9);
+                println!(
+                    "  nb {nb} nc {nc}: VᵀC {:.1} GF/s, packed Vᵀ {:.1}, CᵀV {:.1}; C −= VW {:.1}",
+                    f / ta / 1e9,
+                    f / tb / 1e9,
+                    f / tc / 1e9,
+                    f / td / 1e9
+                );
             }
         }
         if std::env::var("QRK_ONLY").is_ok() {
@@ -97,14 +134,29 @@ fn main() {
                 let mut h = Mat::<f64>::zeros(bs, n);
                 let mut params: QrParams = <QrParams as Auto<f64>>::auto();
                 params.blocking_threshold = thr;
-                let mut buf = MemBuffer::new(qr_in_place_scratch::<f64>(n + b, n, bs, Par::Seq, Spec::new(params)));
+                let mut buf = MemBuffer::new(qr_in_place_scratch::<f64>(
+                    n + b,
+                    n,
+                    bs,
+                    Par::Seq,
+                    Spec::new(params),
+                ));
                 let t = time(|| {
                     st.get_mut(..n, ..).copy_from(&r0);
                     st.get_mut(n.., ..).copy_from(&blk);
-                    qr_in_place(st.as_mut(), h.as_mut(), Par::Seq, MemStack::new(&mut buf), Spec::new(params));
+                    qr_in_place(
+                        st.as_mut(),
+                        h.as_mut(),
+                        Par::Seq,
+                        MemStack::new(&mut buf),
+                        Spec::new(params),
+                    );
                     black_box(&st);
                 });
-                println!("  faer in place, bs {bs}, blocking_threshold {thr}: {:.2}×", t / g);
+                println!(
+                    "  faer in place, bs {bs}, blocking_threshold {thr}: {:.2}×",
+                    t / g
+                );
             }
         }
     }

@@ -10,13 +10,13 @@ pub mod merge;
 pub mod nonlinear;
 mod projection;
 mod qr;
-mod tpqr;
 pub mod report;
 mod solve;
 pub mod stations;
 pub mod stepwise;
 pub mod stream;
 pub mod tally;
+mod tpqr;
 
 use faer::Mat;
 use kin_compiler::{Compiled, Diagnostic};
@@ -675,7 +675,11 @@ mod tests {
                         .map(|k| (0..p).map(|j| g[(k, j)] * x[j]).sum::<f64>().powi(2))
                         .sum();
                     let fitted: f64 = x.iter().zip(&s.beta).map(|(a, b)| a * b).sum();
-                    assert!((r.leverage - h).abs() <= 1e-12 * h.max(1.0), "{} vs {h}", r.leverage);
+                    assert!(
+                        (r.leverage - h).abs() <= 1e-12 * h.max(1.0),
+                        "{} vs {h}",
+                        r.leverage
+                    );
                     assert!((r.residual - (1.0 - fitted)).abs() <= 1e-12 * fitted.abs().max(1.0));
                 }
             }

@@ -75,13 +75,19 @@ impl Workers {
         };
         if failed {
             // Only a worker that died (a bug) drops its end; `finish` reports it.
-            return Rows { data: vec![0.0; len], rows };
+            return Rows {
+                data: vec![0.0; len],
+                rows,
+            };
         }
         let spare = match self.spare.get_mut() {
             Ok(spare) => spare.try_recv().ok(),
             Err(_) => None,
         };
-        spare.unwrap_or_else(|| Rows { data: vec![0.0; len], rows })
+        spare.unwrap_or_else(|| Rows {
+            data: vec![0.0; len],
+            rows,
+        })
     }
 
     /// The workers' triangles, stacked and factored in worker order.
@@ -138,7 +144,14 @@ impl Triangle {
     /// (overwritten by reflectors).
     fn fold(&mut self, block: &mut Rows, filled: usize) {
         let filled = filled.min(block.rows);
-        tpqr::update(&mut self.r, self.k, &mut block.data, block.rows, filled, &mut self.work);
+        tpqr::update(
+            &mut self.r,
+            self.k,
+            &mut block.data,
+            block.rows,
+            filled,
+            &mut self.work,
+        );
     }
 
     /// `self` := the triangle of `[self; other]`.
@@ -286,7 +299,13 @@ impl StreamingQr {
     }
 
     pub fn finish(mut self) -> Reduced {
-        self.filled = unstage(&self.stage, self.staged, self.k, &mut self.block, self.filled);
+        self.filled = unstage(
+            &self.stage,
+            self.staged,
+            self.k,
+            &mut self.block,
+            self.filled,
+        );
         self.staged = 0;
         self.flush();
         let k = self.k;
@@ -375,7 +394,9 @@ mod tests {
         use super::super::solve::{solve, Solver};
         let mut rng = rand::rngs::StdRng::seed_from_u64(9);
         let (m, p) = (3000, 60);
-        let scale: Vec<f64> = (0..p).map(|j| 10f64.powf(-6.0 + 9.0 * j as f64 / p as f64)).collect();
+        let scale: Vec<f64> = (0..p)
+            .map(|j| 10f64.powf(-6.0 + 9.0 * j as f64 / p as f64))
+            .collect();
         let mut x = Mat::from_fn(m, p, |_, j| rng.random_range(-1.0..1.0) * scale[j]);
         // Two nearly dependent columns.
         for i in 0..m {
@@ -383,7 +404,10 @@ mod tests {
         }
         let truth: Vec<f64> = (0..p).map(|j| (1.0 + j as f64) / scale[j]).collect();
         let y: Vec<f64> = (0..m)
-            .map(|i| (0..p).map(|j| x[(i, j)] * truth[j]).sum::<f64>() + 1e-3 * rng.random_range(-1.0..1.0))
+            .map(|i| {
+                (0..p).map(|j| x[(i, j)] * truth[j]).sum::<f64>()
+                    + 1e-3 * rng.random_range(-1.0..1.0)
+            })
             .collect();
         let dense = {
             let a = Mat::from_fn(m, p + 1, |i, j| if j < p { x[(i, j)] } else { y[i] });
@@ -410,7 +434,10 @@ mod tests {
             }
             let got = solve(&acc.finish(), Solver::Qr, 1e-10, false).expect("full rank");
             for (j, (a, b)) in got.beta.iter().zip(&want.beta).enumerate() {
-                assert!((a - b).abs() <= 1e-10 * b.abs(), "{threads} threads, β{j}: {a} vs {b}");
+                assert!(
+                    (a - b).abs() <= 1e-10 * b.abs(),
+                    "{threads} threads, β{j}: {a} vs {b}"
+                );
             }
             assert!((got.rss - want.rss).abs() <= 1e-10 * want.rss);
         }

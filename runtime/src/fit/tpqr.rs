@@ -38,7 +38,14 @@ pub(super) struct Work {
 /// `r` (`n × n`, column-major, upper triangular; entries below the diagonal are left alone
 /// and must be zero) := the triangle of `[r; b]`. `b` holds `rows` rows of `n` columns,
 /// column-major with column stride `ldb`; it is overwritten with the reflectors.
-pub(super) fn update(r: &mut [f64], n: usize, b: &mut [f64], ldb: usize, rows: usize, work: &mut Work) {
+pub(super) fn update(
+    r: &mut [f64],
+    n: usize,
+    b: &mut [f64],
+    ldb: usize,
+    rows: usize,
+    work: &mut Work,
+) {
     if rows == 0 || n == 0 {
         return;
     }
@@ -189,14 +196,18 @@ fn join_t(m: &Mats, j0: usize, mid: usize, j1: usize, work: &mut Work) {
     // z := z T₂ (T₂ upper: column c of the product reads columns ≤ c; right to left).
     for c in (0..n2).rev() {
         for a in 0..n1 {
-            let s: f64 = (0..=c).map(|l| z[l * n1 + a] * t[(mid + c) * n + mid + l]).sum();
+            let s: f64 = (0..=c)
+                .map(|l| z[l * n1 + a] * t[(mid + c) * n + mid + l])
+                .sum();
             z[c * n1 + a] = s;
         }
     }
     // T₁₂ = −T₁ z (T₁ upper: row a reads rows ≥ a).
     for c in 0..n2 {
         for a in 0..n1 {
-            let s: f64 = (a..n1).map(|l| t[(j0 + l) * n + j0 + a] * z[c * n1 + l]).sum();
+            let s: f64 = (a..n1)
+                .map(|l| t[(j0 + l) * n + j0 + a] * z[c * n1 + l])
+                .sum();
             t[(mid + c) * n + j0 + a] = -s;
         }
     }
@@ -265,8 +276,22 @@ mod tests {
     #[test]
     fn the_update_keeps_the_gram_matrix() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(11);
-        for (n, rows) in [(1, 5), (7, 3), (8, 40), (9, 40), (33, 100), (70, 300), (97, 64)] {
-            let r0 = Mat::from_fn(n, n, |i, j| if j >= i { rng.random_range(-1.0..1.0) } else { 0.0 });
+        for (n, rows) in [
+            (1, 5),
+            (7, 3),
+            (8, 40),
+            (9, 40),
+            (33, 100),
+            (70, 300),
+            (97, 64),
+        ] {
+            let r0 = Mat::from_fn(n, n, |i, j| {
+                if j >= i {
+                    rng.random_range(-1.0..1.0)
+                } else {
+                    0.0
+                }
+            });
             let mut b = Mat::from_fn(rows, n, |_, _| rng.random_range(-1.0..1.0));
             if n > 3 {
                 for i in 0..rows {
@@ -287,7 +312,10 @@ mod tests {
             let rm = Mat::from_fn(n, n, |i, j| if j >= i { r[j * n + i] } else { 0.0 });
             let got = rm.transpose() * &rm;
             let scale = gram.norm_max();
-            assert!((&got - &gram).norm_max() <= 1e-13 * scale, "n {n} rows {rows}");
+            assert!(
+                (&got - &gram).norm_max() <= 1e-13 * scale,
+                "n {n} rows {rows}"
+            );
             for j in 0..n {
                 for i in j + 1..n {
                     assert_eq!(r[j * n + i], 0.0, "below the diagonal");

@@ -910,6 +910,28 @@ fn flop_limit(poses: usize) {
         r
     });
     let mut first: Option<Vec<f64>> = None;
+    // One pass of row evaluation alone (JIT error and Jacobian, weighting, nothing done with
+    // the rows): what each of the fit's two passes spends before its own arithmetic.
+    {
+        let values: Vec<f64> = c.machine.nonlinear.iter().map(|p| p.value).collect();
+        let layout = fit::Layout::new(&c.machine, &files);
+        let states = fit::states_with(&c.machine, &files, &values).expect("states");
+        let mut engine =
+            kin_runtime::engine::make(&c.machine, kin_runtime::engine::Engine::default())
+                .expect("engine");
+        let clock = Clock::start();
+        let mut sum = 0.0;
+        fit::for_each_row(engine.as_mut(), &files, &states, &layout, |_, x, y| {
+            sum += y + x[0];
+        })
+        .expect("rows");
+        black_box(sum);
+        println!(
+            "  rows alone (one pass, JIT): {} CPU, {} wall",
+            secs(clock.elapsed().cpu),
+            secs(clock.elapsed().wall)
+        );
+    }
     let mut one_core: Option<f64> = None;
     for &t in &threads {
         let (rate, rate_cpu) = gemm_rate(block, n, t);

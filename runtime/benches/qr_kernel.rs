@@ -1,4 +1,14 @@
-//! Scratch: rates of QR update kernels for [R; B] (n = 174), against a GEMM BᵀB of B's shape.
+//! The streaming QR's update of a triangle by a block of rows, `[R; B] → R'` (n = 174 columns,
+//! the 5-axis example's `[X | y]`), against a GEMM `BᵀB` of the block's shape in the same run,
+//! as CPU time of the thread: `StreamingQr` (rows pushed one by one, structured update), the
+//! previous fold (faer's `Mat::qr` of the stacked matrix, allocated per block), faer's
+//! `qr_in_place` on a preallocated stacked matrix at several block sizes, and the rates of the
+//! matrix products the structured update is made of.
+//!
+//! ```text
+//! cargo bench -p kin-runtime --bench qr_kernel -- [ROWS …]   # default 1024 4096 16384
+//! QRK_ONLY=1   only StreamingQr and the products
+//! ```
 use std::hint::black_box;
 
 use faer::dyn_stack::{MemBuffer, MemStack};

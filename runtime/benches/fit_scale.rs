@@ -779,6 +779,75 @@ fn load() -> String {
         .join(" ")
 }
 
+/// β of the fit's problem by the previous factorisation, for the agreement check: each block of
+/// 4 096 rows stacked under the running triangle and factored whole by faer's Householder QR
+/// (`Mat::qr`), on one thread, then solved by the fit's own solver (minimum norm, tolerance
+/// 10⁻¹⁰). Also returns the standard errors' factors `‖G_j‖` of that solve.
+fn reference_fit(c: &Compiled, files: &[DataSet]) -> (Vec<f64>, Vec<f64>) {
+    let values: Vec<f64> = c.machine.nonlinear.iter().map(|p| p.value).collect();
+    let layout = fit::Layout::new(&c.machine, files);
+    let p = layout.columns();
+    let k = p + 1;
+    let states = fit::states_with(&c.machine, files, &values).expect("states");
+    let mut engine = kin_runtime::engine::make(&c.machine, kin_runtime::engine::Engine::default())
+        .expect("engine");
+    const B: usize = 4096;
+    let mut r = Mat::<f64>::zeros(k, k);
+    let mut block = Mat::<f64>::zeros(B, k);
+    let (mut filled, mut rows, mut y_sum) = (0usize, 0usize, 0.0);
+    let mut norms2 = vec![0.0; p];
+    let fold = |r: &mut Mat<f64>, block: &Mat<f64>, filled: usize| {
+        let stacked = Mat::from_fn(k + filled, k, |i, j| {
+            if i < k {
+                r[(i, j)]
+            } else {
+                block[(i - k, j)]
+            }
+        });
+        let qr = stacked.qr();
+        let t = qr.thin_R();
+        *r = Mat::from_fn(k, k, |i, j| if j >= i { t[(i, j)] } else { 0.0 });
+    };
+    fit::for_each_row(engine.as_mut(), files, &states, &layout, |_, x, y| {
+        for (j, v) in x.iter().enumerate() {
+            block[(filled, j)] = *v;
+            norms2[j] += v * v;
+        }
+        block[(filled, p)] = y;
+        y_sum += y;
+        filled += 1;
+        rows += 1;
+        if filled == B {
+            fold(&mut r, &block, filled);
+            filled = 0;
+        }
+    })
+    .expect("rows");
+    if filled > 0 {
+        fold(&mut r, &block, filled);
+    }
+    let y_sumsq = (0..k).map(|i| r[(i, p)].powi(2)).sum();
+    let red = fit::Reduced {
+        r,
+        rows,
+        norms: norms2.iter().map(|v| v.sqrt()).collect(),
+        y_sum,
+        y_sumsq,
+    };
+    let s = match fit::merge::solve_triangle(&red, fit::Solver::Qr, 1e-10, true) {
+        Ok(s) | Err(s) => s,
+    };
+    let g_norms = (0..p)
+        .map(|j| {
+            (0..s.g.nrows())
+                .map(|i| s.g[(i, j)].powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .collect();
+    (s.beta, g_norms)
+}
+
 fn flop_limit(poses: usize) {
     let model = format!(
         "{}/../examples/milling_5axis.kin",
@@ -831,9 +900,48 @@ fn flop_limit(poses: usize) {
         status_kb("VmRSS:").unwrap_or(0) / 1000
     );
     let block = Options::default().block;
+    let reference = (std::env::var("KIN_BENCH_REFERENCE").as_deref() != Ok("0")).then(|| {
+        let clock = Clock::start();
+        let r = reference_fit(&c, &files);
+        println!(
+            "  reference (faer's QR of each stacked block, one thread): {} CPU",
+            secs(clock.elapsed().cpu)
+        );
+        r
+    });
     let mut first: Option<Vec<f64>> = None;
+    // One pass of row evaluation alone (JIT error and Jacobian, weighting, nothing done with
+    // the rows): what each of the fit's two passes spends before its own arithmetic.
+    {
+        let values: Vec<f64> = c.machine.nonlinear.iter().map(|p| p.value).collect();
+        let layout = fit::Layout::new(&c.machine, &files);
+        let states = fit::states_with(&c.machine, &files, &values).expect("states");
+        let mut engine =
+            kin_runtime::engine::make(&c.machine, kin_runtime::engine::Engine::default())
+                .expect("engine");
+        let clock = Clock::start();
+        let mut sum = 0.0;
+        fit::for_each_row(engine.as_mut(), &files, &states, &layout, |_, x, y| {
+            sum += y + x[0];
+        })
+        .expect("rows");
+        black_box(sum);
+        println!(
+            "  rows alone (one pass, JIT): {} CPU, {} wall",
+            secs(clock.elapsed().cpu),
+            secs(clock.elapsed().wall)
+        );
+    }
+    let mut one_core: Option<f64> = None;
     for &t in &threads {
         let (rate, rate_cpu) = gemm_rate(block, n, t);
+        let one_core_limit = *one_core.get_or_insert_with(|| {
+            if t == 1 {
+                flops / rate
+            } else {
+                flops / gemm_rate(block, n, 1).0
+            }
+        });
         let limit = flops / rate;
         let limit_cpu = flops / rate_cpu;
         let cpu0 = process_cpu();
@@ -872,6 +980,14 @@ fn flop_limit(poses: usize) {
             status_kb("VmHWM:").unwrap_or(0) / 1000,
             load()
         );
+        if t > 1 {
+            println!(
+                "    against one core's limit ({}): factorisation {:.2}×, whole fit {:.2}× (wall)",
+                secs(Duration::from_secs_f64(one_core_limit)),
+                pass1.wall.as_secs_f64() / one_core_limit,
+                total.wall.as_secs_f64() / one_core_limit
+            );
+        }
         // The same against the GEMM's work per CPU second: what the fit makes of the cycles it
         // got, whatever else the machine ran (on a loaded machine the wall ratio measures the
         // others too).
@@ -885,6 +1001,18 @@ fn flop_limit(poses: usize) {
             total_cpu.as_secs_f64(),
             total_cpu.as_secs_f64() / limit_cpu
         );
+        if let Some((beta, g)) = &reference {
+            let (d, j) = max_rel_diff(&r.solution.beta, beta);
+            let se = r
+                .solution
+                .beta
+                .iter()
+                .zip(beta)
+                .zip(g)
+                .map(|((a, b), g)| (a - b).abs() / (g * r.sigma).max(f64::MIN_POSITIVE))
+                .fold(0.0, f64::max);
+            println!("    β against the reference: largest relative difference {d:.1e} (coefficient {j}), largest |Δβ|/se {se:.1e}");
+        }
         match &first {
             None => first = Some(r.solution.beta.clone()),
             Some(b) => {

@@ -105,7 +105,7 @@ pub fn fit_in_chunks(
     let keep = red.rows <= MAX_RESIDUALS;
     let mut residuals = Vec::new();
     let mut drained = Vec::new();
-    let mut block = Block::new(options.block, p, options.threads);
+    let mut block = Block::new(options.block, p, options.threads, &solution);
     let mut done = 0usize;
     let mut settle = |drained: &mut Vec<ResidualRow>| {
         for r in drained.iter_mut() {
@@ -127,7 +127,7 @@ pub fn fit_in_chunks(
         |meta, x, y| {
             block.push(meta, x, y);
             if block.full() {
-                block.drain(&solution, &mut drained);
+                block.drain(&mut drained);
                 settle(&mut drained);
             }
             done += 1;
@@ -136,7 +136,7 @@ pub fn fit_in_chunks(
             }
         },
     )?;
-    block.drain(&solution, &mut drained);
+    block.drain(&mut drained);
     settle(&mut drained);
     progress("residuals", done);
 

@@ -410,11 +410,7 @@ fn iso230_2_plot_and_lack_of_fit_of_a_model() {
     // An axis held outside its range by --at, and targets beyond the moved axis's range, are
     // warned of (W0801) as every command that reads poses does; --strict makes them an error.
     let beyond = dir.join("beyond.csv");
-    std::fs::write(
-        &beyond,
-        fits.replace("\n500,", "\n700,"),
-    )
-    .expect("run");
+    std::fs::write(&beyond, fits.replace("\n500,", "\n700,")).expect("run");
     let args = |run: &std::path::Path, at: &str| {
         vec![
             "iso230-2".to_string(),
@@ -431,15 +427,26 @@ fn iso230_2_plot_and_lack_of_fit_of_a_model() {
     };
     let fits_csv = dir.join("fits.csv");
     for (run, at, says) in [
-        (&fits_csv, "Y=9999mm", "Y is held outside its declared range 0 .. 500 mm (at 9999 mm)"),
-        (&beyond, "Y=100mm", "10 of 110 approaches put X outside its declared range 0 .. 500 mm (first at line"),
+        (
+            &fits_csv,
+            "Y=9999mm",
+            "Y is held outside its declared range 0 .. 500 mm (at 9999 mm)",
+        ),
+        (
+            &beyond,
+            "Y=100mm",
+            "10 of 110 approaches put X outside its declared range 0 .. 500 mm (first at line",
+        ),
     ] {
         let a = args(run, at);
         let a: Vec<&str> = a.iter().map(String::as_str).collect();
         let out = kin(&a);
         ok(&out, at);
         let err = text(&out.stderr);
-        assert!(err.contains("warning[W0801]") && err.contains(says), "{err}");
+        assert!(
+            err.contains("warning[W0801]") && err.contains(says),
+            "{err}"
+        );
         let mut strict = a.clone();
         strict.push("--strict");
         let out = kin(&strict);
@@ -450,7 +457,11 @@ fn iso230_2_plot_and_lack_of_fit_of_a_model() {
     let a: Vec<&str> = a.iter().map(String::as_str).collect();
     let out = kin(&a);
     ok(&out, "in range");
-    assert!(!text(&out.stderr).contains("W0801"), "{}", text(&out.stderr));
+    assert!(
+        !text(&out.stderr).contains("W0801"),
+        "{}",
+        text(&out.stderr)
+    );
 }
 
 /// The bundled example (`examples/data/ballbar_xy.csv`, README): its figures are those of its

@@ -1421,7 +1421,11 @@ mod tests {
     #[test]
     fn harmonics_by_angle_addition() {
         use HarmonicOperand::{Fundamental as F, Listed as L};
-        let steps = |h: &[u32]| (0..h.len()).map(|i| harmonic_step(h, i)).collect::<Vec<_>>();
+        let steps = |h: &[u32]| {
+            (0..h.len())
+                .map(|i| harmonic_step(h, i))
+                .collect::<Vec<_>>()
+        };
         assert_eq!(
             steps(&[2, 3, 4]),
             [

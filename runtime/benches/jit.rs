@@ -204,7 +204,10 @@ fn placement() {
         v[v.len() / 2]
     };
     eprintln!("six rows per pose against the Jacobian's address mod 4096 (poses/s, medians of 5 interleaved rounds):");
-    eprintln!("{:>6} {:>12} {:>12} {:>8}", "mod 4K", "jit", "baseline", "jit/base");
+    eprintln!(
+        "{:>6} {:>12} {:>12} {:>8}",
+        "mod 4K", "jit", "baseline", "jit/base"
+    );
     let mut pairs: Vec<(usize, f64, f64)> = offsets
         .iter()
         .zip(jit_rates.into_iter().zip(base_rates))

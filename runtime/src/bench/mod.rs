@@ -970,7 +970,11 @@ impl Paths {
         }
         for (name, fl, r) in [
             ("write floor, six rows", &self.floor_full, &self.full),
-            ("write floor, position rows", &self.floor_position, &self.position),
+            (
+                "write floor, position rows",
+                &self.floor_position,
+                &self.position,
+            ),
         ] {
             let best = fl.streaming.max(fl.streaming_wide).max(fl.plain);
             writeln!(

@@ -776,25 +776,19 @@ fn test_candidates(
     }
     let total: u64 = files.iter().map(|f| f.observations.len() as u64).sum();
     let (mut done, mut last) = (0u64, None);
-    let acc = pass::accumulate(
-        &split,
-        width,
-        options.block,
-        options.threads,
-        |push| {
-            fit::for_each_row(engine.as_mut(), files, &states, &layout, |meta, x, y| {
-                // Several rows (components) share a measured row: count the measured rows.
-                if last != Some((meta.file, meta.line)) {
-                    last = Some((meta.file, meta.line));
-                    done += 1;
-                    if done % 4096 == 0 {
-                        settings.progress.report(Step::Rows, done, total);
-                    }
+    let acc = pass::accumulate(&split, width, options.block, options.threads, |push| {
+        fit::for_each_row(engine.as_mut(), files, &states, &layout, |meta, x, y| {
+            // Several rows (components) share a measured row: count the measured rows.
+            if last != Some((meta.file, meta.line)) {
+                last = Some((meta.file, meta.line));
+                done += 1;
+                if done % 4096 == 0 {
+                    settings.progress.report(Step::Rows, done, total);
                 }
-                push(x, y)
-            })
-        },
-    )?;
+            }
+            push(x, y)
+        })
+    })?;
     settings.progress.report(Step::Rows, total, total);
     let kb = split.base.len();
     // Everything is done on columns of factors whose inner products are those of the columns
@@ -817,7 +811,9 @@ fn test_candidates(
     }
     let base_rank = base_basis.len();
     let rss_base = {
-        let mut z: Vec<f64> = (0..kb).map(|i| acc.s[(i, split.candidates.len())]).collect();
+        let mut z: Vec<f64> = (0..kb)
+            .map(|i| acc.s[(i, split.candidates.len())])
+            .collect();
         project_out(&mut z, &base_basis);
         dot(&z, &z) + acc.ee
     };

@@ -285,7 +285,9 @@ impl Accumulated {
             .map(|a| self.gram[(at(a), at(a))].max(0.0).sqrt())
             .map(|v| if v > 0.0 { v } else { 1.0 })
             .collect();
-        let sub = Mat::from_fn(q + 1, q + 1, |a, b| self.gram[(at(a), at(b))] / (d[a] * d[b]));
+        let sub = Mat::from_fn(q + 1, q + 1, |a, b| {
+            self.gram[(at(a), at(b))] / (d[a] * d[b])
+        });
         let root = root(&sub);
         for a in 0..=q {
             for b in 0..=q {
@@ -418,7 +420,11 @@ mod tests {
                 }
             }
             // Slot 1 is `b1 − b2/2`: in the base's span, nothing of it remains.
-            assert!(acc.gram[(1, 1)].sqrt() < 1e-13 * gram(5, 5).sqrt(), "{:?}", acc.gram);
+            assert!(
+                acc.gram[(1, 1)].sqrt() < 1e-13 * gram(5, 5).sqrt(),
+                "{:?}",
+                acc.gram
+            );
         }
     }
 }

@@ -287,8 +287,9 @@ pub struct Joint {
 /// Standard errors of the fitted non-linear parameters at the optimum: the θ block of the
 /// Gauss–Newton covariance over all parameters, `σ̂²[D_θᵀ(I − P_X)D_θ]⁻¹` with
 /// `D_θ = ∂(Xβ̂)/∂θ` at fixed β̂ (central differences; `beta` is β̂, any solution of a
-/// deficient design: `D_θ` moves only with the moving columns, whose coefficients are unique). It is the trailing block of the QR of
-/// `[X | D_θ]`, so the linear parameters are profiled out exactly.
+/// deficient design: `D_θ` moves only with the moving columns, whose coefficients are
+/// unique). It is the trailing block of the QR of `[X | D_θ]`, so the linear parameters are
+/// profiled out exactly.
 #[allow(clippy::too_many_arguments)]
 fn covariance(
     compiled: &Compiled,

@@ -158,6 +158,13 @@ pub trait Evaluator {
         )?;
         Ok(sens.location().position.into())
     }
+
+    /// Another evaluator of the same machine, with the same code and non-linear values, for
+    /// another thread (a pass over the rows split over the cores). `None` when the engine
+    /// cannot be copied: its callers then work on this one alone.
+    fn fork(&self) -> Option<Box<dyn Evaluator + Send + '_>> {
+        None
+    }
 }
 
 impl Evaluator for Interpreter<'_> {
@@ -190,6 +197,9 @@ impl Evaluator for Interpreter<'_> {
     }
     fn nominal_position(&mut self, state: &State) -> Result<[f64; 3], EvalError> {
         Interpreter::nominal_position(self, state)
+    }
+    fn fork(&self) -> Option<Box<dyn Evaluator + Send + '_>> {
+        Some(Box::new(self.clone()))
     }
 }
 

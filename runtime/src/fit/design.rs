@@ -393,7 +393,9 @@ fn finite_row(
     path: impl Fn() -> String,
     line: usize,
 ) -> Result<(), DesignError> {
-    if y.is_finite() && x.iter().all(|v| v.is_finite()) {
+    // A fold without early exit: the compiler checks two values per vector instruction,
+    // where `all` branches on each (this runs on every row of every pass).
+    if y.is_finite() && !x.iter().fold(false, |bad, v| bad | !v.is_finite()) {
         Ok(())
     } else {
         Err(DesignError::NotFinite { path: path(), line })
@@ -454,6 +456,92 @@ pub fn for_each_row(
     files: &[DataSet],
     states: &[FileStates],
     layout: &Layout,
+    row: impl FnMut(RowMeta, &[f64], f64),
+) -> Result<(), DesignError> {
+    rows_of(engine, files, states, layout, 0..usize::MAX, row)
+}
+
+/// The observations (points or lengths) of every file, counted in file order: what
+/// [`for_each_row_parts`] splits.
+fn observations(states: &[FileStates]) -> usize {
+    states
+        .iter()
+        .map(|s| match s {
+            FileStates::Points(p) => p.len(),
+            FileStates::Lengths(a, _) => a.len(),
+        })
+        .sum()
+}
+
+/// As [`for_each_row`], on `1 + rest.len()` threads: the observations, counted over the files
+/// in order, split into that many contiguous parts of equal size, part 0 evaluated by `lead`
+/// on the calling thread and part `t` by `rest[t − 1]`, each part's rows handed to `row` with
+/// `parts[t]`, its own accumulator. A part's rows come in the order [`for_each_row`] gives
+/// them, so a caller that combines the accumulators in part order gets the same bits for a
+/// given number of parts. The first error in part order is returned.
+pub fn for_each_row_parts<A: Send>(
+    lead: &mut dyn Evaluator,
+    rest: &mut [Box<dyn Evaluator + Send + '_>],
+    files: &[DataSet],
+    states: &[FileStates],
+    layout: &Layout,
+    parts: &mut [A],
+    row: impl Fn(&mut A, RowMeta, &[f64], f64) + Sync,
+) -> Result<(), DesignError> {
+    let Some((first, others)) = parts.split_first_mut() else {
+        return Ok(());
+    };
+    let n = 1 + rest.len().min(others.len());
+    let total = observations(states);
+    let range = |t: usize| t * total / n..(t + 1) * total / n;
+    let row = &row;
+    if n == 1 {
+        return rows_of(lead, files, states, layout, range(0), |m, x, y| {
+            row(first, m, x, y)
+        });
+    }
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = rest
+            .iter_mut()
+            .zip(others.iter_mut())
+            .enumerate()
+            .map(|(t, (engine, part))| {
+                scope.spawn(move || {
+                    rows_of(
+                        engine.as_mut(),
+                        files,
+                        states,
+                        layout,
+                        range(t + 1),
+                        |m, x, y| row(part, m, x, y),
+                    )
+                })
+            })
+            .collect();
+        let first = rows_of(lead, files, states, layout, range(0), |m, x, y| {
+            row(first, m, x, y)
+        });
+        let mut out = first;
+        for h in handles {
+            let done = match h.join() {
+                Ok(done) => done,
+                Err(e) => std::panic::resume_unwind(e),
+            };
+            if out.is_ok() {
+                out = done;
+            }
+        }
+        out
+    })
+}
+
+/// [`for_each_row`] over the observations `part` of [`observations`]' count.
+fn rows_of(
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    states: &[FileStates],
+    layout: &Layout,
+    part: std::ops::Range<usize>,
     mut row: impl FnMut(RowMeta, &[f64], f64),
 ) -> Result<(), DesignError> {
     let n = layout.coefficients;
@@ -464,9 +552,18 @@ pub fn for_each_row(
     let mut lrow = vec![0.0; n];
     let mut err = [0.0; 6];
     let weights = layout.weights;
+    // The first observation of the current file in the count over all files.
+    let mut offset = 0usize;
     for (f, (file, st)) in files.iter().zip(states).enumerate() {
         let path = || file.path.display().to_string();
         let rows = file.observations.rows();
+        let count = match st {
+            FileStates::Points(s) => s.len(),
+            FileStates::Lengths(s, _) => s.len(),
+        };
+        let local = |at: usize| at.saturating_sub(offset).min(count);
+        let mine = local(part.start)..local(part.end);
+        offset += count;
         match (&file.observations, st) {
             (Observations::Points(p), FileStates::Points(s)) => {
                 // Only the rows of the components the file has a column for are evaluated.
@@ -474,7 +571,7 @@ pub fn for_each_row(
                     p.observed.get(c).is_some_and(Option::is_some)
                 }));
                 let k = observed.rows();
-                for r in 0..s.len() {
+                for r in mine {
                     let line = s.line.get(r).copied().unwrap_or(0);
                     let state = s.get(r);
                     engine
@@ -513,12 +610,18 @@ pub fn for_each_row(
                             continue;
                         };
                         let w = weights.of(c as u8);
-                        x.fill(0.0);
-                        for (slot, v) in
-                            x.iter_mut().zip(jac.get(k * n..(k + 1) * n).unwrap_or(&[]))
-                        {
-                            *slot = v * w;
+                        // The coefficients' columns are all written; only the nuisance
+                        // columns after them need clearing.
+                        let (coefficients, nuisance) = x.split_at_mut(n.min(width));
+                        match jac.get(k * n..(k + 1) * n) {
+                            Some(jac) => {
+                                for (slot, v) in coefficients.iter_mut().zip(jac) {
+                                    *slot = v * w;
+                                }
+                            }
+                            None => coefficients.fill(0.0),
                         }
+                        nuisance.fill(0.0);
                         if let (Some(first), Some(p)) = (artifact, position) {
                             // A rigid displacement (t, ω) of the artifact changes the observed
                             // error by t + ω × p at a point p, and by ω in orientation.
@@ -548,7 +651,7 @@ pub fn for_each_row(
                 }
             }
             (Observations::Lengths(l), FileStates::Lengths(s1, s2)) => {
-                for r in 0..s1.len() {
+                for r in mine {
                     let line = s1.line.get(r).copied().unwrap_or(0);
                     let fixed = engine
                         .length_and_row(&s1.get(r), &s2.get(r), &zero, &mut lrow)

@@ -120,7 +120,11 @@ fn projected_fit(
     options: &Options,
     split: &Split,
 ) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
-    let point = projected(compiled, engine, files, values, options, split, false)?;
+    let alone = &mut Team {
+        lead: &mut *engine,
+        rest: &mut [],
+    };
+    let point = projected(compiled, alone, files, values, options, split, false)?;
     let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
     let mut r = Vec::with_capacity(point.rows);
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
@@ -284,26 +288,23 @@ pub struct Joint {
     pub a: Vec<f64>,
 }
 
-/// Standard errors of the fitted non-linear parameters at the optimum: the θ block of the
-/// Gauss–Newton covariance over all parameters, `σ̂²[D_θᵀ(I − P_X)D_θ]⁻¹` with
-/// `D_θ = ∂(Xβ̂)/∂θ` at fixed β̂ (central differences; `beta` is β̂, any solution of a
-/// deficient design: `D_θ` moves only with the moving columns, whose coefficients are
-/// unique). It is the trailing block of the QR of `[X | D_θ]`, so the linear parameters are
-/// profiled out exactly.
+/// The triangle of `[X | D_θ | y]` at the optimum for [`uncertainty`] when the optimiser's
+/// steps did not leave one (differences of residual vectors): `D_θ = ∂(Xβ̂)/∂θ` at fixed β̂
+/// by central differences (`beta` is β̂, any solution of a deficient design: `D_θ` moves only
+/// with the moving columns, whose coefficients are unique). Two prediction passes per
+/// parameter and one for the triangle. `order[i]` is the design column of the triangle's
+/// column i, D's columns after the design's.
 #[allow(clippy::too_many_arguments)]
-fn covariance(
+fn difference_triangle(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
     files: &[DataSet],
     values: &[f64],
     fitted: &[usize],
-    rss: f64,
-    rank: usize,
     options: &Options,
     split: Option<&Split>,
     beta: &[f64],
-) -> Result<(Vec<Option<f64>>, Joint), FitError> {
-    let m = &compiled.machine;
+) -> Result<(Reduced, Vec<usize>), FitError> {
     let k = fitted.len();
     let mut d: Vec<Vec<f64>> = Vec::with_capacity(k);
     for &i in fitted {
@@ -334,8 +335,7 @@ fn covariance(
     // The derivative columns join the moving ones of the split: the triangle of [X | D | y]
     // without factoring X again. Its trailing block is all the covariance needs, and the
     // trailing block does not depend on the order of the columns before it.
-    // `order[i]`: the design column of the triangle's column i (D's columns after the design's).
-    let (red, order) = match split {
+    Ok(match split {
         Some(split) => {
             let ext = split.extended(p, k);
             let mut products = ext.products();
@@ -353,7 +353,36 @@ fn covariance(
             })?;
             (acc.finish(), (0..p + k).collect())
         }
-    };
+    })
+}
+
+/// Kaufman's triangle has `D_φ = ∂(Xβ̂)/∂φ = θ·D_θ` (φ = ln θ): its D columns divided by θ
+/// make it the triangle of `[X | D_θ | y]` that [`uncertainty`] reads (R·diag(s) is the
+/// triangle of the columns scaled by s).
+fn in_values(red: &mut Reduced, order: &[usize], fitted: &[usize], values: &[f64]) {
+    let q = order.len().saturating_sub(fitted.len());
+    for (c, &i) in fitted.iter().enumerate() {
+        let theta = values.get(i).copied().unwrap_or(1.0);
+        for row in 0..red.r.nrows() {
+            red.r[(row, q + c)] /= theta;
+        }
+    }
+}
+
+/// Standard errors of the fitted non-linear parameters at the optimum and their [`Joint`]
+/// covariance with the coefficients, from the triangle of `[X | D_θ | y]` (`order` as
+/// [`difference_triangle`] gives it, `D_θ = ∂(Xβ̂)/∂θ` in its last `k` columns before y): the θ
+/// block of the Gauss–Newton covariance over all parameters, `σ̂²[D_θᵀ(I − P_X)D_θ]⁻¹`. It
+/// is the trailing block of that triangle, so the linear parameters are profiled out exactly.
+fn uncertainty(
+    m: &kin_compiler::ir::Machine,
+    red: &Reduced,
+    order: &[usize],
+    fitted: &[usize],
+    rss: f64,
+    rank: usize,
+) -> (Vec<Option<f64>>, Joint) {
+    let k = fitted.len();
     // Columns of the triangle before D's: the design's, less the dependent fixed columns a
     // split leaves out (which change nothing below: they add nothing to X's span).
     let q = order.len().saturating_sub(k);
@@ -382,7 +411,7 @@ fn covariance(
             f64::INFINITY
         });
     }
-    Ok((se, joint(&red.r, m, &order[..q], fitted, &inv, sigma2)))
+    (se, joint(&red.r, m, &order[..q], fitted, &inv, sigma2))
 }
 
 /// [`Joint`] from the triangle of `[X | D_θ]` (X's columns first, `order[i]` the design column
@@ -442,8 +471,9 @@ fn joint(
 }
 
 /// What the columns `moved` buy at `values`: the residual sum of squares without them less
-/// the one with them. Through the split when it has them all as moving columns (one pass, no
-/// factorisation; both sums from the same products), else by a masked fit against `rss`.
+/// the one with them. Through the split when it has them all as moving columns (both sums from
+/// the same products: `at`, the products at `values` when the optimiser kept them, else one
+/// pass; no factorisation), else by a masked fit against `rss`.
 #[allow(clippy::too_many_arguments)]
 fn term_gain(
     compiled: &Compiled,
@@ -452,15 +482,22 @@ fn term_gain(
     values: &[f64],
     options: &Options,
     split: Option<&Split>,
+    at: Option<&projection::Products>,
     moved: &[bool],
     rss: f64,
 ) -> Result<f64, FitError> {
     if let Some(split) = split {
-        let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
-        let mut products = split.products();
-        design::for_each_row(engine, files, &states, &layout, |_, x, y| {
-            split.push(&mut products, x, y)
-        })?;
+        let products = match at {
+            Some(p) => p.clone(),
+            None => {
+                let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
+                let mut products = split.products();
+                design::for_each_row(engine, files, &states, &layout, |_, x, y| {
+                    split.push(&mut products, x, y)
+                })?;
+                products
+            }
+        };
         if let Some(masked) = split.without(&products, moved) {
             let rss_of = |p: &projection::Products| -> Result<f64, FitError> {
                 let red = split.complete(p);
@@ -517,6 +554,13 @@ const KEPT: usize = 1 << 25;
 /// million.
 const H: f64 = 1e-6;
 
+/// The step in log space of Kaufman's `D = ∂(Xβ̂)/∂φ`, a difference of evaluated columns (not
+/// of refitted residuals). Its error is about `ε/h` from rounding plus `h·g/2` from
+/// truncation, `g` the columns' relative curvature: a wavelength with n periods over an axis
+/// has `g ≈ 2πn`, 10² and more, so a step of 1e-6 errs by 1e-4 — in the standard errors the
+/// optimum's triangle gives too. At 1e-8 both parts stay near 1e-6.
+const H_COLUMNS: f64 = 1e-8;
+
 /// One evaluation of the linear fit at given non-linear values: what the optimiser compares
 /// and what its next step is taken from.
 struct Point {
@@ -526,9 +570,99 @@ struct Point {
     /// β̂ in design column order (through a split: zero for the dependent fixed columns left
     /// out; the fitted values do not depend on which solution is used).
     beta: Vec<f64>,
-    /// Through a split: each row's moving columns (`Split::moving` per row). Else the
-    /// residual vector.
-    kept: Vec<f64>,
+    /// Through a split and with Kaufman's steps: each row's moving columns (`Split::moving`
+    /// per row), one vector per part of the [`Team`]'s passes.
+    kept: Vec<Vec<f64>>,
+    /// Without a split or Kaufman's steps: the residual vector.
+    residuals: Vec<f64>,
+    /// Through a split: the moving columns' products the triangle was completed from (what
+    /// the term tests at the optimum take columns out of).
+    products: Option<projection::Products>,
+}
+
+/// The Gauss–Newton normal equations at a point: `JᵀJ` and `−Jᵀr` of the projected residual.
+struct Normal {
+    a: Mat<f64>,
+    g: Vec<f64>,
+    /// Kaufman's steps: the triangle of `[X | D_φ | y]` they came from (`D_φ = ∂(Xβ̂)/∂φ`)
+    /// and its column order, `order[i]` the design column of the triangle's column i with D's
+    /// `k` columns after the design's. At the optimum it is the covariance's triangle.
+    triangle: Option<(Reduced, Vec<usize>)>,
+}
+
+/// The evaluators of the optimiser's passes: `lead` for those that feed a factorisation row by
+/// row, and with `rest` (forks of the caller's evaluator, one per further thread) for those
+/// that only accumulate — each evaluation, Kaufman's columns, the tests at the optimum — so
+/// these passes run on every core ([`design::for_each_row_parts`]).
+struct Team<'a, 'e> {
+    lead: &'a mut dyn Evaluator,
+    rest: &'a mut [Box<dyn Evaluator + Send + 'e>],
+}
+
+impl Team<'_, '_> {
+    /// Runs `run` on a team of `threads` evaluators forked from `engine`, or on `engine` alone
+    /// (one thread, or an engine that cannot be forked). The caller's engine is not changed.
+    fn with<R>(engine: &mut dyn Evaluator, threads: usize, run: impl FnOnce(&mut Team) -> R) -> R {
+        if threads > 1 {
+            let forks: Option<Vec<_>> = (0..threads).map(|_| engine.fork()).collect();
+            if let Some(mut forks) = forks {
+                if let Some((lead, rest)) = forks.split_first_mut() {
+                    return run(&mut Team {
+                        lead: lead.as_mut(),
+                        rest,
+                    });
+                }
+            }
+        }
+        run(&mut Team {
+            lead: engine,
+            rest: &mut [],
+        })
+    }
+
+    /// How many parts a pass is split into.
+    fn parts(&self) -> usize {
+        1 + self.rest.len()
+    }
+
+    /// [`at_values`] for every evaluator of the team.
+    fn at_values(
+        &mut self,
+        compiled: &Compiled,
+        files: &[DataSet],
+        values: &[f64],
+        noise: Option<design::Noise>,
+    ) -> Result<(Vec<design::FileStates>, Layout), FitError> {
+        for e in self.rest.iter_mut() {
+            e.set_nonlinear(values)
+                .map_err(|source| design::DesignError::Eval {
+                    path: String::new(),
+                    line: 0,
+                    source,
+                })?;
+        }
+        at_values(compiled, &mut *self.lead, files, values, noise)
+    }
+
+    /// One pass over the rows, part `t` of them into `parts[t]`.
+    fn pass<A: Send>(
+        &mut self,
+        files: &[DataSet],
+        states: &[design::FileStates],
+        layout: &Layout,
+        parts: &mut [A],
+        row: impl Fn(&mut A, design::RowMeta, &[f64], f64) + Sync,
+    ) -> Result<(), FitError> {
+        Ok(design::for_each_row_parts(
+            &mut *self.lead,
+            self.rest,
+            files,
+            states,
+            layout,
+            parts,
+            row,
+        )?)
+    }
 }
 
 /// The objective of the search over the logarithms `φ` of the fitted parameters.
@@ -555,12 +689,12 @@ impl Problem<'_> {
 
     /// The linear fit at `φ`: for Kaufman's steps one pass through the split (the residual sum
     /// of squares is the completed triangle's), else the fit and its residual vector.
-    fn evaluate(&self, engine: &mut dyn Evaluator, phi: &[f64]) -> Result<Point, FitError> {
+    fn evaluate(&self, team: &mut Team, phi: &[f64]) -> Result<Point, FitError> {
         let values = self.values(phi);
         match self.split.filter(|_| self.kaufman) {
             Some(split) => projected(
                 self.compiled,
-                engine,
+                team,
                 self.files,
                 &values,
                 self.options,
@@ -570,7 +704,7 @@ impl Problem<'_> {
             None => {
                 let (r, rank, beta) = linear_fit(
                     self.compiled,
-                    engine,
+                    &mut *team.lead,
                     self.files,
                     &values,
                     self.options,
@@ -581,7 +715,9 @@ impl Problem<'_> {
                     rank,
                     rows: r.len(),
                     beta,
-                    kept: r,
+                    kept: Vec::new(),
+                    residuals: r,
+                    products: None,
                 })
             }
         }
@@ -589,15 +725,10 @@ impl Problem<'_> {
 
     /// The Gauss–Newton normal equations at `at` (evaluated at `φ`): `JᵀJ` and `−Jᵀr` of the
     /// projected residual `r(φ) = y − X(φ)β̂(φ)`.
-    fn normal(
-        &self,
-        engine: &mut dyn Evaluator,
-        phi: &[f64],
-        at: &Point,
-    ) -> Result<(Mat<f64>, Vec<f64>), FitError> {
+    fn normal(&self, team: &mut Team, phi: &[f64], at: &Point) -> Result<Normal, FitError> {
         match self.split.filter(|_| self.kaufman) {
-            Some(split) => self.kaufman_normal(engine, phi, at, split),
-            None => self.difference_normal(engine, phi, at),
+            Some(split) => self.kaufman_normal(team, phi, at, split),
+            None => self.difference_normal(&mut *team.lead, phi, at),
         }
     }
 
@@ -607,9 +738,9 @@ impl Problem<'_> {
         engine: &mut dyn Evaluator,
         phi: &[f64],
         at: &Point,
-    ) -> Result<(Mat<f64>, Vec<f64>), FitError> {
+    ) -> Result<Normal, FitError> {
         let k = phi.len();
-        let r = &at.kept;
+        let r = &at.residuals;
         let mut jac = Mat::<f64>::zeros(r.len(), k);
         for c in 0..k {
             let mut p = phi.to_vec();
@@ -630,7 +761,11 @@ impl Problem<'_> {
         let g = (0..k)
             .map(|c| -(0..r.len()).map(|i| jac[(i, c)] * r[i]).sum::<f64>())
             .collect();
-        Ok((a, g))
+        Ok(Normal {
+            a,
+            g,
+            triangle: None,
+        })
     }
 
     /// Kaufman's simplification of the variable-projection Jacobian (Golub & Pereyra; Kaufman
@@ -641,11 +776,11 @@ impl Problem<'_> {
     /// accumulating the products of `[B | D]`; no residual vector and no factorisation.
     fn kaufman_normal(
         &self,
-        engine: &mut dyn Evaluator,
+        team: &mut Team,
         phi: &[f64],
         at: &Point,
         split: &Split,
-    ) -> Result<(Mat<f64>, Vec<f64>), FitError> {
+    ) -> Result<Normal, FitError> {
         let k = phi.len();
         let nb = split.moving();
         let moving = split.order.get(split.order.len() - nb..).unwrap_or(&[]);
@@ -653,37 +788,61 @@ impl Problem<'_> {
             .iter()
             .map(|&j| at.beta.get(j).copied().unwrap_or(0.0))
             .collect();
-        let mut d = vec![0.0; at.rows * k];
         let columns = Layout::new(&self.compiled.machine, self.files).columns();
         let ext = split.extended(columns, k);
-        let mut products = ext.products();
-        let mut row = vec![0.0; columns + k];
+        // Each part of the passes: its rows' kept moving columns (the evaluation at φ was
+        // split the same way), its rows' D (k values a row) and, in the last pass, its share
+        // of the products of [B | D] and the row scratch.
+        struct Part<'p> {
+            kept: &'p [f64],
+            d: Vec<f64>,
+            row: usize,
+            products: Option<projection::Products>,
+            scratch: Vec<f64>,
+        }
+        let mut parts: Vec<Part> = at
+            .kept
+            .iter()
+            .map(|kept| Part {
+                kept,
+                d: vec![0.0; kept.len() / nb.max(1) * k],
+                row: 0,
+                products: None,
+                scratch: vec![0.0; columns + k],
+            })
+            .collect();
         for c in 0..k {
             let mut p = phi.to_vec();
-            p[c] += H;
+            p[c] += H_COLUMNS;
             let values = self.values(&p);
-            let (states, layout) = at_values(
-                self.compiled,
-                engine,
-                self.files,
-                &values,
-                self.options.noise,
-            )?;
+            let (states, layout) =
+                team.at_values(self.compiled, self.files, &values, self.options.noise)?;
             let last = c + 1 == k;
-            let mut i = 0usize;
-            design::for_each_row(engine, self.files, &states, &layout, |_, x, y| {
-                let b0 = at.kept.get(i * nb..(i + 1) * nb).unwrap_or(&[]);
+            for part in &mut parts {
+                part.row = 0;
+                part.products = last.then(|| ext.products());
+            }
+            team.pass(self.files, &states, &layout, &mut parts, |part, _, x, y| {
+                let i = part.row;
+                part.row += 1;
+                let b0 = part.kept.get(i * nb..(i + 1) * nb).unwrap_or(&[]);
                 let dc: f64 = moving
                     .iter()
                     .zip(b0)
                     .zip(&beta_b)
                     .map(|((&j, b), beta)| (x.get(j).copied().unwrap_or(0.0) - b) * beta)
                     .sum::<f64>()
-                    / H;
-                if let Some(slot) = d.get_mut(i * k + c) {
+                    / H_COLUMNS;
+                if let Some(slot) = part.d.get_mut(i * k + c) {
                     *slot = dc;
                 }
-                if last {
+                let Part {
+                    d,
+                    products,
+                    scratch: row,
+                    ..
+                } = part;
+                if let Some(products) = products {
                     // The row of [X(φ) | D]: fixed columns as evaluated, moving ones as kept.
                     for (dst, v) in row.iter_mut().zip(x) {
                         *dst = *v;
@@ -697,10 +856,16 @@ impl Problem<'_> {
                     for (dst, v) in row.iter_mut().skip(columns).zip(di) {
                         *dst = *v;
                     }
-                    ext.push(&mut products, &row, y);
+                    ext.push(products, row, y);
                 }
-                i += 1;
             })?;
+        }
+        // The parts' products summed in part order: the same bits for a given team.
+        let mut products = ext.products();
+        for part in &parts {
+            if let Some(p) = &part.products {
+                products.add(p);
+            }
         }
         let red = ext.complete(&products);
         if !red.is_finite() {
@@ -720,16 +885,20 @@ impl Problem<'_> {
                     .sum()
             })
             .collect();
-        Ok((a, g))
+        Ok(Normal {
+            a,
+            g,
+            triangle: Some((red, ext.order)),
+        })
     }
 
     /// The residual sum of squares and rank at `values`.
-    fn rss_at(&self, engine: &mut dyn Evaluator, values: &[f64]) -> Result<(f64, usize), FitError> {
+    fn rss_at(&self, team: &mut Team, values: &[f64]) -> Result<(f64, usize), FitError> {
         match self.split {
             Some(split) => {
                 let p = projected(
                     self.compiled,
-                    engine,
+                    team,
                     self.files,
                     values,
                     self.options,
@@ -741,7 +910,7 @@ impl Problem<'_> {
             None => {
                 let (r, rank) = residuals(
                     self.compiled,
-                    engine,
+                    &mut *team.lead,
                     self.files,
                     values,
                     self.options,
@@ -753,28 +922,43 @@ impl Problem<'_> {
     }
 }
 
-/// The linear fit at `values` through the split, in one pass: the moving columns' products
-/// complete the fixed triangle; `keep` keeps each row's moving columns.
+/// The linear fit at `values` through the split, in one pass on every core of the team: the
+/// moving columns' products complete the fixed triangle; `keep` keeps each row's moving
+/// columns (per part).
 fn projected(
     compiled: &Compiled,
-    engine: &mut dyn Evaluator,
+    team: &mut Team,
     files: &[DataSet],
     values: &[f64],
     options: &Options,
     split: &Split,
     keep: bool,
 ) -> Result<Point, FitError> {
-    let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
-    let mut products = split.products();
+    let (states, layout) = team.at_values(compiled, files, values, options.noise)?;
     let nb = split.moving();
     let moving = split.order.get(split.order.len() - nb..).unwrap_or(&[]);
-    let mut kept = Vec::new();
-    design::for_each_row(engine, files, &states, &layout, |_, x, y| {
-        split.push(&mut products, x, y);
-        if keep {
-            kept.extend(moving.iter().map(|&j| x.get(j).copied().unwrap_or(0.0)));
-        }
-    })?;
+    let mut parts: Vec<(projection::Products, Vec<f64>)> = (0..team.parts())
+        .map(|_| (split.products(), Vec::new()))
+        .collect();
+    team.pass(
+        files,
+        &states,
+        &layout,
+        &mut parts,
+        |(products, kept), _, x, y| {
+            split.push(products, x, y);
+            if keep {
+                kept.extend(moving.iter().map(|&j| x.get(j).copied().unwrap_or(0.0)));
+            }
+        },
+    )?;
+    // Summed in part order: the same bits for a given team.
+    let mut products = split.products();
+    let mut kept = Vec::with_capacity(parts.len());
+    for (p, k) in parts {
+        products.add(&p);
+        kept.push(k);
+    }
     let red = split.complete(&products);
     if !red.is_finite() {
         return Err(FitError::Overflow);
@@ -794,13 +978,38 @@ fn projected(
         rows: red.rows,
         beta,
         kept,
+        residuals: Vec::new(),
+        products: Some(products),
     })
 }
 
-/// [`optimise`], its evaluations and steps as `steps` says.
+/// [`optimise`], its evaluations and steps as `steps` says; `engine` is left at the optimum.
 fn optimise_with(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    options: &Options,
+    steps: Steps,
+) -> Result<Option<NonlinearFit>, FitError> {
+    let fit = Team::with(engine, options.threads, |team| {
+        optimise_on(compiled, team, files, options, steps)
+    })?;
+    if let Some(fit) = &fit {
+        engine
+            .set_nonlinear(&fit.values)
+            .map_err(|source| design::DesignError::Eval {
+                path: String::new(),
+                line: 0,
+                source,
+            })?;
+    }
+    Ok(fit)
+}
+
+/// [`optimise_with`] on a team of evaluators.
+fn optimise_on(
+    compiled: &Compiled,
+    team: &mut Team,
     files: &[DataSet],
     options: &Options,
     steps: Steps,
@@ -822,7 +1031,7 @@ fn optimise_with(
     // included): after it no full factorisation of the design is made until the fit at the
     // optimum.
     let (split, dependent) = if steps != Steps::Plain {
-        split_for(compiled, engine, files, &start, options, &fitted)?
+        split_for(compiled, &mut *team.lead, files, &start, options, &fitted)?
     } else {
         (None, true)
     };
@@ -830,7 +1039,7 @@ fn optimise_with(
     if dependent && !options.min_norm {
         // Fixed columns the others explain: a plain QR decides at once whether the design
         // is deficient, before any evaluation of the optimiser.
-        refuse_deficient(compiled, engine, files, &start, options)?;
+        refuse_deficient(compiled, &mut *team.lead, files, &start, options)?;
     }
     let kaufman = steps == Steps::Kaufman
         && split
@@ -845,69 +1054,124 @@ fn optimise_with(
         fitted: &fitted,
     };
     let mut phi: Vec<f64> = fitted.iter().map(|&i| start[i].ln()).collect();
-    let mut at = problem.evaluate(engine, &phi)?;
+    let mut at = problem.evaluate(team, &phi)?;
     if !options.min_norm && !dependent && at.rank < Layout::new(m, files).columns() {
         // The completed triangle decides the moving block's rank coarsely (normal
         // equations): a plain QR has the last word.
-        refuse_deficient(compiled, engine, files, &start, options)?;
+        refuse_deficient(compiled, &mut *team.lead, files, &start, options)?;
     }
     let mut lambda = 1e-3;
     let mut iterations = 0;
+    // The normal equations are always those at `phi`: after the loop they are the optimum's,
+    // and with Kaufman's steps their triangle is the covariance's (no further passes).
+    let mut normal = problem.normal(team, &phi, &at)?;
     for _ in 0..40 {
         iterations += 1;
-        let (a, g) = problem.normal(engine, &phi, &at)?;
-        let mut improved = false;
+        // Converged when a step can buy less than a thousandth of one observation's variance:
+        // the parameters then move by a few hundredths of a standard error at most, far below
+        // anything a test or a reader resolves. (A relative gain of 1e-12 kept undetermined
+        // time constants crawling for dozens of passes.) Before a step, the Gauss–Newton
+        // model's predicted gain `gᵀ(JᵀJ)⁺g` (the gradient `Jᵀr` is exact with Kaufman's
+        // Jacobian: the part it leaves out lies in span(X), orthogonal to r); after one, the
+        // gain it bought.
+        let variance = |p: &Point| {
+            let dof = p.rows.saturating_sub(p.rank + k).max(1) as f64;
+            (p.rss / dof).max(f64::MIN_POSITIVE)
+        };
+        let (full, _) = solve_small(&normal.a, &normal.g);
+        let predicted: f64 = full.iter().zip(&normal.g).map(|(s, g)| s * g).sum();
+        if !(predicted > 1e-3 * variance(&at)) {
+            break;
+        }
+        let mut gain = None;
         for _ in 0..12 {
             let damped = Mat::from_fn(k, k, |i, j| {
-                a[(i, j)]
+                normal.a[(i, j)]
                     + if i == j {
-                        lambda * a[(i, i)].max(1e-300)
+                        lambda * normal.a[(i, i)].max(1e-300)
                     } else {
                         0.0
                     }
             });
-            let (step, _) = solve_small(&damped, &g);
+            let (step, _) = solve_small(&damped, &normal.g);
             let trial: Vec<f64> = phi
                 .iter()
                 .zip(&step)
                 .map(|(p, d)| p + d.clamp(-2.0, 2.0))
                 .collect();
-            let t = problem.evaluate(engine, &trial)?;
+            let t = problem.evaluate(team, &trial)?;
             if t.rss < at.rss {
-                // Converged when the step bought less than a thousandth of one observation's
-                // variance: the parameters then move by a few hundredths of a standard error
-                // at most, far below anything a test or a reader resolves. (A relative gain
-                // of 1e-12 kept undetermined time constants crawling for dozens of passes.)
-                let dof = t.rows.saturating_sub(t.rank + k).max(1) as f64;
-                let gain = (at.rss - t.rss) / (t.rss / dof).max(f64::MIN_POSITIVE);
+                gain = Some((at.rss - t.rss) / variance(&t));
                 phi = trial;
                 at = t;
                 lambda = (lambda / 3.0).max(1e-12);
-                improved = gain > 1e-3;
                 break;
             }
             lambda *= 4.0;
         }
-        if !improved {
+        let Some(gain) = gain else {
+            // No step improves: `normal` is still the one at `phi`.
+            break;
+        };
+        normal = problem.normal(team, &phi, &at)?;
+        if gain <= 1e-3 {
             break;
         }
     }
     let values = problem.values(&phi);
     let (rss, rank) = (at.rss, at.rank);
-    let (se, joint) = covariance(
-        compiled, engine, files, &values, &fitted, rss, rank, options, split, &at.beta,
-    )?;
+    let (se, joint) = match normal.triangle {
+        Some((mut red, order)) => {
+            in_values(&mut red, &order, &fitted, &values);
+            uncertainty(m, &red, &order, &fitted, rss, rank)
+        }
+        None => {
+            let (red, order) = difference_triangle(
+                compiled,
+                &mut *team.lead,
+                files,
+                &values,
+                &fitted,
+                options,
+                split,
+                &at.beta,
+            )?;
+            uncertainty(m, &red, &order, &fitted, rss, rank)
+        }
+    };
     let mut verdicts = vec![None; m.nonlinear.len()];
     let dof = at.rows.saturating_sub(rank + k).max(1) as f64;
-    let moved_all = moved_columns(compiled, engine, files, &values, &fitted, options)?;
+    // The columns each parameter shapes: through a split, the model's own terms; else
+    // compared between evaluations.
+    let columns = Layout::new(m, files).columns();
+    let structural: Option<Vec<Vec<bool>>> = split.and_then(|_| {
+        fitted
+            .iter()
+            .map(|&i| projection::moving_columns(m, &[i], columns))
+            .collect()
+    });
+    let moved_all = match structural {
+        Some(moved) => moved,
+        None => moved_columns(compiled, &mut *team.lead, files, &values, &fitted, options)?,
+    };
     for (&i, moved) in fitted.iter().zip(&moved_all) {
         let start = m.nonlinear.get(i).map(|p| p.value).unwrap_or(values[i]);
         // Held at its start value, the others at their optimum.
         let mut held = values.clone();
         held[i] = start;
-        let (rss_held, _) = problem.rss_at(engine, &held)?;
+        let (rss_held, _) = problem.rss_at(team, &held)?;
         let without = moved.iter().filter(|&&b| b).count();
-        let gain = term_gain(compiled, engine, files, &values, options, split, moved, rss)?;
+        let gain = term_gain(
+            compiled,
+            &mut *team.lead,
+            files,
+            &values,
+            options,
+            split,
+            at.products.as_ref(),
+            moved,
+            rss,
+        )?;
         let term_p = f_test_p(gain, (without + 1) as f64, rss, dof);
         let start_p = f_test_p(rss_held - rss, 1.0, rss, dof);
         let bounded = se
@@ -921,13 +1185,6 @@ fn optimise_with(
             determined: bounded && term_p <= ALPHA,
         });
     }
-    engine
-        .set_nonlinear(&values)
-        .map_err(|source| design::DesignError::Eval {
-            path: String::new(),
-            line: 0,
-            source,
-        })?;
     Ok(Some(NonlinearFit {
         values,
         se,
@@ -1099,13 +1356,40 @@ machine m {
             linear_fit(&c, &mut engine, &files, &start, &options, None).expect("fit");
         let rss0 = sumsq(&r0);
         let se = |engine: &mut crate::interp::Interpreter, split: Option<&Split>| {
-            covariance(
-                &c, engine, &files, &start, &fitted, rss0, rank0, &options, split, &beta0,
-            )
-            .expect("covariance")
+            let (red, order) =
+                difference_triangle(&c, engine, &files, &start, &fitted, &options, split, &beta0)
+                    .expect("covariance");
+            uncertainty(m, &red, &order, &fitted, rss0, rank0)
         };
         let ((se_p, joint_p), (se_q, joint_q)) =
             (se(&mut engine, Some(&split)), se(&mut engine, None));
+        // Kaufman's triangle at the same point (forward differences in log θ, one pass per
+        // parameter) gives the same covariance as the central differences in θ.
+        let problem = Problem {
+            compiled: &c,
+            files: &files,
+            options: &options,
+            split: Some(&split),
+            kaufman: true,
+            values: start.clone(),
+            fitted: &fitted,
+        };
+        let phi: Vec<f64> = fitted.iter().map(|&i| start[i].ln()).collect();
+        // On two evaluators: the passes split in two parts, their products summed.
+        let mut fork: Vec<Box<dyn Evaluator + Send + '_>> = vec![Box::new(engine.clone())];
+        let mut team = Team {
+            lead: &mut engine,
+            rest: &mut fork,
+        };
+        let at = problem.evaluate(&mut team, &phi).expect("evaluates");
+        assert_eq!(at.kept.len(), 2, "one part a thread");
+        let (mut red, order) = problem
+            .normal(&mut team, &phi, &at)
+            .expect("normal")
+            .triangle
+            .expect("Kaufman's triangle");
+        in_values(&mut red, &order, &fitted, &start);
+        let (se_k, joint_k) = uncertainty(m, &red, &order, &fitted, at.rss, at.rank);
         // The joint covariance: the split's triangle has its columns in another order, and
         // A's rows belong to the coefficients, not to the triangle's positions.
         assert_eq!(joint_p.a.len(), joint_q.a.len());
@@ -1121,6 +1405,28 @@ machine m {
                 "joint {a} vs {b}"
             );
         }
+        let top_k = joint_k.a.iter().fold(0.0f64, |t, v| t.max(v.abs()));
+        for (a, b) in joint_k
+            .a
+            .iter()
+            .zip(&joint_q.a)
+            .chain(joint_k.s.iter().zip(&joint_q.s))
+        {
+            // Forward differences err by about 1e-6 relative to D (`H_COLUMNS`), so entries
+            // that are small by cancellation are compared against the largest.
+            assert!(
+                (a - b).abs() <= 1e-5 * b.abs() + 1e-6 * top_k,
+                "Kaufman's joint {a} vs {b}"
+            );
+        }
+        for (a, b) in se_k.iter().zip(&se_q) {
+            match (a, b) {
+                (Some(a), Some(b)) => {
+                    assert!((a - b).abs() <= 1e-5 * b.abs(), "Kaufman's se {a} vs {b}")
+                }
+                other => panic!("{other:?}"),
+            }
+        }
         for (a, b) in se_p.iter().zip(&se_q) {
             match (a, b) {
                 (Some(a), Some(b)) => assert!((a - b).abs() <= 1e-6 * b.abs(), "se {a} vs {b}"),
@@ -1130,15 +1436,36 @@ machine m {
         }
         let moved_all =
             moved_columns(&c, &mut engine, &files, &start, &fitted, &options).expect("moved");
-        for moved in moved_all {
-            let gain = |engine: &mut crate::interp::Interpreter, split: Option<&Split>| {
-                term_gain(&c, engine, &files, &start, &options, split, &moved, rss0).expect("gain")
+        for (moved, &i) in moved_all.iter().zip(&fitted) {
+            // The columns seen to move are those of the terms the parameter shapes.
+            assert_eq!(
+                projection::moving_columns(m, &[i], moved.len()).as_ref(),
+                Some(moved)
+            );
+            let gain = |engine: &mut crate::interp::Interpreter,
+                        split: Option<&Split>,
+                        at: Option<&projection::Products>| {
+                term_gain(&c, engine, &files, &start, &options, split, at, moved, rss0)
+                    .expect("gain")
             };
-            let (gp, gq) = (gain(&mut engine, Some(&split)), gain(&mut engine, None));
+            let (gp, gq) = (
+                gain(&mut engine, Some(&split), None),
+                gain(&mut engine, None, None),
+            );
             assert!(
                 (gp - gq).abs() <= (1e-6 * gq.abs()).max(1e-9 * rss0),
                 "gain {gp} vs {gq}"
             );
+            // From the products an evaluation kept: the same sums, no pass.
+            let alone = &mut Team {
+                lead: &mut engine,
+                rest: &mut [],
+            };
+            let kept = projected(&c, alone, &files, &start, &options, &split, false)
+                .expect("evaluates")
+                .products;
+            let ga = gain(&mut engine, Some(&split), kept.as_ref());
+            assert_eq!(ga, gp);
         }
         for values in [
             start.clone(),
@@ -1280,6 +1607,37 @@ machine m {
                     assert!((a - b).abs() <= 1e-8 * scale, "β {a} vs {b}");
                 }
             }
+        }
+        // The accumulating passes split over threads: the same bits for the same number of
+        // threads; against one thread, sums in another order, which Kaufman's differences
+        // (a step of 1e-8) magnify in the steps: the optimum moves by ~1e-5 of a standard
+        // error, far inside the convergence test's reach.
+        let on = |threads: usize| {
+            let options = Options {
+                threads,
+                ..options.clone()
+            };
+            optimise_with(&c, &mut engine.clone(), &files, &options, Steps::Kaufman)
+                .expect("optimises")
+                .expect("fitted parameters")
+        };
+        let (one, three, again) = (on(1), on(3), on(3));
+        assert_eq!(three.values, again.values);
+        assert_eq!(three.se, again.se);
+        assert_eq!(three.rss.to_bits(), again.rss.to_bits());
+        assert!(
+            rel(three.rss, one.rss) <= 1e-10,
+            "rss {} vs {}",
+            three.rss,
+            one.rss
+        );
+        for ((a, b), se) in three.values.iter().zip(&one.values).zip(&one.se) {
+            let se = se.expect("fitted");
+            assert!((a - b).abs() <= 1e-4 * se, "τ {a} vs {b} (se {se})");
+        }
+        for (a, b) in three.se.iter().zip(&one.se) {
+            let (a, b) = (a.expect("fitted"), b.expect("fitted"));
+            assert!(rel(a, b) <= 1e-4, "se {a} vs {b}");
         }
     }
 

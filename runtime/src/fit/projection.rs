@@ -174,9 +174,7 @@ impl Split {
         let moving = self.order.get(self.fixed..)?;
         for (j, _) in drop.iter().enumerate().filter(|(_, d)| **d) {
             let c = moving.iter().position(|&o| o == j)?;
-            for a in 0..self.fixed {
-                out.ab[(a, c)] = 0.0;
-            }
+            out.ab.col_as_slice_mut(c).fill(0.0);
             for d in 0..nb {
                 out.bb[(c, d)] = 0.0;
                 out.bb[(d, c)] = 0.0;
@@ -205,8 +203,11 @@ impl Split {
             if bc == 0.0 {
                 continue;
             }
-            for (a, &j) in self.order[..self.fixed].iter().enumerate() {
-                ab[(a, c)] += x.get(j).copied().unwrap_or(0.0) * bc;
+            // Against every column of the row, in design order: a contiguous multiply-add the
+            // compiler vectorises, where picking the kept fixed columns out of the row would
+            // cost a scattered load each (what is not a kept fixed column is never read).
+            for (dst, &xv) in ab.col_as_slice_mut(c).iter_mut().zip(x) {
+                *dst += xv * bc;
             }
             for (d, &bd) in b.iter().enumerate() {
                 bb[(c, d)] += bc * bd;
@@ -218,8 +219,9 @@ impl Split {
     /// Empty products for one evaluation.
     pub fn products(&self) -> Products {
         let nb = self.moving();
+        let width = self.order.iter().max().map_or(0, |&j| j + 1);
         Products {
-            ab: Mat::zeros(self.fixed, nb),
+            ab: Mat::zeros(width, nb),
             bb: Mat::zeros(nb, nb),
             by: vec![0.0; nb],
             b: Vec::with_capacity(nb),
@@ -243,7 +245,7 @@ impl Split {
         // on how the rows are scaled, so A's units need no care here.
         for c in 0..nb {
             for i in 0..na {
-                let mut v = p.ab[(i, c)];
+                let mut v = p.ab[(self.order[i], c)];
                 for l in 0..i {
                     v -= base[(l, i)] * r[(l, na + c)];
                 }
@@ -318,11 +320,31 @@ const PIVOT: f64 = 1e-12;
 /// One evaluation's products of the moving columns.
 #[derive(Debug, Clone)]
 pub struct Products {
+    /// `XᵀB` over every design column (row j of column j): `AᵀB` is its kept fixed rows.
     ab: Mat<f64>,
     bb: Mat<f64>,
     by: Vec<f64>,
     /// The current row's moving values.
     b: Vec<f64>,
+}
+
+impl Products {
+    /// Adds the products of other rows (a part of a pass split over threads).
+    pub fn add(&mut self, other: &Products) {
+        for (dst, src) in [(&mut self.ab, &other.ab), (&mut self.bb, &other.bb)] {
+            if (dst.nrows(), dst.ncols()) != (src.nrows(), src.ncols()) {
+                continue;
+            }
+            for j in 0..dst.ncols() {
+                for i in 0..dst.nrows() {
+                    dst[(i, j)] += src[(i, j)];
+                }
+            }
+        }
+        for (dst, src) in self.by.iter_mut().zip(&other.by) {
+            *dst += src;
+        }
+    }
 }
 
 #[cfg(test)]

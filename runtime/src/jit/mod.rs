@@ -1071,4 +1071,10 @@ impl Evaluator for JitEvaluator {
         let location = self.model.nominal_jacobian(state, &mut self.joint)?;
         Ok(location.position.into())
     }
+
+    /// The compiled code is shared (`JitModel` is reference-counted): a fork copies only the
+    /// values and the scratch.
+    fn fork(&self) -> Option<Box<dyn Evaluator + Send + '_>> {
+        Some(Box::new(self.clone()))
+    }
 }

@@ -57,6 +57,8 @@ pub enum FitError {
     NoNoiseFor { kind: &'static str },
     #[error(transparent)]
     Read(#[from] crate::data::ReadError),
+    #[error(transparent)]
+    Merge(#[from] merge::MergeError),
     #[error("the design is rank-deficient: rank {rank} of {columns} columns")]
     RankDeficient {
         rank: usize,

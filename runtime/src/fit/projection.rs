@@ -88,6 +88,8 @@ pub struct Split {
     pub order: Vec<usize>,
     fixed: usize,
     dropped: usize,
+    /// The columns of a row pushed (the design's, and an extended split's extra ones).
+    columns: usize,
     base: Reduced,
 }
 
@@ -142,6 +144,7 @@ impl Split {
             order,
             fixed: rank,
             dropped: na - rank,
+            columns: moving.len(),
             base,
         })
     }
@@ -161,6 +164,7 @@ impl Split {
             order,
             fixed: self.fixed,
             dropped: self.dropped,
+            columns: columns + extra,
             base: self.base.clone(),
         }
     }
@@ -189,43 +193,18 @@ impl Split {
         self.order.len() - self.fixed
     }
 
-    /// Accumulates one row's products (`x` in design column order).
+    /// Accumulates one row's products (`x` in design column order) into `acc`, products of
+    /// this split.
     pub fn push(&self, acc: &mut Products, x: &[f64], y: f64) {
-        let Products { ab, bb, by, b } = acc;
-        b.clear();
-        b.extend(
-            self.order[self.fixed..]
-                .iter()
-                .map(|&j| x.get(j).copied().unwrap_or(0.0)),
-        );
-        for (c, &bc) in b.iter().enumerate() {
-            // Most moving columns are zero on most rows (a lag of one input, one component).
-            if bc == 0.0 {
-                continue;
-            }
-            // Against every column of the row, in design order: a contiguous multiply-add the
-            // compiler vectorises, where picking the kept fixed columns out of the row would
-            // cost a scattered load each (what is not a kept fixed column is never read).
-            for (dst, &xv) in ab.col_as_slice_mut(c).iter_mut().zip(x) {
-                *dst += xv * bc;
-            }
-            for (d, &bd) in b.iter().enumerate() {
-                bb[(c, d)] += bc * bd;
-            }
-            by[c] += bc * y;
-        }
+        acc.push(x, y);
     }
 
     /// Empty products for one evaluation.
     pub fn products(&self) -> Products {
-        let nb = self.moving();
-        let width = self.order.iter().max().map_or(0, |&j| j + 1);
-        Products {
-            ab: Mat::zeros(width, nb),
-            bb: Mat::zeros(nb, nb),
-            by: vec![0.0; nb],
-            b: Vec::with_capacity(nb),
-        }
+        Products::new(
+            self.order.get(self.fixed..).unwrap_or(&[]).to_vec(),
+            self.columns,
+        )
     }
 
     /// The triangle of `[A | B | y]` (columns in [`Split::order`]) from the fixed part and one
@@ -317,10 +296,13 @@ impl Split {
 /// no finer than about √ε of a column.
 const PIVOT: f64 = 1e-12;
 
-/// One evaluation's products of the moving columns.
+/// One evaluation's products of the moving columns. They depend only on which columns move,
+/// not on the fixed triangle, so they can be summed in the same pass that factors it.
 #[derive(Debug, Clone)]
 pub struct Products {
-    /// `XᵀB` over every design column (row j of column j): `AᵀB` is its kept fixed rows.
+    /// The moving columns, in design order (a split's `order` after its fixed columns).
+    moving: Vec<usize>,
+    /// `XᵀB` over every column of a row (row j of column j): `AᵀB` is its kept fixed rows.
     ab: Mat<f64>,
     bb: Mat<f64>,
     by: Vec<f64>,
@@ -329,6 +311,48 @@ pub struct Products {
 }
 
 impl Products {
+    /// Empty products of the columns `moving` (design indices, increasing) for rows of
+    /// `columns` values: those [`Split::products`] gives for a split with these moving columns.
+    pub fn new(moving: Vec<usize>, columns: usize) -> Products {
+        let nb = moving.len();
+        Products {
+            moving,
+            ab: Mat::zeros(columns, nb),
+            bb: Mat::zeros(nb, nb),
+            by: vec![0.0; nb],
+            b: Vec::with_capacity(nb),
+        }
+    }
+
+    /// Accumulates one row (`x` in design column order).
+    pub fn push(&mut self, x: &[f64], y: f64) {
+        let Products {
+            moving,
+            ab,
+            bb,
+            by,
+            b,
+        } = self;
+        b.clear();
+        b.extend(moving.iter().map(|&j| x.get(j).copied().unwrap_or(0.0)));
+        for (c, &bc) in b.iter().enumerate() {
+            // Most moving columns are zero on most rows (a lag of one input, one component).
+            if bc == 0.0 {
+                continue;
+            }
+            // Against every column of the row, in design order: a contiguous multiply-add the
+            // compiler vectorises, where picking the kept fixed columns out of the row would
+            // cost a scattered load each (what is not a kept fixed column is never read).
+            for (dst, &xv) in ab.col_as_slice_mut(c).iter_mut().zip(x) {
+                *dst += xv * bc;
+            }
+            for (d, &bd) in b.iter().enumerate() {
+                bb[(c, d)] += bc * bd;
+            }
+            by[c] += bc * y;
+        }
+    }
+
     /// Adds the products of other rows (a part of a pass split over threads).
     pub fn add(&mut self, other: &Products) {
         for (dst, src) in [(&mut self.ab, &other.ab), (&mut self.bb, &other.bb)] {

@@ -6,9 +6,17 @@
 //! The parameters are positive, so the search runs over their logarithms. The Jacobian of the
 //! projected residual `r(θ) = y − X(θ)β̂(θ)` is Kaufman's `−(I − P_X)∂(Xβ̂)/∂θ`, its products
 //! taken from the fixed columns' triangle ([`projection`]); without that triangle, forward
-//! differences of the residual vectors. At the optimum `σ̂²(JᵀJ)⁻¹` is the covariance of the
-//! non-linear parameters with β profiled out (Golub & Pereyra), mapped back by the delta
+//! differences of the residual vectors. The search stops when the Gauss–Newton model predicts
+//! less than a thousandth of one observation's variance from another step, so its last normal
+//! equations are those at the optimum, and `σ̂²(JᵀJ)⁻¹` from their triangle is the covariance
+//! of the non-linear parameters with β profiled out (Golub & Pereyra), mapped back by the delta
 //! method.
+//!
+//! Passes that only accumulate sums (each evaluation, Kaufman's derivative columns, the
+//! factorisation of the fixed columns, the tests at the optimum) run on every core the fit may
+//! use: the rows split into contiguous parts, each evaluated by its own fork of the evaluator,
+//! the parts' sums added (triangles merged) in part order, so one thread count gives the same
+//! bits on every run.
 
 use faer::Mat;
 use kin_compiler::Compiled;

@@ -488,7 +488,7 @@ pub fn for_each_row_parts<A: Send>(
     parts: &mut [A],
     row: impl Fn(&mut A, RowMeta, &[f64], f64) + Sync,
 ) -> Result<(), DesignError> {
-    let Some((first, others)) = parts.split_first_mut() else {
+    let Some((mine, others)) = parts.split_first_mut() else {
         return Ok(());
     };
     let n = 1 + rest.len().min(others.len());
@@ -497,7 +497,7 @@ pub fn for_each_row_parts<A: Send>(
     let row = &row;
     if n == 1 {
         return rows_of(lead, files, states, layout, range(0), |m, x, y| {
-            row(first, m, x, y)
+            row(mine, m, x, y)
         });
     }
     std::thread::scope(|scope| {
@@ -518,10 +518,9 @@ pub fn for_each_row_parts<A: Send>(
                 })
             })
             .collect();
-        let first = rows_of(lead, files, states, layout, range(0), |m, x, y| {
-            row(first, m, x, y)
+        let mut out = rows_of(lead, files, states, layout, range(0), |m, x, y| {
+            row(mine, m, x, y)
         });
-        let mut out = first;
         for h in handles {
             let done = match h.join() {
                 Ok(done) => done,

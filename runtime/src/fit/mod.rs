@@ -16,6 +16,7 @@ pub mod stations;
 pub mod stepwise;
 pub mod stream;
 pub mod tally;
+mod team;
 mod tpqr;
 
 use faer::Mat;

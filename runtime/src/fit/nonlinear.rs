@@ -24,6 +24,7 @@ use kin_compiler::Compiled;
 use super::design::{self, DataSet, Layout};
 use super::projection::{self, Split};
 use super::qr::{Reduced, StreamingQr};
+use super::team::{at_values, Team};
 use super::{solve, FitError, Options, Solver};
 use crate::engine::Evaluator;
 
@@ -78,29 +79,6 @@ fn residuals(
 ) -> Result<(Vec<f64>, usize), FitError> {
     let (r, rank, _) = linear_fit(compiled, engine, files, values, options, split)?;
     Ok((r, rank))
-}
-
-/// The engine and the states set to the non-linear `values` (lags depend on time constants),
-/// and the problem's columns.
-fn at_values(
-    compiled: &Compiled,
-    engine: &mut dyn Evaluator,
-    files: &[DataSet],
-    values: &[f64],
-    noise: Option<design::Noise>,
-) -> Result<(Vec<design::FileStates>, Layout), FitError> {
-    let m = &compiled.machine;
-    engine
-        .set_nonlinear(values)
-        .map_err(|source| design::DesignError::Eval {
-            path: String::new(),
-            line: 0,
-            source,
-        })?;
-    Ok((
-        design::states_with(m, files, values)?,
-        Layout::new(m, files).weighted(m, noise),
-    ))
 }
 
 /// The linear fit at `values`: residuals, rank and β̂.
@@ -659,81 +637,6 @@ struct Normal {
     /// and its column order, `order[i]` the design column of the triangle's column i with D's
     /// `k` columns after the design's. At the optimum it is the covariance's triangle.
     triangle: Option<(Reduced, Vec<usize>)>,
-}
-
-/// The evaluators of the optimiser's passes: `lead` for those that feed a factorisation row by
-/// row, and with `rest` (forks of the caller's evaluator, one per further thread) for those
-/// that only accumulate — each evaluation, Kaufman's columns, the tests at the optimum — so
-/// these passes run on every core ([`design::for_each_row_parts`]).
-struct Team<'a, 'e> {
-    lead: &'a mut dyn Evaluator,
-    rest: &'a mut [Box<dyn Evaluator + Send + 'e>],
-}
-
-impl Team<'_, '_> {
-    /// Runs `run` on a team of `threads` evaluators forked from `engine`, or on `engine` alone
-    /// (one thread, or an engine that cannot be forked). The caller's engine is not changed.
-    fn with<R>(engine: &mut dyn Evaluator, threads: usize, run: impl FnOnce(&mut Team) -> R) -> R {
-        if threads > 1 {
-            let forks: Option<Vec<_>> = (0..threads).map(|_| engine.fork()).collect();
-            if let Some(mut forks) = forks {
-                if let Some((lead, rest)) = forks.split_first_mut() {
-                    return run(&mut Team {
-                        lead: lead.as_mut(),
-                        rest,
-                    });
-                }
-            }
-        }
-        run(&mut Team {
-            lead: engine,
-            rest: &mut [],
-        })
-    }
-
-    /// How many parts a pass is split into.
-    fn parts(&self) -> usize {
-        1 + self.rest.len()
-    }
-
-    /// [`at_values`] for every evaluator of the team.
-    fn at_values(
-        &mut self,
-        compiled: &Compiled,
-        files: &[DataSet],
-        values: &[f64],
-        noise: Option<design::Noise>,
-    ) -> Result<(Vec<design::FileStates>, Layout), FitError> {
-        for e in self.rest.iter_mut() {
-            e.set_nonlinear(values)
-                .map_err(|source| design::DesignError::Eval {
-                    path: String::new(),
-                    line: 0,
-                    source,
-                })?;
-        }
-        at_values(compiled, &mut *self.lead, files, values, noise)
-    }
-
-    /// One pass over the rows, part `t` of them into `parts[t]`.
-    fn pass<A: Send>(
-        &mut self,
-        files: &[DataSet],
-        states: &[design::FileStates],
-        layout: &Layout,
-        parts: &mut [A],
-        row: impl Fn(&mut A, design::RowMeta, &[f64], f64) + Sync,
-    ) -> Result<(), FitError> {
-        Ok(design::for_each_row_parts(
-            &mut *self.lead,
-            self.rest,
-            files,
-            states,
-            layout,
-            parts,
-            row,
-        )?)
-    }
 }
 
 /// The objective of the search over the logarithms `φ` of the fitted parameters.

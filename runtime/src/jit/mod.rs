@@ -620,6 +620,7 @@ impl JitModel {
         )?;
         let mut out = [0.0; 12];
         let streaming = stream::worth_it(jac.len());
+        let prefetch = !streaming && stream::beyond_cache(jac.len());
         let mut scratch = vec![0.0; if streaming { block } else { 0 }];
         // Empty blocks (no coefficient, or no component): chunks of 0 are not allowed.
         let mut blocks = jac.chunks_exact_mut(block.max(1));
@@ -630,7 +631,7 @@ impl JitModel {
             } else {
                 blocks.next().unwrap_or(&mut [])
             };
-            if !streaming {
+            if prefetch {
                 // The next pose's block, requested for writing while this pose is evaluated.
                 stream::prefetch_for_writing(j.as_ptr_range().end, block);
             }

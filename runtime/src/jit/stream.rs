@@ -21,6 +21,18 @@
 /// computer's 32 MiB cache), 1.56 and 1.18 at 20 000 poses (166 and 83 MB).
 const STREAM_BYTES: usize = 32 << 20;
 
+/// Below this a destination is taken to stay in a core's second-level cache (256 KiB to
+/// 2 MiB on current x86-64 CPUs): a consumer reusing one block of rows (the blocks of
+/// `kin bench`, 256 KiB) finds its lines there already, and requesting them again for writing
+/// only costs the requests.
+const CACHED_BYTES: usize = 1 << 20;
+
+/// Whether a destination of `values` f64s is larger than a core's second-level cache, where
+/// requesting the next pose's lines for writing ([`prefetch_for_writing`]) pays.
+pub(crate) fn beyond_cache(values: usize) -> bool {
+    values.saturating_mul(8) > CACHED_BYTES
+}
+
 /// Whether a destination of `values` f64s is large enough for streaming stores to pay.
 pub(crate) fn worth_it(values: usize) -> bool {
     cfg!(target_arch = "x86_64") && values.saturating_mul(8) >= STREAM_BYTES

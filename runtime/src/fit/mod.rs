@@ -150,7 +150,9 @@ pub struct FitResult {
     pub tally: Option<tally::Tally>,
 }
 
-/// Progress callback: rows done in the current pass, and the pass name.
+/// Progress callback: rows done in the current pass, and the pass name (`optimising` for the
+/// fitted non-linear parameters' search, reported once with 0 rows, then `factorising` and
+/// `residuals`).
 pub type Progress<'a> = &'a mut dyn FnMut(&'static str, usize);
 
 /// Pass 1 of a fit: the triangle of [X | y] over every row `visit` hands to its callback (the
@@ -196,7 +198,10 @@ pub fn fit(
     let layout = Layout::new(m, files).weighted(m, options.noise);
     let p = layout.columns();
     // Fitted wavelengths and time constants first: the linear problem below is the one at
-    // their optimum.
+    // their optimum. Its passes report no rows: the pass name says what the time goes to.
+    if m.nonlinear.iter().any(|p| p.fitted) {
+        progress("optimising", 0);
+    }
     let nonlinear = nonlinear::optimise(compiled, engine, files, options)?;
     let values: Vec<f64> = match &nonlinear {
         Some(n) => n.values.clone(),

@@ -21,9 +21,9 @@ pub(super) struct Team<'a, 'e> {
 }
 
 impl Team<'_, '_> {
-    /// Runs `run` on a team of `threads` evaluators forked from `engine` (holding its values),
-    /// or on `engine` alone (one thread, or an engine that cannot be forked). The caller's
-    /// engine itself is then left as it was.
+    /// Runs `run` on a team of `threads` evaluators forked from `engine` (holding its values;
+    /// `engine` itself is then not touched), or on `engine` alone (one thread, or an engine
+    /// that cannot be forked; the passes then set its values).
     pub fn with<R>(
         engine: &mut dyn Evaluator,
         threads: usize,

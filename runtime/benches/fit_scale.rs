@@ -1096,7 +1096,26 @@ fn fitted_tau(poses: usize) {
         let nl = r
             .nonlinear
             .as_ref()
-            .map(|n| format!(", {} iterations, τ {:?}", n.iterations, n.values))
+            .map(|n| {
+                let each: Vec<String> = n
+                    .values
+                    .iter()
+                    .zip(&n.se)
+                    .zip(&n.verdicts)
+                    .map(|((v, se), verdict)| match (se, verdict) {
+                        (Some(se), Some(d)) => format!(
+                            "{v:.1} ± {se:.1} s ({})",
+                            if d.determined {
+                                "determined"
+                            } else {
+                                "undetermined"
+                            }
+                        ),
+                        _ => format!("{v:.1} s (fixed)"),
+                    })
+                    .collect();
+                format!(", {} iterations, τ {}", n.iterations, each.join(", "))
+            })
             .unwrap_or_default();
         println!(
             "  τ {name:<6}: {} wall, {} CPU of the process; σ̂ {:.4} µm{nl}",

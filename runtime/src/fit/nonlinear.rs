@@ -435,32 +435,80 @@ fn uncertainty(
     // Columns of the triangle before D's: the design's, less the dependent fixed columns a
     // split leaves out (which change nothing below: they add nothing to X's span).
     let q = order.len().saturating_sub(k);
+    let r22 = Mat::from_fn(k, k, |a, b| red.r[(q + a, q + b)]);
+    // A parameter whose D column the design and the parameters before it explain (no effect
+    // on the residuals of its own) leaves no pivot: its standard error is unbounded. The
+    // others' are those with it held where it is — the triangle of their columns alone —
+    // rather than unbounded too: one time constant the data cannot see must not make another,
+    // which they determine, look undetermined.
+    let determined: Vec<usize> = (0..k)
+        .filter(|&c| {
+            let column = (0..=q + c)
+                .map(|i| red.r[(i, q + c)].powi(2))
+                .sum::<f64>()
+                .sqrt();
+            r22[(c, c)].abs() > PIVOT_THETA * column
+        })
+        .collect();
+    let dof = red.rows.saturating_sub(rank + k).max(1) as f64;
+    let sigma2 = rss / dof;
+    let mut se = vec![None; m.nonlinear.len()];
+    for &i in fitted {
+        se[i] = Some(f64::INFINITY);
+    }
     // Cov(θ) = σ̂² (R₂₂ᵀR₂₂)⁻¹ = σ̂² R₂₂⁻¹R₂₂⁻ᵀ: from the triangle itself, never its normal
     // matrix, whose entries span the squares of the parameters' very different scales.
-    let r22 = Mat::from_fn(k, k, |a, b| red.r[(q + a, q + b)]);
+    let all = determined.len() == k;
+    let r = if all {
+        r22
+    } else {
+        // R₂₂ without the undetermined columns is no longer triangular: factor it again.
+        let kept = Mat::from_fn(k, determined.len(), |a, b| r22[(a, determined[b])]);
+        let n = determined.len();
+        let qr = kept.qr();
+        let t = qr.thin_R();
+        Mat::from_fn(n, n, |a, b| if b >= a { t[(a, b)] } else { 0.0 })
+    };
+    let inv = triangular_inverse(&r);
+    let n = r.ncols();
+    for (c, &d) in determined.iter().enumerate() {
+        let var: f64 = sigma2 * (c..n).map(|j| inv[(c, j)].powi(2)).sum::<f64>();
+        if let Some(slot) = fitted.get(d).and_then(|&i| se.get_mut(i)) {
+            *slot = Some(if var.is_finite() {
+                var.sqrt()
+            } else {
+                f64::INFINITY
+            });
+        }
+    }
+    // The joint covariance needs every parameter bounded: a prediction that moves with an
+    // undetermined one has no bounded uncertainty to give.
+    let joint = if all {
+        joint(&red.r, m, &order[..q], fitted, &inv, sigma2)
+    } else {
+        Joint::default()
+    };
+    (se, joint)
+}
+
+/// Below this share of its column's length a parameter's pivot in `R₂₂` counts as none (see
+/// [`uncertainty`]); the completed triangle resolves a column to about √ε of its length.
+const PIVOT_THETA: f64 = 1e-8;
+
+/// The inverse of an upper triangular matrix, by back substitution, column by column.
+fn triangular_inverse(r: &Mat<f64>) -> Mat<f64> {
+    let k = r.ncols();
     let mut inv = Mat::<f64>::zeros(k, k);
     for c in 0..k {
         for i in (0..=c).rev() {
             let mut v = if i == c { 1.0 } else { 0.0 };
             for j in i + 1..=c {
-                v -= r22[(i, j)] * inv[(j, c)];
+                v -= r[(i, j)] * inv[(j, c)];
             }
-            inv[(i, c)] = v / r22[(i, i)];
+            inv[(i, c)] = v / r[(i, i)];
         }
     }
-    let dof = red.rows.saturating_sub(rank + k).max(1) as f64;
-    let sigma2 = rss / dof;
-    let mut se = vec![None; m.nonlinear.len()];
-    for (c, &i) in fitted.iter().enumerate() {
-        let var: f64 = sigma2 * (c..k).map(|j| inv[(c, j)].powi(2)).sum::<f64>();
-        // A parameter with no effect on the residuals leaves a zero pivot: unbounded.
-        se[i] = Some(if var.is_finite() {
-            var.sqrt()
-        } else {
-            f64::INFINITY
-        });
-    }
-    (se, joint(&red.r, m, &order[..q], fitted, &inv, sigma2))
+    inv
 }
 
 /// [`Joint`] from the triangle of `[X | D_θ]` (X's columns first, `order[i]` the design column
@@ -1673,6 +1721,77 @@ machine m {
             let (a, b) = (a.expect("fitted"), b.expect("fitted"));
             assert!(rel(a, b) <= 1e-4, "se {a} vs {b}");
         }
+    }
+
+    /// One time constant with no effect of its own (its derivative column inside the design's
+    /// span) is unbounded; the other keeps the standard error it has without it (only the
+    /// degrees of freedom differ). Before, the zero pivot made both unbounded.
+    #[test]
+    fn an_undetermined_parameter_leaves_the_others_bounded() {
+        let src = r#"
+machine m {
+    task position
+    units { length mm, error um, tilt urad, time min }
+    axis X prismatic along x range 0 mm .. 500 mm
+    input T : temperature rise range 0 K .. 5 K
+    tool chain {
+        X moving
+        tool t at (0, 0, -50) mm
+    }
+    errors {
+        X.tx = linear(X) + lag(T, tau fit 25 min) * const
+        X.ty = lag(T, tau fit 60 min) * const
+    }
+}
+"#;
+        let c = compiled(src);
+        let m = &c.machine;
+        let (rows, p) = (300usize, 5usize);
+        let mut seed = 7u64;
+        let mut draw = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let data: Vec<(Vec<f64>, f64, f64)> = (0..rows)
+            .map(|_| {
+                let x: Vec<f64> = (0..p).map(|_| draw()).collect();
+                (x, draw(), draw())
+            })
+            .collect();
+        // [X | D₁ | D₂ | y] with D₂ = X·w (no effect beyond the design's), and [X | D₁ | y].
+        let triangle = |with_second: bool| {
+            let k = p + 1 + usize::from(with_second);
+            let mut acc = StreamingQr::new(k, 64);
+            for (x, d1, y) in &data {
+                let mut row = x.clone();
+                row.push(*d1);
+                if with_second {
+                    row.push(x.iter().enumerate().map(|(j, v)| v * (j + 1) as f64).sum());
+                }
+                acc.push(&row, *y);
+            }
+            (acc.finish(), (0..k).collect::<Vec<usize>>())
+        };
+        let (both, order_both) = triangle(true);
+        let (one, order_one) = triangle(false);
+        // The residual sum of squares is the linear fit's, as the optimiser passes it.
+        let rss = one.r[(p + 1, p + 1)].powi(2);
+        let (se_both, joint_both) = uncertainty(m, &both, &order_both, &[0, 1], rss, p);
+        let (se_one, _) = uncertainty(m, &one, &order_one, &[0], rss, p);
+        assert_eq!(se_both[1], Some(f64::INFINITY));
+        let (a, b) = (se_both[0].expect("fitted"), se_one[0].expect("fitted"));
+        let dof = |k: usize| (rows - p - k) as f64;
+        let want = b * (dof(1) / dof(2)).sqrt();
+        assert!(
+            a.is_finite() && (a - want).abs() <= 1e-10 * want,
+            "{a} vs {want}"
+        );
+        assert!(
+            joint_both.s.is_empty(),
+            "no joint covariance with an unbounded parameter"
+        );
     }
 
     #[test]

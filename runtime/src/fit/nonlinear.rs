@@ -495,18 +495,16 @@ fn uncertainty(
 /// [`uncertainty`]); the completed triangle resolves a column to about √ε of its length.
 const PIVOT_THETA: f64 = 1e-8;
 
-/// The inverse of an upper triangular matrix, by back substitution, column by column.
+/// The inverse of an upper triangular matrix (faer's; what lies below the diagonal is zero).
 fn triangular_inverse(r: &Mat<f64>) -> Mat<f64> {
     let k = r.ncols();
     let mut inv = Mat::<f64>::zeros(k, k);
-    for c in 0..k {
-        for i in (0..=c).rev() {
-            let mut v = if i == c { 1.0 } else { 0.0 };
-            for j in i + 1..=c {
-                v -= r[(i, j)] * inv[(j, c)];
-            }
-            inv[(i, c)] = v / r[(i, i)];
-        }
+    if r.nrows() == k {
+        faer::linalg::triangular_inverse::invert_upper_triangular(
+            inv.as_mut(),
+            r.as_ref(),
+            faer::Par::Seq,
+        );
     }
     inv
 }
@@ -584,18 +582,20 @@ fn term_gain(
     rss: f64,
 ) -> Result<f64, FitError> {
     if let Some(split) = split {
+        let passed;
         let products = match at {
-            Some(p) => p.clone(),
+            Some(p) => p,
             None => {
                 let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
                 let mut products = split.products();
                 design::for_each_row(engine, files, &states, &layout, |_, x, y| {
                     split.push(&mut products, x, y)
                 })?;
-                products
+                passed = products;
+                &passed
             }
         };
-        if let Some(masked) = split.without(&products, moved) {
+        if let Some(masked) = split.without(products, moved) {
             let rss_of = |p: &projection::Products| -> Result<f64, FitError> {
                 let red = split.complete(p);
                 if !red.is_finite() {
@@ -607,7 +607,7 @@ fn term_gain(
                     },
                 )
             };
-            return Ok(rss_of(&masked)? - rss_of(&products)?);
+            return Ok(rss_of(&masked)? - rss_of(products)?);
         }
     }
     let (rw, _, _) = masked_fit(compiled, engine, files, values, options, moved)?;
@@ -1341,6 +1341,25 @@ mod tests {
     use crate::data::Observations;
     use crate::simulate::{self, sample_points};
 
+    /// A machine of one prismatic axis and one temperature input with the given errors.
+    fn one_axis(errors: &str) -> String {
+        format!(
+            "machine m {{
+    task position
+    units {{ length mm, error um, tilt urad, time min }}
+    axis X prismatic along x range 0 mm .. 500 mm
+    input T : temperature rise range 0 K .. 5 K
+    tool chain {{
+        X moving
+        tool t at (0, 0, -50) mm
+    }}
+    errors {{
+        {errors}
+    }}
+}}"
+        )
+    }
+
     fn compiled(src: &str) -> Compiled {
         let out = kin_compiler::compile(src);
         let Some(c) = out.compiled else {
@@ -1728,23 +1747,10 @@ machine m {
     /// degrees of freedom differ). Before, the zero pivot made both unbounded.
     #[test]
     fn an_undetermined_parameter_leaves_the_others_bounded() {
-        let src = r#"
-machine m {
-    task position
-    units { length mm, error um, tilt urad, time min }
-    axis X prismatic along x range 0 mm .. 500 mm
-    input T : temperature rise range 0 K .. 5 K
-    tool chain {
-        X moving
-        tool t at (0, 0, -50) mm
-    }
-    errors {
-        X.tx = linear(X) + lag(T, tau fit 25 min) * const
-        X.ty = lag(T, tau fit 60 min) * const
-    }
-}
-"#;
-        let c = compiled(src);
+        let c = compiled(&one_axis(
+            "X.tx = linear(X) + lag(T, tau fit 25 min) * const
+             X.ty = lag(T, tau fit 60 min) * const",
+        ));
         let m = &c.machine;
         let (rows, p) = (300usize, 5usize);
         let mut seed = 7u64;
@@ -1796,22 +1802,9 @@ machine m {
 
     #[test]
     fn a_known_term_that_moves_keeps_the_plain_path() {
-        let src = r#"
-machine m {
-    task position
-    units { length mm, error um, tilt urad, time min }
-    axis X prismatic along x range 0 mm .. 500 mm
-    input T : temperature rise range 0 K .. 5 K
-    tool chain {
-        X moving
-        tool t at (0, 0, -50) mm
-    }
-    errors {
-        X.tx = linear(X) + 2 um/K * lag(T, tau fit 30 min)
-    }
-}
-"#;
-        let c = compiled(src);
+        let c = compiled(&one_axis(
+            "X.tx = linear(X) + 2 um/K * lag(T, tau fit 30 min)",
+        ));
         let columns = c.machine.coefficients.len();
         assert!(projection::moving_columns(&c.machine, &[0], columns).is_none());
     }

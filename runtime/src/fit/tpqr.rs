@@ -81,6 +81,20 @@ impl Mats<'_> {
             self.ldb,
         )
     }
+
+    /// `dst` (`(a1 − a0) × (c1 − c0)`, column-major) := or += `B[:, a0..a1]ᵀ B[:, c0..c1]`,
+    /// the products of the block's columns the panels' `T` and updates are made of.
+    fn cross(&self, a: (usize, usize), c: (usize, usize), dst: &mut [f64], accum: Accum) {
+        let (ra, rc) = (self.b_cols(a.0, a.1), self.b_cols(c.0, c.1));
+        matmul(
+            MatMut::from_column_major_slice_mut(dst, ra.ncols(), rc.ncols()),
+            accum,
+            ra.transpose(),
+            rc,
+            1.0,
+            Par::Seq,
+        );
+    }
 }
 
 /// Factors columns `j0..j1`, applying each reflector only to the others of that range, and
@@ -156,15 +170,7 @@ fn leaf_t(m: &Mats, j0: usize, j1: usize, work: &mut Work) {
     let (nb, n) = (j1 - j0, m.n);
     work.z.clear();
     work.z.resize(nb * nb, 0.0);
-    let v = m.b_cols(j0, j1);
-    matmul(
-        MatMut::from_column_major_slice_mut(&mut work.z, nb, nb),
-        Accum::Replace,
-        v.transpose(),
-        v,
-        1.0,
-        Par::Seq,
-    );
+    m.cross((j0, j1), (j0, j1), &mut work.z, Accum::Replace);
     let (t, z, tau) = (&mut work.t, &work.z, &work.tau[j0..j1]);
     // T[a, b] of the range at t[(j0 + b)·n + j0 + a].
     let at = |a: usize, b: usize| (j0 + b) * n + j0 + a;
@@ -183,14 +189,7 @@ fn join_t(m: &Mats, j0: usize, mid: usize, j1: usize, work: &mut Work) {
     let (n1, n2, n) = (mid - j0, j1 - mid, m.n);
     work.z.clear();
     work.z.resize(n1 * n2, 0.0);
-    matmul(
-        MatMut::from_column_major_slice_mut(&mut work.z, n1, n2),
-        Accum::Replace,
-        m.b_cols(j0, mid).transpose(),
-        m.b_cols(mid, j1),
-        1.0,
-        Par::Seq,
-    );
+    m.cross((j0, mid), (mid, j1), &mut work.z, Accum::Replace);
     let t = &mut work.t;
     let z = &mut work.z;
     // z := z T₂ (T₂ upper: column c of the product reads columns ≤ c; right to left).
@@ -227,14 +226,7 @@ fn apply(m: &mut Mats, j0: usize, j1: usize, c0: usize, c1: usize, work: &mut Wo
         let from = (c0 + c) * n + j0;
         work.w[c * nb..(c + 1) * nb].copy_from_slice(&m.r[from..from + nb]);
     }
-    matmul(
-        MatMut::from_column_major_slice_mut(&mut work.w, nb, nc),
-        Accum::Add,
-        m.b_cols(j0, j1).transpose(),
-        m.b_cols(c0, c1),
-        1.0,
-        Par::Seq,
-    );
+    m.cross((j0, j1), (c0, c1), &mut work.w, Accum::Add);
     // W := Tᵀ W, bottom row first (row i reads rows ≤ i, not yet overwritten).
     let t = &work.t;
     for c in 0..nc {

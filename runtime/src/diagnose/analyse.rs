@@ -3,6 +3,7 @@
 use std::collections::{BTreeMap, HashMap};
 
 use kin_compiler::ir::{JointKind, Machine};
+use kin_compiler::units::Unit;
 use kin_compiler::{compile, Compiled, Diagnostic};
 use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 use thiserror::Error;
@@ -211,8 +212,13 @@ fn outliers(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Outlier> {
 
 /// The residuals against the stated noise (χ²) and against the scatter of repeated poses
 /// (lack of fit). Outliers are left out of both: they are named on their own.
-fn noise_check(m: &Machine, rows: &[Located], base: &FitResult, settings: &Settings) -> NoiseCheck {
-    let used: Vec<&Located> = rows.iter().filter(|r| !r.outlier).collect();
+fn noise_check(
+    m: &Machine,
+    located: &Residuals,
+    base: &FitResult,
+    settings: &Settings,
+) -> NoiseCheck {
+    let used: Vec<&Located> = located.rows.iter().filter(|r| !r.outlier).collect();
     let n = used.len() as f64;
     // The fit's coefficients take their share of the degrees of freedom from every row alike.
     let keep = 1.0 - base.solution.rank as f64 / (base.rows.max(1) as f64);
@@ -241,25 +247,30 @@ fn noise_check(m: &Machine, rows: &[Located], base: &FitResult, settings: &Setti
     // Replicates: one file, one component, the same axis positions, directions and inputs
     // (time is not part of a pose: a drift between repeats counts as pure error, which makes
     // the test conservative, never alarming).
-    // (file, component, pose bits) → (rows, Σr, Σr²).
-    type Pose = (u32, u8, Vec<u64>);
-    let mut groups: BTreeMap<Pose, (usize, f64, f64)> = BTreeMap::new();
-    for r in &used {
-        let width = r.values.len().saturating_sub(1);
-        let key: Vec<u64> = r.values[..width]
+    // Sorted by (file, component, pose bits), stably, each run a group → (rows, Σr, Σr²): the
+    // groups and their sums in the order of a map keyed by them, without a key per row.
+    let pose = |r: &Located| {
+        let values = located.values(r);
+        let width = values.len().saturating_sub(1);
+        values[..width]
             .iter()
-            .chain(&r.dirs)
+            .chain(located.dirs(r))
             .map(|v| v.to_bits())
-            .collect();
-        let g = groups
-            .entry((r.file, r.component, key))
-            .or_insert((0, 0.0, 0.0));
-        g.0 += 1;
-        g.1 += r.residual;
-        g.2 += r.residual * r.residual;
-    }
+    };
+    let same = |a: &Located, b: &Located| {
+        (a.file, a.component)
+            .cmp(&(b.file, b.component))
+            .then_with(|| pose(a).cmp(pose(b)))
+    };
+    let mut sorted = used.clone();
+    sorted.sort_by(|a, b| same(a, b));
+    let groups = sorted.chunk_by(|a, b| same(a, b).is_eq()).map(|g| {
+        g.iter().fold((0, 0.0, 0.0), |(k, s, ss), r| {
+            (k + 1, s + r.residual, ss + r.residual * r.residual)
+        })
+    });
     let rss: f64 = used.iter().map(|r| r.residual * r.residual).sum();
-    let lack_of_fit = lack_of_fit(groups.values().copied(), rss, n * keep, settings.alpha);
+    let lack_of_fit = lack_of_fit(groups, rss, n * keep, settings.alpha);
     NoiseCheck {
         stated: settings.noise.map(|v| v / m.units.error.scale),
         stated_tilt: settings.noise_tilt.map(|v| v / m.units.tilt.scale),
@@ -410,7 +421,7 @@ fn reversals(m: &Machine, files: &[DataSet], sampled: &[Option<Sampling>]) -> Ve
         .collect()
 }
 
-/// One residual with the state variables it was observed at (display units).
+/// One residual, and where among [`Located::places`] its pose's state variables are.
 struct Located {
     file: u32,
     component: u8,
@@ -418,10 +429,48 @@ struct Located {
     outlier: bool,
     residual: f64,
     leverage: f64,
-    /// Axis positions, then inputs, then time (NaN where unknown).
-    values: Vec<f64>,
-    /// Direction of motion per axis (±1, NaN where not given).
-    dirs: Vec<f64>,
+    /// Its pose's place ([`Places`]): the components of one pose share it.
+    at: u32,
+}
+
+/// The state variables of every observed pose, once per pose (display units): a pose's three
+/// or six components share them, and a million-pose diagnosis holds them as one array rather
+/// than two small vectors per residual.
+struct Places {
+    /// Values per place: axis positions, then inputs, then time (NaN where unknown).
+    values: usize,
+    /// Directions of motion per place, one per axis (±1, NaN where not given).
+    axes: usize,
+    /// `values + axes` numbers per place, the places one after the other.
+    data: Vec<f64>,
+}
+
+/// The residuals with their places.
+struct Residuals {
+    rows: Vec<Located>,
+    places: Places,
+}
+
+impl Residuals {
+    /// Axis positions, then inputs, then time where `r` was observed.
+    fn values(&self, r: &Located) -> &[f64] {
+        let w = self.places.values + self.places.axes;
+        let at = r.at as usize * w;
+        self.places
+            .data
+            .get(at..at + self.places.values)
+            .unwrap_or(&[])
+    }
+
+    /// The direction of motion of each axis where `r` was observed.
+    fn dirs(&self, r: &Located) -> &[f64] {
+        let w = self.places.values + self.places.axes;
+        let at = r.at as usize * w + self.places.values;
+        self.places
+            .data
+            .get(at..at + self.places.axes)
+            .unwrap_or(&[])
+    }
 }
 
 /// Names and units of the located variables, in `Located::values` order.
@@ -449,107 +498,135 @@ fn variables(m: &Machine) -> Vec<(String, String)> {
     v
 }
 
-fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Located> {
-    let index: Vec<HashMap<usize, usize>> = files
+fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Residuals {
+    // Each file's rows by line, for a binary search (a hash map costs more per row).
+    let index: Vec<Vec<(usize, usize)>> = files
         .iter()
         .map(|f| {
-            f.observations
+            let mut by_line: Vec<(usize, usize)> = f
+                .observations
                 .rows()
                 .line
                 .iter()
                 .enumerate()
                 .map(|(r, &l)| (l, r))
-                .collect()
+                .collect();
+            by_line.sort_unstable();
+            by_line
         })
         .collect();
     let axis_unit = |a: usize| match m.axes.get(a).map(|x| x.kind) {
         Some(JointKind::Revolute) => &m.units.angle,
         _ => &m.units.length,
     };
-    base.residuals
-        .iter()
-        .filter_map(|r| {
-            let f = files.get(r.meta.file as usize)?;
-            let row = *index
-                .get(r.meta.file as usize)?
-                .get(&(r.meta.line as usize))?;
-            let rows = f.observations.rows();
-            let mut values: Vec<f64> = match &f.observations {
-                Observations::Points(p) => p
-                    .pose
-                    .axes
-                    .iter()
-                    .enumerate()
-                    .map(|(a, c)| {
-                        c.get(row)
-                            .map(|v| axis_unit(a).from_si(*v))
-                            .unwrap_or(f64::NAN)
-                    })
-                    .collect(),
-                // A length is located at the middle of its two ends.
-                Observations::Lengths(l) => (0..m.axes.len())
-                    .map(|a| {
-                        let end = |e: usize| {
-                            l.poses[e]
-                                .axes
-                                .get(a)
-                                .and_then(|c| c.get(row))
-                                .copied()
-                                .unwrap_or(f64::NAN)
-                        };
-                        axis_unit(a).from_si((end(0) + end(1)) / 2.0)
-                    })
-                    .collect(),
-            };
-            for (i, input) in m.inputs.iter().enumerate() {
-                values.push(
-                    rows.inputs
-                        .get(i)
-                        .and_then(|c| c.as_ref())
-                        .and_then(|c| c.get(row))
-                        .map(|v| input.unit.from_si(*v))
-                        .unwrap_or(f64::NAN),
-                );
+    let axes = m.axes.len();
+    let mut places = Places {
+        values: axes + m.inputs.len() + 1,
+        axes,
+        data: Vec::new(),
+    };
+    // A place is appended for every new (file, row); a pose's components follow one another.
+    let mut last: Option<(u32, usize, u32)> = None;
+    let mut rows = Vec::with_capacity(base.residuals.len());
+    for r in &base.residuals {
+        let Some(f) = files.get(r.meta.file as usize) else {
+            continue;
+        };
+        let Some(by_line) = index.get(r.meta.file as usize) else {
+            continue;
+        };
+        let line = r.meta.line as usize;
+        // A file's lines are distinct: one row each.
+        let Ok(found) = by_line.binary_search_by_key(&line, |&(l, _)| l) else {
+            continue;
+        };
+        let row = by_line[found].1;
+        let at = match last {
+            Some((file, at_row, at)) if file == r.meta.file && at_row == row => at,
+            _ => {
+                let at = (places.data.len() / (places.values + places.axes)) as u32;
+                push_place(m, f, row, &axis_unit, &mut places.data);
+                last = Some((r.meta.file, row, at));
+                at
             }
-            values.push(
-                rows.time
-                    .as_ref()
-                    .and_then(|t| t.get(row))
-                    .map(|t| m.units.time.from_si(*t))
-                    .unwrap_or(f64::NAN),
-            );
-            let dirs = match &f.observations {
-                Observations::Points(p) => (0..m.axes.len())
-                    .map(|a| {
-                        p.pose
-                            .dir
-                            .get(a)
-                            .and_then(|c| c.as_ref())
-                            .and_then(|c| c.get(row))
-                            .copied()
-                            .unwrap_or(f64::NAN)
-                    })
-                    .collect(),
-                Observations::Lengths(_) => vec![f64::NAN; m.axes.len()],
+        };
+        rows.push(Located {
+            file: r.meta.file,
+            component: r.meta.component,
+            outlier: r.studentized.abs() > base.outlier_threshold,
+            residual: display(m, &base.layout.weights, r.meta.component, r.residual),
+            leverage: r.leverage,
+            at,
+        });
+    }
+    Residuals { rows, places }
+}
+
+/// Appends the place of `row` of `f` to `data`: axis positions (a length's at the middle of
+/// its two ends), inputs, time, then the axes' directions of motion.
+fn push_place<'u>(
+    m: &Machine,
+    f: &DataSet,
+    row: usize,
+    axis_unit: &dyn Fn(usize) -> &'u Unit,
+    data: &mut Vec<f64>,
+) {
+    let rows = f.observations.rows();
+    match &f.observations {
+        Observations::Points(p) => data.extend((0..m.axes.len()).map(|a| {
+            p.pose
+                .axes
+                .get(a)
+                .and_then(|c| c.get(row))
+                .map(|v| axis_unit(a).from_si(*v))
+                .unwrap_or(f64::NAN)
+        })),
+        Observations::Lengths(l) => data.extend((0..m.axes.len()).map(|a| {
+            let end = |e: usize| {
+                l.poses[e]
+                    .axes
+                    .get(a)
+                    .and_then(|c| c.get(row))
+                    .copied()
+                    .unwrap_or(f64::NAN)
             };
-            Some(Located {
-                file: r.meta.file,
-                component: r.meta.component,
-                outlier: r.studentized.abs() > base.outlier_threshold,
-                residual: display(m, &base.layout.weights, r.meta.component, r.residual),
-                leverage: r.leverage,
-                values,
-                dirs,
-            })
-        })
-        .collect()
+            axis_unit(a).from_si((end(0) + end(1)) / 2.0)
+        })),
+    }
+    data.extend(m.inputs.iter().enumerate().map(|(i, input)| {
+        rows.inputs
+            .get(i)
+            .and_then(|c| c.as_ref())
+            .and_then(|c| c.get(row))
+            .map(|v| input.unit.from_si(*v))
+            .unwrap_or(f64::NAN)
+    }));
+    data.push(
+        rows.time
+            .as_ref()
+            .and_then(|t| t.get(row))
+            .map(|t| m.units.time.from_si(*t))
+            .unwrap_or(f64::NAN),
+    );
+    match &f.observations {
+        Observations::Points(p) => data.extend((0..m.axes.len()).map(|a| {
+            p.pose
+                .dir
+                .get(a)
+                .and_then(|c| c.as_ref())
+                .and_then(|c| c.get(row))
+                .copied()
+                .unwrap_or(f64::NAN)
+        })),
+        Observations::Lengths(_) => data.extend(std::iter::repeat_n(f64::NAN, m.axes.len())),
+    }
 }
 
 /// The residual spectra along each prismatic axis, per translation component and length
 /// ([`spectrum`]: Lomb–Scargle, for the non-uniform sampling real measurement plans have).
 fn spectra(
     m: &Machine,
-    rows: &[Located],
+    located: &Residuals,
     sampled: &[Option<Sampling>],
     threads: usize,
 ) -> Vec<Spectrum> {
@@ -566,9 +643,9 @@ fn spectra(
         let range = unit.from_si(sampling.hi) - unit.from_si(sampling.lo);
         // Nothing shorter than the sampling resolves (Nyquist on the distinct positions).
         let nyquist = unit.from_si(sampling.shortest()) - unit.from_si(0.0);
-        let along = rows.iter().filter_map(|r| {
+        let along = located.rows.iter().filter_map(|r| {
             let slot = COMPONENTS.iter().position(|&c| c == r.component)?;
-            let x = *r.values.get(a)?;
+            let x = *located.values(r).get(a)?;
             x.is_finite().then_some((slot, x, r.residual))
         });
         let (positions, moments) = spectrum::Positions::group(COMPONENTS.len(), along);
@@ -1364,14 +1441,14 @@ fn sci(v: f64) -> String {
 /// and the model's uncertainty allow (each residual's variance is σ̂²(1 − h)).
 fn regions(
     m: &Machine,
-    rows: &[Located],
+    located: &Residuals,
     base: &FitResult,
     settings: &Settings,
 ) -> (Vec<Region>, Vec<Bin>) {
     let vars = variables(m);
     let fitted = base.sigma / m.units.error.scale;
     let comps: Vec<u8> = {
-        let mut c: Vec<u8> = rows.iter().map(|r| r.component).collect();
+        let mut c: Vec<u8> = located.rows.iter().map(|r| r.component).collect();
         c.sort_unstable();
         c.dedup();
         c
@@ -1398,7 +1475,8 @@ fn regions(
     let mut found: Vec<Region> = Vec::new();
     for &c in &comps {
         // Outliers are named on their own, not as a region where the model fails.
-        let mine: Vec<&Located> = rows
+        let mine: Vec<&Located> = located
+            .rows
             .iter()
             .filter(|r| r.component == c && !r.outlier)
             .collect();
@@ -1449,7 +1527,7 @@ fn regions(
         for (a, axis) in m.axes.iter().enumerate() {
             let side = |d: f64| -> Vec<f64> {
                 mine.iter()
-                    .filter(|r| r.dirs.get(a) == Some(&d))
+                    .filter(|r| located.dirs(r).get(a) == Some(&d))
                     .map(|r| r.residual)
                     .collect()
             };
@@ -1486,7 +1564,7 @@ fn regions(
         for (v, (vname, unit)) in vars.iter().enumerate() {
             let vals: Vec<f64> = mine
                 .iter()
-                .filter_map(|r| r.values.get(v).copied())
+                .filter_map(|r| located.values(r).get(v).copied())
                 .filter(|x| x.is_finite())
                 .collect();
             if vals.len() < 2 * settings.bins {
@@ -1508,7 +1586,7 @@ fn regions(
                     .iter()
                     .copied()
                     .filter(|r| {
-                        r.values.get(v).is_some_and(|x| {
+                        located.values(r).get(v).is_some_and(|x| {
                             *x >= blo && (*x < bhi || (b + 1 == settings.bins && *x <= bhi))
                         })
                     })
@@ -1780,6 +1858,65 @@ machine cmm3 {
         }
         let p = plausibility(&qr.finish(), &[0], &[1], m, size, m.coefficients.len());
         assert!(p.warnings.is_empty(), "{p:?}");
+    }
+
+    /// The three components of a pose share one place, which holds that pose's positions in
+    /// display units; the residuals keep the fit's order.
+    #[test]
+    fn a_poses_components_share_its_place() {
+        let c = compile(&CMM.replace("Y.tx = const", "Y.ty = linear(Y)"))
+            .compiled
+            .expect("compiles");
+        let m = &c.machine;
+        let poses = crate::simulate::sample_points(m, 40, 3);
+        let observations = crate::simulate::simulate(
+            m,
+            &vec![1e-6; m.coefficients.len()],
+            &Observations::Points(poses),
+            &crate::simulate::Options {
+                noise: 1e-7,
+                seed: 5,
+                ..crate::simulate::Options::default()
+            },
+        )
+        .expect("simulate");
+        let files = vec![DataSet {
+            path: "data.csv".into(),
+            observations,
+        }];
+        let mut engine = crate::interp::Interpreter::new(m).expect("interpreter");
+        let base = fit::fit(
+            &c,
+            &mut engine,
+            &files,
+            &[],
+            &fit::Options::default(),
+            &mut |_, _| {},
+        )
+        .expect("fit");
+        let located = positions(m, &files, &base);
+        assert_eq!(located.rows.len(), base.residuals.len());
+        assert_eq!(base.residuals.len(), 3 * 40);
+        let w = located.places.values + located.places.axes;
+        assert_eq!(located.places.data.len(), 40 * w, "one place per pose");
+        let Observations::Points(p) = &files[0].observations else {
+            panic!("points")
+        };
+        let rows = files[0].observations.rows();
+        for (r, l) in base.residuals.iter().zip(&located.rows) {
+            let row = rows
+                .line
+                .iter()
+                .position(|&x| x == r.meta.line as usize)
+                .expect("a row of the file");
+            assert_eq!(l.at as usize, row);
+            assert_eq!(l.component, r.meta.component);
+            let values = located.values(l);
+            for (a, axis) in p.pose.axes.iter().enumerate() {
+                assert_eq!(values[a], m.units.length.from_si(axis[row]));
+            }
+            assert_eq!(located.dirs(l).len(), m.axes.len());
+        }
     }
 
     #[test]

@@ -520,10 +520,14 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Residuals {
         _ => &m.units.length,
     };
     let axes = m.axes.len();
+    let width = 2 * axes + m.inputs.len() + 1;
+    // At most one place per measured row: reserved at once, as growing by doubling would hold
+    // up to twice the array at the end.
+    let measured: usize = files.iter().map(|f| f.observations.len()).sum();
     let mut places = Places {
         values: axes + m.inputs.len() + 1,
         axes,
-        data: Vec::new(),
+        data: Vec::with_capacity(measured * width),
     };
     // A place is appended for every new (file, row); a pose's components follow one another.
     let mut last: Option<(u32, usize, u32)> = None;
@@ -544,7 +548,7 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Residuals {
         let at = match last {
             Some((file, at_row, at)) if file == r.meta.file && at_row == row => at,
             _ => {
-                let at = (places.data.len() / (places.values + places.axes)) as u32;
+                let at = (places.data.len() / width) as u32;
                 push_place(m, f, row, &axis_unit, &mut places.data);
                 last = Some((r.meta.file, row, at));
                 at

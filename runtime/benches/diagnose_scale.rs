@@ -7,7 +7,9 @@
 //! - `examples/bridge_cmm.kin` without `Y.ty += backlash(Y)`.
 //!
 //! Reports per phase the wall time, the CPU time of the calling thread and that of the whole
-//! process (every thread: the figure that does not depend on what else the machine runs). The diagnosis is
+//! process (every thread: the figure that does not depend on what else the machine runs), and
+//! the diagnosis' peak memory above what was held before it (the data and the fit with its
+//! residual rows). The diagnosis is
 //! timed as `diagnose::diagnose` (what `kin diagnose` does after its fit), and its phases from
 //! the progress it reports: up to the first row of the candidates' pass (the spectra, the
 //! candidate library, the super-model's compilation), the pass itself, the candidate algebra
@@ -29,6 +31,10 @@ use kin_runtime::diagnose::{self, Settings, Step};
 use kin_runtime::fit::{self, DataSet, Options};
 use kin_runtime::simulate::{self, sample_points};
 use rand::{Rng, SeedableRng};
+
+#[path = "common/memory.rs"]
+mod memory;
+use memory::Peak;
 
 /// CPU time of the calling thread (ns from the scheduler; zero where it cannot be read).
 fn cpu_now() -> Duration {
@@ -167,10 +173,18 @@ fn case(name: &str, path: &str, hidden: &str, value: f64, noise: f64, n: usize, 
             ..settings.clone()
         };
         let (t0, c0, p0) = (Instant::now(), cpu_now(), process_cpu());
+        let peak = Peak::start();
         let (d, cpu) = timed("diagnose", || {
             diagnose::diagnose(&start, &start_src, &files, &base, &options, &settings)
                 .expect("diagnose")
         });
+        if let Some(bytes) = peak.increase() {
+            println!(
+                "    peak memory +{} MB over the {} MB held before it",
+                bytes / 1_000_000,
+                peak.before() / 1_000_000
+            );
+        }
         let mut last = (t0, c0, p0);
         let mut marks = marks.lock().map(|m| m.clone()).unwrap_or_default();
         marks.push(("rest", Instant::now(), cpu_now(), process_cpu()));

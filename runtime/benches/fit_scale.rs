@@ -45,34 +45,9 @@ use rand::{Rng, SeedableRng};
 
 // ---- measuring ------------------------------------------------------------------------------
 
-fn status_kb(key: &str) -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with(key))?;
-    line.split_whitespace().nth(1)?.parse().ok()
-}
-
-/// Peak-RSS probe of one phase.
-struct Peak {
-    /// Whether `clear_refs` reset the peak; otherwise `hwm0` is the old, never-reset peak.
-    reset: bool,
-    rss0: u64,
-    hwm0: u64,
-}
-
-impl Peak {
-    fn start() -> Peak {
-        let reset = std::fs::write("/proc/self/clear_refs", "5").is_ok();
-        let rss0 = status_kb("VmRSS:").unwrap_or(0);
-        let hwm0 = status_kb("VmHWM:").unwrap_or(0);
-        Peak { reset, rss0, hwm0 }
-    }
-    /// Peak increase over the RSS at `start`, in bytes (`None` when it cannot be told: no reset
-    /// and the phase did not set a new process peak).
-    fn increase(&self) -> Option<u64> {
-        let hwm = status_kb("VmHWM:")?;
-        (self.reset || hwm > self.hwm0).then(|| hwm.saturating_sub(self.rss0) * 1024)
-    }
-}
+#[path = "common/memory.rs"]
+mod memory;
+use memory::{status_kb, Peak};
 
 /// CPU time of the calling thread (ns precision from the scheduler; `/proc/self/stat`'s 10 ms
 /// ticks otherwise).

@@ -45,6 +45,8 @@ use rand::{Rng, SeedableRng};
 
 // ---- measuring ------------------------------------------------------------------------------
 
+// Not every benchmark uses every helper of the shared module.
+#[allow(dead_code)]
 #[path = "common/memory.rs"]
 mod memory;
 use memory::{status_kb, Peak};

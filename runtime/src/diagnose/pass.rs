@@ -25,6 +25,7 @@ use std::sync::mpsc;
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::householder;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Accum, Conj, Mat, Par};
 
 /// Which design columns are the base's, which the candidates'.
@@ -123,11 +124,17 @@ impl State {
         let y = wide - 1;
         self.ee += (kb..m).map(|i| rhs[(i, y)].powi(2)).sum::<f64>();
         let rest = rhs.as_ref().get(kb..m, ..);
-        faer::linalg::matmul::matmul(
+        // The Gram matrix is symmetric: only its lower triangle is summed (half the flops of
+        // the full product, the largest part of a block's work when the candidates have more
+        // columns than the base); [`accumulate`] mirrors it once at the end.
+        triangular::matmul(
             self.gram.as_mut(),
+            BlockStructure::TriangularLower,
             Accum::Add,
             rest.transpose(),
+            BlockStructure::Rectangular,
             rest,
+            BlockStructure::Rectangular,
             1.0,
             Par::Seq,
         );
@@ -249,11 +256,17 @@ pub(super) fn accumulate<E>(
             Ok(merged.unwrap_or_else(|| State::new(split)))
         })?
     };
+    let mut gram = state.gram;
+    for j in 0..gram.ncols() {
+        for i in 0..j {
+            gram[(i, j)] = gram[(j, i)];
+        }
+    }
     Ok(Accumulated {
         base: split.base.clone(),
         r: state.r,
         s: state.s,
-        gram: state.gram,
+        gram,
         ee: state.ee,
         norms: norms2.iter().map(|v| v.sqrt()).collect(),
         rows,

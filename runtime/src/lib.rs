@@ -6,6 +6,8 @@
 // as a non-positive number.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 pub mod axis_table;
+// Benchmark code (`kin bench`, the hand-written baseline): only with the `bench` feature.
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod bounded_read;
 pub mod compensate;

@@ -6,6 +6,7 @@
 //! (entries of a row cancel, so the result itself can be ~0 while its parts are not).
 
 use kin_compiler::ir::{JointKind, Machine};
+#[cfg(feature = "bench")]
 use kin_runtime::bench::baseline_5axis as baseline;
 use kin_runtime::engine::Evaluator;
 use kin_runtime::interp::{EvalError, Interpreter, State};
@@ -1399,6 +1400,9 @@ fn only_the_selected_tool_reads_its_variables() {
     assert!(model.error(&t1, &beta, &[]).is_err());
 }
 
+// The baseline is benchmark code, built with the `bench` feature (which `cargo test
+// --workspace` turns on through the `kin` binary).
+#[cfg(feature = "bench")]
 #[test]
 fn the_hand_written_baseline_agrees_with_the_interpreter() {
     let m = example("milling_5axis");

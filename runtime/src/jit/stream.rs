@@ -75,6 +75,7 @@ pub(crate) fn copy(dst: &mut [f64], src: &[f64]) {
 
 /// [`copy`] with 32-byte streaming stores (`vmovntpd`), where the CPU has AVX; [`copy`]
 /// elsewhere. Used by `kin bench` to measure whether the wider store writes faster.
+#[cfg(any(test, feature = "bench"))]
 pub(crate) fn copy_wide(dst: &mut [f64], src: &[f64]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
@@ -86,7 +87,7 @@ pub(crate) fn copy_wide(dst: &mut [f64], src: &[f64]) {
 }
 
 /// The body of [`copy_wide`].
-#[cfg(target_arch = "x86_64")]
+#[cfg(all(target_arch = "x86_64", any(test, feature = "bench")))]
 #[target_feature(enable = "avx")]
 unsafe fn copy_avx(dst: &mut [f64], src: &[f64]) {
     use std::arch::x86_64::{_mm256_loadu_pd, _mm256_stream_pd};

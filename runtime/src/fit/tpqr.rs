@@ -17,6 +17,8 @@
 //! It depends only on the shapes, so the same rows give the same bits.
 
 use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
+use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::{Accum, MatMut, MatRef, Par};
 
 /// Columns whose reflectors are combined and applied together to the rest of the matrix.
@@ -130,36 +132,42 @@ fn reflect(m: &mut Mats, j: usize, c1: usize, work: &mut Work) {
     }
     let beta = -alpha.hypot(xnorm).copysign(alpha);
     let tau = (beta - alpha) / beta;
-    // |α − β| = |α| + |β| ≥ ‖x‖ > 0: the division is safe.
-    let d = alpha - beta;
+    // |α − β| = |α| + |β| ≥ ‖x‖ > 0: the reciprocal is finite. Multiplying by it, as LAPACK's
+    // `dlarfg` does, instead of dividing every entry: a division costs several multiplies.
+    let scale = 1.0 / (alpha - beta);
     for x in v.iter_mut() {
-        *x /= d;
+        *x *= scale;
     }
     m.r[j * n + j] = beta;
     work.tau[j] = tau;
-    for c in j + 1..c1 {
-        let col = &mut right[(c - j - 1) * ldb..(c - j - 1) * ldb + rows];
-        let w = tau * (m.r[c * n + j] + dot(v, col));
-        m.r[c * n + j] -= w;
-        for (x, y) in col.iter_mut().zip(v.iter()) {
-            *x -= w * y;
-        }
+    let k = c1 - j - 1;
+    if k == 0 {
+        return;
     }
-}
-
-/// `aᵀb` with eight independent sums, so the loop vectorises (a single running sum would fix
-/// the order of the additions and keep it scalar).
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut s = [0.0f64; 8];
-    let (ca, ra) = a.as_chunks::<8>();
-    let (cb, rb) = b.as_chunks::<8>();
-    for (x, y) in ca.iter().zip(cb) {
-        for l in 0..8 {
-            s[l] += x[l] * y[l];
-        }
+    // w = τ (R[j, c] + vᵀ B[:, c]) for the other columns, then R[j, c] −= w and B −= v wᵀ: one
+    // row-vector product and one rank-one update through faer, whose kernels use the widest
+    // vectors the CPU has.
+    let v = MatRef::from_column_major_slice(v, rows, 1);
+    let mut c = MatMut::from_column_major_slice_with_stride_mut(right, rows, k, ldb);
+    work.w.clear();
+    work.w.resize(k, 0.0);
+    for (i, w) in work.w.iter_mut().enumerate() {
+        *w = m.r[(j + 1 + i) * n + j];
     }
-    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
-    ((s[0] + s[4]) + (s[1] + s[5])) + ((s[2] + s[6]) + (s[3] + s[7])) + tail
+    let mut w = MatMut::from_row_major_slice_mut(&mut work.w, 1, k);
+    matmul(w.rb_mut(), Accum::Add, v.transpose(), c.rb(), 1.0, Par::Seq);
+    for (i, w) in work.w.iter_mut().enumerate() {
+        *w *= tau;
+        m.r[(j + 1 + i) * n + j] -= *w;
+    }
+    matmul(
+        c.rb_mut(),
+        Accum::Add,
+        v,
+        MatRef::from_row_major_slice(&work.w, 1, k),
+        -1.0,
+        Par::Seq,
+    );
 }
 
 /// `T` of the reflectors `j0..j1` from scratch (LAPACK's `dlarft`, forward):
@@ -227,16 +235,22 @@ fn apply(m: &mut Mats, j0: usize, j1: usize, c0: usize, c1: usize, work: &mut Wo
         work.w[c * nb..(c + 1) * nb].copy_from_slice(&m.r[from..from + nb]);
     }
     m.cross((j0, j1), (c0, c1), &mut work.w, Accum::Add);
-    // W := Tᵀ W, bottom row first (row i reads rows ≤ i, not yet overwritten).
-    let t = &work.t;
-    for c in 0..nc {
-        let w = &mut work.w[c * nb..(c + 1) * nb];
-        for i in (0..nb).rev() {
-            let col = &t[(j0 + i) * n + j0..];
-            w[i] = (0..=i).map(|l| col[l] * w[l]).sum();
-        }
-    }
-    // R[j0..j1, c0..c1] −= W; B[:, c0..c1] −= V W.
+    // Z = Tᵀ W (T upper triangular: a triangular product, vectorised by faer), then
+    // R[j0..j1, c0..c1] −= Z; B[:, c0..c1] −= V Z.
+    work.z.clear();
+    work.z.resize(nb * nc, 0.0);
+    triangular::matmul(
+        MatMut::from_column_major_slice_mut(&mut work.z, nb, nc),
+        BlockStructure::Rectangular,
+        Accum::Replace,
+        MatRef::from_column_major_slice_with_stride(&work.t[j0 * n + j0..], nb, nb, n).transpose(),
+        BlockStructure::TriangularLower,
+        MatRef::from_column_major_slice(&work.w, nb, nc),
+        BlockStructure::Rectangular,
+        1.0,
+        Par::Seq,
+    );
+    std::mem::swap(&mut work.w, &mut work.z);
     for c in 0..nc {
         let from = (c0 + c) * n + j0;
         for (x, w) in m.r[from..from + nb].iter_mut().zip(&work.w[c * nb..]) {

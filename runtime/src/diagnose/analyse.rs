@@ -429,7 +429,7 @@ fn reversals(m: &Machine, files: &[DataSet], sampled: &[Option<Sampling>]) -> Ve
         .collect()
 }
 
-/// One residual, and where among [`Located::places`] its pose's state variables are.
+/// One residual, and which of the [`Places`] its pose's state variables are at.
 struct Located {
     file: u32,
     component: u8,

@@ -4,7 +4,7 @@
 //! 5-axis mill; and the compile time from IR to callable functions.
 //!
 //! Besides criterion's report, a summary with the ratios is printed at the start
-//! (`cargo bench -p kin-runtime --bench jit`).
+//! (`cargo bench -p kin-runtime --features bench --bench jit`).
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -158,10 +158,10 @@ fn summary() {
 /// The rate per pose against the place of the Jacobian buffer: six rows of the 5-axis example,
 /// JIT and baseline, one pose per call into one buffer placed at 256 offsets 16 bytes apart
 /// (every 16-byte alignment within a 4 KiB page), in interleaved rounds, medians; run with
-/// `KIN_BENCH_PLACEMENT=1 cargo bench -p kin-runtime --bench jit`. It checks whether the rate
-/// per pose depends on where the caller's buffer lies (4 KiB aliasing between the Jacobian's
-/// stores and the code's stack reads would show as slow placements): measured, it does not
-/// (spec/performance.md, "Run-to-run variation").
+/// `KIN_BENCH_PLACEMENT=1 cargo bench -p kin-runtime --features bench --bench jit`. It checks
+/// whether the rate per pose depends on where the caller's buffer lies (4 KiB aliasing between
+/// the Jacobian's stores and the code's stack reads would show as slow placements): measured,
+/// it does not (spec/performance.md, "Run-to-run variation").
 fn placement() {
     let s = setup("milling_5axis");
     let n = s.m.coefficients.len();

@@ -453,6 +453,13 @@ struct Places {
     data: Vec<f64>,
 }
 
+impl Places {
+    /// Numbers per place.
+    fn width(&self) -> usize {
+        self.values + self.axes
+    }
+}
+
 /// The residuals with their places.
 struct Residuals {
     rows: Vec<Located>,
@@ -462,8 +469,7 @@ struct Residuals {
 impl Residuals {
     /// Axis positions, then inputs, then time where `r` was observed.
     fn values(&self, r: &Located) -> &[f64] {
-        let w = self.places.values + self.places.axes;
-        let at = r.at as usize * w;
+        let at = r.at as usize * self.places.width();
         self.places
             .data
             .get(at..at + self.places.values)
@@ -472,8 +478,7 @@ impl Residuals {
 
     /// The direction of motion of each axis where `r` was observed.
     fn dirs(&self, r: &Located) -> &[f64] {
-        let w = self.places.values + self.places.axes;
-        let at = r.at as usize * w + self.places.values;
+        let at = r.at as usize * self.places.width() + self.places.values;
         self.places
             .data
             .get(at..at + self.places.axes)
@@ -527,16 +532,16 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Residuals {
         Some(JointKind::Revolute) => &m.units.angle,
         _ => &m.units.length,
     };
-    let axes = m.axes.len();
-    let width = 2 * axes + m.inputs.len() + 1;
+    let mut places = Places {
+        values: m.axes.len() + m.inputs.len() + 1,
+        axes: m.axes.len(),
+        data: Vec::new(),
+    };
+    let width = places.width();
     // At most one place per measured row: reserved at once, as growing by doubling would hold
     // up to twice the array at the end.
     let measured: usize = files.iter().map(|f| f.observations.len()).sum();
-    let mut places = Places {
-        values: axes + m.inputs.len() + 1,
-        axes,
-        data: Vec::with_capacity(measured * width),
-    };
+    places.data.reserve_exact(measured * width);
     // A place is appended for every new (file, row); a pose's components follow one another.
     let mut last: Option<(u32, usize, u32)> = None;
     let mut rows = Vec::with_capacity(base.residuals.len());

@@ -463,7 +463,7 @@ pub fn for_each_row(
 
 /// The observations (points or lengths) of every file, counted in file order: what
 /// [`for_each_row_parts`] splits.
-fn observations(states: &[FileStates]) -> usize {
+pub(super) fn observations(states: &[FileStates]) -> usize {
     states
         .iter()
         .map(|s| match s {
@@ -473,32 +473,54 @@ fn observations(states: &[FileStates]) -> usize {
         .sum()
 }
 
-/// As [`for_each_row`], on `1 + rest.len()` threads: the observations, counted over the files
-/// in order, split into that many contiguous parts of equal size, part 0 evaluated by `lead`
-/// on the calling thread and part `t` by `rest[t − 1]`, each part's rows handed to `row` with
-/// `parts[t]`, its own accumulator. A part's rows come in the order [`for_each_row`] gives
-/// them, so a caller that combines the accumulators in part order gets the same bits for a
-/// given number of parts. The first error in part order is returned.
+/// Rows between two progress reports of [`for_each_row_parts`]'s calling thread.
+const TICK: usize = 8192;
+
+/// As [`for_each_row`], on `1 + rest.len()` threads, over the observations `within` of
+/// [`observations`]' count (cut at the end): those split into that many contiguous parts of
+/// equal size, part 0 evaluated by `lead` on the calling thread and part `t` by
+/// `rest[t − 1]`, each part's rows handed to `row` with `parts[t]`, its own accumulator. A
+/// part's rows come in the order [`for_each_row`] gives them, so a caller that combines the
+/// accumulators in part order gets the same bits for a given number of parts. The calling
+/// thread reports the rows done so far by all parts to `progress` now and then. Returns the
+/// rows visited; the first error in part order.
+#[allow(clippy::too_many_arguments)] // the pass's inputs, its split and its two callbacks
 pub fn for_each_row_parts<A: Send>(
     lead: &mut dyn Evaluator,
     rest: &mut [Box<dyn Evaluator + Send + '_>],
     files: &[DataSet],
     states: &[FileStates],
     layout: &Layout,
+    within: std::ops::Range<usize>,
     parts: &mut [A],
     row: impl Fn(&mut A, RowMeta, &[f64], f64) + Sync,
-) -> Result<(), DesignError> {
+    progress: &mut dyn FnMut(usize),
+) -> Result<usize, DesignError> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
     let Some((mine, others)) = parts.split_first_mut() else {
-        return Ok(());
+        return Ok(0);
     };
     let n = 1 + rest.len().min(others.len());
-    let total = observations(states);
-    let range = |t: usize| t * total / n..(t + 1) * total / n;
+    let from = within.start;
+    let total = within.end.min(observations(states)).saturating_sub(from);
+    let range = |t: usize| from + t * total / n..from + (t + 1) * total / n;
     let row = &row;
+    // Rows the other parts have done, in whole ticks: what the calling thread adds to its own
+    // when it reports.
+    let others_done = AtomicUsize::new(0);
+    let others_done = &others_done;
+    let own = std::cell::Cell::new(0usize);
+    let own = &own;
+    let mut lead_rows = |m: RowMeta, x: &[f64], y: f64| {
+        row(mine, m, x, y);
+        own.set(own.get() + 1);
+        if own.get().is_multiple_of(TICK) {
+            progress(own.get() + others_done.load(Ordering::Relaxed));
+        }
+    };
     if n == 1 {
-        return rows_of(lead, files, states, layout, range(0), |m, x, y| {
-            row(mine, m, x, y)
-        });
+        rows_of(lead, files, states, layout, range(0), &mut lead_rows)?;
+        return Ok(own.get());
     }
     std::thread::scope(|scope| {
         let handles: Vec<_> = rest
@@ -507,30 +529,39 @@ pub fn for_each_row_parts<A: Send>(
             .enumerate()
             .map(|(t, (engine, part))| {
                 scope.spawn(move || {
+                    let mut count = 0usize;
                     rows_of(
                         engine.as_mut(),
                         files,
                         states,
                         layout,
                         range(t + 1),
-                        |m, x, y| row(part, m, x, y),
+                        |m, x, y| {
+                            row(part, m, x, y);
+                            count += 1;
+                            if count.is_multiple_of(TICK) {
+                                others_done.fetch_add(TICK, Ordering::Relaxed);
+                            }
+                        },
                     )
+                    .map(|()| count)
                 })
             })
             .collect();
-        let mut out = rows_of(lead, files, states, layout, range(0), |m, x, y| {
-            row(mine, m, x, y)
-        });
+        let mut out = rows_of(lead, files, states, layout, range(0), &mut lead_rows);
+        let mut count = own.get();
         for h in handles {
             let done = match h.join() {
                 Ok(done) => done,
                 Err(e) => std::panic::resume_unwind(e),
             };
-            if out.is_ok() {
-                out = done;
+            match (&out, done) {
+                (Ok(()), Ok(rows)) => count += rows,
+                (Ok(()), Err(e)) => out = Err(e),
+                (Err(_), _) => {}
             }
         }
-        out
+        out.map(|()| count)
     })
 }
 

@@ -34,6 +34,7 @@ pub use solve::{Solution, Solver};
 
 use crate::engine::Evaluator;
 use crate::identify::{self, Column, Observe};
+use team::{Batches, Team};
 
 #[derive(Debug, Error)]
 pub enum FitError {
@@ -155,25 +156,44 @@ pub struct FitResult {
 /// `residuals`).
 pub type Progress<'a> = &'a mut dyn FnMut(&'static str, usize);
 
-/// Pass 1 of a fit: the triangle of [X | y] over every row `visit` hands to its callback (the
-/// rows held in memory, or files read a block at a time), reporting the pass's progress.
+/// Observations a fit that holds its rows evaluates between two settlements of its parts
+/// (see [`Team::batched`]): a batch's residuals are what the residual pass holds besides the
+/// result's.
+const BATCH: usize = stream::CHUNK_ROWS;
+
+/// Pass 1 of a fit: the triangle of [X | y] over every row of `batches`, reporting the pass's
+/// progress. Each part of the team folds its rows into a triangle of its own and the parts'
+/// triangles are merged in part order (TSQR, [`merge`]): for a given number of threads the
+/// same bits every time. A team of one (one thread, or an engine that cannot be forked) keeps
+/// the factorisation's own worker threads, which overlap the evaluation on the calling thread.
 fn triangle(
-    columns: usize,
+    team: &mut Team,
+    layout: &Layout,
     options: &Options,
     progress: Progress,
-    visit: impl FnOnce(&mut dyn FnMut(RowMeta, &[f64], f64)) -> Result<(), FitError>,
+    batches: &mut Batches,
 ) -> Result<Reduced, FitError> {
-    let mut acc = StreamingQr::with_threads(columns, options.block, options.threads);
-    let mut done = 0usize;
-    visit(&mut |_, x, y| {
-        acc.push(x, y);
-        done += 1;
-        if done.is_multiple_of(8192) {
-            progress("factorising", done);
-        }
-    })?;
-    progress("factorising", done);
-    let red = acc.finish();
+    let threads = if team.parts() > 1 { 1 } else { options.threads };
+    let mut parts: Vec<StreamingQr> = (0..team.parts())
+        .map(|_| StreamingQr::with_threads(layout.columns(), options.block, threads))
+        .collect();
+    team.batched(
+        layout,
+        batches,
+        &mut parts,
+        |qr, _, x, y| qr.push(x, y),
+        |_| {},
+        &mut |done| progress("factorising", done),
+    )?;
+    let mut red: Option<Reduced> = None;
+    for qr in parts {
+        let r = qr.finish();
+        red = Some(match red {
+            None => r,
+            Some(a) => merge::merge(&a, &r)?,
+        });
+    }
+    let red = red.ok_or(FitError::NoRows)?;
     if red.rows == 0 {
         return Err(FitError::NoRows);
     }
@@ -181,6 +201,56 @@ fn triangle(
         return Err(FitError::Overflow);
     }
     Ok(red)
+}
+
+/// Pass 2 of a fit: every row's residual and leverage (eq. 4.12's quadratic form) in blocks,
+/// one matrix product per block, handed to `settle` in row order a batch at a time (their
+/// studentized residuals and Cook's distances still to be set).
+fn residual_pass(
+    team: &mut Team,
+    layout: &Layout,
+    options: &Options,
+    solution: &Solution,
+    progress: Progress,
+    batches: &mut Batches,
+    mut settle: impl FnMut(&mut Vec<ResidualRow>),
+) -> Result<(), FitError> {
+    let threads = if team.parts() > 1 { 1 } else { options.threads };
+    let block = Block::new(options.block, layout.columns(), threads, solution);
+    let mut parts: Vec<(Block, Vec<ResidualRow>)> = (0..team.parts())
+        .map(|_| (block.clone(), Vec::new()))
+        .collect();
+    team.batched(
+        layout,
+        batches,
+        &mut parts,
+        |(block, rows), meta, x, y| {
+            block.push(meta, x, y);
+            if block.full() {
+                block.drain(rows);
+            }
+        },
+        |parts| {
+            // Rows in order: several parts' blocks are emptied before the next batch, one
+            // part's block goes on into it. Where a block is cut changes the rounding of its
+            // products (a one-row block takes another path), so one thread cuts every
+            // `options.block` rows whatever the batches, as a fit read in blocks does.
+            let several = parts.len() > 1;
+            for (block, rows) in parts {
+                if several {
+                    block.drain(rows);
+                }
+                settle(rows);
+                rows.clear();
+            }
+        },
+        &mut |done| progress("residuals", done),
+    )?;
+    for (block, rows) in &mut parts {
+        block.drain(rows);
+        settle(rows);
+    }
+    Ok(())
 }
 
 /// Fits `files` (and checks against `validate`).
@@ -196,7 +266,6 @@ pub fn fit(
     design::check_artifacts(files)?;
     check_noise(files, options.noise)?;
     let layout = Layout::new(m, files).weighted(m, options.noise);
-    let p = layout.columns();
     // Fitted wavelengths and time constants first: the linear problem below is the one at
     // their optimum. Its passes report no rows: the pass name says what the time goes to.
     if m.nonlinear.iter().any(|p| p.fitted) {
@@ -209,10 +278,22 @@ pub fn fit(
     };
     let states = design::states_with(m, files, &values)?;
 
-    let red = triangle(p, options, &mut *progress, |row| {
-        Ok(design::for_each_row(engine, files, &states, &layout, row)?)
+    let mut rows = team::held(files, &states, BATCH);
+    let (red, solved, mut residuals) = Team::with(engine, options.threads, |team| {
+        let red = triangle(team, &layout, options, &mut *progress, &mut rows)?;
+        let solved = solve_reduced(compiled, &layout, &red, options)?;
+        let mut residuals = Vec::with_capacity(red.rows);
+        residual_pass(
+            team,
+            &layout,
+            options,
+            &solved.solution,
+            &mut *progress,
+            &mut rows,
+            |batch| residuals.append(batch),
+        )?;
+        Ok::<_, FitError>((red, solved, residuals))
     })?;
-
     let Solved {
         solution,
         selection,
@@ -220,24 +301,7 @@ pub fn fit(
         dof,
         sigma,
         r2,
-    } = solve_reduced(compiled, &layout, &red, options)?;
-
-    // Pass 2: residuals and influence, leverages in blocks (one matrix product per block).
-    let mut residuals = Vec::with_capacity(red.rows);
-    let mut block = Block::new(options.block, p, options.threads, &solution);
-    let mut done = 0usize;
-    design::for_each_row(engine, files, &states, &layout, |meta, x, y| {
-        block.push(meta, x, y);
-        if block.full() {
-            block.drain(&mut residuals);
-        }
-        done += 1;
-        if done.is_multiple_of(8192) {
-            progress("residuals", done);
-        }
-    })?;
-    block.drain(&mut residuals);
-    progress("residuals", done);
+    } = solved;
     for r in &mut residuals {
         influence(r, sigma, solution.rank);
     }
@@ -395,6 +459,7 @@ fn check_noise(files: &[DataSet], noise: Option<Noise>) -> Result<(), FitError> 
 
 /// Rows buffered for the residual pass, one per column (`p × rows`): a row is copied in as
 /// one contiguous run, and `G' xᵢ` is column `i` of one product.
+#[derive(Clone)]
 struct Block {
     x: Mat<f64>,
     y: Vec<f64>,

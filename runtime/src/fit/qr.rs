@@ -13,6 +13,10 @@
 //! triangles are of the same Gram matrix). While the workers factor, the calling thread
 //! evaluates the next rows (the evaluator is not shared): the two overlap.
 //!
+//! A fit whose evaluator can be copied does better on several threads: each thread evaluates
+//! and factors a share of the rows into a one-thread `StreamingQr` of its own, and the
+//! triangles are merged ([`super::team`]); the worker threads here serve the other callers.
+//!
 //! faer's own parallelism would come with its rayon feature, which makes every faer call in
 //! the process parallel by default; here the threads belong to one fit.
 

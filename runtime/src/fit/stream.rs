@@ -4,7 +4,9 @@
 //! [`MAX_RESIDUALS`] rows).
 //!
 //! The rows reach the same accumulators in the same order as in [`super::fit`], so the
-//! triangle, the solution, σ̂ and every statistic are the same numbers. Passes: one to collect
+//! triangle, the solution, σ̂ and every statistic are the same numbers: on one thread for any
+//! block size, on several when the blocks are [`CHUNK_ROWS`] long, the batches the held fit
+//! splits over its threads (see [`super::team::Team::batched`]). Passes: one to collect
 //! the artifact labels and check them (only for files with an `artifact` column), one for the
 //! triangle, one for the residuals. A machine with fitted non-linear parameters (they iterate
 //! over the rows) or with lags (a lag is integrated over a whole run) is fitted by
@@ -17,9 +19,10 @@ use kin_compiler::Compiled;
 use super::design::{self, judge_artifacts, DataSet, FileStates, Layout, ThinArtifact};
 use super::report::MAX_RESIDUALS;
 use super::tally::Tally;
+use super::team::{Each, Team};
 use super::{
-    influence, solve_reduced, thresholds, triangle, Block, FitError, FitResult, Options, Progress,
-    ResidualRow, Solved,
+    influence, residual_pass, solve_reduced, thresholds, triangle, FitError, FitResult, Options,
+    Progress, ResidualRow, Solved,
 };
 use crate::data::{self, Groups, Observations, ReadOptions};
 use crate::engine::Evaluator;
@@ -77,72 +80,51 @@ pub fn fit_in_chunks(
     let source = Source { paths, read, chunk };
     let files = skeletons(compiled, &source)?;
     let layout = Layout::new(m, &files);
-    let p = layout.columns();
 
-    // Pass 1: the triangle of [X | y].
-    let red = triangle(p, options, &mut *progress, |row| {
-        each_row(compiled, engine, &source, &files, &values, &layout, row)
-    })?;
-    let Solved {
-        solution,
-        selection,
-        constrained,
-        dof,
-        sigma,
-        r2,
-    } = solve_reduced(compiled, &layout, &red, options)?;
-    let (outlier_threshold, cook_threshold) =
-        thresholds(red.rows, solution.rank, dof, options.outlier_alpha);
+    let mut rows = |each: &mut Each| each_batch(compiled, &source, &files, &values, each);
+    Team::with(engine, options.threads, |team| {
+        // Pass 1: the triangle of [X | y].
+        let red = triangle(team, &layout, options, &mut *progress, &mut rows)?;
+        let Solved {
+            solution,
+            selection,
+            constrained,
+            dof,
+            sigma,
+            r2,
+        } = solve_reduced(compiled, &layout, &red, options)?;
+        let (outlier_threshold, cook_threshold) =
+            thresholds(red.rows, solution.rank, dof, options.outlier_alpha);
 
-    // Pass 2: each block's residuals are tallied and dropped.
-    let mut tally = Tally::new(
-        files.len(),
-        super::report::display_factors(m, &layout.weights),
-        m.units.error.scale,
-        outlier_threshold,
-        cook_threshold,
-    );
-    let keep = red.rows <= MAX_RESIDUALS;
-    let mut residuals = Vec::new();
-    let mut drained = Vec::new();
-    let mut block = Block::new(options.block, p, options.threads, &solution);
-    let mut done = 0usize;
-    let mut settle = |drained: &mut Vec<ResidualRow>| {
-        for r in drained.iter_mut() {
-            influence(r, sigma, solution.rank);
-            tally.add(r);
-        }
-        if keep {
-            residuals.append(drained);
-        }
-        drained.clear();
-    };
-    each_row(
-        compiled,
-        engine,
-        &source,
-        &files,
-        &values,
-        &layout,
-        |meta, x, y| {
-            block.push(meta, x, y);
-            if block.full() {
-                block.drain(&mut drained);
-                settle(&mut drained);
-            }
-            done += 1;
-            if done.is_multiple_of(8192) {
-                progress("residuals", done);
-            }
-        },
-    )?;
-    block.drain(&mut drained);
-    settle(&mut drained);
-    progress("residuals", done);
-
-    Ok(Streamed {
-        result: FitResult {
-            layout,
+        // Pass 2: each block's residuals are tallied and dropped.
+        let mut tally = Tally::new(
+            files.len(),
+            super::report::display_factors(m, &layout.weights),
+            m.units.error.scale,
+            outlier_threshold,
+            cook_threshold,
+        );
+        let keep = red.rows <= MAX_RESIDUALS;
+        let mut residuals: Vec<ResidualRow> = Vec::new();
+        residual_pass(
+            team,
+            &layout,
+            options,
+            &solution,
+            &mut *progress,
+            &mut rows,
+            |batch| {
+                for r in batch.iter_mut() {
+                    influence(r, sigma, solution.rank);
+                    tally.add(r);
+                }
+                if keep {
+                    residuals.append(batch);
+                }
+            },
+        )?;
+        Ok(FitResult {
+            layout: layout.clone(),
             solution,
             rows: red.rows,
             sigma,
@@ -155,11 +137,10 @@ pub fn fit_in_chunks(
             selection,
             nonlinear: None,
             tally: Some(tally),
-        },
-        files,
+        })
     })
+    .map(|result| Streamed { result, files })
 }
-
 /// One rowless [`DataSet`] per file, of its kind and with all its artifact labels; a file with
 /// an `artifact` column is read through once for them and checked as [`super::check_artifacts`] does.
 fn skeletons(compiled: &Compiled, source: &Source) -> Result<Vec<DataSet>, FitError> {
@@ -259,15 +240,14 @@ impl ArtifactCounts {
     }
 }
 
-/// Calls `row` for every observed value of every file, reading each a block at a time.
-fn each_row(
+/// Calls `each` for every block of every file (see [`super::team::Batches`]), reading each
+/// file a block at a time.
+fn each_batch(
     compiled: &Compiled,
-    engine: &mut dyn Evaluator,
     source: &Source,
     files: &[DataSet],
     values: &[f64],
-    layout: &Layout,
-    mut row: impl FnMut(design::RowMeta, &[f64], f64),
+    each: &mut Each,
 ) -> Result<(), FitError> {
     let m = &compiled.machine;
     // `design::for_each_row` numbers files by their place in its slice: the block is put at
@@ -292,7 +272,7 @@ fn each_row(
                 *slot = block;
                 *s = new;
             }
-            design::for_each_row(engine, &slots, &states, layout, &mut row)?;
+            each(&slots, &states, 0..usize::MAX)?;
         }
         if let (Some(slot), Some(file)) = (slots.get_mut(f), files.get(f)) {
             *slot = file.clone();

@@ -79,15 +79,83 @@ impl Team<'_, '_> {
         parts: &mut [A],
         row: impl Fn(&mut A, RowMeta, &[f64], f64) + Sync,
     ) -> Result<(), FitError> {
-        Ok(design::for_each_row_parts(
+        design::for_each_row_parts(
             &mut *self.lead,
             self.rest,
             files,
             states,
             layout,
+            0..usize::MAX,
             parts,
             row,
-        )?)
+            &mut |_| {},
+        )?;
+        Ok(())
+    }
+
+    /// One pass over the rows of every batch `batches` gives, each batch split over the team
+    /// (part `t` into `parts[t]`). After each batch, `settle(parts)`: the parts then hold
+    /// that batch's rows, so a caller that takes them out in part order has every row in
+    /// order while holding only a batch of them. `progress` hears the rows done so far.
+    pub fn batched<A: Send>(
+        &mut self,
+        layout: &Layout,
+        batches: &mut Batches,
+        parts: &mut [A],
+        row: impl Fn(&mut A, RowMeta, &[f64], f64) + Sync,
+        mut settle: impl FnMut(&mut [A]),
+        progress: &mut dyn FnMut(usize),
+    ) -> Result<(), FitError> {
+        let mut done = 0usize;
+        batches(&mut |files, states, within| {
+            let rows = design::for_each_row_parts(
+                &mut *self.lead,
+                self.rest,
+                files,
+                states,
+                layout,
+                within,
+                parts,
+                &row,
+                &mut |d| progress(done + d),
+            )?;
+            done += rows;
+            settle(parts);
+            progress(done);
+            Ok(())
+        })
+    }
+}
+
+/// A pass's rows a batch at a time: `batches(each)` calls `each(files, states, within)` for
+/// every batch in turn, the rows of observations `within` of `files` (counted as
+/// [`design::for_each_row_parts`] counts them). Rows held in memory come in batches of a
+/// range of their observations, rows read from files a block at a time.
+pub(super) type Batches<'a> = dyn FnMut(&mut Each) -> Result<(), FitError> + 'a;
+
+/// What [`Batches`] calls for each batch.
+pub(super) type Each<'a> =
+    dyn FnMut(&[DataSet], &[FileStates], std::ops::Range<usize>) -> Result<(), FitError> + 'a;
+
+/// The batches of rows held in memory: each file's observations `batch` at a time, in order
+/// (the blocks a fit that reads the files `batch` rows at a time sees).
+pub(super) fn held<'a>(
+    files: &'a [DataSet],
+    states: &'a [FileStates],
+    batch: usize,
+) -> impl FnMut(&mut Each) -> Result<(), FitError> + 'a {
+    move |each| {
+        let batch = batch.max(1);
+        let mut from = 0;
+        for st in states {
+            let end = from + design::observations(std::slice::from_ref(st));
+            while from < end {
+                let to = from.saturating_add(batch).min(end);
+                each(files, states, from..to)?;
+                from = to;
+            }
+        }
+        Ok(())
     }
 }
 

@@ -37,6 +37,10 @@ pub struct StationTable {
 /// Station positions along `[lo, hi]` (display units): the ends and the multiples of a round
 /// step (1, 2, 2.5 or 5 × 10ⁿ) giving about ten intervals, like the targets of a laser run.
 pub fn stations(lo: f64, hi: f64) -> Vec<f64> {
+    // The ends come from the range in SI: −120° is −119.99999999999999° after the round trip
+    // through radians. Thirteen significant digits give a user's number back.
+    let tidy = |x: f64| format!("{x:.12e}").parse::<f64>().unwrap_or(x);
+    let (lo, hi) = (tidy(lo), tidy(hi));
     let span = hi - lo;
     if !(span > 0.0) || !span.is_finite() {
         return vec![lo];
@@ -193,5 +197,17 @@ mod tests {
         assert_eq!(s.get(1), Some(&100.0));
         assert_eq!(s.last(), Some(&703.0));
         assert_eq!(stations(0.0, 360.0).len(), 9);
+    }
+
+    #[test]
+    fn an_end_converted_from_si_is_the_number_the_user_wrote() {
+        let deg = std::f64::consts::PI / 180.0;
+        let (lo, hi) = (-120.0 * deg / deg, 30.0 * deg / deg);
+        // The round trip through radians is not exact: what the tables used to show.
+        assert_ne!(lo, -120.0);
+        let s = stations(lo, hi);
+        assert_eq!(s.first(), Some(&-120.0));
+        assert_eq!(s.last(), Some(&30.0));
+        assert_eq!(s.get(1), Some(&-100.0));
     }
 }

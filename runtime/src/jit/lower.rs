@@ -269,11 +269,13 @@ fn errors(
     models.sort_by_key(|e| frame_order(e.frame));
     let mut written = vec![false; n];
     // Running sums, brought up to date after every component so that no component's column
-    // outlives it. With the Jacobian they live in `out` rather than in registers: six sums
-    // held across the whole function left too few registers for the columns and basis values,
-    // and the spills cost more than a load and a store per component. The error alone has
-    // registers to spare, and there the chain through memory was slower.
-    let memory = jacobian || pieces;
+    // outlives it. With the Jacobian of all six rows they live in `out` rather than in
+    // registers: six sums held across the whole function left too few registers for the
+    // columns and basis values, and the spills cost more than a load and a store per
+    // component. The error alone, and the Jacobian of three rows, have registers to spare, and
+    // there the chain through memory was slower (3–5 % for position rows, the same code
+    // compiled both ways in one process).
+    let memory = (jacobian && observed.rows() > 3) || pieces;
     let mut done = Vec::new();
     let mut piece = Piece::new(m, tool_rotation);
     // Used only with a single piece, whose graph this is.
@@ -389,6 +391,13 @@ fn errors(
                     g.store(Dst::Out, r, p);
                 }
                 (true, ..) => g.add_to(Dst::Out, r, p),
+                // With the Jacobian a sum starts at its first product, as in `out`, so that
+                // the rows of a subset held in registers have the bits of all six in memory
+                // (`0 + p` would turn a −0 into +0).
+                (false, Some(s @ false), Some(e)) if jacobian => {
+                    *s = true;
+                    *e = p;
+                }
                 (false, _, Some(e)) => {
                     *e = g.add(*e, p);
                     g.eval(*e);
@@ -407,9 +416,14 @@ fn errors(
         }
     }
     for (r, e) in error.into_iter().enumerate() {
-        if observed.contains(r) && !started.get(r).copied().unwrap_or(false) {
-            // With several pieces `error` was never used (and its zeros belong to the first).
-            g.store(Dst::Out, r, if memory { zero } else { e });
+        if !observed.contains(r) {
+            continue;
+        }
+        // With several pieces `error` was never used (and its zeros belong to the first).
+        match (memory, started.get(r).copied().unwrap_or(false)) {
+            (true, true) => {}
+            (true, false) => g.store(Dst::Out, r, zero),
+            (false, _) => g.store(Dst::Out, r, e),
         }
     }
     for (i, &p) in piece.kin.position.iter().enumerate() {

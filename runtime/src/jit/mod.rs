@@ -753,7 +753,10 @@ impl JitModel {
             // S_tl = Trans(t)·R: the override replaces the translation and keeps the rotation.
             tool_tf[9..].copy_from_slice(&t);
         }
-        if f != Function::Nominal {
+        // Which variable is missing is looked up only when some value is NaN: the lookup
+        // walks the variables the tool's models read, a branch on each one's kind, and cost
+        // a tenth of a position-only evaluation; the scan of every value has no branch.
+        if f != Function::Nominal && any_nan(state) {
             for &v in inner.used.get(state.tool).map_or(&[][..], |u| u.as_slice()) {
                 if value(v, state).is_none_or(f64::is_nan) {
                     return Err(EvalError::Missing {
@@ -870,6 +873,15 @@ fn check_len(
             got,
         })
     }
+}
+
+/// Whether any value of the state is NaN (`|` rather than `||`, so there is no branch).
+fn any_nan(s: &State) -> bool {
+    s.q.iter()
+        .chain(s.inputs)
+        .chain(s.lags)
+        .chain(s.dirs)
+        .fold(s.time.is_nan(), |any, v| any | v.is_nan())
 }
 
 fn value(v: Var, s: &State) -> Option<f64> {

@@ -275,7 +275,6 @@ fn emit_function(
         bases: Default::default(),
         tool: None,
         args,
-        splat_area: None,
         splats: Default::default(),
         slots: Default::default(),
         lanes: Default::default(),
@@ -283,20 +282,6 @@ fn emit_function(
         imports,
     };
     let flags = MemFlagsData::trusted();
-    let columns: std::collections::HashSet<Id> = graph
-        .effects()
-        .iter()
-        .filter_map(|effect| match *effect {
-            Effect::Pair(_, _, col, ..) => Some(col),
-            _ => None,
-        })
-        .collect();
-    if !columns.is_empty() {
-        let bytes = u32::try_from(16 * columns.len()).unwrap_or(u32::MAX);
-        let area =
-            b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, bytes, 4));
-        e.splat_area = Some((b.ins().stack_addr(ptr, area, 0), columns.len()));
-    }
     // Calls first: the C calling convention saves no float register across a call, so every
     // value live at a call is spilled. At the top only the calls' own inputs and results are.
     let live = graph.live();
@@ -351,10 +336,8 @@ struct Emitter<'g> {
     bases: std::collections::HashMap<i32, Value>,
     tool: Option<Value>,
     args: Option<Value>,
-    /// The address of the splat area and how many 16-byte entries it holds.
-    splat_area: Option<(Value, usize)>,
-    /// Each column entry's two-lane splat, by its offset from the splat area's address.
-    splats: std::collections::HashMap<Id, i32>,
+    /// Each column entry's two-lane splat, made once and used by every pair of its component.
+    splats: std::collections::HashMap<Id, Value>,
     /// Results of `sincos` calls: the slot and offset each is read from.
     slots: std::collections::HashMap<Id, (cranelift_codegen::ir::StackSlot, i32)>,
     lanes: std::collections::HashMap<(Id, Id), Value>,
@@ -417,29 +400,21 @@ impl Emitter<'_> {
                 .insert(ConstantData::from(&[0u8; 16][..]));
             return Some(b.ins().vconst(types::F64X2, zero));
         }
-        // Each splat is written once to its 16 bytes of the aligned splat area, and each use
-        // reads it as the memory operand of the multiply (an aligned load folds into it): a
-        // column serves a component's every coefficient pair, and held in registers the six
-        // of a rotation component pushed the basis values out to the stack instead.
-        let (area, capacity) = self.splat_area?;
-        let offset = match self.splats.get(&col) {
-            Some(&o) => o,
+        // Each splat is a value of its own, made once, which the register allocator keeps or
+        // spills. It was kept in a stack area and read as a memory operand of each multiply
+        // instead; those reads, interleaved with the Jacobian's stores, waited on the stores
+        // whenever the output buffer lay at certain offsets from the stack (4 KiB aliasing):
+        // 10–20 % slower per pose at those offsets, and no faster at the others (position rows
+        // and all six, measured in one process at 48 offsets of the output buffer).
+        let splat = match self.splats.get(&col) {
+            Some(v) => *v,
             None => {
-                // The area has an entry for every column a pair names; never write past it.
-                if self.splats.len() >= capacity {
-                    return None;
-                }
                 let c = self.value(b, col)?;
                 let v = b.ins().splat(types::F64X2, c);
-                let o = 16 * i32::try_from(self.splats.len()).ok()?;
-                b.ins().store(MemFlagsData::trusted(), v, area, o);
-                self.splats.insert(col, o);
-                o
+                self.splats.insert(col, v);
+                v
             }
         };
-        let splat = b
-            .ins()
-            .load(types::F64X2, MemFlagsData::trusted(), area, offset);
         let lanes = match self.lanes.get(&(x, y)) {
             Some(v) => *v,
             None => {

@@ -152,8 +152,20 @@ impl States {
 
     /// Recomputes the lag states for the given non-linear parameter values (time constants).
     pub fn integrate_lags(&mut self, m: &Machine, rows: &Rows, nonlinear: &[f64]) {
+        self.integrate_lags_where(m, rows, nonlinear, |_| true);
+    }
+
+    /// [`States::integrate_lags`] for the lags `which` accepts (by index in `m.lags`) alone:
+    /// the others keep their states.
+    pub fn integrate_lags_where(
+        &mut self,
+        m: &Machine,
+        rows: &Rows,
+        nonlinear: &[f64],
+        which: impl Fn(usize) -> bool,
+    ) {
         let n = self.len();
-        if m.lags.is_empty() || n == 0 {
+        if !(0..m.lags.len()).any(&which) || n == 0 {
             return;
         }
         // Rows of a run are contiguous in time order within the run, but runs may interleave
@@ -171,7 +183,7 @@ impl States {
             }
         }
         let nl = self.lags;
-        for (li, l) in m.lags.iter().enumerate() {
+        for (li, l) in m.lags.iter().enumerate().filter(|(li, _)| which(*li)) {
             for run in &runs {
                 let times: Vec<f64> = run
                     .iter()

@@ -106,11 +106,15 @@ fn projected_fit(
     options: &Options,
     split: &Split,
 ) -> Result<(Vec<f64>, usize, Vec<f64>), FitError> {
-    let alone = &mut Team {
-        lead: &mut *engine,
-        rest: &mut [],
-    };
-    let point = projected(compiled, alone, files, values, options, split, false)?;
+    let point = projected(
+        compiled,
+        &mut Team::alone(&mut *engine),
+        files,
+        values,
+        options,
+        split,
+        false,
+    )?;
     let (states, layout) = at_values(compiled, engine, files, values, options.noise)?;
     let mut r = Vec::with_capacity(point.rows);
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
@@ -1416,10 +1420,7 @@ machine m {
         let fitted = [0usize, 1];
         let start: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
         let options = Options::default();
-        let alone = &mut Team {
-            lead: &mut engine,
-            rest: &mut [],
-        };
+        let alone = &mut Team::alone(&mut engine);
         let split = split_for(&c, alone, &files, &start, &options, &fitted, false)
             .expect("passes")
             .0
@@ -1453,10 +1454,7 @@ machine m {
         let phi: Vec<f64> = fitted.iter().map(|&i| start[i].ln()).collect();
         // On two evaluators: the passes split in two parts, their products summed.
         let mut fork: Vec<Box<dyn Evaluator + Send + '_>> = vec![Box::new(engine.clone())];
-        let mut team = Team {
-            lead: &mut engine,
-            rest: &mut fork,
-        };
+        let mut team = Team::new(&mut engine, &mut fork);
         let at = problem.evaluate(&mut team, &phi).expect("evaluates");
         assert_eq!(at.kept.len(), 2, "one part a thread");
         // The split's own pass on two threads (two triangles merged) evaluates the start too:
@@ -1551,10 +1549,7 @@ machine m {
                 "gain {gp} vs {gq}"
             );
             // From the products an evaluation kept: the same sums, no pass.
-            let alone = &mut Team {
-                lead: &mut engine,
-                rest: &mut [],
-            };
+            let alone = &mut Team::alone(&mut engine);
             let kept = projected(&c, alone, &files, &start, &options, &split, false)
                 .expect("evaluates")
                 .products;
@@ -1631,10 +1626,7 @@ machine m {
             min_norm: true,
             ..Options::default()
         };
-        let alone = &mut Team {
-            lead: &mut engine,
-            rest: &mut [],
-        };
+        let alone = &mut Team::alone(&mut engine);
         let split = split_for(&c, alone, &files, &start, &options, &fitted, false)
             .expect("passes")
             .0
@@ -1740,6 +1732,59 @@ machine m {
             let (a, b) = (a.expect("fitted"), b.expect("fitted"));
             assert!(rel(a, b) <= 1e-4, "se {a} vs {b}");
         }
+    }
+
+    /// A team keeps its states between values and integrates again only the lags whose time
+    /// constant moved: every call gives the states built from scratch, and a caller still
+    /// holding earlier states keeps them as they were.
+    #[test]
+    fn a_teams_states_follow_the_time_constants_it_is_given() {
+        let c = compiled(&one_axis(
+            "X.tx = linear(X) + lag(T, tau fit 25 min) * const
+             X.ty = lag(T, tau fit 60 min) * const",
+        ));
+        let m = &c.machine;
+        let files = simulated(m, 1e-6, 400);
+        use super::design::FileStates;
+        let lags = |st: &[FileStates]| -> Vec<u64> {
+            st.iter()
+                .flat_map(|f| match f {
+                    FileStates::Points(s) => (0..s.len())
+                        .flat_map(|r| s.get(r).lags.to_vec())
+                        .collect::<Vec<f64>>(),
+                    FileStates::Lengths(..) => Vec::new(),
+                })
+                .map(f64::to_bits)
+                .collect()
+        };
+        let start: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+        let moved = |i: usize, f: f64| {
+            let mut v = start.clone();
+            v[i] *= f;
+            v
+        };
+        let steps = [
+            start.clone(),
+            moved(0, 1.5),
+            moved(1, 0.5),
+            moved(1, 0.5),
+            start.clone(),
+        ];
+        let fresh = |v: &[f64]| lags(&design::states_with(m, &files, v).expect("states"));
+        assert_ne!(fresh(&steps[0]), fresh(&steps[1]), "the lags depend on τ");
+        let mut engine = crate::engine::make(m, crate::engine::Engine::Interp).expect("engine");
+        Team::with(engine.as_mut(), 2, |team| {
+            let mut held = None;
+            for (i, v) in steps.iter().enumerate() {
+                let (st, _) = team.at_values(&c, &files, v, None).expect("at values");
+                assert_eq!(lags(&st), fresh(v), "step {i}");
+                if i == 1 {
+                    held = Some(st);
+                }
+            }
+            let held = held.expect("held");
+            assert_eq!(lags(&held), fresh(&steps[1]), "a held copy is left alone");
+        });
     }
 
     /// One time constant with no effect of its own (its derivative column inside the design's

@@ -7,10 +7,13 @@
 //! are copied). The parts' results are combined in part order, so one thread count gives the
 //! same bits on every run.
 
+use std::sync::Arc;
+
 use kin_compiler::Compiled;
 
 use super::design::{self, DataSet, FileStates, Layout, RowMeta};
 use super::FitError;
+use crate::data::Observations;
 use crate::engine::Evaluator;
 
 /// `lead` evaluates the first part on the calling thread (and every pass that feeds something
@@ -18,6 +21,17 @@ use crate::engine::Evaluator;
 pub(super) struct Team<'a, 'e> {
     pub lead: &'a mut dyn Evaluator,
     pub rest: &'a mut [Box<dyn Evaluator + Send + 'e>],
+    /// The states of the latest [`Team::at_values`] and the values they are at: an optimiser
+    /// moves one or two time constants at a time, and only the lags those drive need
+    /// integrating again (building every state anew cost about as much as a tenth of a pass).
+    states: Option<Cached>,
+}
+
+struct Cached {
+    values: Vec<f64>,
+    /// The files the states are of (their address and count): a team serves one problem.
+    files: (usize, usize),
+    states: Arc<Vec<FileStates>>,
 }
 
 impl Team<'_, '_> {
@@ -33,17 +47,28 @@ impl Team<'_, '_> {
             let forks: Option<Vec<_>> = (0..threads).map(|_| engine.fork()).collect();
             if let Some(mut forks) = forks {
                 if let Some((lead, rest)) = forks.split_first_mut() {
-                    return run(&mut Team {
-                        lead: lead.as_mut(),
-                        rest,
-                    });
+                    return run(&mut Team::new(lead.as_mut(), rest));
                 }
             }
         }
-        run(&mut Team {
-            lead: engine,
-            rest: &mut [],
-        })
+        run(&mut Team::alone(engine))
+    }
+
+    /// A team of `lead` on the calling thread and `rest` on threads of their own.
+    pub fn new<'b, 'e>(
+        lead: &'b mut dyn Evaluator,
+        rest: &'b mut [Box<dyn Evaluator + Send + 'e>],
+    ) -> Team<'b, 'e> {
+        Team {
+            lead,
+            rest,
+            states: None,
+        }
+    }
+
+    /// A team of `engine` alone, on the calling thread.
+    pub fn alone<'b, 'e>(engine: &'b mut dyn Evaluator) -> Team<'b, 'e> {
+        Team::new(engine, &mut [])
     }
 
     /// How many parts a pass is split into.
@@ -51,23 +76,66 @@ impl Team<'_, '_> {
         1 + self.rest.len()
     }
 
-    /// [`at_values`] for every evaluator of the team.
+    /// [`at_values`] for every evaluator of the team, the states shared (and kept for the
+    /// next values: see [`Team::states`]).
     pub fn at_values(
         &mut self,
         compiled: &Compiled,
         files: &[DataSet],
         values: &[f64],
         noise: Option<design::Noise>,
-    ) -> Result<(Vec<FileStates>, Layout), FitError> {
+    ) -> Result<(Arc<Vec<FileStates>>, Layout), FitError> {
+        let m = &compiled.machine;
+        let eval = |source| design::DesignError::Eval {
+            path: String::new(),
+            line: 0,
+            source,
+        };
         for e in self.rest.iter_mut() {
-            e.set_nonlinear(values)
-                .map_err(|source| design::DesignError::Eval {
-                    path: String::new(),
-                    line: 0,
-                    source,
-                })?;
+            e.set_nonlinear(values).map_err(eval)?;
         }
-        at_values(compiled, &mut *self.lead, files, values, noise)
+        self.lead.set_nonlinear(values).map_err(eval)?;
+        let key = (files.as_ptr() as usize, files.len());
+        let states = match self.states.take() {
+            Some(mut c) if c.files == key && c.values.len() == values.len() => {
+                // A lag is integrated again when a parameter it reads moved (bit for bit).
+                let moved = |li: usize| {
+                    m.lags.get(li).is_some_and(|l| {
+                        std::iter::once(l.tau.index)
+                            .chain(l.tau2.map(|t| t.index))
+                            .any(|i| {
+                                values.get(i).map(|v| v.to_bits())
+                                    != c.values.get(i).map(|v| v.to_bits())
+                            })
+                    })
+                };
+                // Shared only while an earlier caller still holds it: then copied once.
+                let all = Arc::make_mut(&mut c.states);
+                for (st, file) in all.iter_mut().zip(files) {
+                    match (st, &file.observations) {
+                        (FileStates::Points(s), Observations::Points(p)) => {
+                            s.integrate_lags_where(m, &p.rows, values, moved);
+                        }
+                        (FileStates::Lengths(a, b), Observations::Lengths(l)) => {
+                            a.integrate_lags_where(m, &l.rows, values, moved);
+                            b.integrate_lags_where(m, &l.rows, values, moved);
+                        }
+                        // A file's states always have its kind (`design::states_with`).
+                        _ => {}
+                    }
+                }
+                c.values = values.to_vec();
+                c
+            }
+            _ => Cached {
+                values: values.to_vec(),
+                files: key,
+                states: Arc::new(design::states_with(m, files, values)?),
+            },
+        };
+        let shared = Arc::clone(&states.states);
+        self.states = Some(states);
+        Ok((shared, Layout::new(m, files).weighted(m, noise)))
     }
 
     /// One pass over the rows, part `t` of them into `parts[t]`.

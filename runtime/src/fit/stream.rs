@@ -141,6 +141,7 @@ pub fn fit_in_chunks(
     })
     .map(|result| Streamed { result, files })
 }
+
 /// One rowless [`DataSet`] per file, of its kind and with all its artifact labels; a file with
 /// an `artifact` column is read through once for them and checked as [`super::check_artifacts`] does.
 fn skeletons(compiled: &Compiled, source: &Source) -> Result<Vec<DataSet>, FitError> {

@@ -76,8 +76,8 @@ impl Team<'_, '_> {
         1 + self.rest.len()
     }
 
-    /// [`at_values`] for every evaluator of the team, the states shared (and kept for the
-    /// next values: see [`Team::states`]).
+    /// [`at_values`] for every evaluator of the team, the states shared (and kept, as the
+    /// `states` field says, for the next values).
     pub fn at_values(
         &mut self,
         compiled: &Compiled,

@@ -404,8 +404,8 @@ impl Emitter<'_> {
         // spills. It was kept in a stack area and read as a memory operand of each multiply
         // instead; those reads, interleaved with the Jacobian's stores, waited on the stores
         // whenever the output buffer lay at certain offsets from the stack (4 KiB aliasing):
-        // 10–20 % slower per pose at those offsets, and no faster at the others (position rows
-        // and all six, measured in one process at 48 offsets of the output buffer).
+        // 7–21 % slower per pose at a few of the offsets tried (2 of 32 in one process, 1 of 8
+        // in another), at none with the splats as values, and no faster at the others.
         let splat = match self.splats.get(&col) {
             Some(v) => *v,
             None => {

@@ -269,13 +269,13 @@ fn errors(
     models.sort_by_key(|e| frame_order(e.frame));
     let mut written = vec![false; n];
     // Running sums, brought up to date after every component so that no component's column
-    // outlives it. With the Jacobian of all six rows they live in `out` rather than in
-    // registers: six sums held across the whole function left too few registers for the
-    // columns and basis values, and the spills cost more than a load and a store per
-    // component. The error alone, and the Jacobian of three rows, have registers to spare, and
-    // there the chain through memory was slower (3–5 % for position rows, the same code
-    // compiled both ways in one process).
-    let memory = (jacobian && observed.rows() > 3) || pieces;
+    // outlives it, kept in registers: the register allocator spills what it must. (With the
+    // column splats read from a stack area, six sums held in registers left too few for the
+    // columns and basis values and the Jacobian's sums went through `out`; since the splats
+    // are values of their own, registers are 5–9 % faster for six rows and 3–5 % for three,
+    // the same code compiled both ways in one process.) Several pieces hand their sums on in
+    // `out`.
+    let memory = pieces;
     let mut done = Vec::new();
     let mut piece = Piece::new(m, tool_rotation);
     // Used only with a single piece, whose graph this is.
@@ -391,8 +391,8 @@ fn errors(
                     g.store(Dst::Out, r, p);
                 }
                 (true, ..) => g.add_to(Dst::Out, r, p),
-                // With the Jacobian a sum starts at its first product, as in `out`, so that
-                // the rows of a subset held in registers have the bits of all six in memory
+                // With the Jacobian a sum starts at its first product, as it does in `out`
+                // (several pieces), so that every way of computing a row gives its bits
                 // (`0 + p` would turn a −0 into +0).
                 (false, Some(s @ false), Some(e)) if jacobian => {
                     *s = true;

@@ -755,7 +755,7 @@ impl JitModel {
         }
         // Which variable is missing is looked up only when some value is NaN: the lookup
         // walks the variables the tool's models read, a branch on each one's kind, and cost
-        // a tenth of a position-only evaluation; the scan of every value has no branch.
+        // about 5 % of a position-only evaluation; the scan of every value has no branch.
         if f != Function::Nominal && any_nan(state) {
             for &v in inner.used.get(state.tool).map_or(&[][..], |u| u.as_slice()) {
                 if value(v, state).is_none_or(f64::is_nan) {

@@ -245,8 +245,9 @@ enum Command {
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_runtime::engine::Engine,
-        /// Threads factoring the rows and computing their leverages (1 to 256; default every
-        /// core this process may use). The same count gives the same bits on every run.
+        /// Threads evaluating the rows, factoring them and computing their leverages, each its
+        /// own share (1 to 256; default every core this process may use). The same count gives
+        /// the same bits on every run.
         #[arg(long, value_name = "N", value_parser = args::threads)]
         threads: Option<usize>,
         #[command(flatten)]

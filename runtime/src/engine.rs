@@ -73,6 +73,12 @@ impl std::fmt::Display for Observed {
 pub trait Evaluator {
     fn machine(&self) -> &Machine;
 
+    /// Which of the [`Engine`]s this is, if one: a fit then evaluates a part of the model (the
+    /// terms a time constant moves) with the same kind of engine.
+    fn kind(&self) -> Option<Engine> {
+        None
+    }
+
     /// Replaces the non-linear parameter values (wavelengths, time constants).
     fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError>;
 
@@ -170,6 +176,9 @@ pub trait Evaluator {
 impl Evaluator for Interpreter<'_> {
     fn machine(&self) -> &Machine {
         Interpreter::machine(self)
+    }
+    fn kind(&self) -> Option<Engine> {
+        Some(Engine::Interp)
     }
     fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError> {
         Interpreter::set_nonlinear(self, values)

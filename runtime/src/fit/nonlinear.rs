@@ -19,6 +19,7 @@
 //! bits on every run.
 
 use faer::Mat;
+use kin_compiler::ir::{ErrorModel, Machine, Term};
 use kin_compiler::Compiled;
 
 use super::design::{self, DataSet, Layout};
@@ -26,7 +27,7 @@ use super::projection::{self, Split};
 use super::qr::{Reduced, StreamingQr};
 use super::team::{at_values, Team};
 use super::{solve, FitError, Options, Solver};
-use crate::engine::Evaluator;
+use crate::engine::{Engine, Evaluator};
 
 /// The outcome: every non-linear parameter's value (fixed ones unchanged) and, for fitted
 /// ones, its standard error.
@@ -150,7 +151,7 @@ fn split_for(
     }
     let moving_columns: Vec<usize> = (0..columns).filter(|&j| moving[j]).collect();
     let keep = kaufman && keeps(files, moving_columns.len(), fitted.len());
-    let (states, layout) = team.at_values(compiled, files, values, options.noise)?;
+    let (states, layout) = team.at_values(&compiled.machine, files, values, options.noise)?;
     // One part alone keeps the factorisation's own worker threads.
     let threads = if team.parts() > 1 { 1 } else { options.threads };
     struct Part {
@@ -662,6 +663,132 @@ const H: f64 = 1e-6;
 /// optimum's triangle gives too. At 1e-8 both parts stay near 1e-6.
 const H_COLUMNS: f64 = 1e-8;
 
+/// The terms of a model whose columns move with the fitted parameters, as a machine of their
+/// own: a difference of the moving columns evaluates these instead of every column (for the
+/// 5-axis example, two lag-scaled constants instead of 173 columns).
+struct Moving {
+    machine: Machine,
+    /// The design column of each of its coefficients.
+    columns: Vec<usize>,
+}
+
+/// What one difference pass fills: `d[t][i·k + c]` for the rows `i` of part `t`, from the
+/// moving columns `moving` (design order of the split), their coefficients `beta` and the
+/// values `kept` by the evaluation at φ.
+struct Differences<'d> {
+    moving: &'d [usize],
+    beta: &'d [f64],
+    kept: &'d [&'d [f64]],
+    d: Vec<&'d mut Vec<f64>>,
+    c: usize,
+    k: usize,
+    /// The parts the evaluation at φ was split into: the pass must split its rows the same way.
+    parts: usize,
+}
+
+/// The machine of `m`'s terms whose coefficients are the design columns `moving` — all of
+/// them and nothing else — or `None` when a term is only partly among them or a moving column
+/// is not a coefficient.
+fn moving_model(m: &Machine, moving: &[usize]) -> Option<Moving> {
+    let wanted: std::collections::HashSet<usize> = moving.iter().copied().collect();
+    let mut machine = m.clone();
+    machine.errors.clear();
+    machine.coefficients.clear();
+    machine.beta.clear();
+    let mut columns = Vec::with_capacity(moving.len());
+    for model in &m.errors {
+        let mut terms = Vec::new();
+        for t in model.terms.iter().filter(|t| t.coefficients > 0) {
+            let range = t.first..t.first + t.coefficients;
+            let inside = range.clone().filter(|j| wanted.contains(j)).count();
+            if inside == 0 {
+                continue;
+            }
+            if inside != t.coefficients {
+                return None;
+            }
+            let first = machine.coefficients.len();
+            for j in range {
+                let mut co = m.coefficients.get(j)?.clone();
+                co.error = machine.errors.len();
+                machine.coefficients.push(co);
+                columns.push(j);
+            }
+            terms.push(Term { first, ..t.clone() });
+        }
+        if !terms.is_empty() {
+            machine.errors.push(ErrorModel {
+                terms,
+                ..model.clone()
+            });
+        }
+    }
+    (columns.len() == wanted.len()).then_some(Moving { machine, columns })
+}
+
+impl Moving {
+    /// One difference pass on the moving terms alone, at the non-linear `values` (φ + h e_c):
+    /// `D_c` of every row, summed as the pass over every column sums it (the same columns in
+    /// the same order, so the same numbers). `false` when this engine cannot take the pass
+    /// as the evaluation at φ split it; the caller then passes over every column.
+    fn differences(
+        &self,
+        kind: Engine,
+        files: &[DataSet],
+        values: &[f64],
+        noise: Option<design::Noise>,
+        mut out: Differences,
+    ) -> Result<bool, FitError> {
+        let Ok(mut engine) = crate::engine::make(&self.machine, kind) else {
+            return Ok(false);
+        };
+        // Each moving column's place among this model's columns.
+        let at: Vec<Option<usize>> = out
+            .moving
+            .iter()
+            .map(|j| self.columns.iter().position(|c| c == j))
+            .collect();
+        let nb = out.moving.len();
+        let (c, k) = (out.c, out.k);
+        Team::with(engine.as_mut(), out.parts, |team| {
+            if team.parts() != out.parts || out.kept.len() != out.parts {
+                return Ok(false);
+            }
+            let (states, layout) = team.at_values(&self.machine, files, values, noise)?;
+            let mut parts: Vec<(usize, &[f64], &mut Vec<f64>)> = out
+                .kept
+                .iter()
+                .zip(out.d.iter_mut())
+                .map(|(kept, d)| (0usize, *kept, &mut **d))
+                .collect();
+            team.pass(
+                files,
+                &states,
+                &layout,
+                &mut parts,
+                |(row, kept, d), _, x, _| {
+                    let i = *row;
+                    *row += 1;
+                    let b0 = kept.get(i * nb..(i + 1) * nb).unwrap_or(&[]);
+                    let dc: f64 = at
+                        .iter()
+                        .zip(b0)
+                        .zip(out.beta)
+                        .map(|((a, b), beta)| {
+                            (a.and_then(|a| x.get(a)).copied().unwrap_or(0.0) - b) * beta
+                        })
+                        .sum::<f64>()
+                        / H_COLUMNS;
+                    if let Some(slot) = d.get_mut(i * k + c) {
+                        *slot = dc;
+                    }
+                },
+            )?;
+            Ok(true)
+        })
+    }
+}
+
 /// One evaluation of the linear fit at given non-linear values: what the optimiser compares
 /// and what its next step is taken from.
 struct Point {
@@ -699,6 +826,9 @@ struct Problem<'a> {
     split: Option<&'a Split>,
     /// Whether steps are taken from the split's stored moving columns (Kaufman).
     kaufman: bool,
+    /// The moving terms alone ([`moving_model`]) and the engine to evaluate them with: what
+    /// the difference passes of [`Problem::kaufman_normal`] evaluate instead of every column.
+    moving: Option<(Moving, Engine)>,
     /// Every non-linear parameter's value; the fitted ones are replaced by `exp(φ)`.
     values: Vec<f64>,
     fitted: &'a [usize],
@@ -799,7 +929,9 @@ impl Problem<'_> {
     /// `−Jᵀr = R₂₂ᵀw₂` from the trailing block of the triangle of `[X | D | y]` (`r ⊥ X`).
     /// `D` moves only with the moving columns: `D_c = (B(φ + h e_c) − B(φ)) β̂_B / h`, `B(φ)`
     /// the values kept by the evaluation at `φ`. One pass per parameter, the last one
-    /// accumulating the products of `[B | D]`; no residual vector and no factorisation.
+    /// accumulating the products of `[B | D]` (every column); the others over the moving
+    /// terms alone when those make a model of their own ([`Moving`]). No residual vector and
+    /// no factorisation.
     fn kaufman_normal(
         &self,
         team: &mut Team,
@@ -841,9 +973,38 @@ impl Problem<'_> {
             let mut p = phi.to_vec();
             p[c] += H_COLUMNS;
             let values = self.values(&p);
-            let (states, layout) =
-                team.at_values(self.compiled, self.files, &values, self.options.noise)?;
             let last = c + 1 == k;
+            // Only the last pass needs every column (the products of [X | D]); the others
+            // need the moving columns alone, which the moving terms' own model gives.
+            if !last {
+                if let Some((model, kind)) = &self.moving {
+                    let parts_d: Vec<&mut Vec<f64>> = parts.iter_mut().map(|p| &mut p.d).collect();
+                    let kept: Vec<&[f64]> = at.kept.iter().map(Vec::as_slice).collect();
+                    if model.differences(
+                        *kind,
+                        self.files,
+                        &values,
+                        self.options.noise,
+                        Differences {
+                            moving,
+                            beta: &beta_b,
+                            kept: &kept,
+                            d: parts_d,
+                            c,
+                            k,
+                            parts: team.parts(),
+                        },
+                    )? {
+                        continue;
+                    }
+                }
+            }
+            let (states, layout) = team.at_values(
+                &self.compiled.machine,
+                self.files,
+                &values,
+                self.options.noise,
+            )?;
             for part in &mut parts {
                 part.row = 0;
                 part.products = last.then(|| ext.products());
@@ -960,7 +1121,7 @@ fn projected(
     split: &Split,
     keep: bool,
 ) -> Result<Point, FitError> {
-    let (states, layout) = team.at_values(compiled, files, values, options.noise)?;
+    let (states, layout) = team.at_values(&compiled.machine, files, values, options.noise)?;
     let nb = split.moving();
     let moving = split.order.get(split.order.len() - nb..).unwrap_or(&[]);
     let mut parts: Vec<(projection::Products, Vec<f64>)> = (0..team.parts())
@@ -1096,12 +1257,23 @@ fn optimise_on(
         refuse_deficient(compiled, &mut *team.lead, files, &start, options)?;
     }
     let kaufman = steps == Steps::Kaufman && split.is_some_and(|s| keeps(files, s.moving(), k));
+    // The moving terms' own model, for the difference passes of more than one parameter
+    // (with one, the only pass also needs every column).
+    let moving = match (split, team.lead.kind()) {
+        (Some(s), Some(kind)) if kaufman && k > 1 => s
+            .order
+            .get(s.order.len() - s.moving()..)
+            .and_then(|cols| moving_model(m, cols))
+            .map(|model| (model, kind)),
+        _ => None,
+    };
     let problem = Problem {
         compiled,
         files,
         options,
         split,
         kaufman,
+        moving,
         values: start.clone(),
         fitted: &fitted,
     };
@@ -1448,6 +1620,7 @@ machine m {
             options: &options,
             split: Some(&split),
             kaufman: true,
+            moving: None,
             values: start.clone(),
             fitted: &fitted,
         };
@@ -1475,11 +1648,66 @@ machine m {
         for (a, b) in first.kept.iter().zip(&at.kept) {
             assert_eq!(a.len(), b.len());
         }
-        let (mut red, order) = problem
+        let normal = problem.normal(&mut team, &phi, &at).expect("normal");
+        // The moving terms' own model gives the differences the passes over every column
+        // give, to the bit: the periodic and the Fourier terms, nothing else.
+        let model = split
+            .order
+            .get(split.order.len() - split.moving()..)
+            .and_then(|cols| moving_model(m, cols))
+            .expect("a model of the moving terms");
+        assert_eq!(model.machine.coefficients.len(), 6);
+        assert_eq!(model.machine.errors.len(), 2);
+        let through_model = Problem {
+            moving: Some((model, crate::engine::Engine::Interp)),
+            ..problem
+        };
+        let quick = through_model
             .normal(&mut team, &phi, &at)
-            .expect("normal")
-            .triangle
-            .expect("Kaufman's triangle");
+            .expect("normal through the moving model");
+        let bits = |n: &Normal| -> Vec<u64> {
+            n.a.col_iter()
+                .flat_map(|c| c.iter().copied().collect::<Vec<f64>>())
+                .chain(n.g.iter().copied())
+                .map(f64::to_bits)
+                .collect()
+        };
+        assert_eq!(bits(&normal), bits(&quick));
+        // And the moving model did take the pass (it may decline, and the passes over every
+        // column then give the same bits trivially).
+        if let Some((model, kind)) = &through_model.moving {
+            let nb = split.moving();
+            let moving = split.order.get(split.order.len() - nb..).unwrap_or(&[]);
+            let beta: Vec<f64> = moving.iter().map(|&j| at.beta[j]).collect();
+            let kept: Vec<&[f64]> = at.kept.iter().map(Vec::as_slice).collect();
+            let mut d: Vec<Vec<f64>> = at
+                .kept
+                .iter()
+                .map(|b| vec![0.0; b.len() / nb * 2])
+                .collect();
+            let mut p = phi.clone();
+            p[0] += H_COLUMNS;
+            let took = model
+                .differences(
+                    *kind,
+                    &files,
+                    &through_model.values(&p),
+                    None,
+                    Differences {
+                        moving,
+                        beta: &beta,
+                        kept: &kept,
+                        d: d.iter_mut().collect(),
+                        c: 0,
+                        k: 2,
+                        parts: 2,
+                    },
+                )
+                .expect("differences");
+            assert!(took, "the moving model's pass");
+            assert!(d.iter().flatten().any(|v| *v != 0.0));
+        }
+        let (mut red, order) = normal.triangle.expect("Kaufman's triangle");
         in_values(&mut red, &order, &fitted, &start);
         let (se_k, joint_k) = uncertainty(m, &red, &order, &fitted, at.rss, at.rank);
         // The joint covariance: the split's triangle has its columns in another order, and
@@ -1776,7 +2004,9 @@ machine m {
         Team::with(engine.as_mut(), 2, |team| {
             let mut held = None;
             for (i, v) in steps.iter().enumerate() {
-                let (st, _) = team.at_values(&c, &files, v, None).expect("at values");
+                let (st, _) = team
+                    .at_values(&c.machine, &files, v, None)
+                    .expect("at values");
                 assert_eq!(lags(&st), fresh(v), "step {i}");
                 if i == 1 {
                     held = Some(st);

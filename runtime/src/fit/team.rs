@@ -9,6 +9,7 @@
 
 use std::sync::Arc;
 
+use kin_compiler::ir::Machine;
 use kin_compiler::Compiled;
 
 use super::design::{self, DataSet, FileStates, Layout, RowMeta};
@@ -80,12 +81,11 @@ impl Team<'_, '_> {
     /// `states` field says, for the next values).
     pub fn at_values(
         &mut self,
-        compiled: &Compiled,
+        m: &Machine,
         files: &[DataSet],
         values: &[f64],
         noise: Option<design::Noise>,
     ) -> Result<(Arc<Vec<FileStates>>, Layout), FitError> {
-        let m = &compiled.machine;
         let eval = |source| design::DesignError::Eval {
             path: String::new(),
             line: 0,

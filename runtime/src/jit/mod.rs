@@ -993,6 +993,10 @@ impl Evaluator for JitEvaluator {
         self.model.machine()
     }
 
+    fn kind(&self) -> Option<crate::engine::Engine> {
+        Some(crate::engine::Engine::Jit)
+    }
+
     fn set_nonlinear(&mut self, values: &[f64]) -> Result<(), EvalError> {
         buffer(
             "the non-linear parameter",

@@ -1536,6 +1536,14 @@ mod tests {
         )
     }
 
+    /// One axis with two lag-scaled constants of fitted time constants.
+    fn two_lags() -> Compiled {
+        compiled(&one_axis(
+            "X.tx = linear(X) + lag(T, tau fit 25 min) * const
+             X.ty = lag(T, tau fit 60 min) * const",
+        ))
+    }
+
     fn compiled(src: &str) -> Compiled {
         let out = kin_compiler::compile(src);
         let Some(c) = out.compiled else {
@@ -1967,10 +1975,7 @@ machine m {
     /// holding earlier states keeps them as they were.
     #[test]
     fn a_teams_states_follow_the_time_constants_it_is_given() {
-        let c = compiled(&one_axis(
-            "X.tx = linear(X) + lag(T, tau fit 25 min) * const
-             X.ty = lag(T, tau fit 60 min) * const",
-        ));
+        let c = two_lags();
         let m = &c.machine;
         let files = simulated(m, 1e-6, 400);
         use super::design::FileStates;
@@ -2022,10 +2027,7 @@ machine m {
     /// degrees of freedom differ). Before, the zero pivot made both unbounded.
     #[test]
     fn an_undetermined_parameter_leaves_the_others_bounded() {
-        let c = compiled(&one_axis(
-            "X.tx = linear(X) + lag(T, tau fit 25 min) * const
-             X.ty = lag(T, tau fit 60 min) * const",
-        ));
+        let c = two_lags();
         let m = &c.machine;
         let (rows, p) = (300usize, 5usize);
         let mut seed = 7u64;

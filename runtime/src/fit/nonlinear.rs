@@ -22,7 +22,7 @@ use faer::Mat;
 use kin_compiler::ir::{ErrorModel, Machine, Term};
 use kin_compiler::Compiled;
 
-use super::design::{self, DataSet, Layout};
+use super::design::{self, DataSet, FileStates, Layout};
 use super::projection::{self, Split};
 use super::qr::{Reduced, StreamingQr};
 use super::team::{at_values, Team};
@@ -663,6 +663,18 @@ const H: f64 = 1e-6;
 /// optimum's triangle gives too. At 1e-8 both parts stay near 1e-6.
 const H_COLUMNS: f64 = 1e-8;
 
+/// `D_c` of one row: `(B(φ + h e_c) − B(φ)) β̂_B / h` from the row's moving columns at
+/// `φ + h e_c` (in the split's order), their values `b0` at φ and their coefficients — one sum
+/// in one order, whichever model evaluated the columns.
+fn difference(moved: impl Iterator<Item = f64>, b0: &[f64], beta: &[f64]) -> f64 {
+    moved
+        .zip(b0)
+        .zip(beta)
+        .map(|((x, b), beta)| (x - b) * beta)
+        .sum::<f64>()
+        / H_COLUMNS
+}
+
 /// The terms of a model whose columns move with the fitted parameters, as a machine of their
 /// own: a difference of the moving columns evaluates these instead of every column (for the
 /// 5-axis example, two lag-scaled constants instead of 173 columns).
@@ -727,7 +739,9 @@ fn moving_model(m: &Machine, moving: &[usize]) -> Option<Moving> {
 }
 
 impl Moving {
-    /// One difference pass on the moving terms alone, at the non-linear `values` (φ + h e_c):
+    /// One difference pass on the moving terms alone, at the non-linear `values` (φ + h e_c)
+    /// and the full model's `states` there (this model has the same axes, inputs and lags, so
+    /// the same states):
     /// `D_c` of every row, summed as the pass over every column sums it (the same columns in
     /// the same order, so the same numbers). `false` when this engine cannot take the pass
     /// as the evaluation at φ split it; the caller then passes over every column.
@@ -735,6 +749,7 @@ impl Moving {
         &self,
         kind: Engine,
         files: &[DataSet],
+        states: &[FileStates],
         values: &[f64],
         noise: Option<design::Noise>,
         mut out: Differences,
@@ -742,6 +757,14 @@ impl Moving {
         let Ok(mut engine) = crate::engine::make(&self.machine, kind) else {
             return Ok(false);
         };
+        engine
+            .set_nonlinear(values)
+            .map_err(|source| design::DesignError::Eval {
+                path: String::new(),
+                line: 0,
+                source,
+            })?;
+        let layout = Layout::new(&self.machine, files).weighted(&self.machine, noise);
         // Each moving column's place among this model's columns.
         let at: Vec<Option<usize>> = out
             .moving
@@ -754,7 +777,6 @@ impl Moving {
             if team.parts() != out.parts || out.kept.len() != out.parts {
                 return Ok(false);
             }
-            let (states, layout) = team.at_values(&self.machine, files, values, noise)?;
             let mut parts: Vec<(usize, &[f64], &mut Vec<f64>)> = out
                 .kept
                 .iter()
@@ -763,22 +785,19 @@ impl Moving {
                 .collect();
             team.pass(
                 files,
-                &states,
+                states,
                 &layout,
                 &mut parts,
                 |(row, kept, d), _, x, _| {
                     let i = *row;
                     *row += 1;
                     let b0 = kept.get(i * nb..(i + 1) * nb).unwrap_or(&[]);
-                    let dc: f64 = at
-                        .iter()
-                        .zip(b0)
-                        .zip(out.beta)
-                        .map(|((a, b), beta)| {
-                            (a.and_then(|a| x.get(a)).copied().unwrap_or(0.0) - b) * beta
-                        })
-                        .sum::<f64>()
-                        / H_COLUMNS;
+                    let dc = difference(
+                        at.iter()
+                            .map(|a| a.and_then(|a| x.get(a)).copied().unwrap_or(0.0)),
+                        b0,
+                        out.beta,
+                    );
                     if let Some(slot) = d.get_mut(i * k + c) {
                         *slot = dc;
                     }
@@ -974,6 +993,12 @@ impl Problem<'_> {
             p[c] += H_COLUMNS;
             let values = self.values(&p);
             let last = c + 1 == k;
+            let (states, layout) = team.at_values(
+                &self.compiled.machine,
+                self.files,
+                &values,
+                self.options.noise,
+            )?;
             // Only the last pass needs every column (the products of [X | D]); the others
             // need the moving columns alone, which the moving terms' own model gives.
             if !last {
@@ -983,6 +1008,7 @@ impl Problem<'_> {
                     if model.differences(
                         *kind,
                         self.files,
+                        &states,
                         &values,
                         self.options.noise,
                         Differences {
@@ -999,12 +1025,6 @@ impl Problem<'_> {
                     }
                 }
             }
-            let (states, layout) = team.at_values(
-                &self.compiled.machine,
-                self.files,
-                &values,
-                self.options.noise,
-            )?;
             for part in &mut parts {
                 part.row = 0;
                 part.products = last.then(|| ext.products());
@@ -1013,13 +1033,11 @@ impl Problem<'_> {
                 let i = part.row;
                 part.row += 1;
                 let b0 = part.kept.get(i * nb..(i + 1) * nb).unwrap_or(&[]);
-                let dc: f64 = moving
-                    .iter()
-                    .zip(b0)
-                    .zip(&beta_b)
-                    .map(|((&j, b), beta)| (x.get(j).copied().unwrap_or(0.0) - b) * beta)
-                    .sum::<f64>()
-                    / H_COLUMNS;
+                let dc = difference(
+                    moving.iter().map(|&j| x.get(j).copied().unwrap_or(0.0)),
+                    b0,
+                    &beta_b,
+                );
                 if let Some(slot) = part.d.get_mut(i * k + c) {
                     *slot = dc;
                 }
@@ -1695,11 +1713,14 @@ machine m {
                 .collect();
             let mut p = phi.clone();
             p[0] += H_COLUMNS;
+            let values = through_model.values(&p);
+            let states = design::states_with(m, &files, &values).expect("states");
             let took = model
                 .differences(
                     *kind,
                     &files,
-                    &through_model.values(&p),
+                    &states,
+                    &values,
                     None,
                     Differences {
                         moving,

@@ -15,8 +15,8 @@ use std::mem::offset_of;
 use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
 use cranelift_codegen::ir::immediates::Ieee64;
 use cranelift_codegen::ir::{
-    types, AbiParam, ConstantData, InstBuilder, MemFlagsData, StackSlotData, StackSlotKind,
-    UserFuncName, Value,
+    types, AbiParam, BlockArg, ConstantData, InstBuilder, MemFlagsData, StackSlotData,
+    StackSlotKind, UserFuncName, Value,
 };
 use cranelift_codegen::settings::{self, Configurable};
 use cranelift_codegen::Context;
@@ -454,6 +454,52 @@ impl Emitter<'_> {
         self.operand(b, root)
     }
 
+    /// `sin x, cos x` into `slot` (sine at 0, cosine at 8) by one `libm::sincos` call, unless
+    /// `x` usually equals a value whose call came earlier ([`Graph::usual`]): then, when the
+    /// bits are equal, that call's results are copied, the same numbers the call would give.
+    fn sincos(
+        &mut self,
+        b: &mut FunctionBuilder,
+        x: Id,
+        xv: Value,
+        slot: cranelift_codegen::ir::StackSlot,
+    ) -> Option<()> {
+        let earlier = self.graph.usual(x).and_then(|y| {
+            let n = self
+                .graph
+                .find(&Node::Sin(y))
+                .or_else(|| self.graph.find(&Node::Cos(y)))?;
+            let (from, _) = self.slots.get(&n).copied()?;
+            Some((y, from))
+        });
+        let Some((y, from)) = earlier else {
+            let addr = b.ins().stack_addr(self.ptr, slot, 0);
+            b.ins().call(self.imports.sincos, &[xv, addr]);
+            return Some(());
+        };
+        let yv = self.value(b, y)?;
+        let flags = MemFlagsData::new();
+        let (xi, yi) = (
+            b.ins().bitcast(types::I64, flags, xv),
+            b.ins().bitcast(types::I64, flags, yv),
+        );
+        let same = b.ins().icmp(IntCC::Equal, xi, yi);
+        let (copy, call, join) = (b.create_block(), b.create_block(), b.create_block());
+        b.ins().brif(same, copy, &[], call, &[]);
+        b.switch_to_block(copy);
+        for offset in [0, 8] {
+            let v = b.ins().stack_load(self.ptr, types::F64, from, offset);
+            b.ins().stack_store(self.ptr, v, slot, offset);
+        }
+        b.ins().jump(join, &[]);
+        b.switch_to_block(call);
+        let addr = b.ins().stack_addr(self.ptr, slot, 0);
+        b.ins().call(self.imports.sincos, &[xv, addr]);
+        b.ins().jump(join, &[]);
+        b.switch_to_block(join);
+        Some(())
+    }
+
     fn emit(&mut self, b: &mut FunctionBuilder, id: Id, node: Node) -> Option<Value> {
         let flags = MemFlagsData::trusted();
         let mut ops = [None; 4];
@@ -493,8 +539,7 @@ impl Emitter<'_> {
                     16,
                     3,
                 ));
-                let addr = b.ins().stack_addr(self.ptr, slot, 0);
-                b.ins().call(self.imports.sincos, &[p?, addr]);
+                self.sincos(b, x, p?, slot)?;
                 for (node, offset) in [(Node::Sin(x), 0), (Node::Cos(x), 8)] {
                     if let Some(n) = self.graph.find(&node) {
                         self.slots.insert(n, (slot, offset));
@@ -505,8 +550,21 @@ impl Emitter<'_> {
                 b.ins().stack_load(self.ptr, types::F64, slot, offset)
             }
             Node::Fmod(..) => {
-                let call = b.ins().call(self.imports.fmod, &[p?, q?]);
-                b.inst_results(call).first().copied()?
+                // `fmod(a, m)` is `a` itself, exactly, when `|a| < |m|` (a continuous axis
+                // within its first turn): the call only where it is not. A NaN fails the
+                // comparison and takes the call, as it would without the test.
+                let (a, m) = (p?, q?);
+                let (call, join) = (b.create_block(), b.create_block());
+                let result = b.append_block_param(join, types::F64);
+                let (abs_a, abs_m) = (b.ins().fabs(a), b.ins().fabs(m));
+                let inside = b.ins().fcmp(FloatCC::LessThan, abs_a, abs_m);
+                b.ins().brif(inside, join, &[BlockArg::Value(a)], call, &[]);
+                b.switch_to_block(call);
+                let called = b.ins().call(self.imports.fmod, &[a, m]);
+                let r = b.inst_results(called).first().copied()?;
+                b.ins().jump(join, &[BlockArg::Value(r)]);
+                b.switch_to_block(join);
+                result
             }
             Node::Select(cmp, ..) => {
                 let cc = match cmp {

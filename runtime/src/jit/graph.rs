@@ -116,6 +116,8 @@ pub(super) struct Graph {
     nodes: Vec<Node>,
     index: HashMap<Node, Id>,
     effects: Vec<Effect>,
+    /// Values that usually equal another one at run time (see [`Graph::usually_equal`]).
+    usually: HashMap<Id, Id>,
 }
 
 impl Graph {
@@ -132,6 +134,20 @@ impl Graph {
             .get(id.index())
             .copied()
             .unwrap_or(Node::Const(0))
+    }
+
+    /// Records that `x` usually holds the same number as `y` (a continuous axis's angle reduced
+    /// to one turn is the angle itself whenever it is within the turn already): code that
+    /// calls a function of `x` may then test for equality and take the result of `y`'s call.
+    pub(super) fn usually_equal(&mut self, x: Id, y: Id) {
+        if x != y {
+            self.usually.insert(x, y);
+        }
+    }
+
+    /// The value `x` usually equals, if one was recorded.
+    pub(super) fn usual(&self, x: Id) -> Option<Id> {
+        self.usually.get(&x).copied()
     }
 
     /// The node, if it was ever built (used to pair `sin x` with `cos x` into one call).

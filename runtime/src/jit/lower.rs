@@ -708,7 +708,11 @@ impl Builder<'_> {
         let r = self.g.fmod(x, tau);
         let zero = self.c(0.0);
         let wrapped = self.g.add(r, tau);
-        self.g.select(Cmp::Gt, zero, r, wrapped, r)
+        let turn = self.g.select(Cmp::Gt, zero, r, wrapped, r);
+        // Positions within the first turn are their own reduction: the generated code then
+        // reuses the joint's `sincos` (emit.rs), the same numbers as a call of its own.
+        self.g.usually_equal(turn, x);
+        turn
     }
 
     /// `(x − lo)/(hi − lo)`.

@@ -1763,10 +1763,10 @@ machine beam_table {
 /// origin: each Jacobian entry is a basis value (the frame's column is exact), so the two
 /// engines agree exactly. The generated code reduces the angle to one turn with a call
 /// only outside the first turn, and inside it takes the joint's own `sincos` for the
-/// harmonics and the once-per-revolution trend; on both sides of every boundary that must
-/// give the interpreter's numbers exactly.
+/// harmonics' fundamental; on both sides of every boundary that must give the interpreter's
+/// numbers exactly (the spline's once-per-revolution trend calls for its own angle).
 #[test]
-fn a_continuous_axis_gives_the_same_bits_on_and_off_its_first_turn() {
+fn a_continuous_axis_agrees_exactly_on_and_off_its_first_turn() {
     let m = compile_source(
         "machine turntable {
     task position

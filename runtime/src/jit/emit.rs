@@ -1,14 +1,17 @@
 //! Expression graphs to native code with Cranelift.
 //!
 //! Every generated function has the signature `extern "C" fn(*const Args)` and is one basic
-//! block: it loads the pointers it needs from the argument block, computes the live nodes of its
+//! block, apart from the branches around the calls a continuous axis within its first turn
+//! does without (below): it loads the pointers it needs from the argument block, computes the live nodes of its
 //! graph in the order the effects first need them (so a value is computed next to its use and
 //! register pressure stays local), and stores into `out` and `jac`. It reads and writes memory
 //! only at the fixed offsets the graph names, which `lower::validate` and the safe API in
 //! `mod.rs` keep inside the buffers.
 //!
 //! `sin`/`cos` go through one imported `libm::sincos` call per argument and `%` through
-//! `libm::fmod`, so the generated code and the interpreter agree bit for bit on them.
+//! `libm::fmod`, so the generated code and the interpreter agree bit for bit on them. Two
+//! calls are skipped where their result is known exactly: `fmod(a, m)` when `|a| < |m|` (it is
+//! `a`), and `sincos` of a value that has the bits of one whose `sincos` was already taken.
 
 use std::mem::offset_of;
 

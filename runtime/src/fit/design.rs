@@ -385,6 +385,18 @@ pub(super) fn judge_artifacts(
     }
 }
 
+/// Gives `engine` the non-linear parameters' `values`. A refusal (a wrong count) belongs to no
+/// row of any file, so its error names none.
+pub(super) fn set_values(engine: &mut dyn Evaluator, values: &[f64]) -> Result<(), DesignError> {
+    engine
+        .set_nonlinear(values)
+        .map_err(|source| DesignError::Eval {
+            path: String::new(),
+            line: 0,
+            source,
+        })
+}
+
 /// A row with an infinite or NaN entry would turn every sum it enters (the triangle, σ̂, the
 /// coefficients) into inf or NaN: it is stopped here, where its file and line are known.
 fn finite_row(

@@ -757,13 +757,7 @@ impl Moving {
         let Ok(mut engine) = crate::engine::make(&self.machine, kind) else {
             return Ok(false);
         };
-        engine
-            .set_nonlinear(values)
-            .map_err(|source| design::DesignError::Eval {
-                path: String::new(),
-                line: 0,
-                source,
-            })?;
+        design::set_values(engine.as_mut(), values)?;
         let layout = Layout::new(&self.machine, files).weighted(&self.machine, noise);
         // Each moving column's place among this model's columns.
         let at: Vec<Option<usize>> = out
@@ -1216,13 +1210,7 @@ fn optimise_with(
         optimise_on(compiled, team, files, options, steps)
     })?;
     if let Some(fit) = &fit {
-        engine
-            .set_nonlinear(&fit.values)
-            .map_err(|source| design::DesignError::Eval {
-                path: String::new(),
-                line: 0,
-                source,
-            })?;
+        design::set_values(engine, &fit.values)?;
     }
     Ok(fit)
 }

@@ -86,15 +86,10 @@ impl Team<'_, '_> {
         values: &[f64],
         noise: Option<design::Noise>,
     ) -> Result<(Arc<Vec<FileStates>>, Layout), FitError> {
-        let eval = |source| design::DesignError::Eval {
-            path: String::new(),
-            line: 0,
-            source,
-        };
         for e in self.rest.iter_mut() {
-            e.set_nonlinear(values).map_err(eval)?;
+            design::set_values(e.as_mut(), values)?;
         }
-        self.lead.set_nonlinear(values).map_err(eval)?;
+        design::set_values(self.lead, values)?;
         let key = (files.as_ptr() as usize, files.len());
         let states = match self.states.take() {
             Some(mut c) if c.files == key && c.values.len() == values.len() => {
@@ -237,13 +232,7 @@ pub(super) fn at_values(
     noise: Option<design::Noise>,
 ) -> Result<(Vec<FileStates>, Layout), FitError> {
     let m = &compiled.machine;
-    engine
-        .set_nonlinear(values)
-        .map_err(|source| design::DesignError::Eval {
-            path: String::new(),
-            line: 0,
-            source,
-        })?;
+    design::set_values(engine, values)?;
     Ok((
         design::states_with(m, files, values)?,
         Layout::new(m, files).weighted(m, noise),

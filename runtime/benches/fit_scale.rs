@@ -25,7 +25,8 @@
 //! faer GEMM of the streaming QR's block shape (`Bᵀ·B`, B = block × n) reaches on as many threads
 //! in the same run. Printed: wall time of the factorisation pass and of the whole fit (pass 2
 //! adds each row's residual and leverage, about half the flops again), each ÷ the limit, and
-//! the peak memory of the fit.
+//! the peak memory of the fit. `KIN_BENCH_OBSERVE=pose` observes all six components of each
+//! pose (`ex … erz`, 6 M rows) instead of the position (`ex ey ez`).
 //!
 //! `-- tau [POSES]` (default 100 000): the same model fitted with its two time constants fitted
 //! and with them fixed, on the same simulated data, in the same run; prints the ratio of the
@@ -856,8 +857,13 @@ fn flop_limit(poses: usize) {
         .collect();
     let clock = Clock::start();
     let points = sample_points(&c.machine, poses, 2);
+    // The point observations of a CMM or a laser tracker (`ex ey ez`), or, with
+    // `KIN_BENCH_OBSERVE=pose`, full poses (`ex … erz`: six rows a pose, the 6 M rows).
+    let pose = std::env::var("KIN_BENCH_OBSERVE").as_deref() == Ok("pose");
     let options = simulate::Options {
+        observe: [true, true, true, pose, pose, pose],
         noise: 0.3e-6,
+        noise_tilt: 0.3e-6,
         seed: 3,
         ..simulate::Options::default()
     };

@@ -1234,8 +1234,8 @@ fn observed_rows_of_a_model_in_pieces_are_the_full_rows() {
     let observed = Observed::from_flags([true, false, true, false, true, true]);
     let (mut full_err, mut full) = ([0.0; 6], vec![0.0; 6 * n]);
     let (mut err, mut jac) = (vec![0.0; 4], vec![0.0; 4 * n]);
-    for _ in 0..3 {
-        let s = random_state(&mut rng, &m);
+    let states: Vec<OwnedState> = (0..3).map(|_| random_state(&mut rng, &m)).collect();
+    for s in &states {
         model
             .error_and_jacobian(&s.get(), &beta, &nl, &mut full_err, &mut full)
             .expect("full");
@@ -1245,6 +1245,29 @@ fn observed_rows_of_a_model_in_pieces_are_the_full_rows() {
         for (row, c) in observed.components().enumerate() {
             assert_eq!(err[row].to_bits(), full_err[c].to_bits());
             assert_eq!(&jac[row * n..(row + 1) * n], &full[c * n..(c + 1) * n]);
+        }
+    }
+    // The batches of errors (two poses a call, then one) hand the pieces on the same way.
+    let rows = jit_rows(&states);
+    let mut all = vec![0.0; 6 * states.len()];
+    let mut some = vec![0.0; 4 * states.len()];
+    model
+        .error_rows(&rows.rows(), &beta, &nl, &mut all)
+        .expect("batch");
+    model
+        .observed_error_rows(&rows.rows(), &beta, &nl, observed, &mut some)
+        .expect("batch");
+    for (i, s) in states.iter().enumerate() {
+        let e = model.error(&s.get(), &beta, &nl).expect("error");
+        for (c, v) in e.iter().enumerate() {
+            assert_eq!(
+                all[6 * i + c].to_bits(),
+                v.to_bits(),
+                "row {i}, component {c}"
+            );
+        }
+        for (row, c) in observed.components().enumerate() {
+            assert_eq!(some[4 * i + row].to_bits(), e[c].to_bits(), "row {i}, {c}");
         }
     }
 }

@@ -15,15 +15,19 @@
 //! 2. `emit`: each graph as one straight-line Cranelift function, `sin`/`cos`/`%` through the
 //!    same `libm` routines the interpreter uses. Past `lower::PIECE` coefficients the error
 //!    and Jacobian functions are several such functions called in turn, because the register
-//!    allocator's cost grows faster than the length of one function.
+//!    allocator's cost grows faster than the length of one function. The batches of errors
+//!    ([`JitModel::error_rows`]) call a second compilation of the error functions that
+//!    evaluates two poses a call, one per lane of `f64x2` values, with each pose's bits.
 //!
 //! # Safety and threads
 //!
 //! The generated code reads and writes only at offsets fixed at compile time, all inside the
 //! buffers whose lengths this module checks before every call; a call allocates nothing and
 //! takes no lock — except the first call for a subset of the components other than all six
-//! ([`Observed`]), which compiles that subset's code ([`JitModel::prepare`] does it ahead). A [`JitModel`] is `Send + Sync` and cheap to clone: many threads may call it
-//! at once, each with its own output buffers (or its own [`JitEvaluator`]).
+//! ([`Observed`]), which compiles that subset's code ([`JitModel::prepare`] does it ahead),
+//! and the first batch of errors for a subset, which compiles its two-pose code. A
+//! [`JitModel`] is `Send + Sync` and cheap to clone: many threads may call it at once, each
+//! with its own output buffers (or its own [`JitEvaluator`]).
 //!
 //! ```
 //! # use kin_runtime::jit;
@@ -163,7 +167,7 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
     let start = Instant::now();
     let tools = tool_transforms(machine);
     let graphs = graphs(machine, &tools)?;
-    let emitted = emit::compile(&graphs.named(), None)?;
+    let emitted = emit::compile(&graphs.named(), emit::Width::Pose, None)?;
     // The functions come back in the order `named` gives: the error pieces, the Jacobian
     // pieces, the nominal function.
     let (e, j) = (graphs.error.len(), graphs.jacobian.len());
@@ -205,6 +209,7 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
             .sum(),
         compile_time: Duration::ZERO,
         observed: std::array::from_fn(|_| OnceLock::new()),
+        pairs: std::array::from_fn(|_| OnceLock::new()),
         module: Mutex::new(Some(emitted.module)),
     };
     inner.compile_time = start.elapsed();
@@ -218,7 +223,7 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
 pub fn dump_clif(machine: &Machine) -> Result<String, JitError> {
     let graphs = graphs(machine, &tool_transforms(machine))?;
     let mut text = String::new();
-    let emitted = emit::compile(&graphs.named(), Some(&mut text))?;
+    let emitted = emit::compile(&graphs.named(), emit::Width::Pose, Some(&mut text))?;
     // SAFETY: only the text is kept; no pointer into the module was taken.
     unsafe { emitted.module.free_memory() };
     Ok(text)
@@ -271,12 +276,23 @@ fn graphs(machine: &Machine, tools: &[[f64; 12]]) -> Result<Graphs, JitError> {
     })
 }
 
-/// The error and error-and-Jacobian functions of `machine` restricted to `observed`
-/// (`lower::build`), compiled into a module of their own.
-fn compile_observed(machine: &Machine, tools: &[[f64; 12]], observed: Observed) -> Option<Code> {
+/// The error and (with `jacobian`) error-and-Jacobian functions of `machine` restricted to
+/// `observed` (`lower::build`), compiled into a module of their own, for one pose a call or
+/// two.
+fn compile_observed(
+    machine: &Machine,
+    tools: &[[f64; 12]],
+    observed: Observed,
+    width: emit::Width,
+    jacobian: bool,
+) -> Option<Code> {
     let rotation = common_rotation(tools);
     let error = lower::build(machine, Kind::Error, rotation, observed);
-    let jacobian = lower::build(machine, Kind::Jacobian, rotation, observed);
+    let jacobian = if jacobian {
+        lower::build(machine, Kind::Jacobian, rotation, observed)
+    } else {
+        Vec::new()
+    };
     let named: Vec<(String, &graph::Graph)> = error
         .iter()
         .enumerate()
@@ -288,7 +304,7 @@ fn compile_observed(machine: &Machine, tools: &[[f64; 12]], observed: Observed) 
                 .map(|(i, g)| (format!("error_jacobian.{observed}.{}", i + 1), g)),
         )
         .collect();
-    let emitted = emit::compile(&named, None).ok()?;
+    let emitted = emit::compile(&named, width, None).ok()?;
     let e = error.len();
     if emitted.functions.len() != e + jacobian.len() {
         // SAFETY: no pointer into the module survives this branch.
@@ -351,9 +367,32 @@ struct Inner {
     /// at the first call that asks for them (`None`: the compilation failed, and the full
     /// functions serve instead). All six use `error` and `jacobian` above.
     observed: [OnceLock<Option<Code>>; 64],
+    /// Per subset (all six included), the error functions for two poses a call
+    /// ([`emit::Width::Pair`], no Jacobian functions), compiled at the first batch of errors
+    /// that asks for them; `None` where that failed, and the batch then calls one pose at a
+    /// time. The error-and-Jacobian batches stay at one pose a call: their two-pose code was
+    /// measured slower (spec/performance.md).
+    pairs: [OnceLock<Option<Code>>; 64],
     /// Owns the code; touched only when dropped. The mutex makes the model `Sync` (the module
     /// itself is only `Send`); no call ever locks it.
     module: Mutex<Option<JITModule>>,
+}
+
+impl Inner {
+    /// The code of `observed` held in `cells` (one per subset of the components), compiled by
+    /// [`compile_observed`] at the first call; `None` when that failed.
+    fn code<'a>(
+        &'a self,
+        cells: &'a [OnceLock<Option<Code>>; 64],
+        observed: Observed,
+        width: emit::Width,
+        jacobian: bool,
+    ) -> Option<&'a Code> {
+        cells
+            .get(observed.index())?
+            .get_or_init(|| compile_observed(&self.machine, &self.tools, observed, width, jacobian))
+            .as_ref()
+    }
 }
 
 impl Drop for Inner {
@@ -527,12 +566,15 @@ impl JitModel {
     }
 
     /// Compiles the code of `observed` now rather than at its first call (so that a timing
-    /// leaves the compilation out). Nothing happens for all six, which [`compile`] compiled.
+    /// leaves the compilation out): its one-pose functions (for all six, [`compile`] compiled
+    /// them) and the two-pose error functions of the batches.
     pub fn prepare(&self, observed: Observed) {
         let _ = self.functions(Function::Error, observed);
+        let _ = self.pair_error_functions(observed);
     }
 
-    /// [`JitModel::error`] over many rows: `err` holds 6 values per row.
+    /// [`JitModel::error`] over many rows: `err` holds 6 values per row. Two poses a call
+    /// (one per vector lane, each pose's bits), the first call compiling that code.
     pub fn error_rows(
         &self,
         rows: &StateRows,
@@ -556,10 +598,29 @@ impl JitModel {
         self.check_rows(rows)?;
         let k = observed.rows();
         check_len("the error rows", rows.len(), k * rows.len(), err.len())?;
-        let mut out = [0.0; 12];
+        let [mut out, mut other] = [[0.0; 12]; 2];
         // A subset of no component has empty rows; chunks of 0 are not allowed.
         let mut chunks = err.chunks_exact_mut(k.max(1));
-        for r in 0..rows.len() {
+        let mut r = 0;
+        while r < rows.len() {
+            // Two poses a call where both pass their checks, else one at a time (which
+            // reports the row that fails).
+            let pair = r + 1 < rows.len()
+                && self.error_pair(
+                    [&rows.get(r), &rows.get(r + 1)],
+                    beta,
+                    nonlinear,
+                    observed,
+                    [&mut out, &mut other],
+                );
+            if pair {
+                if k > 0 {
+                    pick(&out, observed, chunks.next().unwrap_or(&mut []));
+                    pick(&other, observed, chunks.next().unwrap_or(&mut []));
+                }
+                r += 2;
+                continue;
+            }
             self.call(
                 Function::Error,
                 &rows.get(r),
@@ -573,6 +634,7 @@ impl JitModel {
             if k > 0 {
                 pick(&out, observed, chunks.next().unwrap_or(&mut []));
             }
+            r += 1;
         }
         Ok(())
     }
@@ -669,11 +731,7 @@ impl JitModel {
         let (error, jacobian) = if observed == Observed::FULL {
             (inner.error.as_slice(), inner.jacobian.as_slice())
         } else {
-            let code = inner
-                .observed
-                .get(observed.index())?
-                .get_or_init(|| compile_observed(&inner.machine, &inner.tools, observed))
-                .as_ref()?;
+            let code = inner.code(&inner.observed, observed, emit::Width::Pose, true)?;
             (code.error.as_slice(), code.jacobian.as_slice())
         };
         Some(if f == Function::Error {
@@ -697,19 +755,19 @@ impl JitModel {
         Ok(())
     }
 
-    /// Checks everything a call relies on and calls. This is the only place generated code is
-    /// entered.
-    #[allow(clippy::too_many_arguments)] // the generated functions' arguments, one each
-    fn call(
+    /// Checks everything a call of `f` for `state` relies on but the choice of code: the
+    /// state's sizes, the buffers (`jac_len` values of Jacobian), the tool, and that no
+    /// variable the tool's models read is missing. The selected tool's transform as the
+    /// generated code reads it.
+    fn check(
         &self,
         f: Function,
         state: &State,
         beta: &[f64],
         nonlinear: &[f64],
         observed: Observed,
-        out: &mut Out,
-        jac: &mut [f64],
-    ) -> Result<(), EvalError> {
+        jac_len: usize,
+    ) -> Result<[f64; 12], EvalError> {
         let inner = &*self.inner;
         let m = &inner.machine;
         let sizes = [
@@ -738,8 +796,8 @@ impl JitModel {
         }
         match f {
             Function::Error => {}
-            Function::Jacobian => buffer("the Jacobian", observed.rows() * n, jac.len())?,
-            Function::Nominal => buffer("the joint Jacobian", 6 * m.axes.len(), jac.len())?,
+            Function::Jacobian => buffer("the Jacobian", observed.rows() * n, jac_len)?,
+            Function::Nominal => buffer("the joint Jacobian", 6 * m.axes.len(), jac_len)?,
         }
         let Some(tool) = inner.tools.get(state.tool) else {
             return Err(KinematicsError::ToolIndex {
@@ -765,8 +823,26 @@ impl JitModel {
                 }
             }
         }
+        Ok(tool_tf)
+    }
+
+    /// Checks everything a call relies on and calls. With [`JitModel::error_pair`], the only
+    /// place generated code is entered.
+    #[allow(clippy::too_many_arguments)] // the generated functions' arguments, one each
+    fn call(
+        &self,
+        f: Function,
+        state: &State,
+        beta: &[f64],
+        nonlinear: &[f64],
+        observed: Observed,
+        out: &mut Out,
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        let tool_tf = self.check(f, state, beta, nonlinear, observed, jac.len())?;
         let Some(functions) = self.functions(f, observed) else {
             // The subset's code could not be compiled: the full functions, then its rows.
+            let n = self.inner.machine.coefficients.len();
             let mut full = vec![0.0; if f == Function::Jacobian { 6 * n } else { 0 }];
             self.call(f, state, beta, nonlinear, Observed::FULL, out, &mut full)?;
             for (row, c) in observed.components().enumerate() {
@@ -779,36 +855,96 @@ impl JitModel {
             }
             return Ok(());
         };
-        let args = Args {
-            q: state.q.as_ptr(),
-            inputs: state.inputs.as_ptr(),
-            lags: state.lags.as_ptr(),
-            dirs: state.dirs.as_ptr(),
-            beta: beta.as_ptr(),
-            nonlinear: nonlinear.as_ptr(),
-            tool_tf: tool_tf.as_ptr(),
-            out: out.as_mut_ptr(),
-            jac: jac.as_mut_ptr(),
-            time: state.time,
-            tool: state.tool as u64,
-        };
+        let args = args(state, beta, nonlinear, &tool_tf, out, jac);
         // SAFETY: each function was compiled from this machine by `compile` and is alive while
         // `self` is. It reads `q`, `dirs` at axis indices, `inputs`, `lags` at their indices,
         // `beta` below n, `nonlinear` below the parameter count and `tool_tf` below 12 — all
-        // checked by `lower::validate` against the machine and above against the slices (β and
-        // the parameters only for the error functions, which alone read them). It writes `out`
-        // below 12 and `jac` below k·n (error functions of k observed components, `lower::
-        // build`) or 6·axes (nominal), the lengths
-        // checked above; the error function writes no `jac`. Every slice outlives the call and
-        // the outputs are exclusively borrowed, so nothing else touches them meanwhile. The
-        // pieces of one function are called in order on the same arguments: a piece reads
-        // `out[9]` only after the piece before it wrote it (`lower::errors`).
+        // checked by `lower::validate` against the machine and by `check` against the slices
+        // (β and the parameters only for the error functions, which alone read them). It
+        // writes `out` below 12 and `jac` below k·n (error functions of k observed components,
+        // `lower::build`) or 6·axes (nominal), the lengths checked by `check`; the error
+        // function writes no `jac`. Every slice outlives the call and the outputs are
+        // exclusively borrowed, so nothing else touches them meanwhile. The pieces of one
+        // function are called in order on the same arguments: a piece reads `out[9]` only
+        // after the piece before it wrote it (`lower::errors`).
         clean_vector_state();
         for function in functions {
             // SAFETY: as above, for each piece.
             unsafe { function(&args) };
         }
         Ok(())
+    }
+
+    /// [`JitModel::call`] of the error functions for two poses at once, by the two-pose code
+    /// ([`emit::Width::Pair`]), with the same results bit for bit. `false`, having called
+    /// nothing, when that code is not there or either pose fails a check: the caller then
+    /// calls one pose at a time, which reports the failure.
+    fn error_pair(
+        &self,
+        states: [&State; 2],
+        beta: &[f64],
+        nonlinear: &[f64],
+        observed: Observed,
+        outs: [&mut Out; 2],
+    ) -> bool {
+        let [sa, sb] = states;
+        let [oa, ob] = outs;
+        let check = |s| self.check(Function::Error, s, beta, nonlinear, observed, 0);
+        let (Ok(ta), Ok(tb)) = (check(sa), check(sb)) else {
+            return false;
+        };
+        let Some(functions) = self.pair_error_functions(observed) else {
+            return false;
+        };
+        let args = [
+            args(sa, beta, nonlinear, &ta, oa, &mut []),
+            args(sb, beta, nonlinear, &tb, ob, &mut []),
+        ];
+        // SAFETY: as in `call`, for each pose: the two-pose functions were compiled from this
+        // machine's graphs as the one-pose ones (`compile_observed`) and read and write, for
+        // lane `l`, only through `args[l]` — at the offsets the one-pose code uses, which
+        // `check` bounded for that pose's buffers — and `beta`, `nonlinear` through `args[0]`
+        // (the same slices in both). The two poses' outputs are distinct exclusive borrows;
+        // the error functions write no `jac`.
+        clean_vector_state();
+        for function in functions {
+            // SAFETY: as above; the argument points at the two consecutive blocks the code
+            // reads.
+            unsafe { function(args.as_ptr()) };
+        }
+        true
+    }
+
+    /// The two-pose error functions for `observed`, compiled at the first call; `None` when
+    /// they could not be.
+    fn pair_error_functions(&self, observed: Observed) -> Option<&[RawFn]> {
+        let inner = &*self.inner;
+        let code = inner.code(&inner.pairs, observed, emit::Width::Pair, false)?;
+        Some(code.error.as_slice())
+    }
+}
+
+/// The argument block of one pose's call (see `emit::Args`).
+fn args(
+    state: &State,
+    beta: &[f64],
+    nonlinear: &[f64],
+    tool_tf: &[f64; 12],
+    out: &mut Out,
+    jac: &mut [f64],
+) -> Args {
+    Args {
+        q: state.q.as_ptr(),
+        inputs: state.inputs.as_ptr(),
+        lags: state.lags.as_ptr(),
+        dirs: state.dirs.as_ptr(),
+        beta: beta.as_ptr(),
+        nonlinear: nonlinear.as_ptr(),
+        tool_tf: tool_tf.as_ptr(),
+        out: out.as_mut_ptr(),
+        jac: jac.as_mut_ptr(),
+        time: state.time,
+        tool: state.tool as u64,
     }
 }
 
@@ -1093,5 +1229,145 @@ impl Evaluator for JitEvaluator {
     /// values and the scratch.
     fn fork(&self) -> Option<Box<dyn Evaluator + Send + '_>> {
         Some(Box::new(self.clone()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::embed::RowsBuf;
+    use crate::states::States;
+
+    fn example(name: &str) -> Machine {
+        let path = format!("{}/../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
+        let src = std::fs::read_to_string(&path).expect("example");
+        kin_compiler::compile(&src)
+            .compiled
+            .expect("compiles")
+            .machine
+    }
+
+    /// Each pose of a two-pose call gets the one-pose code's bits: every example, all six
+    /// components and the position alone, the error (as the batches call it) and the error
+    /// with its Jacobian (compiled here: the batches do not use it), on pairs whose poses take
+    /// different branches — other tools, other directions, a continuous axis inside its first
+    /// turn in one lane and outside (or exactly on its ends) in the other.
+    #[test]
+    fn two_poses_a_call_give_each_pose_the_bits_of_one() {
+        let turn = std::f64::consts::TAU;
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for name in [
+            "milling_5axis",
+            "bridge_cmm",
+            "robot_6axis",
+            "xy_table",
+            "bench_200",
+        ] {
+            let m = example(name);
+            let model = compile(&m).expect("compiles");
+            let n = m.coefficients.len();
+            let mut rows = RowsBuf::from_states(&States::sample(&m, 40, 7));
+            let axes = m.axes.len();
+            for (a, axis) in m.axes.iter().enumerate() {
+                if !axis.continuous {
+                    continue;
+                }
+                for (r, q) in rows.q.iter_mut().skip(a).step_by(axes).enumerate() {
+                    *q = match r % 5 {
+                        0 => *q + 3.0 * turn,
+                        1 => -*q,
+                        2 => 0.0,
+                        3 => turn,
+                        _ => *q,
+                    };
+                }
+            }
+            let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64 + 0.5).sin()).collect();
+            let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+            let states = rows.rows();
+            for observed in [Observed::FULL, Observed::POSITION] {
+                let k = observed.rows();
+                let jacobians =
+                    compile_observed(&m, &model.inner.tools, observed, emit::Width::Pair, true)
+                        .expect("two-pose code");
+                for r in 0..states.len() - 1 {
+                    let (a, b) = (states.get(r), states.get(r + 1));
+                    let what = format!("{name}, {observed}, rows {r}, {}", r + 1);
+                    let one = |f, s: &State| {
+                        let (mut out, mut jac) = ([f64::NAN; 12], vec![f64::NAN; k * n]);
+                        let len = if f == Function::Jacobian { k * n } else { 0 };
+                        model
+                            .call(f, s, &beta, &nl, observed, &mut out, &mut jac[..len])
+                            .expect("one pose");
+                        (out, jac)
+                    };
+                    // The error, as the batches call it: the outputs an error function leaves
+                    // (the error, its position).
+                    let (mut oa, mut ob) = ([f64::NAN; 12], [f64::NAN; 12]);
+                    assert!(model.error_pair([&a, &b], &beta, &nl, observed, [&mut oa, &mut ob]));
+                    for (s, o) in [(&a, &oa), (&b, &ob)] {
+                        let (out, _) = one(Function::Error, s);
+                        assert_eq!(bits(&o[..9]), bits(&out[..9]), "error, {what}");
+                    }
+                    // The error and its Jacobian.
+                    let (mut oa, mut ob) = ([f64::NAN; 12], [f64::NAN; 12]);
+                    let (mut ja, mut jb) = (vec![f64::NAN; k * n], vec![f64::NAN; k * n]);
+                    let check = |s| {
+                        model
+                            .check(Function::Jacobian, s, &beta, &nl, observed, k * n)
+                            .expect("checks")
+                    };
+                    let (ta, tb) = (check(&a), check(&b));
+                    let two = [
+                        args(&a, &beta, &nl, &ta, &mut oa, &mut ja),
+                        args(&b, &beta, &nl, &tb, &mut ob, &mut jb),
+                    ];
+                    clean_vector_state();
+                    for f in &jacobians.jacobian {
+                        // SAFETY: as in `error_pair`: both poses checked against the buffers,
+                        // each `k·n` long as the Jacobian of `observed` needs.
+                        unsafe { f(two.as_ptr()) };
+                    }
+                    for (s, o, j) in [(&a, &oa, &ja), (&b, &ob, &jb)] {
+                        let (out, jac) = one(Function::Jacobian, s);
+                        assert_eq!(bits(&o[..9]), bits(&out[..9]), "Jacobian's error, {what}");
+                        assert_eq!(bits(j), bits(&jac), "Jacobian, {what}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// A pose that fails its checks makes the pair call nothing, so that one-pose calls
+    /// report it.
+    #[test]
+    fn a_pair_with_a_missing_value_is_left_to_one_pose_calls() {
+        let m = example("milling_5axis");
+        let model = compile(&m).expect("compiles");
+        let n = m.coefficients.len();
+        let mut rows = RowsBuf::from_states(&States::sample(&m, 2, 3));
+        if let Some(q) = rows.q.get_mut(m.axes.len()) {
+            *q = f64::NAN;
+        }
+        let states = rows.rows();
+        let beta = vec![0.0; n];
+        let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
+        let (mut oa, mut ob) = ([0.0; 12], [0.0; 12]);
+        assert!(!model.error_pair(
+            [&states.get(0), &states.get(1)],
+            &beta,
+            &nl,
+            Observed::FULL,
+            [&mut oa, &mut ob],
+        ));
+        assert!(
+            oa.iter().chain(&ob).all(|v| *v == 0.0),
+            "nothing was written"
+        );
+        let mut err = vec![0.0; 12];
+        assert!(matches!(
+            model.error_rows(&states, &beta, &nl, &mut err),
+            Err(BatchError::Row { row: 1, .. })
+        ));
     }
 }

@@ -18,9 +18,10 @@
 //! (the same IEEE roundings, so each lane has the one-pose bits), the calls made per lane,
 //! the branches taken only when both lanes agree, and each lane's results stored in its own
 //! pose's buffers. The batches of errors use it; the error-and-Jacobian batches do not (on
-//! the 5-axis example the two-pose Jacobian code is 39 KB against 27 KB, more than the
-//! first-level instruction cache, and ran at 0.73× (six rows) and 0.9× (position rows) the
-//! one-pose code per pose; the error code at 1.45×).
+//! the 5-axis example a two-pose Jacobian code with shuffled pairs of entries was 39 KB
+//! against 27 KB, more than the first-level instruction cache, and ran at 0.73× (six rows)
+//! and 0.9× (position rows) the one-pose code per pose; the error code at 1.45×), so its
+//! Jacobian entries are emitted in the plainest exact form, for the tests.
 
 use std::mem::offset_of;
 
@@ -580,10 +581,10 @@ impl Emitter<'_> {
         b.ins().vconst(types::F64X2, zero)
     }
 
-    /// Two poses' `[col·x, col·y]`, each pose's pair as [`Emitter::pair`] makes it for one
-    /// pose (its `col` in both lanes times its `[x, y]`, the same two roundings), stored in
-    /// that pose's row. Each pose's splat of `col` and its `[x, y]` are taken from the
-    /// two-pose values by one shuffle each and shared like the one-pose code's.
+    /// Two poses' `[col·x, col·y]`: the products lane by lane and each stored in its pose's
+    /// row, the same roundings as [`Emitter::pair`] (a zero `col` stores zeros, as there).
+    /// Only the tests build it: the batches keep the Jacobian at one pose a call, which
+    /// measured faster (spec/performance.md), so this is the plain form, not a tuned one.
     fn pair_of_poses(
         &mut self,
         b: &mut FunctionBuilder,
@@ -593,68 +594,19 @@ impl Emitter<'_> {
         x: Id,
         y: Id,
     ) {
-        for lane in 0..2u8 {
-            let v = if self.graph.value(col) == Some(0.0) {
-                Some(self.zero_pair(b))
+        for (at, v) in [(index, x), (index + 1, y)] {
+            let product = if self.graph.value(col) == Some(0.0) {
+                Some(self.constant(b, 0.0))
             } else {
-                self.pose_pair(b, lane, col, x, y)
+                match (self.value(b, col), self.value(b, v)) {
+                    (Some(c), Some(v)) => Some(b.ins().fmul(c, v)),
+                    _ => None,
+                }
             };
-            if let (Some(v), Some(base)) = (v, self.base_ptr(b, lane, dst_field(dst))) {
-                // The buffer is only 8-byte aligned: a 16-byte store without `aligned`.
-                b.ins()
-                    .store(MemFlagsData::new().with_notrap(), v, base, elem(index));
+            if let Some(p) = product {
+                self.store_lanes(b, dst, at, p);
             }
         }
-    }
-
-    /// Pose `lane`'s `[col·x, col·y]` from two-pose values.
-    fn pose_pair(
-        &mut self,
-        b: &mut FunctionBuilder,
-        lane: u8,
-        col: Id,
-        x: Id,
-        y: Id,
-    ) -> Option<Value> {
-        // Byte i of a shuffle is byte mask[i] of `a ‖ b`; lane 0 is bytes 0–7 of a value,
-        // lane 1 bytes 8–15 (`pshufd` for a splat, `punpck{l,h}qdq` for a pair).
-        let own: Vec<u8> = (0u8..8).map(|i| i + 8 * lane).collect();
-        let other: Vec<u8> = own.iter().map(|i| i + 16).collect();
-        let splat = match self.splats.get(&self.lane_key(col, lane)) {
-            Some(v) => *v,
-            None => {
-                let c = self.value(b, col)?;
-                let v = self.shuffle(b, c, c, [own.as_slice(), own.as_slice()].concat());
-                self.splats.insert(self.lane_key(col, lane), v);
-                v
-            }
-        };
-        let key = (self.lane_key(x, lane), y);
-        let lanes = match self.lanes.get(&key) {
-            Some(v) => *v,
-            None => {
-                let (xv, yv) = (self.value(b, x)?, self.value(b, y)?);
-                let v = self.shuffle(b, xv, yv, [own.as_slice(), other.as_slice()].concat());
-                self.lanes.insert(key, v);
-                v
-            }
-        };
-        Some(b.ins().fmul(splat, lanes))
-    }
-
-    /// The key of pose `lane`'s part of a two-pose value in the splat and lane caches: the
-    /// node's own id for lane 0, past every node for lane 1.
-    fn lane_key(&self, id: Id, lane: u8) -> Id {
-        Id::new(id.index() + usize::from(lane) * self.values.len())
-    }
-
-    /// `shuffle` of two `f64x2` values by a 16-byte mask.
-    fn shuffle(&self, b: &mut FunctionBuilder, x: Value, y: Value, mask: Vec<u8>) -> Value {
-        let bx = b.ins().bitcast(types::I8X16, vector_cast(), x);
-        let by = b.ins().bitcast(types::I8X16, vector_cast(), y);
-        let mask = b.func.dfg.immediates.push(ConstantData::from(mask));
-        let v = b.ins().shuffle(bx, by, mask);
-        b.ins().bitcast(types::F64X2, vector_cast(), v)
     }
 
     /// Emits `root` and whatever it needs, depth first without recursion (sums over hundreds

@@ -1,4 +1,4 @@
-//! Embedding a `.kin` model in a Rust program with `kin_runtime::Model`: compile it, bind
+//! Embedding a `.kin` model in a Rust program with `kin_model::Model`: compile it, bind
 //! parameter values, evaluate the error and its β-Jacobian at one state and over a batch, check
 //! the interpreter against the JIT, evaluate from several threads, save and reload.
 //!
@@ -13,8 +13,8 @@ use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use kin_runtime::states::States;
-use kin_runtime::{Engine, Model, RowsBuf};
+use kin_model::states::States;
+use kin_model::{Engine, Model, RowsBuf};
 
 /// What the example found, for its test.
 #[derive(Debug)]

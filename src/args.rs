@@ -196,8 +196,8 @@ pub struct DataOptions {
 
 impl DataOptions {
     /// The reader's options; `poses`: observed columns may be absent.
-    pub fn read(&self, poses: bool) -> kin_runtime::data::ReadOptions {
-        kin_runtime::data::ReadOptions {
+    pub fn read(&self, poses: bool) -> kin_data::data::ReadOptions {
+        kin_data::data::ReadOptions {
             poses,
             ignore: self.ignore.clone(),
             delimiter: self.delimiter,

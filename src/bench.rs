@@ -1,12 +1,12 @@
 //! `kin bench MACHINE`: poses per second of the interpreter, the JIT and (for the 5-axis
 //! example) a hand-written evaluator, and the compile time, measured in one run and printed with
-//! their ratios. A measurement, not a test: see `kin_runtime::bench`.
+//! their ratios. A measurement, not a test: see `kin_bench`.
 
 use std::path::Path;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use kin_runtime::bench::{measure, Options};
+use kin_bench::{measure, Options};
 
 use crate::load::{self, Failed};
 

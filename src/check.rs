@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use kin_compiler::ir::{FrameRef, JointKind, Machine, Task};
 use kin_compiler::{compile, Compiled};
-use kin_runtime::identify::Observe;
+use kin_estimate::identify::Observe;
 use serde::Serialize;
 
 use crate::render;
@@ -36,25 +36,25 @@ pub(crate) fn identify(
     c: &Compiled,
     observe: Observe,
     aligned: bool,
-    engine: kin_runtime::engine::Engine,
+    engine: kin_model::engine::Engine,
 ) -> Vec<kin_compiler::Diagnostic> {
     if c.machine.coefficients.is_empty() {
         return Vec::new();
     }
-    let n = kin_runtime::identify::poses_for(c.machine.coefficients.len(), observe);
+    let n = kin_estimate::identify::poses_for(c.machine.coefficients.len(), observe);
     // `kin check` shows the dependencies only: the condition number is not estimated.
-    let report = kin_runtime::identify::sampled_verdicts(
+    let report = kin_estimate::identify::sampled_verdicts(
         &c.machine,
         observe,
         aligned,
         n,
         0x6b696e,
         engine,
-        kin_runtime::identify::Condition::Skip,
+        kin_estimate::identify::Condition::Skip,
     );
     match report {
         Ok(report) => {
-            kin_runtime::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)
+            kin_estimate::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)
         }
         Err(e) => vec![kin_compiler::Diagnostic::error(
             "E0601",
@@ -69,7 +69,7 @@ pub fn run(
     format: Format,
     color: bool,
     identifiability: Option<(ObserveArg, bool)>,
-    engine: kin_runtime::engine::Engine,
+    engine: kin_model::engine::Engine,
 ) -> ExitCode {
     let name = path.display().to_string();
     let Ok(crate::load::Source {

@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use kin_compiler::ir::{JointKind, Machine};
-use kin_runtime::axis_table::{self, AxisTable, Sweep};
-use kin_runtime::compensate::{Compensator, Correction, Options};
-use kin_runtime::component_errors::{self, ComponentTable, Components};
-use kin_runtime::controller_tables::{self, fixed, AxisUnit, SinumerikCec, SinumerikLec};
-use kin_runtime::data::{self, ExtraColumn, ExtraQuantity, Observations, PointData, WriteOptions};
-use kin_runtime::states::States;
+use kin_data::data::{self, ExtraColumn, ExtraQuantity, Observations, PointData, WriteOptions};
+use kin_machine::axis_table::{self, AxisTable, Sweep};
+use kin_machine::component_errors::{self, ComponentTable, Components};
+use kin_machine::controller_tables::{self, fixed, AxisUnit, SinumerikCec, SinumerikLec};
+use kin_model::compensate::{Compensator, Correction, Options};
+use kin_model::states::States;
 
 use crate::grid::{self, Grid};
 use crate::load::{self, Failed};
@@ -128,12 +128,12 @@ fn compensate(a: CompensateArgs) -> Result<(), Failed> {
     };
     let corrections = corrections(m, &mut comp, &points, &source)?;
     let fit = load::fit_report(&a.fit)?;
-    let uncertainty = kin_runtime::simulate::uncertainty(
+    let uncertainty = kin_estimate::simulate::uncertainty(
         m,
         &fit,
         &Observations::Points(points.clone()),
         [true; 6],
-        kin_runtime::engine::Engine::Interp,
+        kin_model::engine::Engine::Interp,
     )
     .map_err(|e| {
         eprintln!("error: {e}");
@@ -207,7 +207,7 @@ fn write_csv(
     m: &Machine,
     mut points: PointData,
     c: &[Correction],
-    uncertainty: kin_runtime::simulate::Uncertainty,
+    uncertainty: kin_estimate::simulate::Uncertainty,
 ) -> Result<(), Failed> {
     for (k, slot) in points.observed.iter_mut().enumerate() {
         *slot = Some(c.iter().map(|c| c.before[k]).collect());
@@ -239,7 +239,7 @@ fn write_csv(
             values: c.iter().map(|c| c.after[k]).collect(),
         });
     }
-    if let kin_runtime::simulate::Uncertainty::Points(columns) = uncertainty {
+    if let kin_estimate::simulate::Uncertainty::Points(columns) = uncertainty {
         for (k, (name, values)) in data::OBSERVED.iter().zip(columns).enumerate() {
             if let Some(values) = values {
                 extra.push(ExtraColumn {
@@ -314,8 +314,8 @@ impl Reference {
         }
     }
 
-    fn state(&self) -> kin_runtime::interp::State<'_> {
-        kin_runtime::interp::State {
+    fn state(&self) -> kin_model::interp::State<'_> {
+        kin_model::interp::State {
             q: &self.q,
             inputs: &self.inputs,
             lags: &self.lags,
@@ -342,7 +342,7 @@ fn grid_summary(
     m: &Machine,
     comp: &mut Compensator<'_>,
     grid: &Grid,
-    mut tables_dq: impl FnMut(&kin_runtime::interp::State<'_>, &mut [f64]),
+    mut tables_dq: impl FnMut(&kin_model::interp::State<'_>, &mut [f64]),
 ) -> Result<GridSummary, Failed> {
     let points = grid.points(m);
     let states = States::new(m, &points.rows, &points.pose, "").map_err(|e| {
@@ -378,7 +378,7 @@ fn axis_name(m: &Machine, j: usize) -> &str {
     m.axes.get(j).map_or("?", |a| a.name.as_str())
 }
 
-fn direction_of(s: &kin_runtime::interp::State<'_>, axis: usize) -> f64 {
+fn direction_of(s: &kin_model::interp::State<'_>, axis: usize) -> f64 {
     let d = s.dirs.get(axis).copied().unwrap_or(1.0);
     if d.is_nan() {
         1.0
@@ -454,7 +454,7 @@ fn tables(
                     );
                     return Err(Failed::INPUT);
                 }
-                if let Err(e) = kin_runtime::component_errors::element_of(m, j) {
+                if let Err(e) = kin_machine::component_errors::element_of(m, j) {
                     eprintln!("error: --table volcomp: {e}");
                     return Err(Failed::INPUT);
                 }
@@ -585,7 +585,7 @@ fn tables(
         .map(|(p, (_, text))| (p.as_path(), text.as_bytes()))
         .collect();
     set.push((note_path.as_path(), note.as_bytes()));
-    kin_runtime::output::replace_all(&set).map_err(|e| {
+    kin_data::output::replace_all(&set).map_err(|e| {
         eprintln!(
             "error: cannot write the tables into `{}`: {e}",
             a.output.display()

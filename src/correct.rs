@@ -5,10 +5,10 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use kin_runtime::data::{self, ExtraColumn, ExtraQuantity, Observations, WriteOptions};
-use kin_runtime::interp::Interpreter;
-use kin_runtime::simulate::{self, Uncertainty};
-use kin_runtime::states::States;
+use kin_data::data::{self, ExtraColumn, ExtraQuantity, Observations, WriteOptions};
+use kin_estimate::simulate::{self, Uncertainty};
+use kin_model::interp::Interpreter;
+use kin_model::states::States;
 
 use crate::load::{self, Failed};
 
@@ -67,14 +67,9 @@ fn correct(a: CorrectArgs) -> Result<(), Failed> {
     )
     .map_err(fail)?;
     let fit = load::fit_report(&a.fit)?;
-    let Uncertainty::Points(u) = simulate::uncertainty(
-        m,
-        &fit,
-        &poses,
-        POSITION,
-        kin_runtime::engine::Engine::Interp,
-    )
-    .map_err(fail)?
+    let Uncertainty::Points(u) =
+        simulate::uncertainty(m, &fit, &poses, POSITION, kin_model::engine::Engine::Interp)
+            .map_err(fail)?
     else {
         return Err(Failed::INPUT);
     };

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use kin_runtime::diagnose::{self, Settings};
+use kin_diagnose::{self as diagnose, Settings};
 
 use crate::diagnose::{replace_model, text, with_line};
 use crate::files;
@@ -42,7 +42,7 @@ const MARKER: &str = ".kin-demo";
 fn claim(dir: &Path, chosen: bool) -> Result<(), Failed> {
     let marker = dir.join(MARKER);
     if chosen && !marker.exists() {
-        let history = kin_runtime::history::path_for(&dir.join(MODEL));
+        let history = kin_data::history::path_for(&dir.join(MODEL));
         let mut names = vec![dir.join(MODEL), dir.join(DATA), history];
         names.extend(OUTPUTS.iter().map(|n| dir.join(n)));
         if let Some(foreign) = names.iter().find(|p| p.exists()) {
@@ -76,7 +76,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
     };
     let model = write(MODEL, START)?;
     let data = write(DATA, POINTS)?;
-    let history = kin_runtime::history::path_for(&model);
+    let history = kin_data::history::path_for(&model);
     if let Err(e) = std::fs::remove_file(&history) {
         if e.kind() != std::io::ErrorKind::NotFound {
             eprintln!("error: cannot remove `{}`: {e}", history.display());
@@ -99,7 +99,7 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         seed: 0,
         noise: None,
         threads: None,
-        engine: kin_runtime::engine::Engine::default(),
+        engine: kin_model::engine::Engine::default(),
         ignore: Default::default(),
         color,
     };

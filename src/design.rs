@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use kin_compiler::ir::Machine;
-use kin_runtime::design::{self, Estimability, Score};
-use kin_runtime::fit::DataSet;
-use kin_runtime::plan::{self, Plan};
+use kin_estimate::design::{self, Estimability, Score};
+use kin_estimate::fit::DataSet;
+use kin_estimate::plan::{self, Plan};
 use serde::Serialize;
 
 use crate::load::{self, Failed};
@@ -22,7 +22,7 @@ pub struct DesignArgs {
     pub output: Option<PathBuf>,
     pub evaluate: Option<PathBuf>,
     pub format: Format,
-    pub engine: kin_runtime::engine::Engine,
+    pub engine: kin_model::engine::Engine,
     pub ignore: crate::args::DataOptions,
     pub color: bool,
 }
@@ -75,12 +75,12 @@ pub fn check_plan(
     machine: &Path,
     files: &[PathBuf],
     format: Format,
-    engine: kin_runtime::engine::Engine,
+    engine: kin_model::engine::Engine,
     color: bool,
 ) -> Result<(), Failed> {
     let compiled = load::machine(machine, None, color)?;
     let m = &compiled.machine;
-    let mut engine = kin_runtime::engine::make(m, engine).map_err(|e| {
+    let mut engine = kin_model::engine::make(m, engine).map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
@@ -110,7 +110,7 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
     }
     let compiled = load::machine(&a.machine, None, a.color)?;
     let m = &compiled.machine;
-    let mut engine = kin_runtime::engine::make(m, a.engine).map_err(|e| {
+    let mut engine = kin_model::engine::make(m, a.engine).map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;

@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use kin_runtime::diagnose::{self, Diagnosis, Settings};
-use kin_runtime::output;
+use kin_data::output;
+use kin_diagnose::{self as diagnose, Diagnosis, Settings};
 
 use crate::files;
 use crate::fit::{self as fitcmd, FitArgs};
@@ -214,7 +214,7 @@ fn write_back(
                 f.unit
             );
         }
-        refit.report.model_hash = kin_runtime::fit::report::model_hash(&text);
+        refit.report.model_hash = kin_estimate::fit::report::model_hash(&text);
         refit.source = text;
     }
     for f in others.iter().filter(|f| f.old != f.new) {

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use kin_runtime::output;
+use kin_data::output;
 
 use crate::load::Failed;
 

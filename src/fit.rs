@@ -5,8 +5,8 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use kin_runtime::fit::{self, report, DataSet, FitError, Options, Solver};
-use kin_runtime::history;
+use kin_data::history;
+use kin_estimate::fit::{self, report, DataSet, FitError, Options, Solver};
 
 use crate::load::{self, Failed};
 
@@ -30,7 +30,7 @@ pub struct FitArgs {
     pub seed: u64,
     /// The instrument's stated noise: rows are weighted by it.
     pub noise: Option<fit::Noise>,
-    pub engine: kin_runtime::engine::Engine,
+    pub engine: kin_model::engine::Engine,
     /// Threads of the fit (`--threads`); every core when `None`.
     pub threads: Option<usize>,
     /// Columns of the data files to skip unread.
@@ -206,7 +206,7 @@ fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
         ProgressStyle::with_template("{msg:>12} {spinner} {pos} rows")
             .unwrap_or_else(|_| ProgressStyle::default_spinner()),
     );
-    let mut engine = kin_runtime::engine::make(m, a.engine).map_err(|e| {
+    let mut engine = kin_model::engine::make(m, a.engine).map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;
@@ -320,7 +320,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} rows ({eta})")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let mut engine = kin_runtime::engine::make(m, a.engine).map_err(|e| {
+    let mut engine = kin_model::engine::make(m, a.engine).map_err(|e| {
         eprintln!("error: {e}");
         Failed::INPUT
     })?;

@@ -111,7 +111,7 @@ fn one(path: &Path, check: bool, color: bool) -> Outcome {
         eprint!("{}", diff(&name, &source.text, &formatted));
         return Outcome::Changed;
     }
-    match kin_runtime::output::replace(path, formatted.as_bytes()) {
+    match kin_data::output::replace(path, formatted.as_bytes()) {
         Ok(()) => Outcome::Changed,
         Err(e) => {
             eprintln!("error: cannot write `{name}`: {e}");
@@ -153,7 +153,7 @@ fn diff(name: &str, old: &str, new: &str) -> String {
 fn stdin(check: bool, color: bool) -> Result<(), Failed> {
     let mut bytes = Vec::new();
     std::io::stdin()
-        .take(kin_runtime::bounded_read::MAX_TEXT_BYTES)
+        .take(kin_data::bounded_read::MAX_TEXT_BYTES)
         .read_to_end(&mut bytes)
         .map_err(|e| {
             eprintln!("error: cannot read standard input: {e}");

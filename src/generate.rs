@@ -6,8 +6,8 @@
 //! an axis outside its range is not written, so a plan chosen from the file can be run as is.
 
 use kin_compiler::ir::{JointKind, Machine, Var};
-use kin_runtime::exact;
-use kin_runtime::kinematics::Pose;
+use kin_model::exact;
+use kin_model::kinematics::Pose;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use crate::load::Failed;
@@ -136,7 +136,7 @@ struct Writer<'m> {
 
 impl<'m> Writer<'m> {
     fn new(m: &'m Machine) -> Self {
-        let used = kin_runtime::states::used_vars(m);
+        let used = kin_model::states::used_vars(m);
         Writer {
             m,
             out: String::new(),

@@ -6,7 +6,7 @@
 //! `dir_AXIS=+1|-1` and `tool=NAME`. A range runs FROM, FROM+STEP, … and always ends at TO.
 
 use kin_compiler::ir::{JointKind, Machine, Var};
-use kin_runtime::data::{PointData, Pose, Rows};
+use kin_data::data::{PointData, Pose, Rows};
 
 /// At most this many grid points in all (every pose is held in memory and compensated).
 pub const MAX_POINTS: usize = 10_000_000;
@@ -163,7 +163,7 @@ pub fn parse(spec: &str, m: &Machine) -> Result<Grid, String> {
             }
         }
     }
-    let used = kin_runtime::states::used_vars(m);
+    let used = kin_model::states::used_vars(m);
     for (i, input) in m.inputs.iter().enumerate() {
         if used.contains(&Var::Input(i)) && inputs.get(i).copied().flatten().is_none() {
             return Err(format!(
@@ -216,7 +216,7 @@ impl Grid {
                 *k = 0;
             }
         }
-        let used = kin_runtime::states::used_vars(m);
+        let used = kin_model::states::used_vars(m);
         for (a, slot) in pose.dir.iter_mut().enumerate() {
             if used.contains(&Var::Direction(a)) {
                 *slot = Some(vec![self.dirs.get(a).copied().unwrap_or(1.0); n]);

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::process::ExitCode;
 
-use kin_runtime::urdf::{self, Options};
+use kin_standards::urdf::{self, Options};
 
 use crate::check::ObserveArg;
 use crate::load::Failed;

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use kin_compiler::units::Dim;
-use kin_runtime::iso230_2::{self, Evaluation, Iso2302Error};
-use kin_runtime::iso230_4::{self, Iso2304Error};
+use kin_standards::iso230_2::{self, Evaluation, Iso2302Error};
+use kin_standards::iso230_4::{self, Iso2304Error};
 
 use crate::load::{self, Failed};
 use crate::Format;
@@ -24,7 +24,7 @@ pub struct Iso2302Args {
     pub at: Vec<(String, String)>,
     pub component: Option<String>,
     pub alpha: f64,
-    pub engine: kin_runtime::engine::Engine,
+    pub engine: kin_model::engine::Engine,
     pub color: bool,
 }
 
@@ -36,7 +36,7 @@ pub fn run(a: Iso2302Args) -> ExitCode {
 struct Lof {
     model: String,
     component: String,
-    test: Option<kin_runtime::diagnose::LackOfFit>,
+    test: Option<kin_diagnose::LackOfFit>,
     alpha: f64,
 }
 
@@ -213,27 +213,27 @@ fn lack_of_fit(a: &Iso2302Args, model: &Path, run: &iso230_2::Run) -> Result<Lof
         }
         let _ = writeln!(csv, "{}", if s.up { "+1" } else { "-1" });
     }
-    let options = kin_runtime::data::ReadOptions {
+    let options = kin_data::data::ReadOptions {
         poses: true,
         ..Default::default()
     };
     let poses =
-        kin_runtime::data::read(csv.as_bytes(), &a.run, m, &options).map_err(load::read_failed)?;
+        kin_data::data::read(csv.as_bytes(), &a.run, m, &options).map_err(load::read_failed)?;
     let mut mask = [false; 6];
     mask[component] = true;
-    let predicted = kin_runtime::simulate::predict_with(m, &m.beta, &poses, mask, a.engine)
+    let predicted = kin_estimate::simulate::predict_with(m, &m.beta, &poses, mask, a.engine)
         .map_err(|e| {
             eprintln!("error: {e}");
             Failed::INPUT
         })?;
     let values: Vec<f64> = match predicted {
-        kin_runtime::data::Observations::Points(p) => p.observed[component]
+        kin_data::data::Observations::Points(p) => p.observed[component]
             .clone()
             .unwrap_or_default()
             .into_iter()
             .map(|v| sign * v)
             .collect(),
-        kin_runtime::data::Observations::Lengths(_) => Vec::new(),
+        kin_data::data::Observations::Lengths(_) => Vec::new(),
     };
     if values.len() != run.samples.len() {
         eprintln!("error: the model gave no prediction for some approaches");
@@ -256,7 +256,7 @@ fn outside_ranges(
     fixed: &[f64],
     run: &iso230_2::Run,
 ) -> Result<(), Failed> {
-    use kin_runtime::data::ranges::within;
+    use kin_data::data::ranges::within;
     let length = &m.units.length;
     let declared = |i: usize| {
         let x = &m.axes[i];
@@ -502,7 +502,7 @@ fn circular(a: &Iso2304Args) -> Result<(), Failed> {
         crate::files::check(out, &[path])?;
     }
     if let (Some(h), Some(l)) = (&a.html, &a.lengths) {
-        if kin_runtime::output::same_file(h, l) || h == l {
+        if kin_data::output::same_file(h, l) || h == l {
             eprintln!("error: --html and --lengths name the same file");
             return Err(Failed::USAGE);
         }
@@ -743,7 +743,7 @@ pub fn run_thermal(a: Iso2303Args) -> ExitCode {
 }
 
 fn thermal(a: &Iso2303Args) -> Result<(), Failed> {
-    use kin_runtime::iso230_3::{self, Iso2303Error};
+    use kin_standards::iso230_3::{self, Iso2303Error};
     let path = a.run.as_path();
     if let Some(out) = &a.html {
         crate::files::check(out, &[path])?;

@@ -5,8 +5,8 @@
 use std::fmt::Write as _;
 
 use kin_compiler::units::Unit;
-use kin_runtime::iso230_2;
-use kin_runtime::iso230_4::{self, CircularRun, Figures};
+use kin_standards::iso230_2;
+use kin_standards::iso230_4::{self, CircularRun, Figures};
 use plotters::prelude::*;
 
 use crate::report::plot::{self, Chart, PlotError, Series, BLUE, GREY, ORANGE};
@@ -428,8 +428,8 @@ pub fn iso230_4_page(
 /// the temperatures over time on their own chart, with the figures as a table.
 pub fn iso230_3_page(
     name: &str,
-    run: &kin_runtime::iso230_3::ThermalRun,
-    e: &kin_runtime::iso230_3::Evaluation,
+    run: &kin_standards::iso230_3::ThermalRun,
+    e: &kin_standards::iso230_3::Evaluation,
 ) -> Result<String, PlotError> {
     let hours: Vec<f64> = run
         .time
@@ -509,7 +509,7 @@ pub fn iso230_3_page(
         body.push_str(&legend(run.temperatures.iter().map(|c| c.name.as_str())));
     }
     body.push_str("<table><tr><th>channel</th><th>range (ETVE)</th><th>drift from start</th><th>at [min]</th><th>at the end</th></tr>\n");
-    let mut row = |n: &str, f: &kin_runtime::iso230_3::ChannelFigures, scale: f64, unit: &str| {
+    let mut row = |n: &str, f: &kin_standards::iso230_3::ChannelFigures, scale: f64, unit: &str| {
         let _ = writeln!(
             body,
             "<tr><td>{}</td><td>{} {unit}</td><td>{} {unit}</td><td>{}</td><td>{} {unit}</td></tr>",

@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use kin_compiler::{bind_params, compile, Compiled, Diagnostic, Span};
-use kin_runtime::bounded_read;
-use kin_runtime::data::{self, Observations};
+use kin_data::bounded_read;
+use kin_data::data::{self, Observations};
 
 use crate::render;
 
@@ -202,7 +202,7 @@ pub fn machine_source(
         report(&name, &text, &diagnostics, color);
         if diagnostics.iter().any(Diagnostic::is_error) {
             if let Some(fit) = fit {
-                let now = kin_runtime::fit::report::model_hash(source);
+                let now = kin_estimate::fit::report::model_hash(source);
                 if fit.model_hash != now {
                     eprintln!(
                         "note: `{}` was fitted to another revision of `{}` (model hash {}; the \
@@ -239,7 +239,7 @@ pub fn same_revision(
     hash: &str,
     coefficients: &[(String, String)],
 ) -> Result<(), Failed> {
-    let now = kin_runtime::fit::report::model_hash(source);
+    let now = kin_estimate::fit::report::model_hash(source);
     if hash == now {
         return Ok(());
     }
@@ -339,7 +339,7 @@ impl FitOrigin {
 }
 
 /// Reads a fit report (`FIT.json`, written by `kin fit -o`).
-pub fn fit_report(path: &Path) -> Result<kin_runtime::fit::report::FitReport, Failed> {
+pub fn fit_report(path: &Path) -> Result<kin_estimate::fit::report::FitReport, Failed> {
     let text = read_text(path)?;
     serde_json::from_str(&text).map_err(|e| {
         eprintln!(

@@ -118,7 +118,7 @@ enum Command {
         plan: Vec<PathBuf>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
-        engine: kin_runtime::engine::Engine,
+        engine: kin_model::engine::Engine,
     },
     /// Simulate measurements with a known truth: the machine's errors applied exactly
     /// (finite transforms), written in the measurement-file format.
@@ -244,7 +244,7 @@ enum Command {
         format: Format,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
-        engine: kin_runtime::engine::Engine,
+        engine: kin_model::engine::Engine,
         /// Threads evaluating the rows, factoring them and computing their leverages, each its
         /// own share (1 to 256; default every core this process may use). The same count gives
         /// the same bits on every run.
@@ -314,7 +314,7 @@ enum Command {
         format: Format,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
-        engine: kin_runtime::engine::Engine,
+        engine: kin_model::engine::Engine,
         #[command(flatten)]
         ignore: Ignore,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
@@ -368,7 +368,7 @@ enum Command {
         alpha: f64,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
-        engine: kin_runtime::engine::Engine,
+        engine: kin_model::engine::Engine,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
@@ -463,7 +463,7 @@ enum Command {
         html: Option<PathBuf>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
-        engine: kin_runtime::engine::Engine,
+        engine: kin_model::engine::Engine,
         #[command(flatten)]
         ignore: Ignore,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
@@ -499,7 +499,7 @@ enum Command {
         ellipsoid: Option<f64>,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
-        engine: kin_runtime::engine::Engine,
+        engine: kin_model::engine::Engine,
         #[command(flatten)]
         ignore: Ignore,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
@@ -670,7 +670,7 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Format::Human)]
         format: Format,
         #[arg(long, default_value = "jit")]
-        engine: kin_runtime::engine::Engine,
+        engine: kin_model::engine::Engine,
         #[command(flatten)]
         ignore: Ignore,
         #[arg(long, value_enum, default_value_t = Color::Auto)]
@@ -851,7 +851,7 @@ fn main() -> ExitCode {
     });
     let name = matches.subcommand_name().unwrap_or("").to_string();
     if let Some((_, m)) = matches.subcommand() {
-        if let Ok(Some(engine)) = m.try_get_one::<kin_runtime::engine::Engine>("engine") {
+        if let Ok(Some(engine)) = m.try_get_one::<kin_model::engine::Engine>("engine") {
             warnings::note(&format!("engine: {}", engine.name()));
         }
     }
@@ -1253,7 +1253,7 @@ fn axis_value(text: &str) -> Result<(String, String), String> {
 }
 
 fn plane_arg(text: &str) -> Result<[String; 2], String> {
-    kin_runtime::iso230_4::plane(text)
+    kin_standards::iso230_4::plane(text)
 }
 
 #[cfg(test)]

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use kin_compiler::ir::Machine;
-use kin_runtime::data::{self, Groups, Observations, PointData, Pose, Rows, WriteOptions};
-use kin_runtime::predict::{self, Drift};
+use kin_data::data::{self, Groups, Observations, PointData, Pose, Rows, WriteOptions};
+use kin_estimate::predict::{self, Drift};
 
 use crate::load::{self, Failed};
 use crate::report::plot::{Chart, Series, BLUE, ORANGE};
@@ -21,7 +21,7 @@ pub struct PredictArgs {
     pub poses: Option<PathBuf>,
     pub output: Option<PathBuf>,
     pub html: Option<PathBuf>,
-    pub engine: kin_runtime::engine::Engine,
+    pub engine: kin_model::engine::Engine,
     pub data: crate::args::DataOptions,
     pub color: bool,
 }
@@ -44,7 +44,7 @@ fn run(a: PredictArgs) -> Result<(), Failed> {
         crate::files::check(out, &inputs)?;
     }
     if let (Some(o), Some(h)) = (&a.output, &a.html) {
-        if kin_runtime::output::same_file(o, h) {
+        if kin_data::output::same_file(o, h) {
             eprintln!("error: -o and --html name the same file");
             return Err(Failed::USAGE);
         }
@@ -142,7 +142,7 @@ fn run(a: PredictArgs) -> Result<(), Failed> {
             eprintln!("error: {e}");
             Failed::INPUT
         })?;
-        kin_runtime::output::replace(h, page.as_bytes()).map_err(|e| {
+        kin_data::output::replace(h, page.as_bytes()).map_err(|e| {
             eprintln!("error: cannot write `{}`: {e}", h.display());
             Failed::USAGE
         })?;

@@ -7,7 +7,7 @@
 //! no scripts, no fonts or images fetched from anywhere.
 
 mod compensation;
-mod curves;
+use kin_estimate::curves;
 pub(crate) mod plot;
 mod umap;
 
@@ -18,10 +18,10 @@ use std::process::ExitCode;
 
 use kin_compiler::ir::{Machine, Var};
 use kin_compiler::units::Unit;
-use kin_runtime::data::{self, Observations};
-use kin_runtime::diagnose::{Diagnosis, Family};
-use kin_runtime::fit::report::{model_hash, FitReport, Residual};
-use kin_runtime::history::{self, Entry};
+use kin_data::data::{self, Observations};
+use kin_data::history::{self, Entry};
+use kin_diagnose::{Diagnosis, Family};
+use kin_estimate::fit::report::{model_hash, FitReport, Residual};
 use thiserror::Error;
 
 use crate::load::{self, Failed};
@@ -87,7 +87,7 @@ fn fail(e: ReportError) -> Failed {
 /// A text input read with the size limit of every model and report (a device or a FIFO that
 /// never ends stops there).
 fn read_limited(path: &Path) -> std::io::Result<String> {
-    use kin_runtime::bounded_read::{read, BoundedReadError, MAX_TEXT_BYTES};
+    use kin_data::bounded_read::{read, BoundedReadError, MAX_TEXT_BYTES};
     let bytes = read(path, MAX_TEXT_BYTES).map_err(|e| match e {
         BoundedReadError::Io(e) => e,
         other => std::io::Error::other(other),
@@ -205,7 +205,7 @@ pub fn report_command(a: &ReportArgs) -> Result<(), Failed> {
         compensation,
     };
     let page = html(&inputs).map_err(fail)?;
-    kin_runtime::output::replace(&a.output, page.as_bytes()).map_err(|source| {
+    kin_data::output::replace(&a.output, page.as_bytes()).map_err(|source| {
         fail(ReportError::Write {
             path: a.output.clone(),
             source,
@@ -918,7 +918,7 @@ fn bins_overlay(chart: &mut Chart, d: &Diagnosis, component: &str, variable: &st
         return;
     }
     bins.sort_by(|a, b| a.lo.total_cmp(&b.lo));
-    let steps = |v: &dyn Fn(&kin_runtime::diagnose::Bin) -> f64, sign: f64| -> Vec<(f64, f64)> {
+    let steps = |v: &dyn Fn(&kin_diagnose::Bin) -> f64, sign: f64| -> Vec<(f64, f64)> {
         let mut pts = Vec::new();
         for b in &bins {
             pts.push((b.lo, sign * v(b)));
@@ -1687,22 +1687,8 @@ pub fn esc(s: &str) -> String {
     out
 }
 
-/// `v` with `digits` significant digits; scientific outside 1e-3 .. 1e6; a dash when not a
-/// number, so a table never shows `NaN`.
-pub fn num(v: f64, digits: usize) -> String {
-    if !v.is_finite() {
-        return "—".into();
-    }
-    if v == 0.0 {
-        return "0".into();
-    }
-    let a = v.abs();
-    if !(1e-3..1e6).contains(&a) {
-        return format!("{:.*e}", digits.saturating_sub(1).min(3), v);
-    }
-    let decimals = (digits as i32 - 1 - a.log10().floor() as i32).clamp(0, 9) as usize;
-    format!("{v:.decimals$}")
-}
+// The curves label their reference state with the same significant digits as the report.
+pub use kin_estimate::curves::num;
 
 /// `v` to six significant digits without trailing zeros: a value read from a file, where
 /// `20.0000` would claim a precision nobody wrote.

@@ -2,8 +2,8 @@
 //! was made of (paths and content hashes, so only fits of the same data are compared), and its
 //! residuals binned along every variable, so the report can show each round as it was.
 
-use kin_runtime::fit::report::FitReport;
-use kin_runtime::history::{self, Bin, Binned, Entry, FileRms, MAX_BINS};
+use kin_data::history::{self, Bin, Binned, Entry, FileRms, MAX_BINS};
+use kin_estimate::fit::report::FitReport;
 
 use crate::fit::Fitted;
 

@@ -4,8 +4,9 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use kin_runtime::data::{self, Observations, WriteOptions};
-use kin_runtime::simulate::{self, Options};
+use kin_data::data::{self, Observations, WriteOptions};
+use kin_estimate::simulate::{self, Options};
+use kin_estimate::uncertainty::PredictionCovariance;
 
 use crate::args::Spread;
 use crate::load::{self, Failed};
@@ -59,7 +60,7 @@ pub struct EvalArgs<'a> {
     /// `--format json`: the predictions as a JSON document on standard output.
     pub json: bool,
     pub components: Components,
-    pub engine: kin_runtime::engine::Engine,
+    pub engine: kin_model::engine::Engine,
     /// Columns of the poses file to skip unread.
     pub ignore: &'a crate::args::DataOptions,
     /// Add each prediction's standard uncertainty from the fit given as `params`.
@@ -171,7 +172,7 @@ fn cycle_poses(
     }
     let poses: Vec<Vec<f64>> = match &a.poses {
         Some(p) => load::pose_list(p, compiled, &a.ignore, "--poses")?,
-        None => vec![kin_runtime::predict::midpoint_pose(m)],
+        None => vec![kin_estimate::predict::midpoint_pose(m)],
     };
     if is_file {
         if a.every.is_some() {
@@ -332,12 +333,32 @@ pub fn eval(a: EvalArgs) -> ExitCode {
             let u =
                 simulate::uncertainty(m, &fit, &poses, components.mask(), engine).map_err(fail)?;
             extra = uncertainty_columns(u);
+            // Which fitted wavelengths and time constants the uncertainty includes (said only
+            // where the model has some).
+            let coverage = PredictionCovariance::new(m, &fit)
+                .map(|c| c.coverage().clone())
+                .unwrap_or_default();
+            let share = if coverage.included.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    ", with the share of the fitted {}",
+                    coverage.included.join(", ")
+                )
+            };
             comments.push(format!(
-                "u_… : standard uncertainty (k = 1) of each prediction from the covariance of `{}` (eq. 4.12); σ̂ = {:.4} {}",
+                "u_… : standard uncertainty (k = 1) of each prediction from the covariance of `{}` (eq. 4.12{share}); σ̂ = {:.4} {}",
                 path.display(),
                 fit.sigma,
                 fit.error_unit
             ));
+            if !coverage.missing.is_empty() {
+                eprintln!(
+                    "warning: `{}` holds no joint covariance of {}: their share of the uncertainty is left out (refit to include it)",
+                    path.display(),
+                    coverage.missing.join(", ")
+                );
+            }
             if let Some(level) = ellipsoid {
                 let e = simulate::ellipsoids(m, &fit, &poses, level, engine).map_err(fail)?;
                 extra.extend(ellipsoid_columns(&e));

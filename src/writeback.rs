@@ -6,7 +6,7 @@
 use std::ops::Range;
 
 use kin_compiler::Compiled;
-use kin_runtime::fit::report::FitReport;
+use kin_estimate::fit::report::FitReport;
 
 /// One fitted non-linear parameter of the model and its declaration's text.
 pub struct Fitted {

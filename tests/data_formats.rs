@@ -109,7 +109,7 @@ fn a_file_still_wrong_names_file_line_column_and_what_was_expected() {
 #[test]
 fn iso230_2_prints_the_published_figures_and_refuses_bad_runs() {
     let run = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("runtime/src/iso230_2/ecmc_fat_sat.csv")
+        .join("runtime/standards/src/iso230_2/ecmc_fat_sat.csv")
         .display()
         .to_string();
     let out = kin(&["iso230-2", &run]);

@@ -4,7 +4,7 @@
 
 use std::process::{Command, Output};
 
-use kin_runtime::Model;
+use kin_model::Model;
 
 fn kin(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kin"))

@@ -223,6 +223,109 @@ fn the_stated_uncertainty_matches_the_spread_of_repeated_experiments() {
 }
 
 #[test]
+fn eval_and_predict_state_one_uncertainty_with_the_time_constants_share() {
+    // One pose, one fit with two fitted time constants: `kin eval --uncertainty` on rows that
+    // hold the pose and the cycle's inputs must state what `kin predict` states over the cycle
+    // (eq. 4.12 once, with the fitted parameters' share), and that share must be there: a
+    // fit of the same data with the time constants fixed at their estimates states less.
+    let dir = scratch("one_u");
+    setup(&dir);
+    simulate(&dir, WARMUP, "2min", 21, "w.csv");
+    let f = fit(&dir, "w.csv", "f.json");
+    std::fs::write(
+        dir.join("cycle.csv"),
+        "time[min],T_spindle,T_room\n0,0,0\n30,3,0.5\n60,5,1\n90,5,2\n",
+    )
+    .expect("cycle");
+    std::fs::write(dir.join("pose.csv"), "X,Y,Z\n250,200,-150\n").expect("pose");
+    ok(&kin(&[
+        "predict",
+        &p(&dir, "m.kin"),
+        "--fit",
+        &p(&dir, "f.json"),
+        &p(&dir, "cycle.csv"),
+        "--poses",
+        &p(&dir, "pose.csv"),
+        "-o",
+        &p(&dir, "pred.csv"),
+    ]));
+    // The same rows as a pose file: the pose on every row, reached moving in +.
+    std::fs::write(
+        dir.join("rows.csv"),
+        "time[min],T_spindle,T_room,X,Y,Z,dir_X,dir_Y,dir_Z\n\
+         0,0,0,250,200,-150,1,1,1\n30,3,0.5,250,200,-150,1,1,1\n\
+         60,5,1,250,200,-150,1,1,1\n90,5,2,250,200,-150,1,1,1\n",
+    )
+    .expect("rows");
+    // The fitted parameters bound to the model, as `kin eval --params FIT.json` reads them.
+    let stdout = ok(&kin(&[
+        "eval",
+        &p(&dir, "m.kin"),
+        &p(&dir, "rows.csv"),
+        "--params",
+        &p(&dir, "f.json"),
+        "--uncertainty",
+        "-o",
+        &p(&dir, "eval.csv"),
+    ]));
+    let _ = stdout;
+    let header = std::fs::read_to_string(dir.join("eval.csv")).expect("eval");
+    assert!(
+        header.contains("with the share of the fitted Z.tz.tau, Z.tx.tau"),
+        "{header}"
+    );
+    let pred = read_csv(&dir.join("pred.csv"));
+    let eval = read_csv(&dir.join("eval.csv"));
+    for k in ["ex", "ey", "ez"] {
+        let (a, b) = (&pred[&format!("u_{k}")], &eval[&format!("u_{k}")]);
+        assert_eq!(a.len(), 4);
+        for (r, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!(
+                (x - y).abs() <= 1e-6 * x.abs().max(1e-9),
+                "u_{k} at row {r}: predict {x}, eval {y}"
+            );
+        }
+    }
+    // Without the share: the time constants fixed at their estimates, the same data.
+    let tau = |name: &str| {
+        f["nonlinear"]
+            .as_array()
+            .expect("nonlinear")
+            .iter()
+            .find(|e| e["name"] == name)
+            .and_then(|e| e["value"].as_f64())
+            .expect("tau")
+    };
+    let fixed = MODEL
+        .replace("tau fit 30 min", &format!("tau {} min", tau("Z.tz.tau")))
+        .replace("tau fit 90 min", &format!("tau {} min", tau("Z.tx.tau")));
+    std::fs::write(dir.join("fixed.kin"), fixed).expect("fixed");
+    ok(&kin(&[
+        "fit",
+        &p(&dir, "fixed.kin"),
+        &p(&dir, "w.csv"),
+        "-o",
+        &p(&dir, "fixed.json"),
+    ]));
+    ok(&kin(&[
+        "eval",
+        &p(&dir, "fixed.kin"),
+        &p(&dir, "rows.csv"),
+        "--params",
+        &p(&dir, "fixed.json"),
+        "--uncertainty",
+        "-o",
+        &p(&dir, "eval_fixed.csv"),
+    ]));
+    let without = read_csv(&dir.join("eval_fixed.csv"));
+    let (with_share, alone) = (eval["u_ez"][2], without["u_ez"][2]);
+    assert!(
+        with_share > 1.2 * alone,
+        "u_ez with the time constants' share {with_share}, without {alone}"
+    );
+}
+
+#[test]
 fn predict_refuses_to_overwrite_an_input_and_locates_cycle_errors() {
     let dir = scratch("refuse");
     setup(&dir);

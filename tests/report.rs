@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use kin_runtime::diagnose::{Bin, Candidate, Diagnosis, Family, Finding, Region, Spectrum};
+use kin_diagnose::{Bin, Candidate, Diagnosis, Family, Finding, Region, Spectrum};
 
 fn kin(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kin"))

@@ -534,7 +534,7 @@ fn check_csv_block(
     machine: &kin_compiler::ir::Machine,
     message: Option<&Block>,
 ) -> Option<String> {
-    use kin_runtime::data::{read, Observations, ReadOptions};
+    use kin_data::data::{read, Observations, ReadOptions};
     let expect = match parse_csv_info(&block.info) {
         Ok(e) => e,
         Err(e) => return Some(e),

@@ -9,9 +9,9 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use kin_runtime::identify::Observe;
-use kin_runtime::kinematics::Pose;
-use kin_runtime::urdf::{self, Options};
+use kin_estimate::identify::Observe;
+use kin_model::kinematics::Pose;
+use kin_standards::urdf::{self, Options};
 
 type M4 = [[f64; 4]; 4];
 
@@ -208,7 +208,7 @@ fn compare(kin: &str, urdf: &Urdf, base: &str, tip: &str, before: M4, n: usize) 
             tool: 0,
             tool_offset: None,
         };
-        let t = kin_runtime::exact::nominal_transform(&machine, &pose).unwrap();
+        let t = kin_model::exact::nominal_transform(&machine, &pose).unwrap();
         let mut tk = identity();
         for i in 0..4 {
             for j in 0..4 {

@@ -20,10 +20,10 @@ use std::ffi::{c_char, c_int, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 
-use kin_runtime::embed::Error;
-use kin_runtime::interp::{EvalError, State};
-use kin_runtime::jit::{BatchError, StateRows};
-use kin_runtime::Model;
+use ::kin_model::embed::Error;
+use ::kin_model::interp::{EvalError, State};
+use ::kin_model::jit::{BatchError, StateRows};
+use ::kin_model::Model;
 
 pub const KIN_OK: c_int = 0;
 /// A pointer is NULL (with a non-zero length) or misaligned.
@@ -63,11 +63,11 @@ pub const KIN_ERR_MACHINE: c_int = 13;
 pub const KIN_ERR_DIVERGES: c_int = 14;
 
 /// Most axes a compensator takes (its scratch is on the stack).
-pub const KIN_COMPENSATOR_MAX_AXES: usize = kin_runtime::compensate::MAX_SERVO_AXES;
+pub const KIN_COMPENSATOR_MAX_AXES: usize = ::kin_model::compensate::MAX_SERVO_AXES;
 
 /// A compiled compensation function (opaque to C): see `kin_compensator_new`.
 pub struct kin_compensator {
-    comp: kin_runtime::embed::ServoCompensator,
+    comp: ::kin_model::embed::ServoCompensator,
 }
 
 /// A compiled model (opaque to C).
@@ -536,8 +536,8 @@ unsafe fn beta(model: &Model, beta: *const f64, n_beta: usize) -> Result<&[f64],
     Ok(b)
 }
 
-fn compensate_error(e: kin_runtime::compensate::CompensateError) -> Fail {
-    use kin_runtime::compensate::CompensateError as E;
+fn compensate_error(e: ::kin_model::compensate::CompensateError) -> Fail {
+    use ::kin_model::compensate::CompensateError as E;
     match e {
         E::Measuring(_) | E::TooManyAxes(_) => Fail(KIN_ERR_MACHINE, e.to_string()),
         E::Weights => Fail(KIN_ERR_VALUE, e.to_string()),
@@ -548,8 +548,8 @@ fn compensate_error(e: kin_runtime::compensate::CompensateError) -> Fail {
     }
 }
 
-fn servo_error(m: &Model, e: kin_runtime::compensate::ServoError) -> Fail {
-    use kin_runtime::compensate::ServoError as E;
+fn servo_error(m: &Model, e: ::kin_model::compensate::ServoError) -> Fail {
+    use ::kin_model::compensate::ServoError as E;
     match e {
         E::Size { .. } => Fail(KIN_ERR_SIZE, e.to_string()),
         E::Value { .. } | E::NotFinite(_) => Fail(KIN_ERR_VALUE, e.to_string()),
@@ -1252,7 +1252,7 @@ pub unsafe extern "C" fn kin_compensator_new(
         }
         // SAFETY: caller's contract.
         let m = unsafe { self::model(model)? };
-        let mut options = kin_runtime::compensate::Options::pose(m.machine());
+        let mut options = ::kin_model::compensate::Options::pose(m.machine());
         if !(weights.is_null() && n_weights == 0) {
             // SAFETY: caller's contract.
             let w = unsafe { slice(weights, n_weights, "weights")? };

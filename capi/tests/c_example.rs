@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use kin_runtime::Model;
+use kin_model::Model;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -152,7 +152,7 @@ fn the_c_example_matches_the_rust_api() {
     );
 
     // The same states, built as the program builds them.
-    let states: Vec<kin_runtime::StateBuf> = (0..4)
+    let states: Vec<kin_model::StateBuf> = (0..4)
         .map(|k| {
             let t = (k as f64 + 1.0) / 5.0;
             let mut s = model.state();
@@ -285,7 +285,7 @@ fn the_c_compensation_example_matches_the_rust_api() {
     model.set_beta(&beta).expect("β");
     let m = model.machine().clone();
     let comp = model
-        .compensator(kin_runtime::compensate::Options::pose(&m))
+        .compensator(kin_model::compensate::Options::pose(&m))
         .expect("compensator");
     let mut compared = 0;
     for k in 0..4 {

@@ -12,9 +12,10 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use kin_compiler::{bind_params, compile, Compiled, Diagnostic};
-use kin_runtime::data::{self, Observations, ReadOptions};
-use kin_runtime::engine::Engine;
-use kin_runtime::{simulate, Model};
+use kin_data::data::{self, Observations, ReadOptions};
+use kin_estimate::simulate;
+use kin_model::engine::Engine;
+use kin_model::Model;
 
 /// The CLI's diagnostic renderer, compiled in so that its output on odd spans is fuzzed too.
 #[allow(dead_code)]
@@ -195,14 +196,14 @@ pub fn fit_json(data: &[u8]) {
         // Every reader takes a `&str` (the CLI's `read_to_string` stops at invalid UTF-8).
         return;
     };
-    if let Ok(fit) = serde_json::from_str::<kin_runtime::fit::report::FitReport>(text) {
+    if let Ok(fit) = serde_json::from_str::<kin_estimate::fit::report::FitReport>(text) {
         if let (Some(c), Some(poses)) = (tiny(), tiny_poses()) {
             let m = &c.machine;
             let _ = fit.covariance_mismatch(m);
             let _ = simulate::uncertainty(m, &fit, poses, [true; 6], Engine::Interp);
         }
     }
-    let _ = serde_json::from_str::<kin_runtime::diagnose::Diagnosis>(text);
+    let _ = serde_json::from_str::<kin_diagnose::Diagnosis>(text);
     // `--params FIT.json`: the fitted values are the report's `params` text (src/load.rs).
     if let Some(params) = serde_json::from_str::<serde_json::Value>(text)
         .ok()

@@ -10,12 +10,12 @@
 use std::path::{Path, PathBuf};
 
 use kin_compiler::Diagnostic;
-use kin_runtime::data::{self, Observations, ReadError, ReadOptions};
-use kin_runtime::diagnose;
-use kin_runtime::embed::Error as ModelError;
-use kin_runtime::fit::{self, merge, report, DataSet, Reduced, Solver, StreamingQr};
-use kin_runtime::interp::State;
-use kin_runtime::Model;
+use kin_data::data::{self, Observations, ReadError, ReadOptions};
+use kin_diagnose as diagnose;
+use kin_model::embed::Error as ModelError;
+use kin_estimate::fit::{self, merge, report, DataSet, Reduced, Solver, StreamingQr};
+use kin_model::interp::State;
+use kin_model::Model;
 use numpy::{
     PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
     PyUntypedArrayMethods,
@@ -278,12 +278,19 @@ fn contiguous<'a>(
     what: &str,
     a: &'a numpy::PyReadonlyArray<'_, f64, impl numpy::ndarray::Dimension>,
 ) -> PyResult<&'a [f64]> {
-    a.as_slice().map_err(|_| {
+    let refuse = || {
         shape_error(
             py,
             format!("`{what}` must be C-contiguous (numpy.ascontiguousarray makes it so)"),
         )
-    })
+    };
+    // `as_slice` accepts any contiguous array, a Fortran-ordered one too (what
+    // `DataFrame.to_numpy()` returns), whose memory is column after column: read as rows it
+    // would give wrong numbers without a word.
+    if !a.is_c_contiguous() {
+        return Err(refuse());
+    }
+    a.as_slice().map_err(|_| refuse())
 }
 
 /// An output array given by the caller: its shape must be `shape`; else a new one.
@@ -683,9 +690,9 @@ impl PyModel {
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let m = self.model.machine();
         let options = if position_only {
-            kin_runtime::compensate::Options::position(m)
+            kin_model::compensate::Options::position(m)
         } else {
-            kin_runtime::compensate::Options::pose(m)
+            kin_model::compensate::Options::pose(m)
         };
         let comp = self
             .model
@@ -1207,7 +1214,7 @@ fn write_files(
 ) -> PyResult<()> {
     let inputs: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
     for (path, _) in &files {
-        kin_runtime::output::check_target(path, &inputs).map_err(|e| {
+        kin_data::output::check_target(path, &inputs).map_err(|e| {
             raise::<KinError>(
                 py,
                 e.to_string(),
@@ -1222,7 +1229,7 @@ fn write_files(
         .iter()
         .map(|(p, b)| (p.as_path(), b.as_slice()))
         .collect();
-    kin_runtime::output::replace_all(&set).map_err(|e| kin_error(py, format!("cannot write: {e}")))
+    kin_data::output::replace_all(&set).map_err(|e| kin_error(py, format!("cannot write: {e}")))
 }
 
 /// Simulates a measurement file (as `kin simulate --sample N`): `n` states drawn in the axes'
@@ -1248,16 +1255,16 @@ fn simulate(
         which[c] = true;
     }
     let m = model.model.machine();
-    let poses = Observations::Points(kin_runtime::simulate::sample_points(m, n, seed));
-    let options = kin_runtime::simulate::Options {
+    let poses = Observations::Points(kin_estimate::simulate::sample_points(m, n, seed));
+    let options = kin_estimate::simulate::Options {
         observe: which,
         noise,
         noise_tilt,
         seed,
-        ..kin_runtime::simulate::Options::default()
+        ..kin_estimate::simulate::Options::default()
     };
     let out = py
-        .detach(|| kin_runtime::simulate::simulate(m, model.model.beta(), &poses, &options))
+        .detach(|| kin_estimate::simulate::simulate(m, model.model.beta(), &poses, &options))
         .map_err(|e| kin_error(py, e))?;
     let write = data::WriteOptions {
         comments: vec![format!(
@@ -1283,7 +1290,7 @@ fn _rust_eval_seconds(
     let q = contiguous(py, "states", &states)?.to_vec();
     let na = m.axes().max(1);
     let n = q.len() / na;
-    let mut rows = kin_runtime::RowsBuf::default();
+    let mut rows = kin_model::RowsBuf::default();
     let mut one = m.state();
     // Inputs at 0 (no load, no temperature change), as the Python side of the benchmark gives them.
     one.inputs.iter_mut().for_each(|v| *v = 0.0);

@@ -152,6 +152,19 @@ def test_bad_arrays_are_refused_with_a_clear_error():
     assert e.value.row == 3
 
 
+def test_a_fortran_ordered_array_is_refused_not_misread():
+    # `DataFrame.to_numpy()` gives this layout: its memory is column after column, which read
+    # as rows would mix the axes' values and return wrong numbers without a word.
+    m = kin.Model.from_file(str(EXAMPLES / "milling_5axis.kin"))
+    q = states_of(m, 7)
+    want = m.eval(q)
+    with pytest.raises(kin.EvalError, match="C-contiguous"):
+        m.eval(np.asfortranarray(q))
+    with pytest.raises(kin.EvalError, match="C-contiguous"):
+        m.eval_jacobian(np.asfortranarray(q))
+    assert np.array_equal(m.eval(np.ascontiguousarray(np.asfortranarray(q))), want)
+
+
 def test_joint_jacobian_of_a_slide_is_its_axis():
     m = kin.Model.compile(SLIDE)
     j = m.joint_jacobian(np.array([[0.1], [0.3]]))

@@ -210,9 +210,9 @@ fn identify_due(connection: &Connection, docs: &mut Docs) -> Result<(), Error> {
         let mut all = doc.found.clone();
         all.extend(crate::check::identify(
             c,
-            kin_runtime::identify::Observe::Pose,
+            kin_estimate::identify::Observe::Pose,
             false,
-            kin_runtime::engine::Engine::Jit,
+            kin_model::engine::Engine::Jit,
         ));
         let diagnostics = analysis::diagnostics(&doc.text, &doc.uri, &all);
         publish(connection, &doc.uri, diagnostics, Some(doc.version))?;

@@ -1,5 +1,5 @@
 //! The report's compensation section: the fitted model's predicted error before and after
-//! software compensation (thesis §2.3.5, `kin_runtime::compensate`) along each axis, and what
+//! software compensation (thesis §2.3.5, `kin_model::compensate`) along each axis, and what
 //! the axes cannot correct.
 //!
 //! Each axis is swept over its declared range with the others held at the middle of theirs;
@@ -10,8 +10,8 @@
 //! axes, which no correction of its axes turns.
 
 use kin_compiler::ir::{JointKind, Machine, Var};
-use kin_runtime::compensate::{Compensator, Options};
-use kin_runtime::interp::State;
+use kin_model::compensate::{Compensator, Options};
+use kin_model::interp::State;
 
 /// Points per axis sweep.
 const POINTS: usize = 41;

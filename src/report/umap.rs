@@ -6,13 +6,14 @@
 use std::fmt::Write as _;
 
 use kin_compiler::ir::{JointKind, Machine, Var};
-use kin_runtime::fit::report::FitReport;
-use kin_runtime::interp::Interpreter;
-use kin_runtime::states::States;
+use kin_estimate::fit::report::FitReport;
+use kin_estimate::uncertainty::PredictionCovariance;
+use kin_model::interp::Interpreter;
+use kin_model::states::States;
 use plotters::prelude::*;
 
-use super::curves::{range_of, Ranges};
 use super::{esc, num};
+use kin_estimate::curves::{range_of, Ranges};
 
 /// Grid points per axis: fine enough to show the shape of a spline-built uncertainty, small
 /// enough (1681 covariance evaluations) to cost nothing next to the fit.
@@ -89,28 +90,32 @@ pub fn map(m: &Machine, fit: &FitReport, data: &Ranges) -> Result<Map, String> {
         tool: 0,
     };
     let points = grid.points(m);
-    let states = States::new(m, &points.rows, &points.pose, "").map_err(|e| e.to_string())?;
-    let mut engine = Interpreter::new(m).map_err(|e| e.to_string())?;
-    // The fitted non-linear parameters (wavelengths, time constants) shape the Jacobian too.
-    let nonlinear: Vec<f64> = m
-        .nonlinear
-        .iter()
-        .map(|p| {
-            fit.nonlinear
-                .iter()
-                .find(|e| e.name == p.name)
-                .map_or(p.value, |e| p.unit.to_si(e.value))
-        })
-        .collect();
-    kin_runtime::engine::Evaluator::set_nonlinear(&mut engine, &nonlinear)
-        .map_err(|e| e.to_string())?;
-    let mut out = Vec::with_capacity(states.len());
-    for r in 0..states.len() {
-        let c = fit
-            .position_covariance(&mut engine, &states.get(r))
-            .map_err(|e| e.to_string())?;
-        out.push((c[0][0] + c[1][1] + c[2][2]).max(0.0).sqrt());
+    // The fitted model: its non-linear parameters (wavelengths, time constants) and β̂ shape
+    // the Jacobian, the lag states and the non-linear parameters' share of the uncertainty.
+    let mut fitted = m.clone();
+    for p in fitted.nonlinear.iter_mut() {
+        if let Some(e) = fit.nonlinear.iter().find(|e| e.name == p.name) {
+            p.value = p.unit.to_si(e.value);
+        }
     }
+    if fit.coefficients.len() == m.coefficients.len() {
+        fitted.beta = fit
+            .coefficients
+            .iter()
+            .zip(&m.coefficients)
+            .map(|(e, c)| e.value * c.unit.scale)
+            .collect();
+    }
+    let cov = PredictionCovariance::new(&fitted, fit)?;
+    let mut states =
+        States::new(&fitted, &points.rows, &points.pose, "").map_err(|e| e.to_string())?;
+    let mut engine = Interpreter::new(&fitted).map_err(|e| e.to_string())?;
+    let out = cov
+        .position_covariances(&fitted, &mut engine, &mut states, &points.rows)
+        .map_err(|e| e.source.to_string())?
+        .iter()
+        .map(|c| (c[0][0] + c[1][1] + c[2][2]).max(0.0).sqrt())
+        .collect();
     Ok(Map {
         axes: [a, b],
         u,
@@ -263,7 +268,7 @@ pub fn section(s: &mut String, m: &Machine, fit: &FitReport, data: &Ranges) {
             esc(&map.held.join(", "))
         }
     );
-    let used = kin_runtime::states::used_vars(m);
+    let used = kin_model::states::used_vars(m);
     if used.iter().any(|v| matches!(v, Var::Direction(_))) {
         s.push_str("<p class=\"note\">Every axis is taken as approached in its positive direction (the model has a direction-dependent error).</p>\n");
     }

@@ -1,0 +1,445 @@
+//! The candidates' one pass over the rows: every candidate's columns against the base model's,
+//! without the columns of one candidate meeting another's.
+//!
+//! Testing a candidate needs the triangle of `[X | C_i | y]` (X the base model's columns, `C_i`
+//! the candidate's): the part of `C_i` and `y` that X does not explain, and its products. One
+//! triangle of every column at once costs rows × (base + all candidates)² and holds products
+//! between candidates no test uses. Here the rows go through the base's streaming QR block by
+//! block (`[R; X_b] = Q R'`, as in [`kin_estimate::fit::StreamingQr`]), and the same orthogonal `Qᵀ` is
+//! applied to `[S; C_b | y_b]` — every candidate's columns and `y` — in one blocked product:
+//! its top rows are the columns' coordinates in the base's space (`S`), its bottom rows the
+//! parts of this block's rows orthogonal to it. Those bottom rows are summed into one Gram
+//! matrix of the remainders. All of it is orthogonal, so a candidate's factor
+//! `[R S_i z; 0 T_i w_i; 0 0 ρ_i]` has the inner products of `[X C_i y]`: the added-variable
+//! test of the candidate, from one pass for all of them; two candidates' joint factor compares
+//! the spaces they add. The cost per row is base² + 2 base × candidate columns + (candidate
+//! columns)² / 2 (one blocked Householder application and one Gram product per block), against
+//! (base + candidate columns)² for one QR of every column.
+//!
+//! Only the remainders, which X does not explain, are squared into a Gram matrix: their sums
+//! have no cancellation against X, so a column the base spans comes out as rounding, as in a
+//! QR of all the columns. On several threads, block `i` goes to worker `i mod T` and the
+//! workers' states are merged in worker order: the same bits for the same `T`.
+
+use std::sync::mpsc;
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::householder;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
+use faer::{Accum, Conj, Mat, Par};
+
+/// Which design columns are the base's, which the candidates'.
+#[derive(Debug, Clone)]
+pub(super) struct Split {
+    /// Design columns of the base (coefficients and nuisance parameters), in order.
+    pub base: Vec<usize>,
+    /// Design columns of the candidates, each once: the slots.
+    pub candidates: Vec<usize>,
+}
+
+/// What the pass accumulated.
+#[derive(Debug, Clone)]
+pub(super) struct Accumulated {
+    /// The base's design columns ([`Split::base`]).
+    pub base: Vec<usize>,
+    /// The base's triangle (`kb × kb`).
+    pub r: Mat<f64>,
+    /// The coordinates of every candidate column (slot order) and, last, of `y` in the base's
+    /// space (`kb × (slots + 1)`).
+    pub s: Mat<f64>,
+    /// The Gram matrix of the remainders of every slot, `y`'s last.
+    pub gram: Mat<f64>,
+    /// The sum of squares of `y`'s remainder.
+    pub ee: f64,
+    /// Euclidean norm of every design column.
+    pub norms: Vec<f64>,
+    pub rows: usize,
+}
+
+/// One worker's part.
+struct State {
+    r: Mat<f64>,
+    s: Mat<f64>,
+    gram: Mat<f64>,
+    ee: f64,
+}
+
+impl State {
+    fn new(split: &Split) -> State {
+        let (kb, slots) = (split.base.len(), split.candidates.len());
+        State {
+            r: Mat::zeros(kb, kb),
+            s: Mat::zeros(kb, slots + 1),
+            gram: Mat::zeros(slots + 1, slots + 1),
+            ee: 0.0,
+        }
+    }
+
+    /// Folds `filled` rows of `block` in: one row per column of it (base columns, then the
+    /// slots, then `y`), so that the reader writes each row contiguously.
+    fn fold(&mut self, block: &Mat<f64>, filled: usize) {
+        if filled == 0 {
+            return;
+        }
+        let kb = self.r.nrows();
+        let wide = self.s.ncols();
+        let m = kb + filled;
+        let mut a = Mat::zeros(m, kb);
+        let mut rhs = Mat::zeros(m, wide);
+        for j in 0..kb {
+            for i in 0..=j {
+                a[(i, j)] = self.r[(i, j)];
+            }
+        }
+        for j in 0..wide {
+            for i in 0..kb {
+                rhs[(i, j)] = self.s[(i, j)];
+            }
+        }
+        transpose_into(&mut a, kb, block, 0, filled);
+        transpose_into(&mut rhs, kb, block, kb, filled);
+        if kb > 0 {
+            let qr = a.qr();
+            let basis = qr.Q_basis();
+            let coeff = qr.Q_coeff();
+            let mut mem = MemBuffer::new(
+                householder::apply_block_householder_sequence_transpose_on_the_left_in_place_scratch::<f64>(
+                    m,
+                    coeff.nrows(),
+                    wide,
+                ),
+            );
+            householder::apply_block_householder_sequence_transpose_on_the_left_in_place_with_conj(
+                basis,
+                coeff,
+                Conj::No,
+                rhs.as_mut(),
+                Par::Seq,
+                MemStack::new(&mut mem),
+            );
+            let t = qr.thin_R();
+            self.r = Mat::from_fn(kb, kb, |i, j| if j >= i { t[(i, j)] } else { 0.0 });
+            self.s = Mat::from_fn(kb, wide, |i, j| rhs[(i, j)]);
+        }
+        let y = wide - 1;
+        self.ee += (kb..m).map(|i| rhs[(i, y)].powi(2)).sum::<f64>();
+        let rest = rhs.as_ref().get(kb..m, ..);
+        // The Gram matrix is symmetric: only its lower triangle is summed (half the flops of
+        // the full product, the largest part of a block's work when the candidates have more
+        // columns than the base); [`accumulate`] mirrors it once at the end.
+        triangular::matmul(
+            self.gram.as_mut(),
+            BlockStructure::TriangularLower,
+            Accum::Add,
+            rest.transpose(),
+            BlockStructure::Rectangular,
+            rest,
+            BlockStructure::Rectangular,
+            1.0,
+            Par::Seq,
+        );
+    }
+
+    /// Folds another worker's state in: its triangle and coordinates are rows like any others.
+    fn merge(&mut self, other: State) {
+        let kb = self.r.nrows();
+        let wide = self.s.ncols();
+        let block = Mat::from_fn(kb + wide, kb, |j, i| {
+            if j < kb {
+                other.r[(i, j)]
+            } else {
+                other.s[(i, j - kb)]
+            }
+        });
+        self.fold(&block, kb);
+        self.ee += other.ee;
+        self.gram += &other.gram;
+    }
+}
+
+/// Runs the pass: `visit` hands every row (design row `x`, observation `y`) to its callback.
+/// Rows are gathered `block` at a time and folded on `threads` threads (1: on this one).
+pub(super) fn accumulate<E>(
+    split: &Split,
+    width: usize,
+    block: usize,
+    threads: usize,
+    visit: impl FnOnce(&mut dyn FnMut(&[f64], f64)) -> Result<(), E>,
+) -> Result<Accumulated, E> {
+    let kb = split.base.len();
+    let wide = split.candidates.len() + 1;
+    let block = block.max(kb + wide).max(1);
+    let mut norms2 = vec![0.0; width];
+    let mut rows = 0usize;
+    let threads = threads.max(1);
+    let new_block = || Mat::<f64>::zeros(kb + wide, block);
+    let mut fill = |buf: &mut Mat<f64>, filled: &mut usize, x: &[f64], y: f64| {
+        // A column of an owned matrix is contiguous: the row is written as one run.
+        let mut col = buf.col_mut(*filled);
+        for (c, &j) in split.base.iter().chain(&split.candidates).enumerate() {
+            col[c] = x.get(j).copied().unwrap_or(0.0);
+        }
+        col[kb + wide - 1] = y;
+        for (n, v) in norms2.iter_mut().zip(x) {
+            *n += v * v;
+        }
+        *filled += 1;
+        rows += 1;
+    };
+    let state = if threads == 1 {
+        let mut state = State::new(split);
+        let mut buf = new_block();
+        let mut filled = 0;
+        visit(&mut |x, y| {
+            fill(&mut buf, &mut filled, x, y);
+            if filled == block {
+                state.fold(&buf, filled);
+                filled = 0;
+            }
+        })?;
+        state.fold(&buf, filled);
+        state
+    } else {
+        std::thread::scope(|scope| -> Result<State, E> {
+            let (back, spare) = mpsc::channel::<Mat<f64>>();
+            let mut to = Vec::with_capacity(threads);
+            let mut handles = Vec::with_capacity(threads);
+            for _ in 0..threads {
+                // A rendezvous: a block is handed over when its worker is free, so only the
+                // workers' blocks and the one being filled exist (a queue of one per worker held
+                // two more, 55 MB at 10⁵ poses of the 5-axis example, and was no faster).
+                let (tx, rx) = mpsc::sync_channel::<(Mat<f64>, usize)>(0);
+                let back = back.clone();
+                handles.push(scope.spawn(move || {
+                    let mut state = State::new(split);
+                    for (b, filled) in rx {
+                        state.fold(&b, filled);
+                        let _ = back.send(b);
+                    }
+                    state
+                }));
+                to.push(tx);
+            }
+            let mut sent = 0usize;
+            let mut buf = new_block();
+            let mut filled = 0;
+            let mut send = |buf: &mut Mat<f64>, filled: &mut usize| {
+                let next = spare.try_recv().unwrap_or_else(|_| new_block());
+                let full = std::mem::replace(buf, next);
+                // A worker only drops its end by panicking, which the join below carries on.
+                let _ = to[sent % threads].send((full, *filled));
+                sent += 1;
+                *filled = 0;
+            };
+            let visited = visit(&mut |x, y| {
+                fill(&mut buf, &mut filled, x, y);
+                if filled == block {
+                    send(&mut buf, &mut filled);
+                }
+            });
+            if filled > 0 {
+                send(&mut buf, &mut filled);
+            }
+            drop(to);
+            let mut merged: Option<State> = None;
+            for h in handles {
+                let part = match h.join() {
+                    Ok(part) => part,
+                    Err(e) => std::panic::resume_unwind(e),
+                };
+                match &mut merged {
+                    None => merged = Some(part),
+                    Some(m) => m.merge(part),
+                }
+            }
+            visited?;
+            Ok(merged.unwrap_or_else(|| State::new(split)))
+        })?
+    };
+    let mut gram = state.gram;
+    for j in 0..gram.ncols() {
+        for i in 0..j {
+            gram[(i, j)] = gram[(j, i)];
+        }
+    }
+    Ok(Accumulated {
+        base: split.base.clone(),
+        r: state.r,
+        s: state.s,
+        gram,
+        ee: state.ee,
+        norms: norms2.iter().map(|v| v.sqrt()).collect(),
+        rows,
+    })
+}
+
+impl Accumulated {
+    /// A factor `F` of `[X | C | y]` (`FᵀF` its Gram matrix) for the candidate columns `slots`:
+    /// the base's columns, the slots', `y` last. Only inner products of its columns are
+    /// meaningful: the rows below the base's are a symmetric square root of the remainders'
+    /// Gram matrix, not a triangle.
+    pub fn factor(&self, slots: &[usize]) -> Mat<f64> {
+        let kb = self.r.nrows();
+        let q = slots.len();
+        let k = kb + q + 1;
+        let y = self.s.ncols() - 1;
+        let at = |c: usize| slots.get(c).copied().unwrap_or(y);
+        let mut f = Mat::zeros(k, k);
+        for a in 0..kb {
+            for b in a..kb {
+                f[(a, b)] = self.r[(a, b)];
+            }
+            for c in 0..=q {
+                f[(a, kb + c)] = self.s[(a, at(c))];
+            }
+        }
+        // The root of the unit-diagonal Gram matrix, scaled back (`F = √(D⁻¹GD⁻¹) D`): the
+        // columns' sizes differ by many orders (units, and `y` a residual), and an eigenvalue
+        // solver's rounding is relative to the largest.
+        let d: Vec<f64> = (0..=q)
+            .map(|a| self.gram[(at(a), at(a))].max(0.0).sqrt())
+            .map(|v| if v > 0.0 { v } else { 1.0 })
+            .collect();
+        let sub = Mat::from_fn(q + 1, q + 1, |a, b| {
+            self.gram[(at(a), at(b))] / (d[a] * d[b])
+        });
+        let root = root(&sub);
+        for a in 0..=q {
+            for b in 0..=q {
+                f[(kb + a, kb + b)] = root[(a, b)] * d[b];
+            }
+        }
+        f
+    }
+}
+
+/// `dst[top + i, j] = src[from + j, i]` for `i < rows` and every column `j` of `dst`, in
+/// tiles that keep both sides in cache.
+fn transpose_into(dst: &mut Mat<f64>, top: usize, src: &Mat<f64>, from: usize, rows: usize) {
+    const TILE: usize = 32;
+    let cols = dst.ncols();
+    for i0 in (0..rows).step_by(TILE) {
+        for j0 in (0..cols).step_by(TILE) {
+            for j in j0..(j0 + TILE).min(cols) {
+                for i in i0..(i0 + TILE).min(rows) {
+                    dst[(top + i, j)] = src[(from + j, i)];
+                }
+            }
+        }
+    }
+}
+
+/// The symmetric square root of a Gram matrix (negative rounding in its eigenvalues as zero).
+fn root(g: &Mat<f64>) -> Mat<f64> {
+    let n = g.nrows();
+    let sym = nalgebra::DMatrix::from_fn(n, n, |a, b| 0.5 * (g[(a, b)] + g[(b, a)]));
+    let eig = sym.symmetric_eigen();
+    let mut out = Mat::zeros(n, n);
+    for (l, &v) in eig.eigenvalues.iter().enumerate() {
+        let s = v.max(0.0).sqrt();
+        if s == 0.0 {
+            continue;
+        }
+        for a in 0..n {
+            for b in 0..n {
+                out[(a, b)] += eig.eigenvectors[(a, l)] * s * eig.eigenvectors[(b, l)];
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// Rows of 4 base columns (the last twice the first: a deficient base, as a minimum-norm
+    /// fit has), 3 candidate columns (the second a combination of base columns) and y, in units
+    /// far apart; the design holds a column the pass leaves out.
+    fn rows(n: usize) -> Vec<(Vec<f64>, f64)> {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
+        (0..n)
+            .map(|_| {
+                let b: Vec<f64> = (0..3).map(|_| rng.random_range(-1.0..1.0)).collect();
+                let c0 = 1e3 * rng.random_range(-1.0..1.0);
+                let c2 = 1e-4 * rng.random_range(-1.0..1.0);
+                let x = vec![
+                    b[0],
+                    1e-3 * b[1],
+                    5.0,
+                    c0,
+                    2.0 * b[0],
+                    b[1] - 0.5 * b[2],
+                    rng.random_range(-1.0..1.0),
+                    c2,
+                    1e2 * b[2],
+                ];
+                let y = 1e-6 * (b[0] + c0 * 1e-3 + rng.random_range(-1.0..1.0));
+                (x, y)
+            })
+            .collect()
+    }
+
+    fn run(data: &[(Vec<f64>, f64)], split: &Split, block: usize, threads: usize) -> Accumulated {
+        accumulate::<()>(split, 9, block, threads, |push| {
+            for (x, y) in data {
+                push(x, *y);
+            }
+            Ok(())
+        })
+        .expect("no error")
+    }
+
+    /// The factor of the base with any candidate columns squares to the Gram matrix of those
+    /// columns of the rows, to rounding relative to each column's size; a column the base spans
+    /// has a remainder of rounding; the same threads give the same bits, other threads the
+    /// same products.
+    #[test]
+    fn a_candidates_factor_has_the_products_of_its_columns() {
+        let data = rows(1000);
+        let split = Split {
+            base: vec![0, 1, 2, 4, 8],
+            candidates: vec![3, 5, 7],
+        };
+        let gram = |a: usize, b: usize| -> f64 {
+            let col = |r: &(Vec<f64>, f64), c: usize| if c == 9 { r.1 } else { r.0[c] };
+            data.iter().map(|r| col(r, a) * col(r, b)).sum()
+        };
+        for threads in [1, 2] {
+            let acc = run(&data, &split, 64, threads);
+            assert_eq!(acc.rows, 1000);
+            let again = run(&data, &split, 64, threads);
+            assert_eq!(acc.gram, again.gram);
+            assert_eq!(acc.s, again.s);
+            for slots in [vec![0usize], vec![1, 2], vec![2, 0, 1]] {
+                let f = acc.factor(&slots);
+                let design: Vec<usize> = split
+                    .base
+                    .iter()
+                    .copied()
+                    .chain(slots.iter().map(|&s| split.candidates[s]))
+                    .chain([9])
+                    .collect();
+                assert_eq!(f.nrows(), design.len());
+                for (a, &da) in design.iter().enumerate() {
+                    for (b, &db) in design.iter().enumerate() {
+                        let got: f64 = (0..f.nrows()).map(|i| f[(i, a)] * f[(i, b)]).sum();
+                        let want = gram(da, db);
+                        let size = (gram(da, da) * gram(db, db)).sqrt();
+                        assert!(
+                            (got - want).abs() <= 1e-11 * size,
+                            "threads {threads} slots {slots:?} ({da}, {db}): {got} against {want}"
+                        );
+                    }
+                }
+            }
+            // Slot 1 is `b1 − b2/2`: in the base's span, nothing of it remains.
+            assert!(
+                acc.gram[(1, 1)].sqrt() < 1e-13 * gram(5, 5).sqrt(),
+                "{:?}",
+                acc.gram
+            );
+        }
+    }
+}

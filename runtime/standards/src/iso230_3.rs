@@ -1,0 +1,409 @@
+//! ISO 230-3 evaluation of thermal tests from their time series (spec/iso230-3.md): the
+//! environmental temperature variation error (ETVE) — the largest range of the relative
+//! displacement between tool side and workpiece side while only the environment changes — and
+//! the thermal distortion caused by a rotating spindle — the drift of each displacement from
+//! its value when the spindle started, with the tilts of the spindle axis from pairs of
+//! sensors a known distance apart along it.
+//!
+//! The run file is a small CSV (`time`, displacement channels `X`, `Y`, `Z` or the pairs
+//! `X1 X2`, `Y1 Y2`, `Z1 Z2`, temperature channels `T…`), read with the CSV front end of the
+//! ISO 230-2 and 230-4 files; `# separation: 100 mm` before the header gives the distance from
+//! sensor 1 to sensor 2 of each pair.
+
+use std::path::{Path, PathBuf};
+
+use kin_compiler::units::{Dim, Unit};
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::iso230_2::{
+    column_of, header_cell, layout, length_unit, number, push, read_bytes, split_line, text,
+    Layout, Listing, RunProblem,
+};
+use kin_data::data::csv::{Cell, Dialect};
+
+#[derive(Debug, Error)]
+pub enum Iso2303Error {
+    #[error("cannot read `{}`: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}", Listing { path, problems })]
+    Invalid {
+        path: PathBuf,
+        problems: Vec<RunProblem>,
+    },
+}
+
+/// One measured quantity over time: a displacement (m) or a temperature (K, as read).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Channel {
+    pub name: String,
+    pub values: Vec<f64>,
+}
+
+/// A thermal test's time series.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ThermalRun {
+    /// Seconds, non-decreasing.
+    pub time: Vec<f64>,
+    pub displacements: Vec<Channel>,
+    pub temperatures: Vec<Channel>,
+    /// Distance from sensor 1 to sensor 2 of each pair along the spindle axis, m.
+    pub separation: Option<f64>,
+    pub line: Vec<usize>,
+}
+
+/// The figures of one channel over the test.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ChannelFigures {
+    pub name: String,
+    /// Largest minus least value over the test (the ETVE of a displacement channel).
+    pub range: f64,
+    /// The value of largest magnitude of `v(t) − v(0)`, signed: the drift from the start.
+    pub drift: f64,
+    /// When the drift was reached, s from the start.
+    pub drift_at: f64,
+    /// The drift at the last sample.
+    pub end: f64,
+}
+
+/// A tilt of the spindle axis from a pair of sensors: `(v₂ − v₁)/separation` per sample.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Tilt {
+    /// `X` (tilt in the plane of X and the spindle axis) or `Y`, `Z`.
+    pub pair: String,
+    pub values: Vec<f64>,
+    pub figures: ChannelFigures,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Evaluation {
+    pub duration: f64,
+    pub samples: usize,
+    pub displacements: Vec<ChannelFigures>,
+    pub tilts: Vec<Tilt>,
+    pub temperatures: Vec<ChannelFigures>,
+}
+
+/// Range and drift of one series at `time`.
+pub fn figures(name: &str, time: &[f64], v: &[f64]) -> ChannelFigures {
+    let first = v.first().copied().unwrap_or(0.0);
+    let t0 = time.first().copied().unwrap_or(0.0);
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let (mut drift, mut at) = (0.0f64, 0.0);
+    for (t, x) in time.iter().zip(v) {
+        lo = lo.min(*x);
+        hi = hi.max(*x);
+        if (x - first).abs() > drift.abs() {
+            drift = x - first;
+            at = t - t0;
+        }
+    }
+    ChannelFigures {
+        name: name.to_string(),
+        range: if hi >= lo { hi - lo } else { 0.0 },
+        drift,
+        drift_at: at,
+        end: v.last().copied().unwrap_or(first) - first,
+    }
+}
+
+/// The ETVE and spindle-drift figures of a run.
+pub fn evaluate(run: &ThermalRun) -> Evaluation {
+    let t = &run.time;
+    let displacements = run
+        .displacements
+        .iter()
+        .map(|c| figures(&c.name, t, &c.values))
+        .collect();
+    let temperatures = run
+        .temperatures
+        .iter()
+        .map(|c| figures(&c.name, t, &c.values))
+        .collect();
+    let mut tilts = Vec::new();
+    if let Some(l) = run.separation.filter(|l| *l > 0.0) {
+        for axis in ["X", "Y", "Z"] {
+            let find = |k: &str| {
+                run.displacements
+                    .iter()
+                    .find(|c| c.name == format!("{axis}{k}"))
+            };
+            if let (Some(a), Some(b)) = (find("1"), find("2")) {
+                let values: Vec<f64> = a
+                    .values
+                    .iter()
+                    .zip(&b.values)
+                    .map(|(v1, v2)| (v2 - v1) / l)
+                    .collect();
+                let figures = figures(&format!("tilt {axis}"), t, &values);
+                tilts.push(Tilt {
+                    pair: axis.to_string(),
+                    values,
+                    figures,
+                });
+            }
+        }
+    }
+    Evaluation {
+        duration: t.last().copied().unwrap_or(0.0) - t.first().copied().unwrap_or(0.0),
+        samples: t.len(),
+        displacements,
+        tilts,
+        temperatures,
+    }
+}
+
+#[derive(Clone)]
+enum Role {
+    Time(Unit),
+    Displacement(Unit),
+    Temperature(Unit),
+}
+
+const DISPLACEMENTS: [&str; 9] = ["X", "Y", "Z", "X1", "X2", "Y1", "Y2", "Z1", "Z2"];
+
+/// Reads a thermal test's run file from disk (spec/iso230-3.md).
+pub fn read_file(path: &Path) -> Result<ThermalRun, Iso2303Error> {
+    let bytes = read_bytes(path).map_err(|source| Iso2303Error::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    read(&bytes, path)
+}
+
+/// Reads a run file from memory; `path` only names it in errors.
+pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
+    let invalid = |problems| Iso2303Error::Invalid {
+        path: path.to_path_buf(),
+        problems,
+    };
+    let text = text(bytes).map_err(|p| invalid(vec![p]))?;
+    let Some(Layout {
+        setup: comments,
+        header: (header_line, header),
+        rows,
+    }) = layout(text)
+    else {
+        return Err(invalid(vec![RunProblem::NoHeader]));
+    };
+    let mut problems = Vec::new();
+    let mut run = ThermalRun::default();
+    for (line, comment) in comments {
+        let Some((k, v)) = comment.trim_start_matches('#').split_once(':') else {
+            continue;
+        };
+        if !k.trim().eq_ignore_ascii_case("separation") {
+            continue;
+        }
+        match quantity(v.trim(), Dim::LENGTH) {
+            Some(x) if x > 0.0 => run.separation = Some(x),
+            _ => push(
+                &mut problems,
+                RunProblem::Line {
+                    line,
+                    what: format!(
+                        "`{}`: expected a positive length, e.g. `separation: 100 mm`",
+                        v.trim()
+                    ),
+                },
+            ),
+        }
+    }
+    let dialect = Dialect::detect(header);
+    let mut buf = String::new();
+    let mut cells: Vec<Cell> = Vec::new();
+    if let Err(p) = split_line(header, header_line, dialect, &mut buf, &mut cells) {
+        push(&mut problems, p);
+    }
+    let mut roles: Vec<Option<Role>> = Vec::new();
+    let mut names: Vec<String> = Vec::new();
+    for c in &cells {
+        let column = column_of(header, c.origin);
+        let at = |what: String| RunProblem::At {
+            line: header_line,
+            column,
+            what,
+        };
+        let cell = buf.get(c.start..c.end).unwrap_or("").trim();
+        let (name, unit) = match header_cell(cell) {
+            Ok(nu) => nu,
+            Err(what) => {
+                push(&mut problems, at(what));
+                roles.push(None);
+                names.push(String::new());
+                continue;
+            }
+        };
+        if names.iter().any(|n| n == name) {
+            push(&mut problems, at(format!("duplicate column `{name}`")));
+            roles.push(None);
+            names.push(String::new());
+            continue;
+        }
+        let role = if name == "time" {
+            match unit.map(Unit::parse) {
+                None => Unit::atom("s").map(Role::Time),
+                Some(Ok(u)) if u.dim == Dim::TIME => Some(Role::Time(u)),
+                Some(_) => {
+                    push(
+                        &mut problems,
+                        at(format!("`{cell}`: expected a time unit (s, min, h)")),
+                    );
+                    None
+                }
+            }
+        } else if DISPLACEMENTS.contains(&name) {
+            match unit.map(length_unit) {
+                None => Unit::atom("um").map(Role::Displacement),
+                Some(Ok(u)) => Some(Role::Displacement(u)),
+                Some(Err(e)) => {
+                    push(&mut problems, at(format!("column `{name}`: {e}")));
+                    None
+                }
+            }
+        } else if name.starts_with('T') {
+            match unit.map(Unit::parse) {
+                None => Unit::atom("degC").map(|u| Role::Temperature(u.as_difference())),
+                Some(Ok(u)) if u.dim == Dim::TEMPERATURE => {
+                    Some(Role::Temperature(u.as_difference()))
+                }
+                Some(_) => {
+                    push(
+                        &mut problems,
+                        at(format!(
+                            "column `{name}`: expected a temperature unit (degC, K)"
+                        )),
+                    );
+                    None
+                }
+            }
+        } else {
+            push(
+                &mut problems,
+                at(format!(
+                    "unknown column `{name}`; a thermal-test file has time, displacements X Y Z (or X1 X2 Y1 Y2 Z1 Z2) and temperatures T…"
+                )),
+            );
+            None
+        };
+        names.push(name.to_string());
+        roles.push(role);
+    }
+    if !roles.iter().any(|r| matches!(r, Some(Role::Time(_)))) {
+        push(&mut problems, RunProblem::File("no `time` column".into()));
+    }
+    if !roles
+        .iter()
+        .any(|r| matches!(r, Some(Role::Displacement(_))))
+    {
+        push(
+            &mut problems,
+            RunProblem::File("no displacement column (X, Y, Z, X1 … Z2)".into()),
+        );
+    }
+    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); roles.len()];
+    let mut last_time: Option<(f64, usize)> = None;
+    for (n, l) in rows {
+        if let Err(p) = split_line(l, n, dialect, &mut buf, &mut cells) {
+            push(&mut problems, p);
+            continue;
+        }
+        if cells.len() != roles.len() {
+            push(
+                &mut problems,
+                RunProblem::Line {
+                    line: n,
+                    what: format!("{} cells, the header has {}", cells.len(), roles.len()),
+                },
+            );
+            continue;
+        }
+        for (k, (c, role)) in cells.iter().zip(&roles).enumerate() {
+            let Some(role) = role else { continue };
+            let cell = buf.get(c.start..c.end).unwrap_or("").trim();
+            let column = column_of(l, c.origin);
+            let unit = match role {
+                Role::Time(u) | Role::Displacement(u) | Role::Temperature(u) => u,
+            };
+            let Some(v) = number(cell, dialect) else {
+                push(
+                    &mut problems,
+                    RunProblem::At {
+                        line: n,
+                        column,
+                        what: format!(
+                            "`{cell}`: expected a number in {} (`{}`)",
+                            unit.name,
+                            names.get(k).map_or("", |s| s.as_str())
+                        ),
+                    },
+                );
+                continue;
+            };
+            let si = unit.to_si(v);
+            if let Role::Time(_) = role {
+                if let Some((prev, prev_line)) = last_time {
+                    if si < prev {
+                        push(
+                            &mut problems,
+                            RunProblem::At {
+                                line: n,
+                                column,
+                                what: format!(
+                                    "time {cell} is before the time at line {prev_line}: samples must be in time order"
+                                ),
+                            },
+                        );
+                    }
+                }
+                last_time = Some((si, n));
+            }
+            if let Some(col) = columns.get_mut(k) {
+                col.push(si);
+            }
+        }
+        run.line.push(n);
+    }
+    if run.line.is_empty() && problems.is_empty() {
+        push(&mut problems, RunProblem::File("no samples".into()));
+    }
+    let pairs = names.iter().any(|n| n.ends_with('1') || n.ends_with('2'));
+    if pairs && run.separation.is_none() && problems.is_empty() {
+        push(
+            &mut problems,
+            RunProblem::File(
+                "sensor pairs (X1, X2 …) need `# separation: L mm` before the header: the distance from sensor 1 to sensor 2 along the spindle axis".into(),
+            ),
+        );
+    }
+    if !problems.is_empty() {
+        return Err(invalid(problems));
+    }
+    for ((role, name), values) in roles.into_iter().zip(names).zip(columns) {
+        match role {
+            Some(Role::Time(_)) => run.time = values,
+            Some(Role::Displacement(_)) => run.displacements.push(Channel { name, values }),
+            Some(Role::Temperature(_)) => run.temperatures.push(Channel { name, values }),
+            None => {}
+        }
+    }
+    Ok(run)
+}
+
+/// `100 mm`, `100mm`: a number and a unit of `dim`, in SI.
+fn quantity(text: &str, dim: Dim) -> Option<f64> {
+    let split = text
+        .find(|c: char| c.is_alphabetic() || c == 'µ')
+        .unwrap_or(text.len());
+    let (v, u) = text.split_at(split);
+    let v: f64 = v.trim().parse().ok()?;
+    let unit = Unit::parse(u.trim()).ok()?;
+    (unit.dim == dim && v.is_finite()).then_some(v * unit.scale)
+}
+
+#[cfg(test)]
+mod tests;

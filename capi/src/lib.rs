@@ -188,7 +188,7 @@ unsafe fn slice<'a, T>(p: *const T, n: usize, what: &str) -> Result<&'a [T], Fai
     Ok(unsafe { std::slice::from_raw_parts(p, n) })
 }
 
-/// As [`slice`], for writing.
+/// As [`slice`](fn@slice), for writing.
 ///
 /// # Safety
 ///
@@ -414,7 +414,7 @@ unsafe fn model<'a>(model: *const kin_model) -> Result<&'a Model, Fail> {
 ///
 /// # Safety
 ///
-/// As [`slice`].
+/// As [`slice`](fn@slice).
 unsafe fn text<'a>(p: *const c_char, len: usize, what: &str) -> Result<&'a str, Fail> {
     // SAFETY: caller's contract.
     let bytes = unsafe { slice(p.cast::<u8>(), len, what)? };
@@ -525,7 +525,7 @@ unsafe fn state<'a>(state: *const kin_state) -> Result<State<'a>, Fail> {
 ///
 /// # Safety
 ///
-/// As [`slice`].
+/// As [`slice`](fn@slice).
 unsafe fn beta(model: &Model, beta: *const f64, n_beta: usize) -> Result<&[f64], Fail> {
     if beta.is_null() && n_beta == 0 {
         return Ok(model.beta());

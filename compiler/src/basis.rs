@@ -247,7 +247,7 @@ pub struct Power {
 /// * `Detrend::None`: nothing (`trend` is `[0, 0]` and unused);
 /// * `Detrend::Line`: `trend[0] + trend[1]·s`;
 /// * `Detrend::OncePerRev`: `trend[0]·cos(x − m) + trend[1]·sin(x − m)`, `m = lo + (hi − lo)/2`
-///   (see [`once_per_rev_fit`] for why the midpoint).
+///   (see `once_per_rev_fit` for why the midpoint).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SplineFunction {
     pub g: Power,

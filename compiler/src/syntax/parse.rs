@@ -38,7 +38,7 @@ pub fn parse_file(source: &str) -> Result<File> {
 }
 
 /// As [`parse_file`], but a file with syntax errors gives every one that
-/// [`recover`](super::recover) finds, not only the first.
+/// `recover` finds, not only the first.
 pub fn parse_file_all(source: &str) -> std::result::Result<File, Vec<Diagnostic>> {
     parse_file(source).map_err(|first| {
         if first.code == "E0001" && check_nesting(source).is_ok() {

@@ -208,7 +208,7 @@ fn closed_loop(src: &str, size: f64, fit_poses: usize, seed: u64) -> Outcome {
             &target,
             &exact::actual_transform(m, &moved_pose, &errors).unwrap(),
         );
-        let u = variances[r];
+        let u = variances.get(r).copied().expect("a variance per pose");
         for k in 0..6 {
             // What the machine really does after compensation, against what the fitted model
             // predicts it will do: the model's error at this pose, within its uncertainty.

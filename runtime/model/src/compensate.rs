@@ -685,7 +685,7 @@ impl<E: FirstOrderEngine> Plant for FirstOrderPlant<'_, '_, E> {
 }
 
 /// The compensation a controller calls every servo cycle: the correction of the commanded pose
-/// `state` into `dq` (axis order, SI), by the §2.3.5 iteration of [`iterate`] on the engine's
+/// `state` into `dq` (axis order, SI), by the §2.3.5 iteration of `iterate` on the engine's
 /// first-order model (its error applied to the exact nominal kinematics), at most
 /// `options.iterations` solves. Its scratch is on the stack: no allocation, no lock, as many
 /// threads at once as have their own engine.

@@ -194,7 +194,7 @@ impl<'m> Interpreter<'m> {
 
     /// The tool-location error (ex, ey, ez, erx, ery, erz) at `state`, with the task's sign:
     /// `Σ F_k E_k` (eq. 2.24) summed model by model, each model's value times its F-matrix
-    /// column, in [`Interpreter::order`]'s order (that of the JIT).
+    /// column, in `Interpreter::order`'s order (that of the JIT).
     pub fn error(&mut self, state: &State, beta: &[f64]) -> Result<[f64; 6], EvalError> {
         self.check_state(state)?;
         self.check_beta(beta)?;

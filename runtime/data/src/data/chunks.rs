@@ -1,6 +1,6 @@
 //! Reading a measurement file a block of rows at a time, so that a fit of 10⁸ observations
 //! never holds them all. Every line goes through the same header and cell parsing as
-//! [`read`](super::read) (the reader of `read.rs`); only the whole-file text and the whole-file
+//! [`read`](fn@super::read) (the reader of `read.rs`); only the whole-file text and the whole-file
 //! columns are replaced by one line and one block.
 //!
 //! Errors are those of [`read_file`](super::read_file), found at the same lines: a file with

@@ -5,7 +5,7 @@
 //!
 //! The parameters are positive, so the search runs over their logarithms. The Jacobian of the
 //! projected residual `r(θ) = y − X(θ)β̂(θ)` is Kaufman's `−(I − P_X)∂(Xβ̂)/∂θ`, its products
-//! taken from the fixed columns' triangle ([`projection`]); without that triangle, forward
+//! taken from the fixed columns' triangle (`projection`); without that triangle, forward
 //! differences of the residual vectors. The search stops when the Gauss–Newton model predicts
 //! less than a thousandth of one observation's variance from another step, so its last normal
 //! equations are those at the optimum, and `σ̂²(JᵀJ)⁻¹` from their triangle is the covariance

@@ -6,7 +6,7 @@
 //! The rows reach the same accumulators in the same order as in [`super::fit`], so the
 //! triangle, the solution, σ̂ and every statistic are the same numbers: on one thread for any
 //! block size, on several when the blocks are [`CHUNK_ROWS`] long, the batches the held fit
-//! splits over its threads (see [`super::team::Team::batched`]). Passes: one to collect
+//! splits over its threads (see `Team::batched`). Passes: one to collect
 //! the artifact labels and check them (only for files with an `artifact` column), one for the
 //! triangle, one for the residuals. A machine with fitted non-linear parameters (they iterate
 //! over the rows) or with lags (a lag is integrated over a whole run) is fitted by
@@ -143,7 +143,7 @@ pub fn fit_in_chunks(
 }
 
 /// One rowless [`DataSet`] per file, of its kind and with all its artifact labels; a file with
-/// an `artifact` column is read through once for them and checked as [`super::check_artifacts`] does.
+/// an `artifact` column is read through once for them and checked as [`super::design::check_artifacts`] does.
 fn skeletons(compiled: &Compiled, source: &Source) -> Result<Vec<DataSet>, FitError> {
     let m = &compiled.machine;
     let mut out = Vec::with_capacity(source.paths.len());
@@ -185,7 +185,7 @@ fn set_labels(o: &mut Observations, labels: Vec<String>) {
 
 /// Per artifact label of a point file: the rows, the first lines, the observed values and
 /// whether a rotation is observed, added up block by block; the totals are judged as
-/// [`super::check_artifacts`] judges a whole file, so the verdict and its wording are the same.
+/// [`super::design::check_artifacts`] judges a whole file, so the verdict and its wording are the same.
 #[derive(Default)]
 struct ArtifactCounts {
     labels: Vec<String>,

@@ -1,10 +1,10 @@
 //! `kin fmt`: formats `.kin` files in place, or with `--check` says which would change and how.
-//! The formatting itself is `kin_compiler::format`, shared with `kin lsp`.
+//! The formatting itself is `kin_syntax::format` (the syntax layer alone), shared with `kin lsp`.
 
 use std::io::{Read as _, Write as _};
 use std::path::{Path, PathBuf};
 
-use kin_compiler::format::{format_source, FormatError};
+use kin_syntax::format::{format_source, FormatError};
 
 use crate::load::Failed;
 use crate::render;

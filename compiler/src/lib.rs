@@ -9,14 +9,15 @@
 
 pub mod basis;
 mod check;
-pub mod diagnostic;
-pub mod format;
 pub mod ir;
 mod lower;
 mod params;
 mod resolve;
-pub mod syntax;
 pub mod units;
+
+// The syntax layer (its own crate, which `kin fmt` and the language server can use alone),
+// re-exported so that one crate serves a caller of the whole front end.
+pub use kin_syntax::{diagnostic, format, syntax};
 
 pub use diagnostic::{Diagnostic, Severity, Span};
 pub use lower::{compile, Compiled, Output, SourceMap};

@@ -620,6 +620,11 @@ mod tests {
     }
 
     #[test]
+    fn the_atoms_are_the_unit_words_of_the_syntax() {
+        assert_eq!(Unit::ATOM_NAMES, kin_syntax::syntax::UNIT_WORDS);
+    }
+
+    #[test]
     fn atoms_convert_to_si() {
         let cases = [
             ("nm", 1e-9),

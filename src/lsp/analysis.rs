@@ -7,8 +7,8 @@
 //! that compiled.
 
 use kin_compiler::ir::{self, JointKind, Machine};
-use kin_compiler::syntax::{ast, KEYWORDS};
 use kin_compiler::{Compiled, Severity, Span};
+use kin_syntax::syntax::{ast, KEYWORDS};
 use lsp_types::{
     CompletionItem, CompletionItemKind, DiagnosticRelatedInformation, DiagnosticSeverity,
     DocumentSymbol, Hover, HoverContents, Location, MarkupContent, MarkupKind, NumberOrString,
@@ -578,7 +578,7 @@ fn symbol(
 
 /// The machine's outline: axes, inputs, chains with their frames and tools, error definitions.
 pub fn symbols(text: &str) -> Vec<DocumentSymbol> {
-    let Ok(file) = kin_compiler::syntax::parse_file(text) else {
+    let Ok(file) = kin_syntax::syntax::parse_file(text) else {
         return Vec::new();
     };
     let m = &file.machine;
@@ -699,7 +699,7 @@ pub fn symbols(text: &str) -> Vec<DocumentSymbol> {
 /// `kin fmt`'s result as one edit over the whole document; none when it is already formatted;
 /// `None` when it cannot be formatted (syntax errors: the diagnostics say where).
 pub fn formatting(text: &str) -> Option<Vec<TextEdit>> {
-    let formatted = kin_compiler::format::format_source(text).ok()?;
+    let formatted = kin_syntax::format::format_source(text).ok()?;
     if formatted == text {
         return Some(Vec::new());
     }

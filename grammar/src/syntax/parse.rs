@@ -13,7 +13,7 @@ use super::ast::*;
 use crate::diagnostic::{Diagnostic, Span};
 
 #[derive(pest_derive::Parser)]
-#[grammar = "../grammar/kin.pest"]
+#[grammar = "kin.pest"]
 pub(crate) struct KinParser;
 
 type P<'i> = Pair<'i, Rule>;
@@ -805,8 +805,9 @@ pub(super) fn syntax_error(source: &str, err: pest::error::Error<Rule>) -> Diagn
         .get(start..end)
         .filter(|w| w.chars().all(|c| c.is_alphanumeric() || c == '_') && !w.is_empty());
     let unit_help = match (unit_expected, word) {
-        (true, Some(w)) => crate::diagnostic::suggest(w, crate::units::Unit::ATOM_NAMES)
-            .map(|s| format!("did you mean `{s}`?")),
+        (true, Some(w)) => {
+            crate::diagnostic::suggest(w, super::UNIT_WORDS).map(|s| format!("did you mean `{s}`?"))
+        }
         _ => None,
     };
     let message = match &err.variant {

@@ -36,6 +36,14 @@ pub const KEYWORDS: [&str; 24] = [
     "position",
 ];
 
+/// The unit words unit text is built from (`um/m/K`), for "did you mean" suggestions where a
+/// unit was expected. The units themselves (dimensions, scales) are the compiler's
+/// (`kin_compiler::units`), whose tests keep its atoms equal to this list.
+pub const UNIT_WORDS: [&str; 21] = [
+    "nm", "um", "mm", "m", "urad", "mrad", "rad", "deg", "arcsec", "s", "min", "h", "degC", "K",
+    "N", "kN", "rev", "rpm", "W", "kW", "1",
+];
+
 #[cfg(test)]
 mod tests {
     use super::*;

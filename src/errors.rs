@@ -68,22 +68,6 @@ pub fn record(
         .push(e);
 }
 
-/// `line N, column M: …` (how the data reader locates a problem), as `(N, M)`; a message
-/// starting `line N:` gives column 1.
-pub fn located(message: &str) -> Option<(usize, usize)> {
-    let rest = message.strip_prefix("line ")?;
-    let digits = |s: &str| -> Option<(usize, usize)> {
-        let end = s.find(|c: char| !c.is_ascii_digit()).unwrap_or(s.len());
-        Some((s.get(..end)?.parse().ok()?, end))
-    };
-    let (line, end) = digits(rest)?;
-    let after = rest.get(end..)?;
-    match after.strip_prefix(", column ") {
-        Some(col) => digits(col).map(|(column, _)| (line, column)),
-        None => Some((line, 1)),
-    }
-}
-
 /// The document for a run that ends with `exit_code`, if one is due: JSON asked for, a
 /// failure, and no document printed by the command itself. Errors nobody recorded (a message
 /// only on standard error) are summed up as one `failed` entry rather than left out.
@@ -115,18 +99,5 @@ pub fn finish(exit_code: u8) {
             Ok(s) => println!("{s}"),
             Err(e) => eprintln!("error: {e}"),
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn data_messages_are_located_by_their_prefix() {
-        assert_eq!(located("line 12, column 3: bad"), Some((12, 3)));
-        assert_eq!(located("line 7: too many cells"), Some((7, 1)));
-        assert_eq!(located("no header row"), None);
-        assert_eq!(located("line x"), None);
     }
 }

@@ -458,8 +458,11 @@ pub fn read_failed(e: data::ReadError) -> Failed {
         }
         data::ReadError::Invalid { problems, path, .. } => {
             for p in &problems {
-                let text = p.to_string();
-                crate::errors::record("data", &text, Some(&path), crate::errors::located(&text));
+                // A problem of a whole row is placed at its first column.
+                let at = p
+                    .location()
+                    .map(|(line, column)| (line, column.unwrap_or(1)));
+                crate::errors::record("data", p.to_string(), Some(&path), at);
             }
             let unknown: Vec<&str> = problems
                 .iter()

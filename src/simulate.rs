@@ -258,18 +258,12 @@ fn write(
                 Failed::USAGE
             })?;
         }
-        // The document is made from the file's own text, so the two never disagree: the
-        // same columns, units and digits.
-        let mut text = Vec::new();
-        let written = match out {
-            Observations::Points(p) => data::write_points(&mut text, m, p, &options),
-            Observations::Lengths(l) => data::write_lengths(&mut text, m, l, &options),
-        };
-        written.map_err(|e| {
+        // The document is built from the same checked columns as the file: the same columns,
+        // units and values.
+        let doc = data::measurements_json(m, out, &options).map_err(|e| {
             eprintln!("error: {e}");
             Failed::USAGE
         })?;
-        let doc = measurements_json(&String::from_utf8_lossy(&text));
         println!("{}", crate::fit::to_json(&doc)?);
         return Ok(());
     }
@@ -418,100 +412,5 @@ fn uncertainty_columns(u: simulate::Uncertainty) -> Vec<data::ExtraColumn> {
             quantity: data::ExtraQuantity::Error,
             values,
         }],
-    }
-}
-
-/// The measurement file `text` (as kin writes it, spec/data.md) as the JSON document of
-/// spec/json.md ("Measurements"): the comment lines, the columns with their units, and the rows
-/// with numbers as numbers, empty cells as `null` and labels (tool, artifact) as strings.
-fn measurements_json(text: &str) -> serde_json::Value {
-    use serde_json::{json, Value};
-    let mut comments = Vec::new();
-    let mut columns = Vec::new();
-    let mut rows = Vec::new();
-    for line in text.lines() {
-        if let Some(c) = line.strip_prefix('#') {
-            comments.push(Value::from(c.trim()));
-        } else if line.trim().is_empty() {
-            continue;
-        } else if columns.is_empty() {
-            columns = cells(line)
-                .into_iter()
-                .map(|h| match h.split_once('[') {
-                    Some((name, unit)) => {
-                        json!({ "name": name.trim(), "unit": unit.trim_end_matches(']').trim() })
-                    }
-                    None => json!({ "name": h.trim(), "unit": null }),
-                })
-                .collect();
-        } else {
-            let row: Vec<Value> = cells(line)
-                .into_iter()
-                .map(|c| {
-                    let c = c.trim();
-                    if c.is_empty() {
-                        Value::Null
-                    } else if let Some(n) =
-                        c.parse::<f64>().ok().and_then(serde_json::Number::from_f64)
-                    {
-                        Value::Number(n)
-                    } else {
-                        Value::from(c)
-                    }
-                })
-                .collect();
-            rows.push(Value::Array(row));
-        }
-    }
-    json!({ "version": 1, "comments": comments, "columns": columns, "rows": rows })
-}
-
-/// The cells of one comma-separated line; a cell in double quotes may hold commas, and a quote
-/// inside it is written twice (spec/data.md).
-fn cells(line: &str) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut cell = String::new();
-    let mut quoted = false;
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (quoted, c) {
-            (true, '"') if chars.peek() == Some(&'"') => {
-                cell.push('"');
-                chars.next();
-            }
-            (true, '"') => quoted = false,
-            (false, '"') if cell.trim().is_empty() => quoted = true,
-            (false, ',') => out.push(std::mem::take(&mut cell)),
-            _ => cell.push(c),
-        }
-    }
-    out.push(cell);
-    out
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn cells_follow_the_quoting_rules() {
-        assert_eq!(
-            cells("a,\"b,c\",\"say \"\"hi\"\"\",,"),
-            ["a", "b,c", "say \"hi\"", "", ""]
-        );
-    }
-
-    #[test]
-    fn measurements_become_typed_rows() {
-        let doc = measurements_json("# made here\nX[mm],dir_X,tool\n1.5,+1,probe\n,-1,\"a,b\"\n");
-        assert_eq!(doc["comments"][0], "made here");
-        assert_eq!(doc["columns"][0]["name"], "X");
-        assert_eq!(doc["columns"][0]["unit"], "mm");
-        assert!(doc["columns"][1]["unit"].is_null());
-        assert_eq!(doc["rows"][0][0], 1.5);
-        assert_eq!(doc["rows"][0][1], 1.0);
-        assert_eq!(doc["rows"][0][2], "probe");
-        assert!(doc["rows"][1][0].is_null());
-        assert_eq!(doc["rows"][1][2], "a,b");
     }
 }

@@ -153,11 +153,11 @@ fn model_error(py: Python<'_>, e: ModelError, source: &str, params: Option<&str>
 fn data_error(py: Python<'_>, e: ReadError) -> PyErr {
     match &e {
         ReadError::Invalid { path, problems, .. } => {
-            // Problems state their own line and column in their text ("line 4, column 2: …").
+            // The first problem's place, as the reader gives it (no column for a whole row's).
             let (line, column) = problems
                 .first()
-                .map(|p| located(&p.to_string()))
-                .unwrap_or((None, None));
+                .and_then(|p| p.location())
+                .map_or((None, None), |(line, column)| (Some(line), column));
             let list: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
             let err = raise::<DataError>(
                 py,
@@ -181,20 +181,6 @@ fn data_error(py: Python<'_>, e: ReadError) -> PyErr {
             },
         ),
     }
-}
-
-/// `line N` and `column M` as a problem's text states them.
-fn located(text: &str) -> (Option<usize>, Option<usize>) {
-    let number_after = |key: &str| {
-        let at = text.find(key)? + key.len();
-        let digits: String = text
-            .get(at..)?
-            .chars()
-            .take_while(|c| c.is_ascii_digit())
-            .collect();
-        digits.parse().ok()
-    };
-    (number_after("line "), number_after("column "))
 }
 
 /// A state batch, borrowed from the caller's arrays: row `r` of each is state `r`.

@@ -22,7 +22,7 @@ mod write;
 pub use chunks::{chunks, Chunks};
 pub use read::{csv, inch_unit};
 pub use read::{read, read_file};
-pub use write::{write_file, write_lengths, write_points};
+pub use write::{measurements_json, write_file, write_lengths, write_points};
 
 /// Names of the observed columns of a point file, in the order of [`PointData::observed`].
 pub const OBSERVED: [&str; 6] = ["ex", "ey", "ez", "erx", "ery", "erz"];
@@ -411,6 +411,39 @@ pub enum Problem {
     },
 }
 
+impl Problem {
+    /// Where in the file the problem is, as data: the 1-based line and, unless the problem is
+    /// the whole row's, the column (in characters); `None` for a problem of the whole file. The
+    /// message says the same in words (`line 12, column 3: …`).
+    pub fn location(&self) -> Option<(usize, Option<usize>)> {
+        use Problem::*;
+        match self {
+            NotUtf8 { line, column }
+            | UnclosedQuote { line, column }
+            | AfterQuote { line, column, .. }
+            | EmptyName { line, column }
+            | BadName { line, column, .. }
+            | UnknownColumn { line, column, .. }
+            | DuplicateColumn { line, column, .. }
+            | BadUnit { line, column, .. }
+            | UnitNotAllowed { line, column, .. }
+            | WrongDimension { line, column, .. }
+            | BadCell { line, column, .. }
+            | Implausible { line, column, .. }
+            | UnknownTool { line, column, .. } => Some((*line, Some(*column))),
+            CellCount { line, .. }
+            | NothingObserved { line, .. }
+            | IncompleteToolOffset { line, .. }
+            | TimeOrder { line, .. } => Some((*line, None)),
+            NoHeader
+            | NoRows
+            | MissingColumns { .. }
+            | NoObservedColumn
+            | IncompleteToolColumns { .. } => None,
+        }
+    }
+}
+
 fn quoted(text: &str) -> String {
     if text.is_empty() {
         "empty cell".to_string()
@@ -664,6 +697,48 @@ pub(crate) mod testing {
                 temperature: unit("degC"),
                 force: unit("N"),
             },
+        }
+    }
+}
+
+#[cfg(test)]
+mod location_tests {
+    use super::Problem;
+
+    /// The place given as data is the one the message states in words.
+    #[test]
+    fn a_problems_location_is_what_its_message_says() {
+        let cases = [
+            Problem::NotUtf8 { line: 4, column: 7 },
+            Problem::EmptyName { line: 1, column: 3 },
+            Problem::CellCount {
+                line: 12,
+                found: 3,
+                expected: 4,
+            },
+            Problem::NothingObserved {
+                line: 9,
+                columns: vec!["ex".into()],
+            },
+            Problem::NoRows,
+            Problem::MissingColumns {
+                names: vec!["X".into()],
+            },
+        ];
+        for p in cases {
+            let text = p.to_string();
+            match p.location() {
+                Some((line, Some(column))) => {
+                    assert!(
+                        text.starts_with(&format!("line {line}, column {column}")),
+                        "{text}"
+                    )
+                }
+                Some((line, None)) => {
+                    assert!(text.starts_with(&format!("line {line}: ")), "{text}")
+                }
+                None => assert!(!text.starts_with("line "), "{text}"),
+            }
         }
     }
 }

@@ -5,14 +5,14 @@ use std::collections::{BTreeMap, HashMap};
 use kin_compiler::ir::{JointKind, Machine};
 use kin_compiler::units::Unit;
 use kin_compiler::{compile, Compiled, Diagnostic};
-use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
+use kin_estimate::statistics::{self, lack_of_fit};
 use thiserror::Error;
 
 use super::library::{self, Available, Proposal, Sampling};
 use super::{pass, periodic, refit, spectrum};
 use super::{
-    Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, LackOfFit, NoiseCheck, Outlier,
-    Plausibility, Region, Spectrum,
+    Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, NoiseCheck, Outlier, Plausibility,
+    Region, Spectrum,
 };
 use kin_data::data::Observations;
 use kin_estimate::fit::report::{component_name, model_hash};
@@ -239,9 +239,7 @@ fn noise_check(
         let dof = with.len() as f64 * keep;
         (dof >= 1.0).then(|| {
             let statistic: f64 = with.iter().map(|(r, s)| (r / s).powi(2)).sum();
-            let p = ChiSquared::new(dof)
-                .map(|d| 1.0 - d.cdf(statistic))
-                .unwrap_or(0.0);
+            let p = statistics::chi_squared_p(statistic, dof).unwrap_or(0.0);
             ChiSquare {
                 rows: with.len(),
                 dof,
@@ -285,43 +283,6 @@ fn noise_check(
         chi2,
         lack_of_fit,
     }
-}
-
-/// The pure-error lack-of-fit F-test. `groups` holds, for each set of replicated rows, (rows,
-/// Σr, Σr²) of their residuals (groups of one row are passed over); `rss` is the residual sum
-/// of squares of all `rows` residuals the test covers, of which the fit took
-/// `rows − residual_dof` degrees of freedom (none when the prediction is independent of them).
-/// The scatter within groups is pure error; the rest of `rss` is lack of fit. `None` when either
-/// part has no degree of freedom or the replicates agree exactly.
-pub fn lack_of_fit(
-    groups: impl Iterator<Item = (usize, f64, f64)>,
-    rss: f64,
-    residual_dof: f64,
-    alpha: f64,
-) -> Option<LackOfFit> {
-    let repeated: Vec<(usize, f64, f64)> = groups.filter(|g| g.0 > 1).collect();
-    let dof_pure: f64 = repeated.iter().map(|g| (g.0 - 1) as f64).sum();
-    let ss_pure: f64 = repeated
-        .iter()
-        .map(|g| (g.2 - g.1 * g.1 / g.0 as f64).max(0.0))
-        .sum();
-    let dof_lack = residual_dof - dof_pure;
-    (dof_pure >= 1.0 && dof_lack >= 1.0 && ss_pure > 0.0).then(|| {
-        let f = ((rss - ss_pure).max(0.0) / dof_lack) / (ss_pure / dof_pure);
-        let p = FisherSnedecor::new(dof_lack, dof_pure)
-            .map(|d| 1.0 - d.cdf(f))
-            .unwrap_or(0.0);
-        LackOfFit {
-            groups: repeated.len(),
-            rows: repeated.iter().map(|g| g.0).sum(),
-            dof_pure,
-            dof_lack,
-            sigma_pure: (ss_pure / dof_pure).sqrt(),
-            f,
-            p,
-            consistent: p >= alpha,
-        }
-    })
 }
 
 fn available(m: &Machine, files: &[DataSet]) -> Available {
@@ -942,9 +903,7 @@ fn test_candidates(
             continue;
         }
         let f = ((rss_base - rss) / n_added as f64) / (rss / dof);
-        let p = FisherSnedecor::new(n_added as f64, dof)
-            .map(|d| 1.0 - d.cdf(f.max(0.0)))
-            .unwrap_or(1.0);
+        let p = statistics::f_p(f, n_added as f64, dof).unwrap_or(1.0);
         tested.push(Tested {
             proposal: *k,
             finding: Finding {
@@ -1478,9 +1437,7 @@ fn regions(
             .iter()
             .map(|x| x.residual.powi(2) / (sigma * sigma * (1.0 - x.leverage).max(1e-9)))
             .sum();
-        let p = ChiSquared::new(n.max(1.0))
-            .map(|d| 1.0 - d.cdf(stat))
-            .unwrap_or(1.0);
+        let p = statistics::chi_squared_p(stat, n.max(1.0)).unwrap_or(1.0);
         let rms = (r.iter().map(|x| x.residual.powi(2)).sum::<f64>() / n.max(1.0)).sqrt();
         let allowed = sigma
             * (r.iter().map(|x| 1.0 - x.leverage).sum::<f64>() / n.max(1.0))
@@ -1556,11 +1513,7 @@ fn regions(
             let shift = mean(&plus) - mean(&minus);
             let se = sigma * (1.0 / plus.len() as f64 + 1.0 / minus.len() as f64).sqrt();
             let z = shift / se.max(f64::MIN_POSITIVE);
-            let p = 2.0
-                * (1.0
-                    - statrs::distribution::Normal::new(0.0, 1.0)
-                        .map(|d| d.cdf(z.abs()))
-                        .unwrap_or(1.0));
+            let p = statistics::normal_two_sided_p(z).unwrap_or(1.0);
             if p < settings.alpha / tests && shift.abs() > 0.5 * sigma {
                 found.push(Region {
                     component: cname.clone(),
@@ -1633,9 +1586,7 @@ fn regions(
                         .iter()
                         .map(|x| x.residual.powi(2) / (rms_all * rms_all))
                         .sum();
-                    ChiSquared::new(n.max(1.0))
-                        .map(|d| 1.0 - d.cdf(stat))
-                        .unwrap_or(1.0)
+                    statistics::chi_squared_p(stat, n.max(1.0)).unwrap_or(1.0)
                 } else {
                     p
                 };

@@ -155,23 +155,6 @@ pub struct ChiSquare {
     pub consistent: bool,
 }
 
-/// The classic lack-of-fit F-test: rows at identical axis positions, directions and inputs
-/// (in one file, one component) scatter by the instrument alone (pure error); the rest of the
-/// residual sum of squares is lack of fit.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct LackOfFit {
-    /// Groups of repeated poses and the rows in them.
-    pub groups: usize,
-    pub rows: usize,
-    pub dof_pure: f64,
-    pub dof_lack: f64,
-    /// √(pure-error sum of squares / its dof), error unit: a model-free noise estimate.
-    pub sigma_pure: f64,
-    pub f: f64,
-    pub p: f64,
-    pub consistent: bool,
-}
-
 /// A region of the workspace where residuals exceed what the noise allows.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Region {
@@ -255,4 +238,6 @@ mod periodic;
 mod refit;
 mod spectrum;
 
-pub use analyse::{diagnose, lack_of_fit, DiagnoseError, Progress, Settings, Step};
+pub use analyse::{diagnose, DiagnoseError, Progress, Settings, Step};
+// The lack-of-fit test is the estimation layer's (the standard tests use it too).
+pub use kin_estimate::statistics::{lack_of_fit, LackOfFit};

@@ -187,9 +187,7 @@ pub(super) fn choose(
             break;
         }
         let f = ((a.rss - b.rss) / q) / (b.rss / dof);
-        let p = statrs::distribution::FisherSnedecor::new(q, dof)
-            .map(|d| 1.0 - statrs::distribution::ContinuousCDF::cdf(&d, f.max(0.0)))
-            .unwrap_or(1.0);
+        let p = kin_estimate::statistics::f_p(f, q, dof).unwrap_or(1.0);
         if p >= level {
             break;
         }

@@ -4,8 +4,6 @@
 
 use kin_compiler::{compile, Compiled};
 
-use statrs::distribution::{ContinuousCDF, FisherSnedecor};
-
 use super::analyse::DiagnoseError;
 use super::periodic;
 use super::{Finding, Fitted};
@@ -236,9 +234,7 @@ fn significant_gain(small: &fit::FitResult, big: &fit::FitResult, alpha: f64) ->
         return false;
     }
     let f = ((small.solution.rss - big.solution.rss) / q) / (big.solution.rss / dof);
-    let p = FisherSnedecor::new(q, dof)
-        .map(|d| 1.0 - d.cdf(f.max(0.0)))
-        .unwrap_or(1.0);
+    let p = kin_estimate::statistics::f_p(f, q, dof).unwrap_or(1.0);
     p < alpha
 }
 

@@ -5,7 +5,8 @@
 //! data cannot separate; [`design`] and [`plan`] judge a measurement plan before it is
 //! measured; [`simulate`] makes measurements of a model with known truth; [`predict`] gives the
 //! error and its uncertainty at new poses over a duty cycle; [`uncertainty`] is the one
-//! implementation of a prediction's uncertainty (eq. 4.12) they all use.
+//! implementation of a prediction's uncertainty (eq. 4.12) they all use, [`statistics`] of the
+//! significance tests.
 
 // `!(x > 0.0)` is written on purpose: it is also true for NaN, which must fail the same checks
 // as a non-positive number.
@@ -19,4 +20,5 @@ pub mod plan;
 pub mod predict;
 mod rank_update;
 pub mod simulate;
+pub mod statistics;
 pub mod uncertainty;

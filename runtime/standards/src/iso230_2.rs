@@ -662,13 +662,13 @@ pub fn evaluate(run: &Run, path: &Path) -> Result<Evaluation, Iso2302Error> {
 /// is lack of fit. `predicted` is in the order of `run.samples`; `fitted` is how many degrees of
 /// freedom a fit to this run's own deviations took (0 when the prediction comes from other
 /// data, which makes the test exact). The F-test is the one `kin diagnose` applies to repeated
-/// poses ([`kin_diagnose::lack_of_fit`]).
+/// poses ([`kin_estimate::statistics::lack_of_fit`]).
 pub fn lack_of_fit(
     run: &Run,
     predicted: &[f64],
     fitted: f64,
     alpha: f64,
-) -> Option<kin_diagnose::LackOfFit> {
+) -> Option<kin_estimate::statistics::LackOfFit> {
     let mut groups: std::collections::BTreeMap<(u64, bool), (usize, f64, f64)> =
         std::collections::BTreeMap::new();
     let mut rss = 0.0;
@@ -683,7 +683,7 @@ pub fn lack_of_fit(
         rss += r * r;
     }
     let n = run.samples.len().min(predicted.len()) as f64;
-    kin_diagnose::lack_of_fit(groups.into_values(), rss, n - fitted, alpha)
+    kin_estimate::statistics::lack_of_fit(groups.into_values(), rss, n - fitted, alpha)
 }
 
 #[cfg(test)]

@@ -21,6 +21,16 @@ pub fn write_points<W: Write>(
     data: &PointData,
     options: &WriteOptions,
 ) -> Result<(), WriteError> {
+    let columns = point_columns(machine, data, options)?;
+    emit(out, &columns, data.rows.len(), options)
+}
+
+/// The columns of a point file, checked: what the reader would refuse is an error here.
+fn point_columns<'a>(
+    machine: &'a Machine,
+    data: &'a PointData,
+    options: &'a WriteOptions,
+) -> Result<Vec<Column<'a>>, WriteError> {
     let units = units(machine, options)?;
     let n = data.rows.len();
     let mut columns = pose_columns(machine, &units, &data.pose, Kind::Point)?;
@@ -47,7 +57,7 @@ pub fn write_points<W: Write>(
             return Err(WriteError::NothingObserved { row });
         }
     }
-    emit(out, &columns, n, options)
+    Ok(columns)
 }
 
 /// Writes a length file (spec/data.md).
@@ -57,6 +67,16 @@ pub fn write_lengths<W: Write>(
     data: &LengthData,
     options: &WriteOptions,
 ) -> Result<(), WriteError> {
+    let columns = length_columns(machine, data, options)?;
+    emit(out, &columns, data.rows.len(), options)
+}
+
+/// The columns of a length file, checked.
+fn length_columns<'a>(
+    machine: &'a Machine,
+    data: &'a LengthData,
+    options: &'a WriteOptions,
+) -> Result<Vec<Column<'a>>, WriteError> {
     let units = units(machine, options)?;
     let n = data.rows.len();
     let [first, second] = &data.poses;
@@ -66,7 +86,7 @@ pub fn write_lengths<W: Write>(
     columns.push(Column::number("dL", &units.error, &data.dl, true));
     columns.extend(extra_columns(&units, options));
     check(&columns, n)?;
-    emit(out, &columns, n, options)
+    Ok(columns)
 }
 
 fn extra_columns<'a>(
@@ -107,6 +127,39 @@ pub fn write_file(
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// The file [`write_file`] would write, as the JSON document of spec/json.md ("Measurements"):
+/// its comment lines, its columns with their units, and its rows with numbers as numbers (the
+/// values the file's digits read back to), labels (tool, run, artifact) as strings and an
+/// empty cell as `null`. Built from the same checked columns as the file, so the two agree.
+pub fn measurements_json(
+    machine: &Machine,
+    data: &Observations,
+    options: &WriteOptions,
+) -> Result<serde_json::Value, WriteError> {
+    use serde_json::{json, Value};
+    let (columns, n) = match data {
+        Observations::Points(p) => (point_columns(machine, p, options)?, p.rows.len()),
+        Observations::Lengths(l) => (length_columns(machine, l, options)?, l.rows.len()),
+    };
+    let comments: Vec<Value> = options
+        .comments
+        .iter()
+        .flat_map(|c| c.split('\n'))
+        .map(|line| Value::from(line.trim()))
+        .collect();
+    let header: Vec<Value> = columns
+        .iter()
+        .map(|c| match &c.cells {
+            Cells::Number { unit, .. } => json!({ "name": c.name, "unit": unit.name }),
+            _ => json!({ "name": c.name, "unit": null }),
+        })
+        .collect();
+    let rows: Vec<Value> = (0..n)
+        .map(|row| Value::Array(columns.iter().map(|c| c.json_cell(row)).collect()))
+        .collect();
+    Ok(json!({ "version": 1, "comments": comments, "columns": header, "rows": rows }))
 }
 
 #[derive(Clone, Copy)]
@@ -196,6 +249,33 @@ impl<'a> Column<'a> {
                 };
                 if let Some(label) = id.and_then(|i| labels.get(i as usize)) {
                     buf.push_str(label);
+                }
+            }
+        }
+    }
+}
+
+impl Column<'_> {
+    /// Row `row`'s cell as a JSON value: what [`Column::cell`] writes, typed.
+    fn json_cell(&self, row: usize) -> serde_json::Value {
+        use serde_json::Value;
+        let number = |v: f64| serde_json::Number::from_f64(v).map_or(Value::Null, Value::Number);
+        match &self.cells {
+            Cells::Number { unit, values, .. } => values
+                .get(row)
+                .filter(|v| !v.is_nan())
+                .map_or(Value::Null, |v| number(unit.from_si(*v))),
+            Cells::Dir(values) => number(match values.get(row) {
+                Some(v) if *v < 0.0 => -1.0,
+                _ => 1.0,
+            }),
+            Cells::Tool(..) | Cells::Label { .. } => {
+                let mut text = String::new();
+                self.cell(row, &mut text);
+                if text.is_empty() {
+                    Value::Null
+                } else {
+                    Value::String(text)
                 }
             }
         }

@@ -1501,20 +1501,13 @@ fn moved_columns(
 }
 
 /// p-value of a partial F-test: `gain` in the residual sum of squares bought by `q` more
-/// parameters, against `rss / dof`. Above 10⁵ degrees of freedom the χ²(q) limit: statrs's F
-/// distribution slows with the degrees of freedom.
+/// parameters, against `rss / dof` ([`crate::statistics::f_p`]).
 fn f_test_p(gain: f64, q: f64, rss: f64, dof: f64) -> f64 {
-    use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
     if !(rss > 0.0) || !gain.is_finite() {
         return if gain > 0.0 { 0.0 } else { 1.0 };
     }
     let f = (gain.max(0.0) / q) / (rss / dof);
-    let cdf = if dof > 1e5 {
-        ChiSquared::new(q).map(|d| d.cdf(f * q)).ok()
-    } else {
-        FisherSnedecor::new(q, dof).map(|d| d.cdf(f)).ok()
-    };
-    cdf.map(|c| 1.0 - c).unwrap_or(f64::NAN)
+    crate::statistics::f_p(f, q, dof).unwrap_or(f64::NAN)
 }
 
 #[cfg(test)]

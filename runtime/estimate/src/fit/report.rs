@@ -625,12 +625,7 @@ fn stated_weights(m: &Machine, options: &Options, result: &FitResult) -> Option<
     let dof = result.rows.saturating_sub(result.solution.rank);
     let ratio = result.sigma / m.units.error.scale;
     let chi2 = ratio * ratio * dof as f64;
-    let p = statrs::distribution::ChiSquared::new(dof.max(1) as f64)
-        .map(|d| {
-            use statrs::distribution::ContinuousCDF;
-            d.sf(chi2)
-        })
-        .unwrap_or(f64::NAN);
+    let p = crate::statistics::chi_squared_p(chi2, dof.max(1) as f64).unwrap_or(f64::NAN);
     Some(StatedWeights {
         position: n.position.map(|v| v / m.units.error.scale),
         rotation: n.rotation.map(|v| v / m.units.tilt.scale),

@@ -8,7 +8,6 @@
 
 use faer::Mat;
 use serde::Serialize;
-use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
 use super::qr::Reduced;
 
@@ -128,9 +127,10 @@ pub fn select(
     // A column with no effect at all cannot be tested; leave it to the rank analysis.
     let mut steps = Vec::new();
     let p_value = |f: f64, dof: f64| -> f64 {
-        match FisherSnedecor::new(1.0, dof) {
-            Ok(d) if f.is_finite() && dof > 0.0 => 1.0 - d.cdf(f.max(0.0)),
-            _ => 0.0,
+        if dof > 0.0 {
+            crate::statistics::f_p(f, 1.0, dof).unwrap_or(0.0)
+        } else {
+            0.0
         }
     };
     for _ in 0..(4 * p + 8) {

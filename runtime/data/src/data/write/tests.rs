@@ -467,3 +467,64 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn the_json_document_holds_what_the_file_holds() {
+    // The file's text, read back cell by cell (no label of the sample holds a comma), against
+    // the document built from the same columns: names, units, the numbers the digits read back
+    // to, labels as strings, empty cells as null.
+    let data = sample_points();
+    let options = WriteOptions {
+        comments: vec!["made here\nsecond line".into()],
+        ..WriteOptions::default()
+    };
+    let text = write_to_string(&data, &options);
+    let doc = measurements_json(&machine(), &Observations::Points(data), &options).expect("json");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("# made here"));
+    assert_eq!(lines.next(), Some("# second line"));
+    assert_eq!(
+        doc["comments"],
+        serde_json::json!(["made here", "second line"])
+    );
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let columns = doc["columns"].as_array().expect("columns");
+    assert_eq!(columns.len(), header.len());
+    let mut labels = 0;
+    for (h, c) in header.iter().zip(columns) {
+        match h.split_once('[') {
+            Some((name, unit)) => {
+                assert_eq!(c["name"], name);
+                assert_eq!(c["unit"], unit.trim_end_matches(']'));
+            }
+            None => {
+                assert_eq!(c["name"], *h);
+                assert!(c["unit"].is_null());
+            }
+        }
+    }
+    let rows = doc["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 3);
+    for (line, row) in lines.zip(rows) {
+        for ((cell, value), h) in line
+            .split(',')
+            .zip(row.as_array().expect("row"))
+            .zip(&header)
+        {
+            if cell.is_empty() {
+                assert!(value.is_null(), "{h}: {value}");
+            } else if ["tool", "run", "artifact"].contains(h) {
+                assert_eq!(value.as_str(), Some(cell), "{h}");
+                labels += 1;
+            } else {
+                let want: f64 = cell.parse().expect("a number");
+                assert_eq!(
+                    value.as_f64().map(f64::to_bits),
+                    Some(want.to_bits()),
+                    "{h}"
+                );
+            }
+        }
+    }
+    assert!(labels >= 7, "{labels}");
+}

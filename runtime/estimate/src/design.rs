@@ -260,9 +260,59 @@ pub fn combination_text(names: &[String], weights: &[f64]) -> String {
     out
 }
 
+/// A basis of the span of `null` in which every vector has a coordinate of its own (1 there, 0
+/// in every other vector), each scaled to largest magnitude 1 with rounding noise cleared: the
+/// reduced form of Gauss–Jordan elimination, pivoting on the largest remaining coordinate.
+///
+/// The supports of such a basis are the fundamental circuits of the columns (the smallest sets
+/// of coefficients whose combination the data cannot see), and joining coefficients that share
+/// a circuit gives the same groups whatever basis of the unseen directions one starts from: an
+/// eigen- or singular-vector basis, whose rotation within a repeated zero is arbitrary, would
+/// otherwise join coefficients that have nothing to do with each other.
+fn circuits(null: &[DVector<f64>]) -> Vec<DVector<f64>> {
+    let mut basis: Vec<DVector<f64>> = null.to_vec();
+    let mut pivots: Vec<usize> = Vec::new();
+    let mut kept = Vec::new();
+    for k in 0..basis.len() {
+        let Some(v) = basis.get(k) else { break };
+        let norm = v.amax();
+        let pivot = (0..v.len())
+            .filter(|r| !pivots.contains(r))
+            .fold(None, |best: Option<usize>, r| match best {
+                Some(b) if v[b].abs() >= v[r].abs() => Some(b),
+                _ => Some(r),
+            });
+        let Some(r) = pivot.filter(|&r| norm > 0.0 && v[r].abs() > 1e-12 * norm) else {
+            continue;
+        };
+        let unit = v / v[r];
+        for (c, other) in basis.iter_mut().enumerate() {
+            if c != k {
+                let f = other[r];
+                if f != 0.0 {
+                    *other -= &unit * f;
+                }
+            }
+        }
+        if let Some(slot) = basis.get_mut(k) {
+            *slot = unit;
+        }
+        pivots.push(r);
+        kept.push(k);
+    }
+    kept.into_iter()
+        .filter_map(|k| basis.get(k))
+        .map(|v| {
+            let big = v.amax();
+            v.map(|w| if w.abs() <= MEMBER * big { 0.0 } else { w / big })
+        })
+        .collect()
+}
+
 /// Joins coefficients that share an unobserved direction, and finds per group the combinations
 /// the plan determines: the directions within the group orthogonal to every unobserved one.
 fn groups(null: &[DVector<f64>], scale: &[f64], determined: &[bool]) -> Vec<Group> {
+    let null = &circuits(null)[..];
     let p = determined.len();
     let mut parent: Vec<usize> = (0..p).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
@@ -812,6 +862,30 @@ fn swap_ratio(bb: &DMatrix<f64>, aa: &DMatrix<f64>, ba: &DMatrix<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unrelated_unseen_coefficients_are_not_joined_whatever_the_null_basis() {
+        // Coefficients 0 and 1 are never seen (one each), 2 and 3 only as their sum, 4 alone:
+        // the unseen directions are e0, e1 and e2 − e3. Given them rotated into each other, as
+        // an eigensolver may return a repeated zero, the groups are still {0}, {1}, {2, 3}.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let d = DVector::from_vec(vec![0.0, 0.0, s, -s, 0.0]);
+        let null = vec![
+            DVector::from_vec(vec![0.6, 0.0, 0.0, 0.0, 0.0]) + &d * 0.8,
+            DVector::from_vec(vec![0.48, 0.6, 0.0, 0.0, 0.0]) - &d * 0.36,
+            DVector::from_vec(vec![0.64, -0.8, 0.0, 0.0, 0.0]) - &d * 0.48,
+        ];
+        let determined = [false, false, false, false, true];
+        let g = groups(&null, &[1.0; 5], &determined);
+        let members: Vec<Vec<usize>> = g.iter().map(|g| g.members.clone()).collect();
+        assert_eq!(members, vec![vec![0], vec![1], vec![2, 3]]);
+        // Within {2, 3} the sum is determined; nothing is within {0} or {1}.
+        assert!(g[0].combinations.is_empty() && g[1].combinations.is_empty());
+        let [c] = g[2].combinations.as_slice() else {
+            panic!("{:?}", g[2].combinations)
+        };
+        assert!((c[0] - c[1]).abs() < 1e-12 && c[0].abs() == 1.0, "{c:?}");
+    }
 
     /// Thesis eq. 4.21: the row of a length L at angle α for squareness β₁, x scale β₂, y scale β₃.
     fn bar(alpha_deg: f64) -> Unit {

@@ -95,7 +95,7 @@ pub fn harmonic_step(harmonics: &[u32], i: usize) -> Harmonic {
 
 /// `sin(a + b), cos(a + b)` from `(sin a, cos a)` and `(sin b, cos b)`, in this order of
 /// operations (the generated code performs the same).
-pub fn angle_sum(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
+pub(crate) fn angle_sum(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
     let (sa, ca) = a;
     let (sb, cb) = b;
     (sa * cb + ca * sb, ca * cb - sa * sb)
@@ -165,11 +165,11 @@ fn harmonic_value(
 /// Highest polynomial degree accepted. The thesis warns that degrees above 2 "should be avoided"
 /// and above 3 are numerically suspect in the truncated power form; 5 leaves room without
 /// inviting ill-conditioned fits.
-pub const MAX_DEGREE: u32 = 5;
+pub(crate) const MAX_DEGREE: u32 = 5;
 
 /// Most interior knots in one basis. The thesis uses 2–5 (11 in its largest example); the bound
 /// keeps construction-time quadrature cheap and rejects runaway `knots 1e9` before it allocates.
-pub const MAX_KNOTS: usize = 100;
+pub(crate) const MAX_KNOTS: usize = 100;
 
 /// A detrended function whose residual energy is below this fraction of the energy of the
 /// function it came from is numerically inside the removed subspace: it would be a duplicate
@@ -312,7 +312,7 @@ impl Basis {
     }
 
     /// Legendre polynomials P1..P_degree over `[lo, hi]`.
-    pub fn legendre(lo: f64, hi: f64, degree: u32) -> Result<Basis, BasisError> {
+    pub(crate) fn legendre(lo: f64, hi: f64, degree: u32) -> Result<Basis, BasisError> {
         check_range(lo, hi)?;
         check_degree(degree)?;
         Ok(Basis::Legendre { lo, hi, degree })
@@ -572,7 +572,7 @@ impl Basis {
 
 /// `count` interior knots equally spaced over the range: normalised positions `k/(count+1)`,
 /// `k = 1..=count` (the thesis' default placement, §3.2.2).
-pub fn equally_spaced_knots(count: usize) -> Result<Vec<f64>, BasisError> {
+pub(crate) fn equally_spaced_knots(count: usize) -> Result<Vec<f64>, BasisError> {
     if count > MAX_KNOTS {
         return Err(BasisError::TooManyKnots {
             count,
@@ -715,7 +715,7 @@ fn wavelength_value(w: &Wavelength, nonlinear: &[f64]) -> f64 {
 /// `y − ⌊y⌋` equal 1 for a tiny negative `y`; that point is the start of the next period, so it
 /// maps to 0 (eq. 3.13's `φ ≤ x < φ + τ` keeps `w < 1`). Precision is that of `y`: fine while
 /// `|x/τ|` stays far below 2^52.
-pub fn wavelength_fraction(x: f64, tau: f64, phase: f64) -> f64 {
+pub(crate) fn wavelength_fraction(x: f64, tau: f64, phase: f64) -> f64 {
     let y = (x - phase) / tau;
     let w = y - libm::floor(y);
     if w >= 1.0 {

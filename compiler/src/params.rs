@@ -12,7 +12,7 @@ use crate::units::Unit;
 
 /// Binds every definition of `params` into `machine.beta` (zeros where not given) and the
 /// non-linear parameter values. Returns the diagnostics.
-pub fn bind(machine: &mut ir::Machine, params: &ast::ParamsBlock) -> Vec<Diagnostic> {
+pub(crate) fn bind(machine: &mut ir::Machine, params: &ast::ParamsBlock) -> Vec<Diagnostic> {
     let mut sink = Sink::default();
     if machine.beta.len() != machine.coefficients.len() {
         machine.beta = vec![0.0; machine.coefficients.len()];

@@ -21,7 +21,7 @@ impl Sink {
     pub fn push(&mut self, d: Diagnostic) {
         self.diagnostics.push(d);
     }
-    pub fn has_errors(&self) -> bool {
+    pub(crate) fn has_errors(&self) -> bool {
         self.diagnostics.iter().any(Diagnostic::is_error)
     }
 }
@@ -50,13 +50,13 @@ pub(crate) struct Structure {
 }
 
 impl Structure {
-    pub fn axis_index(&self, name: &str) -> Option<usize> {
+    pub(crate) fn axis_index(&self, name: &str) -> Option<usize> {
         self.axes.iter().position(|a| a.name == name)
     }
-    pub fn input_index(&self, name: &str) -> Option<usize> {
+    pub(crate) fn input_index(&self, name: &str) -> Option<usize> {
         self.inputs.iter().position(|i| i.name == name)
     }
-    pub fn tool_index(&self, name: &str) -> Option<usize> {
+    pub(crate) fn tool_index(&self, name: &str) -> Option<usize> {
         self.tools.iter().position(|t| t.name == name)
     }
 }

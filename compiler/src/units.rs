@@ -452,7 +452,7 @@ impl<'a> Parser<'a> {
 
 impl Unit {
     /// Canonical names of the atoms unit text is built from, for "did you mean" suggestions.
-    pub const ATOM_NAMES: [&'static str; 21] = {
+    pub(crate) const ATOM_NAMES: [&'static str; 21] = {
         let mut names = [""; 21];
         let mut i = 0;
         while i < ATOMS.len() {

@@ -4,7 +4,6 @@ pub(crate) mod parse;
 mod recover;
 
 pub use parse::{parse_file, parse_file_all, parse_params};
-pub use recover::MAX_SYNTAX_ERRORS;
 
 /// The words `grammar/kin.pest`'s `keyword` rule reserves: never a name of an axis, input, tool,
 /// frame or parameter. One list for every tool that needs it (the language server's completion,

@@ -19,7 +19,7 @@ use super::parse::{syntax_error, KinParser, Rule};
 use crate::diagnostic::Diagnostic;
 
 /// No more syntax errors are reported for one file than this.
-pub const MAX_SYNTAX_ERRORS: usize = 10;
+pub(crate) const MAX_SYNTAX_ERRORS: usize = 10;
 
 /// Every syntax error of `source` that can be found, `first` (the parser's own) first.
 pub(super) fn syntax_errors(source: &str, first: Diagnostic) -> Vec<Diagnostic> {

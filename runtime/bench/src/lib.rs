@@ -163,7 +163,7 @@ pub struct Floor {
 /// The bytes of the rows one batch call writes when a fit consumes them a block at a time
 /// ([`PathRates::blocked`]): well inside a core's second-level cache (256 KiB to 2 MiB on
 /// current x86-64 CPUs), so the block is written and read back without going to memory.
-pub const BLOCK_BYTES: usize = 256 << 10;
+pub(crate) const BLOCK_BYTES: usize = 256 << 10;
 
 /// The distribution of the time of one call.
 #[derive(Debug, Clone, Copy, PartialEq)]

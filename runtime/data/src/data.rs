@@ -28,7 +28,7 @@ pub use write::{measurements_json, write_file, write_lengths, write_points};
 pub const OBSERVED: [&str; 6] = ["ex", "ey", "ez", "erx", "ery", "erz"];
 
 /// Names of the tool offset columns, in the order of [`Rows::tool_offset`].
-pub const TOOL_OFFSET: [&str; 3] = ["tool_x", "tool_y", "tool_z"];
+pub(crate) const TOOL_OFFSET: [&str; 3] = ["tool_x", "tool_y", "tool_z"];
 
 /// At most this many problems are kept per file: enough to show a pattern, few enough to read.
 pub const MAX_PROBLEMS: usize = 20;

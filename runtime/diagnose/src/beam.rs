@@ -26,7 +26,7 @@ use super::Family;
 
 /// A `beam(…)` call with a gradient, as the model's source writes it.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Declared {
+pub(crate) struct Declared {
     /// The axis the beam runs along.
     pub axis: String,
     /// The call on one line, comments and line breaks removed.
@@ -36,7 +36,7 @@ pub struct Declared {
 /// What the model's source says about beams: the calls with a gradient, and the targets
 /// (`X.tz`) a beam already defines.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct Beams {
+pub(crate) struct Beams {
     pub declared: Vec<Declared>,
     pub defined: BTreeSet<String>,
 }

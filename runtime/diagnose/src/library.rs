@@ -26,7 +26,7 @@ pub struct Available {
 }
 
 /// The parts an axis' range is cut into to count where another axis reverses.
-pub const REVERSAL_BINS: usize = 8;
+pub(crate) const REVERSAL_BINS: usize = 8;
 
 /// The positions of one axis the data visit (SI): what a candidate along it can resolve.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,12 +73,12 @@ impl Sampling {
     /// no shorter than [`Sampling::shortest`] (it would alias onto a longer one), and repeating
     /// at least [`Sampling::PERIODS`] times over the covered span (fewer periods are a shape,
     /// which more knots describe, not a period the data show).
-    pub fn resolves(&self, lambda: f64) -> bool {
+    pub(crate) fn resolves(&self, lambda: f64) -> bool {
         lambda >= self.shortest() && lambda * Self::PERIODS <= self.span()
     }
 
     /// The periods a wavelength must repeat over the data to be called periodic.
-    pub const PERIODS: f64 = 3.0;
+    pub(crate) const PERIODS: f64 = 3.0;
 
     /// The harmonics (per revolution) among `orders` whose whole period lies inside the
     /// covered angle: over less than a period a harmonic is a smooth curve the location
@@ -214,7 +214,7 @@ fn harmonics_explanation(axis: &str, hs: &[u32], motion: &str) -> String {
 }
 
 /// The candidate with only the terms marked `kept` (those that add to the model on the data).
-pub fn restate(p: &Proposal, kept: &[bool]) -> Candidate {
+pub(crate) fn restate(p: &Proposal, kept: &[bool]) -> Candidate {
     let terms: Vec<&Term> = p
         .terms
         .iter()

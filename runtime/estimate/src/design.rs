@@ -276,12 +276,13 @@ fn circuits(null: &[DVector<f64>]) -> Vec<DVector<f64>> {
     for k in 0..basis.len() {
         let Some(v) = basis.get(k) else { break };
         let norm = v.amax();
-        let pivot = (0..v.len())
-            .filter(|r| !pivots.contains(r))
-            .fold(None, |best: Option<usize>, r| match best {
-                Some(b) if v[b].abs() >= v[r].abs() => Some(b),
-                _ => Some(r),
-            });
+        let pivot =
+            (0..v.len())
+                .filter(|r| !pivots.contains(r))
+                .fold(None, |best: Option<usize>, r| match best {
+                    Some(b) if v[b].abs() >= v[r].abs() => Some(b),
+                    _ => Some(r),
+                });
         let Some(r) = pivot.filter(|&r| norm > 0.0 && v[r].abs() > 1e-12 * norm) else {
             continue;
         };
@@ -304,7 +305,13 @@ fn circuits(null: &[DVector<f64>]) -> Vec<DVector<f64>> {
         .filter_map(|k| basis.get(k))
         .map(|v| {
             let big = v.amax();
-            v.map(|w| if w.abs() <= MEMBER * big { 0.0 } else { w / big })
+            v.map(|w| {
+                if w.abs() <= MEMBER * big {
+                    0.0
+                } else {
+                    w / big
+                }
+            })
         })
         .collect()
 }

@@ -58,7 +58,7 @@ pub enum CompensateError {
 
 /// The singular value decomposition of the step did not converge (non-finite values).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Unsolvable;
+pub(crate) struct Unsolvable;
 
 /// The Gauss–Newton iteration of §2.3.5 leaves the region where it converges: the predicted
 /// error is too large (or the model too strongly non-linear in the axes) for a correction
@@ -112,7 +112,7 @@ pub struct Options {
 
 /// The default [`Options::converged`]: a step that changes the weighted error by less than a
 /// picometre no longer matters. Below it, steps are rounding noise and never a [`Divergence`].
-pub const PICOMETRE: f64 = 1e-12;
+pub(crate) const PICOMETRE: f64 = 1e-12;
 
 impl Options {
     /// Every component, a rotation weighed as in the fit (one tilt unit as one error unit):
@@ -595,7 +595,7 @@ pub trait FirstOrderEngine {
 
 /// The interpreter with coefficients `beta`: the reference the JIT's compensation is checked
 /// against.
-pub struct InterpEngine<'a, 'm> {
+pub(crate) struct InterpEngine<'a, 'm> {
     pub interpreter: &'a mut Interpreter<'m>,
     pub beta: &'a [f64],
 }
@@ -615,7 +615,7 @@ impl FirstOrderEngine for InterpEngine<'_, '_> {
 
 /// The JIT's native code with coefficients and non-linear values; `flat` is the 6 × axes
 /// buffer its joint Jacobian is written to.
-pub struct JitEngine<'a> {
+pub(crate) struct JitEngine<'a> {
     pub jit: &'a JitModel,
     pub beta: &'a [f64],
     pub nonlinear: &'a [f64],

@@ -82,7 +82,7 @@ pub fn location_error(nominal: &Matrix4<f64>, actual: &Matrix4<f64>) -> Vector6<
 
 /// The rotation vector (axis · angle, angle in `[0, π]`) of a rotation matrix: the log map,
 /// so that `R = exp([r]×)`. Exact for any angle, not only small ones.
-pub fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
+pub(crate) fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
     // v = sin θ · axis, from the antisymmetric part.
     let v = Vector3::new(
         r[(2, 1)] - r[(1, 2)],

@@ -7,7 +7,7 @@
 //! touches one parametric error, so a Jacobian column is one F-matrix column times one basis
 //! value: no derivative is ever taken numerically.
 
-use kin_compiler::ir::{Component, ErrorModel, FrameRef, Machine, Scalar, Term, Var};
+use kin_compiler::ir::{ErrorModel, FrameRef, Machine, Scalar, Term, Var};
 use nalgebra::{Vector3, Vector6};
 use thiserror::Error;
 
@@ -451,11 +451,4 @@ pub fn scalar(s: &Scalar, state: &State, m: &Machine) -> Result<f64, EvalError> 
         Scalar::Sin(a) => libm::sin(scalar(a, state, m)?),
         Scalar::Cos(a) => libm::cos(scalar(a, state, m)?),
     })
-}
-
-/// Which frame/component a coefficient belongs to.
-pub fn coefficient_target(m: &Machine, j: usize) -> Option<(FrameRef, Component)> {
-    let c = m.coefficients.get(j)?;
-    let e = m.errors.get(c.error)?;
-    Some((e.frame, e.component))
 }

@@ -199,7 +199,7 @@ pub struct ToolLocation {
 
 impl ToolLocation {
     /// The homogeneous transform `T(wr→tl)` (eq. 2.2).
-    pub fn to_matrix(&self) -> Matrix4<f64> {
+    pub(crate) fn to_matrix(self) -> Matrix4<f64> {
         let mut t = Matrix4::identity();
         t.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.rotation);
         t.fixed_view_mut::<3, 1>(0, 3).copy_from(&self.position);
@@ -511,16 +511,6 @@ impl Sensitivities {
         &self.workpiece_chain
     }
 
-    /// F-matrix of the selected tool's frame `tl`.
-    pub fn tool_end(&self) -> &Matrix6<f64> {
-        &self.tool_end
-    }
-
-    /// F-matrix of the workpiece reference frame `wr`, already negated (eq. 2.24).
-    pub fn workpiece_end(&self) -> &Matrix6<f64> {
-        &self.workpiece_end
-    }
-
     /// The F-matrix of `frame`, or `None` when the frame does not act in this pose (the end
     /// frame of another tool) or does not exist.
     pub fn get(&self, frame: FrameRef) -> Option<&Matrix6<f64>> {
@@ -623,7 +613,7 @@ fn apply_joint(g: &mut Rigid, kind: JointKind, u: &Vector3<f64>, q: f64) {
 }
 
 /// Unit vector `u` from nominal point 1 to nominal point 2 of a length observation (eq. 4.5).
-pub fn length_direction(
+pub(crate) fn length_direction(
     p1: &Vector3<f64>,
     p2: &Vector3<f64>,
 ) -> Result<Vector3<f64>, KinematicsError> {
@@ -643,8 +633,10 @@ pub fn length_error(u: &Vector3<f64>, dp1: &Vector3<f64>, dp2: &Vector3<f64>) ->
 }
 
 /// The sensitivity of `u·Δp` to a frame's six parametric errors: `uᵀ` times the position rows
-/// of its F-matrix. A length row is this at pose 2 minus this at pose 1 (eq. 4.5).
-pub fn length_row(u: &Vector3<f64>, f: &Matrix6<f64>) -> Vector6<f64> {
+/// of its F-matrix. A length row is this at pose 2 minus this at pose 1 (eq. 4.5). The engines
+/// fold it into their own passes; the tests check them against it.
+#[cfg(test)]
+pub(crate) fn length_row(u: &Vector3<f64>, f: &Matrix6<f64>) -> Vector6<f64> {
     f.fixed_view::<3, 6>(0, 0).tr_mul(u)
 }
 
@@ -758,7 +750,7 @@ pub(crate) mod testing {
 
     /// A random machine: 0–4 elements per chain, each on its own axis of random kind and
     /// direction, random moving/fixed frames and shapes, 1–3 tools.
-    pub fn random_machine(rng: &mut StdRng) -> Machine {
+    pub(crate) fn random_machine(rng: &mut StdRng) -> Machine {
         let mut axes = vec![];
         let chain = |rng: &mut StdRng, axes: &mut Vec<Axis>| {
             let n = rng.random_range(0..=4);
@@ -796,7 +788,7 @@ pub(crate) mod testing {
     }
 
     /// Random joint positions (m within ±0.5, rad within ±3) for `machine`.
-    pub fn random_q(rng: &mut StdRng, machine: &Machine) -> Vec<f64> {
+    pub(crate) fn random_q(rng: &mut StdRng, machine: &Machine) -> Vec<f64> {
         machine
             .axes
             .iter()
@@ -808,7 +800,7 @@ pub(crate) mod testing {
     }
 
     /// A random pose (tool, and an offset override half the time) using `q`.
-    pub fn random_pose<'a>(rng: &mut StdRng, machine: &Machine, q: &'a [f64]) -> Pose<'a> {
+    pub(crate) fn random_pose<'a>(rng: &mut StdRng, machine: &Machine, q: &'a [f64]) -> Pose<'a> {
         Pose {
             q,
             tool: rng.random_range(0..machine.tools.len()),
@@ -821,7 +813,7 @@ pub(crate) mod testing {
     }
 
     /// Every error of every frame uniform in `±scale` (m and rad alike).
-    pub fn random_errors(rng: &mut StdRng, machine: &Machine, scale: f64) -> FrameErrors {
+    pub(crate) fn random_errors(rng: &mut StdRng, machine: &Machine, scale: f64) -> FrameErrors {
         let mut v = || -> [f64; 6] { std::array::from_fn(|_| rng.random_range(-scale..scale)) };
         FrameErrors {
             tool_chain: (0..machine.tool_chain.len()).map(|_| v()).collect(),

@@ -14,7 +14,7 @@
 use kin_compiler::ir::Lag;
 
 /// One lag update over `dt` with the input moving linearly from `u0` to `u1`.
-pub fn lag_step(x0: f64, u0: f64, u1: f64, dt: f64, tau: f64) -> f64 {
+pub(crate) fn lag_step(x0: f64, u0: f64, u1: f64, dt: f64, tau: f64) -> f64 {
     if !(dt > 0.0) {
         // No time passes: the state cannot move, whatever the input did.
         return x0;
@@ -25,14 +25,15 @@ pub fn lag_step(x0: f64, u0: f64, u1: f64, dt: f64, tau: f64) -> f64 {
 }
 
 /// Lag states for one run: `times` in time order, `inputs` the input at each row.
-/// Writes one state per row into `out`.
-pub fn lag_run(times: &[f64], inputs: &[f64], tau: f64, out: &mut [f64]) {
+/// Writes one state per row into `out`. The reference the tests hold `run`'s states to.
+#[cfg(test)]
+pub(crate) fn lag_run(times: &[f64], inputs: &[f64], tau: f64, out: &mut [f64]) {
     let x0 = inputs.first().copied().unwrap_or(0.0);
     lag_run_from(times, inputs, x0, tau, out);
 }
 
 /// Lag states for one run that starts in the state `x0` at its first row.
-pub fn lag_run_from(times: &[f64], inputs: &[f64], x0: f64, tau: f64, out: &mut [f64]) {
+pub(crate) fn lag_run_from(times: &[f64], inputs: &[f64], x0: f64, tau: f64, out: &mut [f64]) {
     let mut x = x0;
     let mut prev: Option<(f64, f64)> = None;
     for ((t, u), slot) in times.iter().zip(inputs).zip(out.iter_mut()) {
@@ -67,7 +68,7 @@ fn phi(z: f64) -> f64 {
 /// where `τ_slow` is the larger time constant (the convolution `∫ e^{−(h−s)/τ₂} e^{−s/τ₁} ds / τ₂`
 /// written with a non-positive argument of φ, so that equal time constants give the limit
 /// `e₁ (h/τ) e^{−h/τ}` and very different ones neither overflow nor cancel).
-pub fn lag2_step(x: [f64; 2], u0: f64, u1: f64, dt: f64, tau1: f64, tau2: f64) -> [f64; 2] {
+pub(crate) fn lag2_step(x: [f64; 2], u0: f64, u1: f64, dt: f64, tau1: f64, tau2: f64) -> [f64; 2] {
     if !(dt > 0.0) {
         return x;
     }
@@ -85,7 +86,7 @@ pub fn lag2_step(x: [f64; 2], u0: f64, u1: f64, dt: f64, tau1: f64, tau2: f64) -
 }
 
 /// Second-stage states of a two-stage lag over one run that starts with both stages at `x0`.
-pub fn lag2_run_from(
+pub(crate) fn lag2_run_from(
     times: &[f64],
     inputs: &[f64],
     x0: f64,

@@ -914,17 +914,17 @@ fn plausible(machine: &Machine, role: Role) -> Option<(f64, &'static str)> {
 }
 
 /// Axis positions and tool offsets: 10 km.
-pub const MAX_POSITION: f64 = 1e4;
+pub(crate) const MAX_POSITION: f64 = 1e4;
 /// Revolute axis angles: 10⁶ rad, some 160 000 turns of a continuous axis.
-pub const MAX_ANGLE: f64 = 1e6;
+pub(crate) const MAX_ANGLE: f64 = 1e6;
 /// Observed position and length errors: 1 m.
-pub const MAX_ERROR: f64 = 1.0;
+pub(crate) const MAX_ERROR: f64 = 1.0;
 /// Observed rotation errors: 1 rad.
-pub const MAX_TILT: f64 = 1.0;
+pub(crate) const MAX_TILT: f64 = 1.0;
 /// Time: 10¹⁰ s, about 300 years (a Unix time stamp fits).
-pub const MAX_TIME: f64 = 1e10;
+pub(crate) const MAX_TIME: f64 = 1e10;
 /// Inputs (temperatures, forces, …), in their SI unit: 10⁹.
-pub const MAX_INPUT: f64 = 1e9;
+pub(crate) const MAX_INPUT: f64 = 1e9;
 
 /// A bound in the column's own unit, as the user would write it.
 fn limit_text(bound: f64, scale: f64, unit: &str) -> String {

@@ -17,7 +17,7 @@ pub struct Dialect {
 }
 
 impl Dialect {
-    pub fn with_delimiter(delimiter: u8) -> Dialect {
+    pub(crate) fn with_delimiter(delimiter: u8) -> Dialect {
         Dialect {
             delimiter,
             decimal_comma: delimiter != b',',

@@ -19,6 +19,16 @@ SLIDE = """machine slide {
 params { X.tx = [2, -1, 0.5, 0.2] um  X.ry[0] = 3 urad }"""
 
 
+XY = """machine xy {
+    task position
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 400 mm
+    tool chain { X moving Y moving tool t at (0, 0, -100) mm }
+    errors { X.tx = spline(X, knots 2)  Y.ty = linear(Y)  X.rz = const }
+}
+params { X.tx = [2, -1, 0.5, 0.2] um  Y.ty[0] = 3 um  X.rz[0] = 5 urad }"""
+
+
 def states_of(model, n, seed=1):
     """Random joint positions inside a model's declared ranges (SI)."""
     rng = np.random.default_rng(seed)
@@ -155,7 +165,7 @@ def test_bad_arrays_are_refused_with_a_clear_error():
 def test_a_fortran_ordered_array_is_refused_not_misread():
     # `DataFrame.to_numpy()` gives this layout: its memory is column after column, which read
     # as rows would mix the axes' values and return wrong numbers without a word.
-    m = kin.Model.from_file(str(EXAMPLES / "milling_5axis.kin"))
+    m = kin.Model.compile(XY)
     q = states_of(m, 7)
     want = m.eval(q)
     with pytest.raises(kin.EvalError, match="C-contiguous"):

@@ -460,5 +460,105 @@ pub fn evaluate(run: &CircularRun, path: &Path) -> Result<Evaluation, Iso2304Err
     )
 }
 
+/// One axis of the pose a ball bar's pivot was set at: its name, whether a length positions it
+/// (else an angle), and its value in SI units (m or rad).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseAxis {
+    pub name: String,
+    pub length: bool,
+    pub value: f64,
+}
+
+/// Why a circular test's samples cannot be written as lengths from a centre pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LengthsError {
+    /// The centre pose lacks one of the plane's axes.
+    PlaneAxisMissing,
+    /// One of the plane's axes is positioned by an angle.
+    PlaneAxisNotLength,
+}
+
+/// A circular test's samples as length observations of one bar per run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BarLengths {
+    /// The runs in the order they first appear; bar `k` (from 0) is run `runs[k]`'s.
+    pub runs: Vec<String>,
+    /// One per sample, in the file's order.
+    pub rows: Vec<BarLength>,
+}
+
+/// One sample as a length: from point 1, the pivot at the centre pose, to point 2.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BarLength {
+    /// Point 2, the nominal circle point: every axis of the centre pose, in its order, the
+    /// plane's two moved by the nominal radius along the sample's angle (SI units).
+    pub point: Vec<f64>,
+    /// Whether each plane axis moved in its positive direction just before reaching point 2.
+    pub positive: [bool; 2],
+    /// Which bar (index into [`BarLengths::runs`]).
+    pub bar: usize,
+    /// The reading, actual minus nominal distance (m), its sign flipped for a measuring
+    /// machine.
+    pub dl: f64,
+}
+
+/// The samples of a circular test as length observations for a fit (spec/iso230-4.md, "Ball-bar
+/// lengths for a fit"; spec/data.md, length files): point 1 the pivot at the `centre` pose,
+/// point 2 the nominal circle point `centre + radius (cos θ, sin θ)` in `plane` (the plane's
+/// axes must be lengths of the pose), the direction each plane axis moved in just before
+/// reaching it, one bar per run (its length unknown to the fit), and `dL` the reading with the
+/// task's sign (flipped when `measure`: a measuring machine, spec/kinematics.md).
+pub fn bar_lengths(
+    samples: &[Sample],
+    plane: &[String; 2],
+    radius: f64,
+    centre: &[PoseAxis],
+    measure: bool,
+) -> Result<BarLengths, LengthsError> {
+    let position = |n: &str| centre.iter().position(|x| x.name == n);
+    let (Some(ip), Some(iq)) = (position(&plane[0]), position(&plane[1])) else {
+        return Err(LengthsError::PlaneAxisMissing);
+    };
+    if !centre[ip].length || !centre[iq].length {
+        return Err(LengthsError::PlaneAxisNotLength);
+    }
+    let sign = if measure { -1.0 } else { 1.0 };
+    let mut runs: Vec<String> = Vec::new();
+    for s in samples {
+        if !runs.contains(&s.run) {
+            runs.push(s.run.clone());
+        }
+    }
+    let rows = samples
+        .iter()
+        .map(|s| {
+            let point = centre
+                .iter()
+                .enumerate()
+                .map(|(i, x)| match i {
+                    i if i == ip => x.value + radius * s.angle.cos(),
+                    i if i == iq => x.value + radius * s.angle.sin(),
+                    _ => x.value,
+                })
+                .collect();
+            // The path's tangent a hair earlier, so a point where one axis reverses gets the
+            // side it came from.
+            let before = if s.ccw {
+                s.angle - 1e-9
+            } else {
+                s.angle + 1e-9
+            };
+            let turn = if s.ccw { 1.0 } else { -1.0 };
+            BarLength {
+                point,
+                positive: [-turn * before.sin() >= 0.0, turn * before.cos() >= 0.0],
+                bar: runs.iter().position(|r| *r == s.run).unwrap_or(0),
+                dl: sign * s.deviation,
+            }
+        })
+        .collect();
+    Ok(BarLengths { runs, rows })
+}
+
 #[cfg(test)]
 mod tests;

@@ -620,15 +620,15 @@ fn circular_text(name: &str, e: &iso230_4::Evaluation, unit: &kin_compiler::unit
     s
 }
 
-/// The ball-bar samples as a length file (spec/data.md): the pivot at the centre pose as point
-/// 1, the nominal circle point as point 2, one `artifact` label per run for the bar's unknown
-/// length, the reading as `dL` with the task's sign.
+/// The ball-bar samples as a length file (spec/data.md) by [`iso230_4::bar_lengths`]: the pivot
+/// at the centre pose as point 1, the nominal circle point as point 2, one `artifact` label per
+/// run for the bar's unknown length, the reading as `dL` with the task's sign.
 fn length_file(a: &Iso2304Args, run: &iso230_4::CircularRun) -> Result<String, Failed> {
     let usage = |what: String| {
         eprintln!("error: --lengths: {what}");
         Failed::USAGE
     };
-    let Some([p, q]) = &run.setup.plane else {
+    let Some(plane @ [p, q]) = &run.setup.plane else {
         return Err(usage(
             "the plane is needed: --plane X,Y or a `# plane: X,Y` line in the file".into(),
         ));
@@ -644,9 +644,9 @@ fn length_file(a: &Iso2304Args, run: &iso230_4::CircularRun) -> Result<String, F
         ));
     }
     // Every axis at its centre value, in mm or deg as written; the plane's two must be lengths.
-    let mut axes: Vec<(String, bool, f64)> = Vec::new();
+    let mut axes: Vec<iso230_4::PoseAxis> = Vec::new();
     for (name, value) in &a.centre {
-        if axes.iter().any(|x| &x.0 == name) {
+        if axes.iter().any(|x| &x.name == name) {
             return Err(usage(format!("--centre names {name} twice")));
         }
         let (length, v) = match load::quantity(value, Dim::LENGTH) {
@@ -656,26 +656,22 @@ fn length_file(a: &Iso2304Args, run: &iso230_4::CircularRun) -> Result<String, F
                 Err(e) => return Err(usage(format!("--centre {name}={value}: {e}"))),
             },
         };
-        axes.push((name.clone(), length, v));
+        axes.push(iso230_4::PoseAxis {
+            name: name.clone(),
+            length,
+            value: v,
+        });
     }
-    let position = |n: &str| axes.iter().position(|x| x.0 == n);
-    let (Some(ip), Some(iq)) = (position(p), position(q)) else {
-        return Err(usage(format!(
-            "--centre must give both plane axes {p} and {q}"
-        )));
-    };
-    if !axes[ip].1 || !axes[iq].1 {
-        return Err(usage(format!(
-            "the plane axes {p} and {q} must be positioned by lengths"
-        )));
-    }
-    let sign = if a.measure { -1.0 } else { 1.0 };
-    let mut labels: Vec<&str> = Vec::new();
-    for s in &run.samples {
-        if !labels.contains(&s.run.as_str()) {
-            labels.push(&s.run);
-        }
-    }
+    let bars = iso230_4::bar_lengths(&run.samples, plane, radius, &axes, a.measure).map_err(
+        |e| match e {
+            iso230_4::LengthsError::PlaneAxisMissing => {
+                usage(format!("--centre must give both plane axes {p} and {q}"))
+            }
+            iso230_4::LengthsError::PlaneAxisNotLength => usage(format!(
+                "the plane axes {p} and {q} must be positioned by lengths"
+            )),
+        },
+    )?;
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -685,14 +681,14 @@ fn length_file(a: &Iso2304Args, run: &iso230_4::CircularRun) -> Result<String, F
         crate::report::num(radius * 1e3, 9),
         if a.measure { "−" } else { "" }
     );
-    for (i, l) in labels.iter().enumerate() {
+    for (i, l) in bars.runs.iter().enumerate() {
         let _ = writeln!(out, "# artifact bar{}: run `{l}`", i + 1);
     }
     let unit = |length: bool| if length { "mm" } else { "deg" };
     let mut header: Vec<String> = Vec::new();
     for end in ["1", "2"] {
-        for (n, length, _) in &axes {
-            header.push(format!("{n}_{end}[{}]", unit(*length)));
+        for x in &axes {
+            header.push(format!("{}_{end}[{}]", x.name, unit(x.length)));
         }
     }
     header.push(format!("dir_{p}_2"));
@@ -701,32 +697,19 @@ fn length_file(a: &Iso2304Args, run: &iso230_4::CircularRun) -> Result<String, F
     header.push("dL[um]".into());
     let _ = writeln!(out, "{}", header.join(","));
     let shown = |length: bool, v: f64| if length { v * 1e3 } else { v.to_degrees() };
-    for s in &run.samples {
+    let pivot: Vec<f64> = axes.iter().map(|x| x.value).collect();
+    for row in &bars.rows {
         let mut cells: Vec<String> = Vec::new();
-        for end in 0..2 {
-            for (i, (_, length, v)) in axes.iter().enumerate() {
-                let v = match (end, i) {
-                    (1, i) if i == ip => v + radius * s.angle.cos(),
-                    (1, i) if i == iq => v + radius * s.angle.sin(),
-                    _ => *v,
-                };
-                cells.push(format!("{}", shown(*length, v)));
+        for end in [&pivot, &row.point] {
+            for (x, v) in axes.iter().zip(end) {
+                cells.push(format!("{}", shown(x.length, *v)));
             }
         }
-        // The direction each plane axis moved in just before reaching the point: the path's
-        // tangent a hair earlier, so a point where one axis reverses gets the side it came from.
-        let before = if s.ccw {
-            s.angle - 1e-9
-        } else {
-            s.angle + 1e-9
-        };
-        let turn = if s.ccw { 1.0 } else { -1.0 };
-        let dir = |v: f64| if v >= 0.0 { "+1" } else { "-1" };
-        cells.push(dir(-turn * before.sin()).into());
-        cells.push(dir(turn * before.cos()).into());
-        let label = labels.iter().position(|l| *l == s.run).unwrap_or(0) + 1;
-        cells.push(format!("bar{label}"));
-        cells.push(format!("{}", sign * s.deviation * 1e6));
+        for positive in row.positive {
+            cells.push(if positive { "+1" } else { "-1" }.into());
+        }
+        cells.push(format!("bar{}", row.bar + 1));
+        cells.push(format!("{}", row.dl * 1e6));
         let _ = writeln!(out, "{}", cells.join(","));
     }
     Ok(out)

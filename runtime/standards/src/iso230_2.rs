@@ -6,66 +6,15 @@
 //! the same CSV front end as measurement files, so quoting, `;`, decimal commas and inch units
 //! work the same way.
 
-use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use kin_compiler::units::{Dim, Unit};
+use kin_compiler::units::Unit;
 use serde::Serialize;
-use thiserror::Error;
 
-use kin_data::data::csv::{self, Cell, Dialect};
+use kin_data::data::csv::Dialect;
 
-/// At most this many problems are listed per file.
-pub(crate) const MAX_PROBLEMS: usize = 20;
-
-/// One thing wrong with a run file; lines and columns are 1-based, columns in characters.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum RunProblem {
-    #[error("no header row: the file holds only comments and blank lines")]
-    NoHeader,
-    #[error("line {line}, column {column}: {what}")]
-    At {
-        line: usize,
-        column: usize,
-        what: String,
-    },
-    #[error("line {line}: {what}")]
-    Line { line: usize, what: String },
-    #[error("{0}")]
-    File(String),
-}
-
-#[derive(Debug, Error)]
-pub enum Iso2302Error {
-    #[error("cannot read `{}`: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{}", Listing { path, problems })]
-    Invalid {
-        path: PathBuf,
-        problems: Vec<RunProblem>,
-    },
-}
-
-pub(crate) struct Listing<'a> {
-    pub(crate) path: &'a Path,
-    pub(crate) problems: &'a [RunProblem],
-}
-
-impl fmt::Display for Listing<'_> {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let n = self.problems.len();
-        let s = if n == 1 { "" } else { "s" };
-        write!(f, "`{}`: {n} problem{s}", self.path.display())?;
-        for p in self.problems {
-            write!(f, "\n  {p}")?;
-        }
-        Ok(())
-    }
-}
+use crate::table::{self, push, Table};
+pub use crate::table::{RunProblem, TestFileError as Iso2302Error};
 
 /// One approach to a target: where, from which side, in which cycle, and the deviation measured
 /// there (actual − target), in m.
@@ -142,115 +91,7 @@ pub struct Evaluation {
 
 /// Reads a run file from disk.
 pub fn read_file(path: &Path) -> Result<Run, Iso2302Error> {
-    let bytes = read_bytes(path).map_err(|source| Iso2302Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    read(&bytes, path)
-}
-
-/// A standard test's file from disk (ISO 230-2 and 230-4 alike): whole when it is a regular
-/// file, at most `MAX_STREAM_BYTES` otherwise (a pipe or device could be endless).
-pub(crate) fn read_bytes(path: &Path) -> Result<Vec<u8>, std::io::Error> {
-    use kin_data::bounded_read::{read_unless_regular, BoundedReadError, MAX_STREAM_BYTES};
-    read_unless_regular(path, MAX_STREAM_BYTES).map_err(|e| match e {
-        BoundedReadError::Io(source) => source,
-        BoundedReadError::TooLarge { limit } => std::io::Error::other(format!(
-            "not a regular file and longer than {} MiB",
-            limit >> 20
-        )),
-    })
-}
-
-/// A test file's text without its byte-order mark, or the line of the first byte that is not
-/// UTF-8.
-pub(crate) fn text(bytes: &[u8]) -> Result<&str, RunProblem> {
-    let text = std::str::from_utf8(bytes).map_err(|e| {
-        let valid = bytes.get(..e.valid_up_to()).unwrap_or_default();
-        RunProblem::Line {
-            line: 1 + valid.iter().filter(|&&b| b == b'\n').count(),
-            what: "not valid UTF-8".into(),
-        }
-    })?;
-    Ok(text.strip_prefix('\u{feff}').unwrap_or(text))
-}
-
-/// The lines of a test file that carry something, by role, each with its 1-based line number.
-pub(crate) struct Layout<'a> {
-    /// `#` comments before the header: where a test states its setup (`# radius: 150 mm`).
-    pub setup: Vec<(usize, &'a str)>,
-    /// The first line that is neither blank nor a comment.
-    pub header: (usize, &'a str),
-    /// Every later line that is neither blank nor a comment.
-    pub rows: Vec<(usize, &'a str)>,
-}
-
-/// Sorts a test file's lines into setup comments, header and rows (CRLF or LF; blank lines and
-/// comments after the header skipped); `None` when there is no header. Every ISO test file kin
-/// reads shares this layout, so they agree on what a comment or a blank line is.
-pub(crate) fn layout(text: &str) -> Option<Layout<'_>> {
-    let mut setup = Vec::new();
-    let mut header = None;
-    let mut rows = Vec::new();
-    for (i, l) in text.split('\n').enumerate() {
-        let l = l.strip_suffix('\r').unwrap_or(l);
-        let t = l.trim_start();
-        if t.is_empty() {
-            continue;
-        }
-        if t.starts_with('#') {
-            if header.is_none() {
-                setup.push((i + 1, t));
-            }
-            continue;
-        }
-        if header.is_none() {
-            header = Some((i + 1, l));
-        } else {
-            rows.push((i + 1, l));
-        }
-    }
-    Some(Layout {
-        setup,
-        header: header?,
-        rows,
-    })
-}
-
-/// Splits line `n` of a test file into `cells` (text in `buf`); a quoting problem is reported
-/// at its line and column.
-pub(crate) fn split_line(
-    line: &str,
-    n: usize,
-    dialect: Dialect,
-    buf: &mut String,
-    cells: &mut Vec<Cell>,
-) -> Result<(), RunProblem> {
-    csv::split(line, dialect.delimiter, buf, cells).map_err(|e| {
-        let (at, what) = match e {
-            csv::SplitError::Unclosed(at) => (at, "a quote not closed on its line".into()),
-            csv::SplitError::AfterQuote(at) => (
-                at + 1,
-                format!("text after a closing quote; expected {}", dialect.name()),
-            ),
-        };
-        RunProblem::At {
-            line: n,
-            column: column_of(line, at),
-            what,
-        }
-    })
-}
-
-/// A header cell: `NAME` or `NAME[UNIT]`.
-pub(crate) fn header_cell(cell: &str) -> Result<(&str, Option<&str>), String> {
-    match cell.split_once('[') {
-        Some((n, rest)) => match rest.strip_suffix(']') {
-            Some(u) => Ok((n.trim(), Some(u.trim()))),
-            None => Err(format!("`{cell}`: expected NAME or NAME[UNIT]")),
-        },
-        None => Ok((cell, None)),
-    }
+    table::read_file(path, read)
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -268,270 +109,80 @@ const COLUMNS: [(&str, Role); 4] = [
     ("cycle", Role::Cycle),
 ];
 
-pub(crate) fn column_of(line: &str, byte: usize) -> usize {
-    1 + line.get(..byte).map_or(0, |s| s.chars().count())
-}
-
-/// A length unit of a header: kin's units and the inch units of measurement files.
-pub(crate) fn length_unit(text: &str) -> Result<Unit, String> {
-    let unit = match kin_data::data::inch_unit(text) {
-        Some(u) => u,
-        None => Unit::parse(text).map_err(|e| e.to_string())?,
-    };
-    if unit.dim == Dim::LENGTH {
-        Ok(unit)
-    } else {
-        Err(format!("`{text}` is not a length unit"))
-    }
-}
-
-pub(crate) fn push(problems: &mut Vec<RunProblem>, p: RunProblem) {
-    if problems.len() < MAX_PROBLEMS {
-        problems.push(p);
-    }
-}
-
 /// Reads a run file from memory; `path` only names it in errors. Targets default to mm and
 /// deviations to um when their header gives no unit.
 pub fn read(bytes: &[u8], path: &Path) -> Result<Run, Iso2302Error> {
-    let invalid = |problems| Iso2302Error::Invalid {
-        path: path.to_path_buf(),
-        problems,
-    };
-    let text = text(bytes).map_err(|p| invalid(vec![p]))?;
-    let Some(Layout {
-        header: (header_line, header),
-        rows: lines,
-        ..
-    }) = layout(text)
-    else {
-        return Err(invalid(vec![RunProblem::NoHeader]));
-    };
-    let dialect = Dialect::detect(header);
+    let invalid = |p| Iso2302Error::invalid(path, vec![p]);
+    let mut file = Table::new(bytes).map_err(invalid)?;
     let mut problems = Vec::new();
-    let mut buf = String::new();
-    let mut cells: Vec<Cell> = Vec::new();
     // Header: which column is which, and the units.
-    let mut roles: Vec<Option<Role>> = Vec::new();
     let mut target_unit = Unit::atom("mm");
     let mut deviation_unit = Unit::atom("um");
-    if let Err(p) = split_line(header, header_line, dialect, &mut buf, &mut cells) {
-        push(&mut problems, p);
-    }
-    for c in &cells {
-        let column = column_of(header, c.origin);
-        let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-        let (name, unit) = match header_cell(cell) {
-            Ok(nu) => nu,
-            Err(what) => {
-                push(
-                    &mut problems,
-                    RunProblem::At {
-                        line: header_line,
-                        column,
-                        what,
-                    },
-                );
-                roles.push(None);
-                continue;
-            }
-        };
-        let Some(&(_, role)) = COLUMNS.iter().find(|(n, _)| *n == name) else {
-            push(
-                &mut problems,
-                RunProblem::At {
-                    line: header_line,
-                    column,
-                    what: format!(
-                    "unknown column `{name}`; a run file has target, deviation, direction, cycle"
-                ),
-                },
-            );
-            roles.push(None);
-            continue;
-        };
-        if roles.contains(&Some(role)) {
-            push(
-                &mut problems,
-                RunProblem::At {
-                    line: header_line,
-                    column,
-                    what: format!("duplicate column `{name}`"),
-                },
-            );
-            roles.push(None);
-            continue;
-        }
-        match (role, unit) {
+    let columns = file.header(&mut problems, |cell, columns, problems| {
+        let has = "a run file has target, deviation, direction, cycle";
+        let role = cell.known(&COLUMNS, columns, has)?;
+        match (role, cell.unit) {
             (_, None) => {}
-            (Role::Target | Role::Deviation, Some(u)) => match length_unit(u) {
+            (Role::Target | Role::Deviation, Some(u)) => match table::length_unit(u) {
                 Ok(unit) if role == Role::Target => target_unit = Some(unit),
                 Ok(unit) => deviation_unit = Some(unit),
-                Err(e) => push(
-                    &mut problems,
-                    RunProblem::At {
-                        line: header_line,
-                        column,
-                        what: format!("column `{name}`: {e}"),
-                    },
-                ),
+                Err(e) => push(problems, cell.column_problem(e)),
             },
-            (_, Some(_)) => push(
-                &mut problems,
-                RunProblem::At {
-                    line: header_line,
-                    column,
-                    what: format!("column `{name}` takes no unit"),
-                },
-            ),
+            (_, Some(_)) => push(problems, cell.takes_no_unit()),
         }
-        roles.push(Some(role));
-    }
-    let missing: Vec<&str> = COLUMNS
-        .iter()
-        .filter(|(_, r)| !roles.contains(&Some(*r)))
-        .map(|(n, _)| *n)
-        .collect();
-    if !missing.is_empty() {
-        push(
-            &mut problems,
-            RunProblem::File(format!(
-                "missing column{}: {}",
-                if missing.len() == 1 { "" } else { "s" },
-                missing.join(", ")
-            )),
-        );
+        Ok(Some(role))
+    });
+    if let Some(p) = table::missing(&COLUMNS, &columns, |_| true) {
+        push(&mut problems, p);
     }
     let (Some(target_unit), Some(deviation_unit)) = (target_unit, deviation_unit) else {
-        return Err(invalid(vec![RunProblem::File(
+        return Err(invalid(RunProblem::File(
             "kin's unit table lacks mm or um".into(),
-        )]));
+        )));
     };
-    let mut samples = Vec::new();
-    for (n, line) in lines {
-        if let Err(p) = split_line(line, n, dialect, &mut buf, &mut cells) {
-            push(&mut problems, p);
-            continue;
-        }
-        if cells.len() != roles.len() {
-            push(
-                &mut problems,
-                RunProblem::Line {
-                    line: n,
-                    what: format!(
-                        "{} cells, but the header has {} columns",
-                        cells.len(),
-                        roles.len()
-                    ),
-                },
-            );
-            continue;
-        }
-        let mut sample = Sample {
-            target: f64::NAN,
-            up: true,
-            cycle: String::new(),
-            deviation: f64::NAN,
-            line: n,
+    let dialect = file.dialect;
+    let new = |line| Sample {
+        target: f64::NAN,
+        up: true,
+        cycle: String::new(),
+        deviation: f64::NAN,
+        line,
+    };
+    let samples = file.records(&columns, &mut problems, new, |c, sample| {
+        // A run covers at most a few metres with deviations of micrometres; the bound only
+        // keeps absurd cells from overflowing the sums.
+        let length = |unit: &Unit| {
+            let within = "a value within ±10 km";
+            table::bounded(c.text, dialect, unit, |v| v * unit.scale, 1e4, within)
         };
-        let mut ok = true;
-        for (c, role) in cells.iter().zip(&roles) {
-            let Some(role) = role else { continue };
-            let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-            let mut bad = |expected: &str| {
-                ok = false;
-                let shown = if cell.is_empty() {
-                    "empty cell".to_string()
-                } else {
-                    format!("`{cell}`")
-                };
-                push(
-                    &mut problems,
-                    RunProblem::At {
-                        line: n,
-                        column: column_of(line, c.origin),
-                        what: format!("{shown}: expected {expected}"),
-                    },
-                );
-            };
-            match role {
-                Role::Target | Role::Deviation => {
-                    let v = number(cell, dialect);
-                    let unit = if *role == Role::Target {
-                        &target_unit
-                    } else {
-                        &deviation_unit
-                    };
-                    match v {
-                        // A run covers at most a few metres with deviations of micrometres;
-                        // the bound only keeps absurd cells from overflowing the sums.
-                        Some(v) if (v * unit.scale).abs() <= 1e4 => {
-                            if *role == Role::Target {
-                                sample.target = v * unit.scale;
-                            } else {
-                                sample.deviation = v * unit.scale;
-                            }
-                        }
-                        Some(_) => bad(&format!("a value within ±10 km, in {}", unit.name)),
-                        None => bad(&format!("a number in {}", unit.name)),
-                    }
-                }
-                Role::Direction => match direction(cell, dialect) {
-                    Some(up) => sample.up = up,
-                    None => bad("+1 (approached from below) or -1 (from above)"),
-                },
-                Role::Cycle => {
-                    if cell.is_empty() {
-                        bad("a cycle label");
-                    } else {
-                        sample.cycle = cell.to_string();
-                    }
-                }
+        match c.role {
+            Role::Target => sample.target = length(&target_unit)?,
+            Role::Deviation => sample.deviation = length(&deviation_unit)?,
+            Role::Direction => {
+                sample.up = direction(c.text, dialect)
+                    .ok_or("+1 (approached from below) or -1 (from above)")?
             }
+            Role::Cycle => sample.cycle = table::label(c.text, "a cycle label")?,
         }
-        if ok {
-            samples.push(sample);
-        }
-    }
-    if problems.is_empty() && samples.is_empty() {
-        push(
-            &mut problems,
-            RunProblem::File("no data rows after the header".into()),
-        );
-    }
-    if problems.is_empty() {
-        Ok(Run {
+        Ok(())
+    });
+    table::done(
+        path,
+        problems,
+        Run {
             samples,
             target_unit,
             deviation_unit,
-        })
-    } else {
-        Err(invalid(problems))
-    }
+        },
+    )
 }
 
-pub(crate) fn number(cell: &str, dialect: Dialect) -> Option<f64> {
-    match cell.parse::<f64>() {
-        Ok(v) if v.is_finite() => Some(v),
-        Ok(_) => None,
-        Err(_) if dialect.decimal_comma => csv::decimal_comma(cell),
-        Err(_) => None,
-    }
-}
-
+/// `+1`, `up` or `+` (approached from below), `-1`, `down` or `-` (from above), as written.
 fn direction(cell: &str, dialect: Dialect) -> Option<bool> {
     match cell {
-        "+" | "up" => return Some(true),
-        "-" | "\u{2212}" | "down" => return Some(false),
-        _ => {}
-    }
-    let v = number(&cell.replace('\u{2212}', "-"), dialect)?;
-    if v == 1.0 {
-        Some(true)
-    } else if v == -1.0 {
-        Some(false)
-    } else {
-        None
+        "+" | "up" => Some(true),
+        "-" | "\u{2212}" | "down" => Some(false),
+        _ => table::unit_sign(cell, dialect),
     }
 }
 
@@ -552,10 +203,6 @@ fn range(values: impl Iterator<Item = f64> + Clone) -> f64 {
 /// The ISO 230-2 figures of a run. Every target needs at least two approaches from each side
 /// (a spread needs two values), and no (target, direction, cycle) may be given twice.
 pub fn evaluate(run: &Run, path: &Path) -> Result<Evaluation, Iso2302Error> {
-    let invalid = |problems| Iso2302Error::Invalid {
-        path: path.to_path_buf(),
-        problems,
-    };
     let mut targets: Vec<f64> = run.samples.iter().map(|s| s.target).collect();
     targets.sort_by(f64::total_cmp);
     targets.dedup();
@@ -565,15 +212,16 @@ pub fn evaluate(run: &Run, path: &Path) -> Result<Evaluation, Iso2302Error> {
     for s in &run.samples {
         let key = (s.target.to_bits(), s.up, s.cycle.as_str());
         if let Some(first) = seen.insert(key, s.line) {
-            if problems.len() < MAX_PROBLEMS {
-                problems.push(RunProblem::Line {
+            push(
+                &mut problems,
+                RunProblem::Line {
                     line: s.line,
                     what: format!(
                         "cycle `{}` approaches this target from this side a second time (first at line {first})",
                         s.cycle
                     ),
-                });
-            }
+                },
+            );
         }
     }
     let mut figures = Vec::with_capacity(targets.len());
@@ -589,15 +237,16 @@ pub fn evaluate(run: &Run, path: &Path) -> Result<Evaluation, Iso2302Error> {
         let (up, down) = (side(true), side(false));
         cycles = cycles.max(up.len()).max(down.len());
         if up.len() < 2 || down.len() < 2 {
-            if problems.len() < MAX_PROBLEMS {
-                let shown = t / run.target_unit.scale;
-                problems.push(RunProblem::File(format!(
+            let shown = t / run.target_unit.scale;
+            push(
+                &mut problems,
+                RunProblem::File(format!(
                     "target {shown} {}: {} approach(es) from below and {} from above; each side needs at least 2",
                     run.target_unit.name,
                     up.len(),
                     down.len()
-                )));
-            }
+                )),
+            );
             continue;
         }
         let (mean_up, s_up) = mean_and_s(&up);
@@ -622,7 +271,7 @@ pub fn evaluate(run: &Run, path: &Path) -> Result<Evaluation, Iso2302Error> {
         });
     }
     if !problems.is_empty() {
-        return Err(invalid(problems));
+        return Err(Iso2302Error::invalid(path, problems));
     }
     let f = &figures;
     let max = |it: &mut dyn Iterator<Item = f64>| it.fold(f64::NEG_INFINITY, f64::max);

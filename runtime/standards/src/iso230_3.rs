@@ -10,32 +10,13 @@
 //! ISO 230-2 and 230-4 files; `# separation: 100 mm` before the header gives the distance from
 //! sensor 1 to sensor 2 of each pair.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use kin_compiler::units::{Dim, Unit};
 use serde::Serialize;
-use thiserror::Error;
 
-use crate::iso230_2::{
-    column_of, header_cell, layout, length_unit, number, push, read_bytes, split_line, text,
-    Layout, Listing, RunProblem,
-};
-use kin_data::data::csv::{Cell, Dialect};
-
-#[derive(Debug, Error)]
-pub enum Iso2303Error {
-    #[error("cannot read `{}`: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{}", Listing { path, problems })]
-    Invalid {
-        path: PathBuf,
-        problems: Vec<RunProblem>,
-    },
-}
+pub use crate::table::TestFileError as Iso2303Error;
+use crate::table::{self, push, RunProblem, Table};
 
 /// One measured quantity over time: a displacement (m) or a temperature (K, as read).
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -168,81 +149,39 @@ const DISPLACEMENTS: [&str; 9] = ["X", "Y", "Z", "X1", "X2", "Y1", "Y2", "Z1", "
 
 /// Reads a thermal test's run file from disk (spec/iso230-3.md).
 pub fn read_file(path: &Path) -> Result<ThermalRun, Iso2303Error> {
-    let bytes = read_bytes(path).map_err(|source| Iso2303Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    read(&bytes, path)
+    table::read_file(path, read)
 }
 
 /// Reads a run file from memory; `path` only names it in errors.
 pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
-    let invalid = |problems| Iso2303Error::Invalid {
-        path: path.to_path_buf(),
-        problems,
-    };
-    let text = text(bytes).map_err(|p| invalid(vec![p]))?;
-    let Some(Layout {
-        setup: comments,
-        header: (header_line, header),
-        rows,
-    }) = layout(text)
-    else {
-        return Err(invalid(vec![RunProblem::NoHeader]));
-    };
+    let mut file = Table::new(bytes).map_err(|p| Iso2303Error::invalid(path, vec![p]))?;
     let mut problems = Vec::new();
     let mut run = ThermalRun::default();
-    for (line, comment) in comments {
-        let Some((k, v)) = comment.trim_start_matches('#').split_once(':') else {
+    for &(line, comment) in &file.setup {
+        // Only `key: value` (the 230-4 files also take `key = value`).
+        let Some((k, v)) = table::setup_entry(comment, &[':']) else {
             continue;
         };
-        if !k.trim().eq_ignore_ascii_case("separation") {
+        if !k.eq_ignore_ascii_case("separation") {
             continue;
         }
-        match quantity(v.trim(), Dim::LENGTH) {
+        match quantity(v, Dim::LENGTH) {
             Some(x) if x > 0.0 => run.separation = Some(x),
             _ => push(
                 &mut problems,
                 RunProblem::Line {
                     line,
-                    what: format!(
-                        "`{}`: expected a positive length, e.g. `separation: 100 mm`",
-                        v.trim()
-                    ),
+                    what: format!("`{v}`: expected a positive length, e.g. `separation: 100 mm`"),
                 },
             ),
         }
     }
-    let dialect = Dialect::detect(header);
-    let mut buf = String::new();
-    let mut cells: Vec<Cell> = Vec::new();
-    if let Err(p) = split_line(header, header_line, dialect, &mut buf, &mut cells) {
-        push(&mut problems, p);
-    }
-    let mut roles: Vec<Option<Role>> = Vec::new();
-    let mut names: Vec<String> = Vec::new();
-    for c in &cells {
-        let column = column_of(header, c.origin);
-        let at = |what: String| RunProblem::At {
-            line: header_line,
-            column,
-            what,
-        };
-        let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-        let (name, unit) = match header_cell(cell) {
-            Ok(nu) => nu,
-            Err(what) => {
-                push(&mut problems, at(what));
-                roles.push(None);
-                names.push(String::new());
-                continue;
-            }
-        };
-        if names.iter().any(|n| n == name) {
-            push(&mut problems, at(format!("duplicate column `{name}`")));
-            roles.push(None);
-            names.push(String::new());
-            continue;
+    let columns = file.header(&mut problems, |cell, columns, problems| {
+        let (name, unit) = (cell.name, cell.unit);
+        // Any name seen before is a duplicate, an unknown one too (230-2 and 230-4 files call
+        // every unknown name unknown). A duplicate leaves an empty name, as a malformed cell does.
+        if columns.iter().any(|c| c.name == name) {
+            return Err(cell.duplicate());
         }
         let role = if name == "time" {
             match unit.map(Unit::parse) {
@@ -250,18 +189,18 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
                 Some(Ok(u)) if u.dim == Dim::TIME => Some(Role::Time(u)),
                 Some(_) => {
                     push(
-                        &mut problems,
-                        at(format!("`{cell}`: expected a time unit (s, min, h)")),
+                        problems,
+                        cell.at(format!("`{}`: expected a time unit (s, min, h)", cell.text)),
                     );
                     None
                 }
             }
         } else if DISPLACEMENTS.contains(&name) {
-            match unit.map(length_unit) {
+            match unit.map(table::length_unit) {
                 None => Unit::atom("um").map(Role::Displacement),
                 Some(Ok(u)) => Some(Role::Displacement(u)),
                 Some(Err(e)) => {
-                    push(&mut problems, at(format!("column `{name}`: {e}")));
+                    push(problems, cell.column_problem(e));
                     None
                 }
             }
@@ -273,105 +212,88 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
                 }
                 Some(_) => {
                     push(
-                        &mut problems,
-                        at(format!(
-                            "column `{name}`: expected a temperature unit (degC, K)"
-                        )),
+                        problems,
+                        cell.column_problem("expected a temperature unit (degC, K)"),
                     );
                     None
                 }
             }
         } else {
+            // Unlike a duplicate, an unknown column keeps its name.
             push(
-                &mut problems,
-                at(format!(
-                    "unknown column `{name}`; a thermal-test file has time, displacements X Y Z (or X1 X2 Y1 Y2 Z1 Z2) and temperatures T…"
-                )),
+                problems,
+                cell.unknown(
+                    "a thermal-test file has time, displacements X Y Z (or X1 X2 Y1 Y2 Z1 Z2) and temperatures T…",
+                ),
             );
             None
         };
-        names.push(name.to_string());
-        roles.push(role);
-    }
-    if !roles.iter().any(|r| matches!(r, Some(Role::Time(_)))) {
+        Ok(role)
+    });
+    if !columns
+        .iter()
+        .any(|c| matches!(c.role, Some(Role::Time(_))))
+    {
         push(&mut problems, RunProblem::File("no `time` column".into()));
     }
-    if !roles
+    if !columns
         .iter()
-        .any(|r| matches!(r, Some(Role::Displacement(_))))
+        .any(|c| matches!(c.role, Some(Role::Displacement(_))))
     {
         push(
             &mut problems,
             RunProblem::File("no displacement column (X, Y, Z, X1 … Z2)".into()),
         );
     }
-    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); roles.len()];
+    let mut values: Vec<Vec<f64>> = vec![Vec::new(); columns.len()];
     let mut last_time: Option<(f64, usize)> = None;
-    for (n, l) in rows {
-        if let Err(p) = split_line(l, n, dialect, &mut buf, &mut cells) {
-            push(&mut problems, p);
-            continue;
-        }
-        if cells.len() != roles.len() {
-            push(
-                &mut problems,
-                RunProblem::Line {
-                    line: n,
-                    what: format!("{} cells, the header has {}", cells.len(), roles.len()),
-                },
-            );
-            continue;
-        }
-        for (k, (c, role)) in cells.iter().zip(&roles).enumerate() {
-            let Some(role) = role else { continue };
-            let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-            let column = column_of(l, c.origin);
-            let unit = match role {
+    let dialect = file.dialect;
+    // A shorter wording than the 230-2 and 230-4 files' `… but the header has N columns`.
+    let mismatch = |cells, columns| format!("{cells} cells, the header has {columns}");
+    file.rows(&columns, &mut problems, mismatch, |row, problems| {
+        let n = row.line;
+        // Every cell is read, and the row counted, whatever its other cells hold.
+        for c in row.cells() {
+            let unit = match c.role {
                 Role::Time(u) | Role::Displacement(u) | Role::Temperature(u) => u,
             };
-            let Some(v) = number(cell, dialect) else {
+            let Some(v) = table::number(c.text, dialect) else {
                 push(
-                    &mut problems,
-                    RunProblem::At {
-                        line: n,
-                        column,
-                        what: format!(
-                            "`{cell}`: expected a number in {} (`{}`)",
-                            unit.name,
-                            names.get(k).map_or("", |s| s.as_str())
-                        ),
-                    },
+                    problems,
+                    c.at(format!(
+                        "`{}`: expected a number in {} (`{}`)",
+                        c.text, unit.name, c.name
+                    )),
                 );
                 continue;
             };
             let si = unit.to_si(v);
-            if let Role::Time(_) = role {
+            if let Role::Time(_) = c.role {
                 if let Some((prev, prev_line)) = last_time {
                     if si < prev {
                         push(
-                            &mut problems,
-                            RunProblem::At {
-                                line: n,
-                                column,
-                                what: format!(
-                                    "time {cell} is before the time at line {prev_line}: samples must be in time order"
-                                ),
-                            },
+                            problems,
+                            c.at(format!(
+                                "time {} is before the time at line {prev_line}: samples must be in time order",
+                                c.text
+                            )),
                         );
                     }
                 }
                 last_time = Some((si, n));
             }
-            if let Some(col) = columns.get_mut(k) {
+            if let Some(col) = values.get_mut(c.index) {
                 col.push(si);
             }
         }
         run.line.push(n);
-    }
+    });
     if run.line.is_empty() && problems.is_empty() {
         push(&mut problems, RunProblem::File("no samples".into()));
     }
-    let pairs = names.iter().any(|n| n.ends_with('1') || n.ends_with('2'));
+    let pairs = columns
+        .iter()
+        .any(|c| c.name.ends_with('1') || c.name.ends_with('2'));
     if pairs && run.separation.is_none() && problems.is_empty() {
         push(
             &mut problems,
@@ -381,10 +303,11 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
         );
     }
     if !problems.is_empty() {
-        return Err(invalid(problems));
+        return Err(Iso2303Error::invalid(path, problems));
     }
-    for ((role, name), values) in roles.into_iter().zip(names).zip(columns) {
-        match role {
+    for (column, values) in columns.into_iter().zip(values) {
+        let name = column.name;
+        match column.role {
             Some(Role::Time(_)) => run.time = values,
             Some(Role::Displacement(_)) => run.displacements.push(Channel { name, values }),
             Some(Role::Temperature(_)) => run.temperatures.push(Channel { name, values }),

@@ -9,33 +9,15 @@
 //! be given in `# key: value` comment lines before the header.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use kin_compiler::units::{Dim, Unit};
+use kin_data::data::csv::Dialect;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
-use thiserror::Error;
 
-use crate::iso230_2::{
-    column_of, header_cell, layout, length_unit, number, push, read_bytes, split_line, text,
-    Layout, Listing, RunProblem, MAX_PROBLEMS,
-};
-use kin_data::data::csv::{Cell, Dialect};
-
-#[derive(Debug, Error)]
-pub enum Iso2304Error {
-    #[error("cannot read `{}`: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("{}", Listing { path, problems })]
-    Invalid {
-        path: PathBuf,
-        problems: Vec<RunProblem>,
-    },
-}
+pub use crate::table::TestFileError as Iso2304Error;
+use crate::table::{self, push, RunProblem, Table};
 
 /// One sample of a circular path: the nominal angle (rad, from the plane's first axis towards
 /// its second), the radial deviation (m, actual minus nominal radius, measured from the
@@ -125,11 +107,7 @@ pub struct Evaluation {
 
 /// Reads a run file from disk.
 pub fn read_file(path: &Path) -> Result<CircularRun, Iso2304Error> {
-    let bytes = read_bytes(path).map_err(|source| Iso2304Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    read(&bytes, path)
+    table::read_file(path, read)
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -162,7 +140,7 @@ fn quantity(text: &str, dim: Dim, default: &str) -> Result<f64, String> {
     let unit = unit.trim();
     let unit = if unit.is_empty() { default } else { unit };
     let unit = if dim == Dim::LENGTH {
-        length_unit(unit)?
+        table::length_unit(unit)?
     } else {
         Unit::parse(unit).map_err(|e| e.to_string())?
     };
@@ -179,11 +157,11 @@ fn quantity(text: &str, dim: Dim, default: &str) -> Result<f64, String> {
 
 /// A `# key: value` (or `key = value`) comment before the header.
 fn setup_line(setup: &mut Setup, comment: &str, line: usize, problems: &mut Vec<RunProblem>) {
-    let body = comment.trim_start().trim_start_matches('#').trim();
-    let Some((key, value)) = body.split_once([':', '=']) else {
+    // `key = value` too (the 230-3 files take only `key: value`).
+    let Some((key, value)) = table::setup_entry(comment, &[':', '=']) else {
         return;
     };
-    let (key, value) = (key.trim().to_ascii_lowercase(), value.trim());
+    let key = key.to_ascii_lowercase();
     let at = |what: String| RunProblem::Line { line, what };
     match key.as_str() {
         "radius" => match quantity(value, Dim::LENGTH, "mm") {
@@ -220,221 +198,97 @@ pub fn plane(text: &str) -> Result<[String; 2], String> {
     }
 }
 
+/// `ccw`, `+1` or `+` (counter-clockwise), `cw`, `-1` or `-`, in any case.
 fn direction(cell: &str, dialect: Dialect) -> Option<bool> {
     match cell.to_ascii_lowercase().as_str() {
-        "ccw" | "+" => return Some(true),
-        "cw" | "-" | "\u{2212}" => return Some(false),
-        _ => {}
-    }
-    let v = number(&cell.replace('\u{2212}', "-"), dialect)?;
-    if v == 1.0 {
-        Some(true)
-    } else if v == -1.0 {
-        Some(false)
-    } else {
-        None
+        "ccw" | "+" => Some(true),
+        "cw" | "-" | "\u{2212}" => Some(false),
+        _ => table::unit_sign(cell, dialect),
     }
 }
 
 /// Reads a run file from memory; `path` only names it in errors. Angles default to degrees and
 /// deviations to um when their header gives no unit.
 pub fn read(bytes: &[u8], path: &Path) -> Result<CircularRun, Iso2304Error> {
-    let invalid = |problems| Iso2304Error::Invalid {
-        path: path.to_path_buf(),
-        problems,
-    };
-    let text = text(bytes).map_err(|p| invalid(vec![p]))?;
-    let Some(Layout {
-        setup: comments,
-        header: (header_line, header),
-        rows,
-    }) = layout(text)
-    else {
-        return Err(invalid(vec![RunProblem::NoHeader]));
-    };
+    let invalid = |p| Iso2304Error::invalid(path, vec![p]);
+    let mut file = Table::new(bytes).map_err(invalid)?;
     let mut problems = Vec::new();
     let mut setup = Setup::default();
     // Only the comments before the header describe the test.
-    for (line, comment) in comments {
+    for &(line, comment) in &file.setup {
         setup_line(&mut setup, comment, line, &mut problems);
     }
-    let dialect = Dialect::detect(header);
-    let mut buf = String::new();
-    let mut cells: Vec<Cell> = Vec::new();
-    let mut roles: Vec<Option<Role>> = Vec::new();
     let mut angle_unit = Unit::atom("deg");
     let mut deviation_unit = Unit::atom("um");
-    if let Err(p) = split_line(header, header_line, dialect, &mut buf, &mut cells) {
-        push(&mut problems, p);
-    }
-    for c in &cells {
-        let column = column_of(header, c.origin);
-        let at = |what: String| RunProblem::At {
-            line: header_line,
-            column,
-            what,
-        };
-        let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-        let (name, unit) = match header_cell(cell) {
-            Ok(nu) => nu,
-            Err(what) => {
-                push(&mut problems, at(what));
-                roles.push(None);
-                continue;
-            }
-        };
-        let Some(&(_, role)) = COLUMNS.iter().find(|(n, _)| *n == name) else {
-            push(
-                &mut problems,
-                at(format!(
-                    "unknown column `{name}`; a circular-test file has angle, deviation, direction and optionally run"
-                )),
-            );
-            roles.push(None);
-            continue;
-        };
-        if roles.contains(&Some(role)) {
-            push(&mut problems, at(format!("duplicate column `{name}`")));
-            roles.push(None);
-            continue;
-        }
-        match (role, unit) {
+    let columns = file.header(&mut problems, |cell, columns, problems| {
+        let has = "a circular-test file has angle, deviation, direction and optionally run";
+        let role = cell.known(&COLUMNS, columns, has)?;
+        match (role, cell.unit) {
             (_, None) => {}
-            (Role::Deviation, Some(u)) => match length_unit(u) {
+            (Role::Deviation, Some(u)) => match table::length_unit(u) {
                 Ok(unit) => deviation_unit = Some(unit),
-                Err(e) => push(&mut problems, at(format!("column `{name}`: {e}"))),
+                Err(e) => push(problems, cell.column_problem(e)),
             },
             (Role::Angle, Some(u)) => match Unit::parse(u) {
                 Ok(unit) if unit.dim == Dim::ANGLE => angle_unit = Some(unit),
                 Ok(_) => push(
-                    &mut problems,
-                    at(format!("column `{name}`: `{u}` is not an angle unit")),
+                    problems,
+                    cell.column_problem(format!("`{u}` is not an angle unit")),
                 ),
-                Err(e) => push(&mut problems, at(format!("column `{name}`: {e}"))),
+                Err(e) => push(problems, cell.column_problem(e)),
             },
-            (_, Some(_)) => push(&mut problems, at(format!("column `{name}` takes no unit"))),
+            (_, Some(_)) => push(problems, cell.takes_no_unit()),
         }
-        roles.push(Some(role));
-    }
-    let missing: Vec<&str> = COLUMNS
-        .iter()
-        .filter(|(_, r)| *r != Role::Run && !roles.contains(&Some(*r)))
-        .map(|(n, _)| *n)
-        .collect();
-    if !missing.is_empty() {
-        push(
-            &mut problems,
-            RunProblem::File(format!(
-                "missing column{}: {}",
-                if missing.len() == 1 { "" } else { "s" },
-                missing.join(", ")
-            )),
-        );
+        Ok(Some(role))
+    });
+    // `run` is optional.
+    if let Some(p) = table::missing(&COLUMNS, &columns, |r| r != Role::Run) {
+        push(&mut problems, p);
     }
     let (Some(angle_unit), Some(deviation_unit)) = (angle_unit, deviation_unit) else {
-        return Err(invalid(vec![RunProblem::File(
+        return Err(invalid(RunProblem::File(
             "kin's unit table lacks deg or um".into(),
-        )]));
+        )));
     };
-    let mut samples = Vec::new();
-    for (n, line) in rows {
-        if let Err(p) = split_line(line, n, dialect, &mut buf, &mut cells) {
-            push(&mut problems, p);
-            continue;
-        }
-        if cells.len() != roles.len() {
-            push(
-                &mut problems,
-                RunProblem::Line {
-                    line: n,
-                    what: format!(
-                        "{} cells, but the header has {} columns",
-                        cells.len(),
-                        roles.len()
-                    ),
-                },
-            );
-            continue;
-        }
-        let mut sample = Sample {
-            angle: f64::NAN,
-            deviation: f64::NAN,
-            ccw: true,
-            run: "1".into(),
-            line: n,
-        };
-        let mut ok = true;
-        for (c, role) in cells.iter().zip(&roles) {
-            let Some(role) = role else { continue };
-            let cell = buf.get(c.start..c.end).unwrap_or("").trim();
-            let mut bad = |expected: &str| {
-                ok = false;
-                let shown = if cell.is_empty() {
-                    "empty cell".to_string()
-                } else {
-                    format!("`{cell}`")
-                };
-                push(
-                    &mut problems,
-                    RunProblem::At {
-                        line: n,
-                        column: column_of(line, c.origin),
-                        what: format!("{shown}: expected {expected}"),
-                    },
-                );
-            };
-            match role {
-                Role::Angle => match number(cell, dialect) {
-                    // A few turns (an overshoot beyond 360°) at most; the bound only keeps
-                    // absurd cells out of the trigonometry.
-                    Some(v) if (angle_unit.to_si(v)).abs() <= 100.0 => {
-                        sample.angle = angle_unit.to_si(v)
-                    }
-                    Some(_) => bad(&format!("an angle within ±100 rad, in {}", angle_unit.name)),
-                    None => bad(&format!("a number in {}", angle_unit.name)),
-                },
-                Role::Deviation => match number(cell, dialect) {
-                    Some(v) if (v * deviation_unit.scale).abs() <= 1.0 => {
-                        sample.deviation = v * deviation_unit.scale
-                    }
-                    Some(_) => bad(&format!(
-                        "a deviation within ±1 m, in {}",
-                        deviation_unit.name
-                    )),
-                    None => bad(&format!("a number in {}", deviation_unit.name)),
-                },
-                Role::Direction => match direction(cell, dialect) {
-                    Some(ccw) => sample.ccw = ccw,
-                    None => bad("ccw (or +1) or cw (or -1)"),
-                },
-                Role::Run => {
-                    if cell.is_empty() {
-                        bad("a run label");
-                    } else {
-                        sample.run = cell.to_string();
-                    }
-                }
+    let dialect = file.dialect;
+    let new = |line| Sample {
+        angle: f64::NAN,
+        deviation: f64::NAN,
+        ccw: true,
+        run: "1".into(),
+        line,
+    };
+    let samples = file.records(&columns, &mut problems, new, |c, sample| {
+        let (cell, angle, deviation) = (c.text, &angle_unit, &deviation_unit);
+        match c.role {
+            // A few turns (an overshoot beyond 360°) at most; the bound only keeps absurd
+            // cells out of the trigonometry.
+            Role::Angle => {
+                let within = "an angle within ±100 rad";
+                sample.angle =
+                    table::bounded(cell, dialect, angle, |v| angle.to_si(v), 100.0, within)?
             }
+            Role::Deviation => {
+                let within = "a deviation within ±1 m";
+                let si = |v| v * deviation.scale;
+                sample.deviation = table::bounded(cell, dialect, deviation, si, 1.0, within)?
+            }
+            Role::Direction => {
+                sample.ccw = direction(cell, dialect).ok_or("ccw (or +1) or cw (or -1)")?
+            }
+            Role::Run => sample.run = table::label(cell, "a run label")?,
         }
-        if ok {
-            samples.push(sample);
-        }
-    }
-    if problems.is_empty() && samples.is_empty() {
-        push(
-            &mut problems,
-            RunProblem::File("no data rows after the header".into()),
-        );
-    }
-    if problems.is_empty() {
-        Ok(CircularRun {
+        Ok(())
+    });
+    table::done(
+        path,
+        problems,
+        CircularRun {
             samples,
             setup,
             deviation_unit,
-        })
-    } else {
-        Err(invalid(problems))
-    }
+        },
+    )
 }
 
 /// The least-squares circle through radial deviations `(θ, d)`: minimises
@@ -558,16 +412,17 @@ pub fn evaluate(run: &CircularRun, path: &Path) -> Result<Evaluation, Iso2304Err
             match least_squares_circle(points) {
                 Some(c) if points.len() >= 3 => Some(figures(points, c)),
                 _ => {
-                    if problems.len() < MAX_PROBLEMS {
-                        problems.push(RunProblem::Line {
+                    push(
+                        &mut problems,
+                        RunProblem::Line {
                             line: first_line.get(&(name, ccw)).copied().unwrap_or(0),
                             what: format!(
                                 "run `{name}`, {}: {} sample(s) whose angles do not determine a centre (at least three different directions are needed; ISO 230-4 asks for a full circle)",
                                 if ccw { "counter-clockwise" } else { "clockwise" },
                                 points.len()
                             ),
-                        });
-                    }
+                        },
+                    );
                     None
                 }
             }
@@ -595,17 +450,114 @@ pub fn evaluate(run: &CircularRun, path: &Path) -> Result<Evaluation, Iso2304Err
             h,
         });
     }
-    if problems.is_empty() {
-        Ok(Evaluation {
+    table::done(
+        path,
+        problems,
+        Evaluation {
             setup: run.setup.clone(),
             runs,
-        })
-    } else {
-        Err(Iso2304Error::Invalid {
-            path: path.to_path_buf(),
-            problems,
-        })
+        },
+    )
+}
+
+/// One axis of the pose a ball bar's pivot was set at: its name, whether a length positions it
+/// (else an angle), and its value in SI units (m or rad).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseAxis {
+    pub name: String,
+    pub length: bool,
+    pub value: f64,
+}
+
+/// Why a circular test's samples cannot be written as lengths from a centre pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LengthsError {
+    /// The centre pose lacks one of the plane's axes.
+    PlaneAxisMissing,
+    /// One of the plane's axes is positioned by an angle.
+    PlaneAxisNotLength,
+}
+
+/// A circular test's samples as length observations of one bar per run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BarLengths {
+    /// The runs in the order they first appear; bar `k` (from 0) is run `runs[k]`'s.
+    pub runs: Vec<String>,
+    /// One per sample, in the file's order.
+    pub rows: Vec<BarLength>,
+}
+
+/// One sample as a length: from point 1, the pivot at the centre pose, to point 2.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BarLength {
+    /// Point 2, the nominal circle point: every axis of the centre pose, in its order, the
+    /// plane's two moved by the nominal radius along the sample's angle (SI units).
+    pub point: Vec<f64>,
+    /// Whether each plane axis moved in its positive direction just before reaching point 2.
+    pub positive: [bool; 2],
+    /// Which bar (index into [`BarLengths::runs`]).
+    pub bar: usize,
+    /// The reading, actual minus nominal distance (m), its sign flipped for a measuring
+    /// machine.
+    pub dl: f64,
+}
+
+/// The samples of a circular test as length observations for a fit (spec/iso230-4.md, "Ball-bar
+/// lengths for a fit"; spec/data.md, length files): point 1 the pivot at the `centre` pose,
+/// point 2 the nominal circle point `centre + radius (cos θ, sin θ)` in `plane` (the plane's
+/// axes must be lengths of the pose), the direction each plane axis moved in just before
+/// reaching it, one bar per run (its length unknown to the fit), and `dL` the reading with the
+/// task's sign (flipped when `measure`: a measuring machine, spec/kinematics.md).
+pub fn bar_lengths(
+    samples: &[Sample],
+    plane: &[String; 2],
+    radius: f64,
+    centre: &[PoseAxis],
+    measure: bool,
+) -> Result<BarLengths, LengthsError> {
+    let position = |n: &str| centre.iter().position(|x| x.name == n);
+    let (Some(ip), Some(iq)) = (position(&plane[0]), position(&plane[1])) else {
+        return Err(LengthsError::PlaneAxisMissing);
+    };
+    if !centre[ip].length || !centre[iq].length {
+        return Err(LengthsError::PlaneAxisNotLength);
     }
+    let sign = if measure { -1.0 } else { 1.0 };
+    let mut runs: Vec<String> = Vec::new();
+    for s in samples {
+        if !runs.contains(&s.run) {
+            runs.push(s.run.clone());
+        }
+    }
+    let rows = samples
+        .iter()
+        .map(|s| {
+            let point = centre
+                .iter()
+                .enumerate()
+                .map(|(i, x)| match i {
+                    i if i == ip => x.value + radius * s.angle.cos(),
+                    i if i == iq => x.value + radius * s.angle.sin(),
+                    _ => x.value,
+                })
+                .collect();
+            // The path's tangent a hair earlier, so a point where one axis reverses gets the
+            // side it came from.
+            let before = if s.ccw {
+                s.angle - 1e-9
+            } else {
+                s.angle + 1e-9
+            };
+            let turn = if s.ccw { 1.0 } else { -1.0 };
+            BarLength {
+                point,
+                positive: [-turn * before.sin() >= 0.0, turn * before.cos() >= 0.0],
+                bar: runs.iter().position(|r| *r == s.run).unwrap_or(0),
+                dl: sign * s.deviation,
+            }
+        })
+        .collect();
+    Ok(BarLengths { runs, rows })
 }
 
 #[cfg(test)]

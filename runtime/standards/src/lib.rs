@@ -8,4 +8,5 @@
 pub mod iso230_2;
 pub mod iso230_3;
 pub mod iso230_4;
+mod table;
 pub mod urdf;

@@ -285,3 +285,59 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn bar_lengths_put_point_two_on_the_nominal_circle() {
+    let sample = |angle: f64, ccw: bool, run: &str, deviation: f64| Sample {
+        angle,
+        deviation,
+        ccw,
+        run: run.into(),
+        line: 2,
+    };
+    let samples = [
+        sample(0.0, true, "a", 1.0 * UM),
+        sample(PI / 2.0, false, "b", -2.0 * UM),
+        sample(PI, true, "a", 0.5 * UM),
+    ];
+    let axis = |name: &str, length: bool, value: f64| PoseAxis {
+        name: name.into(),
+        length,
+        value,
+    };
+    let centre = [
+        axis("C", false, 0.1),
+        axis("Y", true, 0.2),
+        axis("X", true, 0.25),
+    ];
+    let plane = ["X".to_string(), "Y".to_string()];
+    let bars =
+        bar_lengths(&samples, &plane, 0.15, &centre, true).unwrap_or_else(|e| panic!("{e:?}"));
+    assert_eq!(bars.runs, ["a", "b"]);
+    let bar: Vec<usize> = bars.rows.iter().map(|r| r.bar).collect();
+    assert_eq!(bar, [0, 1, 0]);
+    let r = &bars.rows;
+    // C stays at the centre; X is the plane's first axis, Y its second.
+    close("C", r[1].point[0], 0.1, 0.0);
+    close("X at 0", r[0].point[2], 0.4, 1e-15);
+    close("Y at 0", r[0].point[1], 0.2, 1e-15);
+    close("Y at 90°", r[1].point[1], 0.35, 1e-15);
+    close("X at 180°", r[2].point[2], 0.1, 1e-15);
+    // How each plane axis moved just before the point: counter-clockwise into 0° X rose to its
+    // largest value and Y rose; clockwise into 90° X rose and Y rose to its largest; both fell
+    // counter-clockwise into 180°.
+    assert_eq!(r[0].positive, [true, true]);
+    assert_eq!(r[1].positive, [true, true]);
+    assert_eq!(r[2].positive, [false, false]);
+    // A measuring machine's sign.
+    close("dL", r[1].dl, 2.0 * UM, 0.0);
+    let angle = [axis("X", true, 0.0), axis("Y", false, 0.0)];
+    assert_eq!(
+        bar_lengths(&samples, &plane, 0.15, &angle, false),
+        Err(LengthsError::PlaneAxisNotLength)
+    );
+    assert_eq!(
+        bar_lengths(&samples, &plane, 0.15, &centre[..2], false),
+        Err(LengthsError::PlaneAxisMissing)
+    );
+}

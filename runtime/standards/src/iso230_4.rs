@@ -295,7 +295,7 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<CircularRun, Iso2304Error> {
 /// Σ (d − c − a cos θ − b sin θ)² (the least-squares centre of the roundness standards, for a
 /// centre offset small against the radius). `None` when the angles do not determine it (fewer
 /// than three distinct directions).
-pub fn least_squares_circle(points: &[(f64, f64)]) -> Option<Circle> {
+pub(crate) fn least_squares_circle(points: &[(f64, f64)]) -> Option<Circle> {
     let mut n = Matrix3::<f64>::zeros();
     let mut rhs = Vector3::<f64>::zeros();
     for &(t, d) in points {

@@ -324,12 +324,12 @@ impl HeaderCell<'_> {
     }
 
     /// `column NAME: what`, at this cell.
-    pub fn column_problem(&self, what: impl fmt::Display) -> RunProblem {
+    pub(crate) fn column_problem(&self, what: impl fmt::Display) -> RunProblem {
         self.at(format!("column `{}`: {what}", self.name))
     }
 
     /// `column NAME takes no unit`, at this cell.
-    pub fn takes_no_unit(&self) -> RunProblem {
+    pub(crate) fn takes_no_unit(&self) -> RunProblem {
         self.at(format!("column `{}` takes no unit", self.name))
     }
 

@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use kin_compiler::ir::Machine;
 use kin_estimate::design::{self, Estimability, Score};
 use kin_estimate::fit::DataSet;
+use kin_estimate::generate::GenerateError;
 use kin_estimate::plan::{self, Plan};
 use serde::Serialize;
 
@@ -15,7 +16,7 @@ use crate::load::{self, Failed};
 use crate::Format;
 
 pub struct DesignArgs {
-    pub generate: Option<crate::generate::Generate>,
+    pub generate: Option<kin_estimate::generate::Generate>,
     pub machine: PathBuf,
     pub candidates: Option<PathBuf>,
     pub n: Option<usize>,
@@ -133,9 +134,19 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
             return Err(Failed::USAGE);
         };
         crate::files::check(out, &[&a.machine])?;
-        let (text, count) = crate::generate::generate(m, g)?;
-        files_write(out, &text)?;
-        eprintln!("wrote {count} candidate rows to {}", out.display());
+        let candidates = kin_estimate::generate::generate(m, g).map_err(|e| {
+            eprintln!("error: {e}");
+            match e {
+                GenerateError::Kinematics(_) => Failed::INPUT,
+                _ => Failed::USAGE,
+            }
+        })?;
+        files_write(out, &candidates.text)?;
+        eprintln!(
+            "wrote {} candidate rows to {}",
+            candidates.rows,
+            out.display()
+        );
         return Ok(());
     }
     match (&a.candidates, &a.evaluate) {

@@ -12,7 +12,6 @@ mod errors;
 mod files;
 mod fit;
 mod fmt;
-mod generate;
 mod grid;
 mod help;
 mod import;
@@ -1141,8 +1140,8 @@ fn run(command: Command) -> ExitCode {
         } => load::Failed::exit(design::run(design::DesignArgs {
             generate: generate
                 .as_deref()
-                .and_then(generate::Kind::parse)
-                .map(|kind| generate::Generate {
+                .and_then(kin_estimate::generate::Kind::parse)
+                .map(|kind| kin_estimate::generate::Generate {
                     kind,
                     length: length.si,
                     step: step.si,

@@ -3,10 +3,10 @@
 //! [`fit`] is the least-squares fit and its report; [`curves`] draws its fitted parametric
 //! errors along their variables with their confidence bands; [`identify`] says which parameters the
 //! data cannot separate; [`design`] and [`plan`] judge a measurement plan before it is
-//! measured; [`simulate`] makes measurements of a model with known truth; [`predict`] gives the
-//! error and its uncertainty at new poses over a duty cycle; [`uncertainty`] is the one
-//! implementation of a prediction's uncertainty (eq. 4.12) they all use, [`statistics`] of the
-//! significance tests.
+//! measured, [`generate`] writes the candidate measurements a plan is chosen from;
+//! [`simulate`] makes measurements of a model with known truth; [`predict`] gives the error and
+//! its uncertainty at new poses over a duty cycle; [`uncertainty`] is the one implementation of
+//! a prediction's uncertainty (eq. 4.12) they all use, [`statistics`] of the significance tests.
 
 // `!(x > 0.0)` is written on purpose: it is also true for NaN, which must fail the same checks
 // as a non-positive number.
@@ -15,6 +15,7 @@
 pub mod curves;
 pub mod design;
 pub mod fit;
+pub mod generate;
 pub mod identify;
 pub mod plan;
 pub mod predict;

@@ -1,16 +1,23 @@
-//! `kin design --generate`: candidate measurements of the common artifacts, written in the
-//! measurement-file format (spec/data.md) so that `kin design --candidates` reads them back
-//! (spec/design.md, "Candidates").
+//! Candidate measurements of the common artifacts (ball bar, step gauge, ball or hole plate,
+//! R-test) for planning a calibration (§4.3): the rows a D-optimal plan is chosen from
+//! ([`crate::design::select`]). They are written in the measurement-file format
+//! (spec/data.md), so that the file of candidates is read back like any measurement file and a
+//! plan chosen from it is a file of the rows to measure (spec/design.md, "Candidates";
+//! `kin design --generate`).
 //!
 //! Every generator keeps the poses inside the declared axis ranges: a candidate that would need
 //! an axis outside its range is not written, so a plan chosen from the file can be run as is.
+//! The R-test's poses need the inverse kinematics of the prismatic axes: with the rotary axes
+//! set, the prismatic positions that put the tool at a sphere.
+//!
+//! The fields of [`Generate`] are the options of `kin design --generate`, and the errors name
+//! a field by its option (`--length`, `--levels`, …).
 
 use kin_compiler::ir::{JointKind, Machine, Var};
 use kin_model::exact;
-use kin_model::kinematics::Pose;
+use kin_model::kinematics::{KinematicsError, Pose};
 use nalgebra::{DMatrix, DVector, Vector3};
-
-use crate::load::Failed;
+use thiserror::Error;
 
 /// The artifact a candidate file is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -28,6 +35,8 @@ pub enum Kind {
 }
 
 impl Kind {
+    /// The artifact by its name in `kin design --generate`: `ballbar`, `stepgauge`, `plate`,
+    /// `rtest`.
     pub fn parse(text: &str) -> Option<Kind> {
         match text {
             "ballbar" => Some(Kind::Ballbar),
@@ -39,7 +48,7 @@ impl Kind {
     }
 }
 
-/// What `--generate` writes. Lengths in m, angles in rad.
+/// What to generate: the artifact and its grid. Lengths in m, angles in rad.
 pub struct Generate {
     pub kind: Kind,
     /// Ball bar: its length; step gauge: the distance from its first face to its last; plate:
@@ -66,18 +75,61 @@ pub struct Generate {
 
 /// The R-test's spheres when none are given: 50 mm above the workpiece origin, and 100 mm out
 /// along its x and y axes.
-pub const DEFAULT_SPHERES: [[f64; 3]; 3] = [[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.0, 0.1, 0.05]];
+const DEFAULT_SPHERES: [[f64; 3]; 3] = [[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.0, 0.1, 0.05]];
 
 /// At most this many candidate rows are generated: beyond it the exchange algorithm's memory
 /// (one unit of p values each) and time grow past what a planning step should take.
-pub const MAX_GENERATED: usize = 1_000_000;
+const MAX_GENERATED: usize = 1_000_000;
 
 /// Positions within the ranges are accepted this far outside them (m or rad): grid points
 /// computed as `lower + k·step` land on the upper end only up to rounding.
 const EPS: f64 = 1e-9;
 
-/// The candidate file's text and the number of its data rows.
-pub fn generate(m: &Machine, g: &Generate) -> Result<(String, usize), Failed> {
+/// Why no candidates were generated. Every case but [`GenerateError::Kinematics`] is a
+/// request that cannot be met (a step or size out of bounds, an axis the artifact cannot use).
+#[derive(Debug, Error)]
+pub enum GenerateError {
+    /// A length, step or pitch of [`Generate`] (named by its option) is not above zero.
+    #[error("{0} must be above zero")]
+    NotPositive(&'static str),
+    #[error("--levels must be at least 1")]
+    NoLevels,
+    #[error("the grid holds more than {MAX_GENERATED} candidates; use a larger --step, --pitch or --angle-step")]
+    GridTooFine,
+    #[error("no candidate fits inside the axis ranges; use a shorter --length or smaller steps")]
+    NoneFits,
+    #[error("more than {MAX_GENERATED} candidates; use larger steps or fewer --levels")]
+    TooManyCandidates,
+    #[error("`{0}` is not a prismatic axis of the machine")]
+    NotPrismatic(String),
+    /// The plane of a ball bar or plate (named) is not two different prismatic axes.
+    #[error("a {0} plane needs two different prismatic axes (--plane X,Y)")]
+    Plane(&'static str),
+    #[error("a step gauge needs a prismatic axis")]
+    NoPrismaticAxis,
+    #[error("--pitch is longer than the gauge's --length: the gauge has one face")]
+    OneFace,
+    #[error("--levels {0} gives more than {MAX_GENERATED} positions of the other axes")]
+    TooManyLevels(usize),
+    #[error("an R-test needs a revolute axis; the machine has none")]
+    NoRevoluteAxis,
+    #[error("more than {MAX_GENERATED} sweeps; use a larger --angle-step")]
+    TooManySweeps,
+    /// The nominal kinematics could not place the tool (the R-test's inverse kinematics).
+    #[error(transparent)]
+    Kinematics(#[from] KinematicsError),
+}
+
+/// A file of candidates: its text (comments, header, rows) and the number of its data rows.
+pub struct Candidates {
+    pub text: String,
+    pub rows: usize,
+}
+
+/// The candidates `g` describes for machine `m`, with both directions of approach where the
+/// model uses them (backlash) and the inputs at their reference values (the middle of a declared
+/// range, else 20 °C or 0).
+pub fn generate(m: &Machine, g: &Generate) -> Result<Candidates, GenerateError> {
     let positive = [
         (g.length, "--length"),
         (g.step, "--step"),
@@ -85,10 +137,10 @@ pub fn generate(m: &Machine, g: &Generate) -> Result<(String, usize), Failed> {
         (g.angle_step, "--angle-step"),
     ];
     if let Some((_, name)) = positive.iter().find(|(v, _)| !(*v > 0.0 && v.is_finite())) {
-        return Err(usage(format!("{name} must be above zero")));
+        return Err(GenerateError::NotPositive(name));
     }
     if g.levels == 0 {
-        return Err(usage("--levels must be at least 1".into()));
+        return Err(GenerateError::NoLevels);
     }
     // Grids far finer than any candidate file can hold are refused before they are built.
     let widest = m
@@ -100,9 +152,7 @@ pub fn generate(m: &Machine, g: &Generate) -> Result<(String, usize), Failed> {
     if widest / g.step.min(g.pitch) > MAX_GENERATED as f64
         || std::f64::consts::TAU / g.angle_step > MAX_GENERATED as f64
     {
-        return Err(usage(format!(
-            "the grid holds more than {MAX_GENERATED} candidates; use a larger --step, --pitch or --angle-step"
-        )));
+        return Err(GenerateError::GridTooFine);
     }
     let mut w = Writer::new(m);
     match g.kind {
@@ -112,17 +162,12 @@ pub fn generate(m: &Machine, g: &Generate) -> Result<(String, usize), Failed> {
         Kind::Rtest => rtest(m, g, &mut w)?,
     }
     if w.rows == 0 {
-        return Err(usage(
-            "no candidate fits inside the axis ranges; use a shorter --length or smaller steps"
-                .into(),
-        ));
+        return Err(GenerateError::NoneFits);
     }
-    Ok((w.out, w.rows))
-}
-
-fn usage(msg: String) -> Failed {
-    eprintln!("error: {msg}");
-    Failed::USAGE
+    Ok(Candidates {
+        text: w.out,
+        rows: w.rows,
+    })
 }
 
 /// Collects the rows, refusing to grow past [`MAX_GENERATED`].
@@ -202,12 +247,10 @@ impl<'m> Writer<'m> {
         dir: f64,
         label: Option<&str>,
         observed: usize,
-    ) -> Result<(), Failed> {
+    ) -> Result<(), GenerateError> {
         self.rows += 1;
         if self.rows > MAX_GENERATED {
-            return Err(usage(format!(
-                "more than {MAX_GENERATED} candidates; use larger steps or fewer --levels"
-            )));
+            return Err(GenerateError::TooManyCandidates);
         }
         let mut cells = Vec::new();
         for q in poses {
@@ -237,7 +280,7 @@ impl<'m> Writer<'m> {
 /// The value an input is planned at: the middle of its declared range, else 20 °C for an
 /// absolute temperature (the reference temperature of length metrology) and 0 for any other
 /// input (a temperature rise, a force, … at its reference).
-pub fn input_reference(i: &kin_compiler::ir::Input) -> f64 {
+fn input_reference(i: &kin_compiler::ir::Input) -> f64 {
     match i.range {
         Some([lo, hi]) => 0.5 * (lo + hi),
         None if i.absolute => 293.15,
@@ -252,25 +295,30 @@ fn unit(kind: JointKind) -> (&'static str, f64) {
     }
 }
 
-fn prismatic(m: &Machine) -> Vec<usize> {
+/// The indices of the axes of one kind, in their order.
+fn axes_of(m: &Machine, kind: JointKind) -> Vec<usize> {
     m.axes
         .iter()
         .enumerate()
-        .filter(|(_, a)| a.kind == JointKind::Prismatic)
+        .filter(|(_, a)| a.kind == kind)
         .map(|(i, _)| i)
         .collect()
 }
 
+fn prismatic(m: &Machine) -> Vec<usize> {
+    axes_of(m, JointKind::Prismatic)
+}
+
 /// The prismatic axis called `name`.
-fn prismatic_named(m: &Machine, name: &str) -> Result<usize, Failed> {
+fn prismatic_named(m: &Machine, name: &str) -> Result<usize, GenerateError> {
     prismatic(m)
         .into_iter()
         .find(|&i| m.axes.get(i).is_some_and(|a| a.name == name))
-        .ok_or_else(|| usage(format!("`{name}` is not a prismatic axis of the machine")))
+        .ok_or_else(|| GenerateError::NotPrismatic(name.to_string()))
 }
 
 /// The two prismatic axes of `--plane` (the first two declared when it is empty).
-fn plane(m: &Machine, g: &Generate, what: &str) -> Result<(usize, usize), Failed> {
+fn plane(m: &Machine, g: &Generate, what: &'static str) -> Result<(usize, usize), GenerateError> {
     let axes: Vec<usize> = if g.plane.is_empty() {
         prismatic(m).into_iter().take(2).collect()
     } else {
@@ -281,9 +329,7 @@ fn plane(m: &Machine, g: &Generate, what: &str) -> Result<(usize, usize), Failed
     };
     match axes.as_slice() {
         [u, v] if u != v => Ok((*u, *v)),
-        _ => Err(usage(format!(
-            "a {what} plane needs two different prismatic axes (--plane X,Y)"
-        ))),
+        _ => Err(GenerateError::Plane(what)),
     }
 }
 
@@ -319,7 +365,7 @@ fn angles(m: &Machine, i: usize, step: f64) -> Vec<f64> {
 
 /// Every combination of positions of the axes not in `fixed`: `levels` evenly spaced positions
 /// of each prismatic axis (the middle when 1), the middle of each revolute axis's range.
-fn others(m: &Machine, fixed: &[usize], levels: usize) -> Result<Vec<Vec<f64>>, Failed> {
+fn others(m: &Machine, fixed: &[usize], levels: usize) -> Result<Vec<Vec<f64>>, GenerateError> {
     let mut out = vec![m
         .axes
         .iter()
@@ -330,9 +376,7 @@ fn others(m: &Machine, fixed: &[usize], levels: usize) -> Result<Vec<Vec<f64>>, 
             continue;
         }
         if out.len().saturating_mul(levels) > MAX_GENERATED {
-            return Err(usage(format!(
-                "--levels {levels} gives more than {MAX_GENERATED} positions of the other axes"
-            )));
+            return Err(GenerateError::TooManyLevels(levels));
         }
         let values: Vec<f64> = (0..levels)
             .map(|k| a.range[0] + (a.range[1] - a.range[0]) * k as f64 / (levels - 1) as f64)
@@ -356,7 +400,7 @@ fn others(m: &Machine, fixed: &[usize], levels: usize) -> Result<Vec<Vec<f64>>, 
 /// Ball bars in the plane of two prismatic axes: the first sphere on a grid of `step` over both
 /// ranges, the bar at every multiple of `angle_step` in [0°, 360°) from the first plane axis
 /// towards the second, kept when the second sphere is inside the ranges too.
-fn ballbar(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
+fn ballbar(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), GenerateError> {
     let (u, v) = plane(m, g, "ball-bar")?;
     let (ru, rv) = (range(m, u), range(m, v));
     let turns = (std::f64::consts::TAU / g.angle_step).round().max(1.0) as usize;
@@ -401,19 +445,15 @@ fn set(q: &mut [f64], i: usize, value: f64) {
 /// of the range, each row the distance from the first face to one of the others (`pitch`
 /// apart, up to `length`), the whole gauge inside the range; the other prismatic axes at
 /// `levels` positions each (the gauge's lines).
-fn stepgauge(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
+fn stepgauge(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), GenerateError> {
     let axis = match &g.axis {
         Some(name) => prismatic_named(m, name)?,
-        None => *prismatic(m)
-            .first()
-            .ok_or_else(|| usage("a step gauge needs a prismatic axis".into()))?,
+        None => *prismatic(m).first().ok_or(GenerateError::NoPrismaticAxis)?,
     };
     let r = range(m, axis);
     let faces = (g.length / g.pitch + 1e-9).floor() as usize;
     if faces == 0 {
-        return Err(usage(
-            "--pitch is longer than the gauge's --length: the gauge has one face".into(),
-        ));
+        return Err(GenerateError::OneFace);
     }
     let name = m.axes.get(axis).map_or("", |a| a.name.as_str());
     w.comment(&format!(
@@ -446,7 +486,7 @@ fn stepgauge(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
 /// feature on a grid of `step` over the plane, turned by every multiple of `angle_step` in
 /// [0°, 90°) (the grid is the same after a quarter turn); a placement is kept when every
 /// feature is inside the ranges, and is one `artifact` label (its placement is unknown).
-fn plate(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
+fn plate(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), GenerateError> {
     let (u, v) = plane(m, g, "plate")?;
     let (ru, rv) = (range(m, u), range(m, v));
     let side = (g.length / g.pitch + 1e-9).floor() as usize;
@@ -507,18 +547,10 @@ fn plate(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
 /// sphere's placement on the table is unknown and taken out per sweep. Angles at which the
 /// prismatic axes cannot reach the sphere within their ranges are left out; a sweep needs two
 /// angles or more.
-fn rtest(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
-    let revolute: Vec<usize> = m
-        .axes
-        .iter()
-        .enumerate()
-        .filter(|(_, a)| a.kind == JointKind::Revolute)
-        .map(|(i, _)| i)
-        .collect();
+fn rtest(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), GenerateError> {
+    let revolute = axes_of(m, JointKind::Revolute);
     if revolute.is_empty() {
-        return Err(usage(
-            "an R-test needs a revolute axis; the machine has none".into(),
-        ));
+        return Err(GenerateError::NoRevoluteAxis);
     }
     let linear = prismatic(m);
     let spheres: Vec<[f64; 3]> = if g.spheres.is_empty() {
@@ -561,9 +593,7 @@ fn rtest(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), Failed> {
                 }
                 let values = grids.get(o).cloned().unwrap_or_default();
                 if settings.len().saturating_mul(values.len()) > MAX_GENERATED {
-                    return Err(usage(format!(
-                        "more than {MAX_GENERATED} sweeps; use a larger --angle-step"
-                    )));
+                    return Err(GenerateError::TooManySweeps);
                 }
                 settings = settings
                     .iter()
@@ -621,19 +651,14 @@ fn reach(
     linear: &[usize],
     mut q: Vec<f64>,
     target: &Vector3<f64>,
-) -> Result<Option<Vec<f64>>, Failed> {
-    let point = |q: &[f64]| -> Result<Vector3<f64>, Failed> {
+) -> Result<Option<Vec<f64>>, KinematicsError> {
+    let point = |q: &[f64]| -> Result<Vector3<f64>, KinematicsError> {
         let pose = Pose {
             q,
             tool: 0,
             tool_offset: None,
         };
-        exact::nominal_transform(m, &pose)
-            .map(|t| Vector3::new(t[(0, 3)], t[(1, 3)], t[(2, 3)]))
-            .map_err(|e| {
-                eprintln!("error: {e}");
-                Failed::INPUT
-            })
+        exact::nominal_transform(m, &pose).map(|t| Vector3::new(t[(0, 3)], t[(1, 3)], t[(2, 3)]))
     };
     let p0 = point(&q)?;
     let mut j = DMatrix::zeros(3, linear.len());
@@ -671,5 +696,104 @@ fn round9(v: f64) -> f64 {
         0.0
     } else {
         r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use kin_compiler::compile;
+
+    /// Three slides carrying the tool over a rotary table C.
+    const RTEST: &str = "machine rotary { task position
+        units { length mm, angle deg, error um, tilt urad }
+        axis X prismatic along x range -300 mm .. 300 mm  axis Y prismatic along y range -300 mm .. 300 mm
+        axis Z prismatic along z range -300 mm .. 300 mm  axis C revolute about z range -90 deg .. 90 deg
+        tool chain { X moving  Y moving  Z moving  tool t at (0, 0, -100) mm }
+        workpiece chain { C fixed  workpiece }  errors { X.tx = const } }";
+
+    fn request(kind: Kind) -> Generate {
+        Generate {
+            kind,
+            length: 0.2,
+            step: 0.1,
+            pitch: 0.1,
+            angle_step: 30f64.to_radians(),
+            plane: Vec::new(),
+            axis: Some("X".into()),
+            levels: 1,
+            spheres: Vec::new(),
+        }
+    }
+
+    /// The data rows of a candidate file, as numbers (an empty cell as NaN, a label skipped).
+    fn rows(text: &str) -> Vec<Vec<f64>> {
+        text.lines()
+            .filter(|l| !l.starts_with('#'))
+            .skip(1)
+            .map(|l| l.split(',').filter_map(|c| c.parse().ok()).collect())
+            .collect()
+    }
+
+    #[test]
+    fn a_step_gauge_stays_inside_its_axis_range() {
+        let c = compile(RTEST).compiled.expect("compiles");
+        let out = generate(&c.machine, &request(Kind::Stepgauge)).expect("candidates");
+        // First faces −300, −200, …, 100 mm (the last face 200 mm further inside the range),
+        // each measured to the two faces after it.
+        assert_eq!(out.rows, 10);
+        let rows = rows(&out.text);
+        assert_eq!(rows.len(), 10);
+        for r in &rows {
+            // X_1 and X_2 (mm), the other axes at the middle of their ranges.
+            assert!(r[0] >= -300.0 && r[4] <= 300.0 && r[4] > r[0], "{r:?}");
+        }
+    }
+
+    #[test]
+    fn r_test_poses_put_the_tool_at_the_sphere() {
+        let c = compile(RTEST).compiled.expect("compiles");
+        let m = &c.machine;
+        let out = generate(m, &request(Kind::Rtest)).expect("candidates");
+        let rows = rows(&out.text);
+        assert_eq!(rows.len(), out.rows);
+        // Three spheres, C from −90° to 90° in steps of 30°: seven angles each.
+        assert_eq!(out.rows, 21);
+        for (r, sphere) in rows.iter().zip(DEFAULT_SPHERES.iter().flat_map(|s| [s; 7])) {
+            let q = [r[0] * 1e-3, r[1] * 1e-3, r[2] * 1e-3, r[3].to_radians()];
+            let pose = Pose {
+                q: &q,
+                tool: 0,
+                tool_offset: None,
+            };
+            let t = exact::nominal_transform(m, &pose).expect("transform");
+            for k in 0..3 {
+                assert!((t[(k, 3)] - sphere[k]).abs() < 1e-9, "{r:?} {sphere:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn requests_the_machine_cannot_meet_are_refused() {
+        let c = compile(RTEST).compiled.expect("compiles");
+        let m = &c.machine;
+        let mut g = request(Kind::Ballbar);
+        g.length = 0.0;
+        assert!(matches!(
+            generate(m, &g),
+            Err(GenerateError::NotPositive("--length"))
+        ));
+        let mut g = request(Kind::Plate);
+        g.plane = vec!["X".into(), "X".into()];
+        assert!(matches!(
+            generate(m, &g),
+            Err(GenerateError::Plane("plate"))
+        ));
+        let mut g = request(Kind::Stepgauge);
+        g.axis = Some("C".into());
+        assert!(matches!(
+            generate(m, &g),
+            Err(GenerateError::NotPrismatic(axis)) if axis == "C"
+        ));
     }
 }

@@ -50,7 +50,7 @@ pub struct Unit {
 impl Unit {
     /// A unit of `x` (`rows × (p + q)` row-major: `p` coefficient columns then `q` nuisance
     /// columns of this unit alone), with the nuisance columns eliminated.
-    pub fn eliminated(x: &[f64], p: usize, q: usize) -> Unit {
+    pub(crate) fn eliminated(x: &[f64], p: usize, q: usize) -> Unit {
         let width = p + q;
         let rows = x.len().checked_div(width).unwrap_or(0);
         let mut b = DMatrix::from_row_slice(rows, p, &take_columns(x, width, 0, p));
@@ -217,7 +217,7 @@ pub fn estimability(m: &DMatrix<f64>) -> Estimability {
 /// The groups of columns that unobserved directions `null` (unit vectors in coordinates scaled
 /// by `scale`) join, with the combinations of each group that are determined (see
 /// [`Estimability::groups`]): for a fit's null space.
-pub fn groups_of(null: &[DVector<f64>], scale: &[f64]) -> Vec<Group> {
+pub(crate) fn groups_of(null: &[DVector<f64>], scale: &[f64]) -> Vec<Group> {
     let determined: Vec<bool> = (0..scale.len())
         .map(|j| {
             null.iter()

@@ -109,7 +109,7 @@ pub fn design(
 }
 
 /// Builds the design matrix of `observe` at `states` with the chosen engine.
-pub fn design_with(
+pub(crate) fn design_with(
     m: &Machine,
     states: &States,
     observe: Observe,
@@ -890,7 +890,7 @@ pub fn sampled(
 
 /// As [`sampled`], with the chosen engine. The design is streamed into its Gram matrix, never
 /// held whole.
-pub fn sampled_with(
+pub(crate) fn sampled_with(
     m: &Machine,
     observe: Observe,
     aligned: bool,

@@ -47,18 +47,6 @@ pub fn normal_two_sided_p(z: f64) -> Option<f64> {
     Normal::new(0.0, 1.0).ok().map(|d| 2.0 * d.sf(z.abs()))
 }
 
-/// The partial F-test of `q` more parameters: the residual sum of squares falls from `reduced`
-/// to `full`, which has `dof` residual degrees of freedom. The statistic and its p-value
-/// ([`f_p`]); `None` when there is nothing to test (`q` or `dof` not positive, `full` not
-/// positive).
-pub fn partial_f(reduced: f64, full: f64, q: f64, dof: f64) -> Option<(f64, f64)> {
-    if !(q > 0.0 && dof > 0.0 && full > 0.0) {
-        return None;
-    }
-    let f = ((reduced - full) / q) / (full / dof);
-    f_p(f, q, dof).map(|p| (f, p))
-}
-
 /// The classic lack-of-fit F-test: rows at identical axis positions, directions and inputs
 /// (in one file, one component) scatter by the instrument alone (pure error); the rest of the
 /// residual sum of squares is lack of fit.

@@ -170,7 +170,7 @@ impl<'f> PredictionCovariance<'f> {
     /// `value(ev, states, r)` is the predicted quantity of row r (`E` values: the six error
     /// components, or one length); every `states` is integrated again at `θ ± δ` over `rows`
     /// and the engine told the new values, then both are restored to `m`'s values.
-    pub fn nonlinear_gradients<const E: usize>(
+    pub(crate) fn nonlinear_gradients<const E: usize>(
         &self,
         m: &Machine,
         ev: &mut dyn Evaluator,
@@ -264,7 +264,7 @@ impl PredictionCovariance<'_> {
 
     /// `Var(dL̂)` of the predicted length error (eq. 4.5) at every row of a length set, whose
     /// two ends are `s1` and `s2`. SI² (m²).
-    pub fn length_variances(
+    pub(crate) fn length_variances(
         &self,
         m: &Machine,
         ev: &mut dyn Evaluator,

@@ -34,7 +34,7 @@ pub struct AxisTable {
 /// The table of `axis` at the positions `nodes` (ascending), every other axis, the tool and
 /// the inputs as in `reference`. Each value is the correction of the axis alone that
 /// minimises the weighted predicted error (the compensator's solve with only this axis free).
-pub fn axis_table(
+pub(crate) fn axis_table(
     comp: &mut Compensator<'_>,
     reference: &State,
     axis: usize,

@@ -43,7 +43,7 @@ pub enum ComponentError {
 }
 
 /// The one chain element axis `axis` drives.
-pub fn element_of(m: &Machine, axis: usize) -> Result<FrameRef, ComponentError> {
+pub(crate) fn element_of(m: &Machine, axis: usize) -> Result<FrameRef, ComponentError> {
     let frames: Vec<FrameRef> = m
         .tool_chain
         .iter()
@@ -131,7 +131,7 @@ impl<'m> Components<'m> {
     /// axes) and the one the component `tables` imply when composed along the chain as the
     /// model composes its parametric errors (each axis's element given the table's values,
     /// every other error zero). Their difference is what the tables leave out.
-    pub fn model_and_tables(
+    pub(crate) fn model_and_tables(
         &mut self,
         state: &State,
         tables: &[ComponentTable],
@@ -167,7 +167,7 @@ impl<'m> Components<'m> {
 
 /// The component errors of one axis at nominal positions of it, in SI and machine axes.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ComponentTable {
+pub(crate) struct ComponentTable {
     /// Index into `Machine::axes`.
     pub axis: usize,
     /// Positions of the axis, ascending.
@@ -221,7 +221,7 @@ fn largest(v: &[f64; 6]) -> [f64; 2] {
 /// The table of axis `axis` at positions `nodes` (ascending); every other axis, the tool and
 /// the inputs as in `reference`. Each value is the mean over the two directions of motion of
 /// the axis (the format holds no direction); what that drops is reported as `reversal`.
-pub fn component_table(
+pub(crate) fn component_table(
     c: &mut Components<'_>,
     reference: &State,
     axis: usize,

@@ -16,7 +16,7 @@ use crate::component_errors::ComponentTable;
 /// How an axis's positions and corrections are written: millimetres, or degrees for a rotary
 /// axis (the unit every one of these formats uses, whatever the model's own units).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum AxisUnit {
+pub(crate) enum AxisUnit {
     Millimetre,
     Degree,
 }
@@ -81,9 +81,8 @@ const DECIMALS: usize = 9;
 
 /// One SINUMERIK leadscrew error compensation table: axis `name`'s `values` (mm or degrees,
 /// the table's sign already applied) at equidistant positions from `min` in steps of `step`.
-pub struct SinumerikLec<'a> {
+pub(crate) struct SinumerikLec<'a> {
     pub name: &'a str,
-    pub unit: AxisUnit,
     pub min: f64,
     pub step: f64,
     pub values: Vec<f64>,
@@ -92,7 +91,7 @@ pub struct SinumerikLec<'a> {
 /// The part program `%_N_AX_EEC_INI` setting the leadscrew error compensation tables: per
 /// axis `$AA_ENC_COMP[0,N,AXIS]` (measuring system 0, interpolation point N), and the table's
 /// `_STEP`, `_MIN`, `_MAX` and `_IS_MODULO`, ended by `M17`.
-pub fn sinumerik_lec(tables: &[SinumerikLec<'_>], comments: &[String]) -> String {
+pub(crate) fn sinumerik_lec(tables: &[SinumerikLec<'_>], comments: &[String]) -> String {
     let mut out = String::from("%_N_AX_EEC_INI\n");
     comment_block(&mut out, ";", comments);
     out.push_str("CHANDATA(1)\n");
@@ -129,7 +128,7 @@ pub fn sinumerik_lec(tables: &[SinumerikLec<'_>], comments: &[String]) -> String
 /// One SINUMERIK sag / cross-error compensation table: `output`'s `values` (its unit, sign
 /// applied) over equidistant positions of `input` from `min` in steps of `step`, for the
 /// input axis's direction `direction` (0 both, 1 positive, −1 negative).
-pub struct SinumerikCec<'a> {
+pub(crate) struct SinumerikCec<'a> {
     pub input: &'a str,
     pub output: &'a str,
     pub min: f64,
@@ -141,7 +140,7 @@ pub struct SinumerikCec<'a> {
 /// The part program `%_N_NC_CEC_INI` setting the tables `$AN_CEC[t,N]` with their input and
 /// output axes, `_STEP`, `_MIN`, `_MAX`, `_DIRECTION`, `_MULT_BY_TABLE` (0: none) and
 /// `_IS_MODULO`, numbered from 0 in the order given, ended by `M17`.
-pub fn sinumerik_cec(tables: &[SinumerikCec<'_>], comments: &[String]) -> String {
+pub(crate) fn sinumerik_cec(tables: &[SinumerikCec<'_>], comments: &[String]) -> String {
     let mut out = String::from("%_N_NC_CEC_INI\n");
     comment_block(&mut out, ";", comments);
     out.push_str("CHANDATA(1)\n");
@@ -171,7 +170,7 @@ pub fn sinumerik_cec(tables: &[SinumerikCec<'_>], comments: &[String]) -> String
 
 /// Increments of an ISG compensation list per SI unit: 0.1 µm per metre for a linear axis,
 /// 0.0001° per radian for a rotary one.
-pub fn isg_increments(unit: AxisUnit) -> f64 {
+pub(crate) fn isg_increments(unit: AxisUnit) -> f64 {
     match unit {
         AxisUnit::Millimetre => 1e7,
         AxisUnit::Degree => 1e4 * 180.0 / std::f64::consts::PI,
@@ -180,7 +179,7 @@ pub fn isg_increments(unit: AxisUnit) -> f64 {
 
 /// A position (SI) as a whole number of an ISG list's increments, `None` when it is not one
 /// (up to rounding) or does not fit the list's 32-bit integers.
-pub fn isg_position(si: f64, unit: AxisUnit) -> Option<i64> {
+pub(crate) fn isg_position(si: f64, unit: AxisUnit) -> Option<i64> {
     let v = si * isg_increments(unit);
     let r = v.round();
     ((v - r).abs() <= 1e-6 + 1e-12 * r.abs() && r.abs() < f64::from(i32::MAX)).then_some(r as i64)
@@ -192,7 +191,7 @@ pub fn isg_position(si: f64, unit: AxisUnit) -> Option<i64> {
 /// (0.0001°). `table` holds corrections to add to the command (SI), so a deviation is the
 /// negated correction. `None` when a nominal position is not a whole number of increments
 /// (the list cannot state it).
-pub fn isg_lsec(
+pub(crate) fn isg_lsec(
     logical_axis: usize,
     name: &str,
     unit: AxisUnit,
@@ -235,12 +234,12 @@ pub fn isg_lsec(
 }
 
 /// ISO 230-1 letters of the six component errors, in `(tx, ty, tz, rx, ry, rz)` order.
-pub const ISO_DIRECTIONS: [char; 6] = ['X', 'Y', 'Z', 'A', 'B', 'C'];
+pub(crate) const ISO_DIRECTIONS: [char; 6] = ['X', 'Y', 'Z', 'A', 'B', 'C'];
 
 /// One axis's component errors in the ISG CSV format: a header `AXIS EXAXIS EYAXIS … ECAXIS`
 /// (the argument, then the parameters), one record per position separated by spaces; the
 /// position in mm or degrees, translations in mm, rotations in rad; `//` comments.
-pub fn volcomp_csv(
+pub(crate) fn volcomp_csv(
     name: &str,
     unit: AxisUnit,
     table: &ComponentTable,
@@ -310,7 +309,6 @@ mod tests {
         let lec = sinumerik_lec(
             &[SinumerikLec {
                 name: "X1",
-                unit: AxisUnit::Millimetre,
                 min: -200.0,
                 step: 1.0,
                 values: vec![0.003, 0.01],

@@ -457,7 +457,6 @@ impl<'a> TablePlan<'a> {
             } else {
                 lec.push(SinumerikLec {
                     name,
-                    unit: unit(j),
                     min,
                     step,
                     values: values(j, &table.forward),

@@ -90,7 +90,7 @@ impl Weights {
 
     /// The weighting by a stated noise; a kind with no stated σ keeps its unit weight (the fit
     /// refuses data holding such rows, see [`kinds_observed`]).
-    pub fn from_noise(m: &Machine, noise: Option<Noise>) -> Weights {
+    pub(crate) fn from_noise(m: &Machine, noise: Option<Noise>) -> Weights {
         let unit = Weights::unit(m);
         let Some(n) = noise else {
             return unit;
@@ -318,7 +318,7 @@ fn thin_message(path: &str, labels: &[ThinArtifact]) -> String {
 /// design rank-deficient, found only after factoring a design with six columns per label (cubic
 /// in the labels) and then named at the model's terms. They are counted in one pass over the
 /// rows and reported at their rows instead, before anything expensive runs.
-pub fn check_artifacts(files: &[DataSet]) -> Result<(), DesignError> {
+pub(crate) fn check_artifacts(files: &[DataSet]) -> Result<(), DesignError> {
     for file in files {
         let Observations::Points(p) = &file.observations else {
             // A length file's label adds one length error, fixed by any one row.
@@ -493,7 +493,7 @@ const TICK: usize = 8192;
 /// thread reports the rows done so far by all parts to `progress` now and then. Returns the
 /// rows visited; the first error in part order.
 #[allow(clippy::too_many_arguments)] // the pass's inputs, its split and its two callbacks
-pub fn for_each_row_parts<A: Send>(
+pub(crate) fn for_each_row_parts<A: Send>(
     lead: &mut dyn Evaluator,
     rest: &mut [Box<dyn Evaluator + Send + '_>],
     files: &[DataSet],

@@ -624,7 +624,7 @@ fn sumsq(r: &[f64]) -> f64 {
 }
 
 /// Optimises the fitted non-linear parameters. Returns `None` when the model has none.
-pub fn optimise(
+pub(crate) fn optimise(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
     files: &[DataSet],

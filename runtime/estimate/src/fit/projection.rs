@@ -26,7 +26,7 @@ use super::solve;
 /// `Machine::nonlinear`), for `columns` design columns (coefficients first, then nuisance
 /// parameters, which never move). `None` when a term without coefficients — a known error
 /// that enters the observations `y` — moves too: then `y` changes and nothing can be kept.
-pub fn moving_columns(m: &Machine, fitted: &[usize], columns: usize) -> Option<Vec<bool>> {
+pub(crate) fn moving_columns(m: &Machine, fitted: &[usize], columns: usize) -> Option<Vec<bool>> {
     let moves_lag = |l: usize| {
         m.lags
             .get(l)
@@ -157,7 +157,7 @@ impl Split {
     /// The same fixed part with `extra` more moving columns after the design's `columns`
     /// (each row pushed then holds them after its design columns): the triangle of
     /// `[A | B | D | y]` without a new factorisation of `A`.
-    pub fn extended(&self, columns: usize, extra: usize) -> Split {
+    pub(crate) fn extended(&self, columns: usize, extra: usize) -> Split {
         let mut order = self.order.clone();
         order.extend(columns..columns + extra);
         Split {
@@ -299,7 +299,7 @@ const PIVOT: f64 = 1e-12;
 /// One evaluation's products of the moving columns. They depend only on which columns move,
 /// not on the fixed triangle, so they can be summed in the same pass that factors it.
 #[derive(Debug, Clone)]
-pub struct Products {
+pub(crate) struct Products {
     /// The moving columns, in design order (a split's `order` after its fixed columns).
     moving: Vec<usize>,
     /// `XᵀB` over every column of a row (row j of column j): `AᵀB` is its kept fixed rows.

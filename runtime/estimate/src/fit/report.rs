@@ -239,7 +239,7 @@ pub struct Residual {
 
 /// Beyond this many rows the per-row residuals are left out of `FIT.json` (summaries and
 /// outliers stay).
-pub const MAX_RESIDUALS: usize = 200_000;
+pub(crate) const MAX_RESIDUALS: usize = 200_000;
 
 pub fn component_name(c: u8) -> &'static str {
     if c == LENGTH {
@@ -696,7 +696,7 @@ fn stepwise_report(
 
 /// The fitted values as a `params { … }` block, each coefficient in its own unit, with enough
 /// digits to round-trip.
-pub fn params_text(m: &Machine, beta: &[f64], nonlinear: &[Estimate]) -> String {
+pub(crate) fn params_text(m: &Machine, beta: &[f64], nonlinear: &[Estimate]) -> String {
     let mut out = String::from("params {\n");
     for (j, c) in m.coefficients.iter().enumerate() {
         let v = beta.get(j).copied().unwrap_or(0.0) / c.unit.scale;

@@ -38,7 +38,7 @@ pub struct Solution {
 }
 
 /// The scaled triangle `R_s`, row-major, for naming dependencies with the identifiability code.
-pub fn scaled_triangle(red: &Reduced) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn scaled_triangle(red: &Reduced) -> (Vec<f64>, Vec<f64>) {
     let p = red.norms.len();
     let biggest = red.norms.iter().copied().fold(0.0, f64::max);
     let scale: Vec<f64> = red
@@ -65,7 +65,7 @@ pub fn scaled_triangle(red: &Reduced) -> (Vec<f64>, Vec<f64>) {
 /// [`scaled_triangle`]): a column-pivoted QR, and the columns whose pivot exceeds `tol` times
 /// the first. Returns the rank, the ratio of the first to the last retained pivot, and the
 /// columns in pivot order (the first `rank` of them independent).
-pub fn pivoted_rank(rs: &Mat<f64>, tol: f64) -> (usize, f64, Vec<usize>) {
+pub(crate) fn pivoted_rank(rs: &Mat<f64>, tol: f64) -> (usize, f64, Vec<usize>) {
     let p = rs.ncols();
     if p == 0 {
         return (0, f64::INFINITY, Vec::new());

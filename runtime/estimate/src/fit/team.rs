@@ -79,7 +79,7 @@ impl Team<'_, '_> {
 
     /// [`at_values`] for every evaluator of the team, the states shared (and kept, as the
     /// `states` field says, for the next values).
-    pub fn at_values(
+    pub(crate) fn at_values(
         &mut self,
         m: &Machine,
         files: &[DataSet],

@@ -46,7 +46,7 @@ pub enum Harmonic {
     Fundamental,
     /// `sin(h·x), cos(h·x)` of the rounded product `h·x`, from one `sincos` of its own.
     Direct,
-    /// The sum of two angles already obtained, by [`angle_sum`].
+    /// The sum of two angles already obtained, by `angle_sum`.
     Sum(HarmonicOperand, HarmonicOperand),
 }
 

@@ -2,7 +2,7 @@
 //!
 //! [`syntax`] parses with the pest grammar in `grammar/kin.pest` (the single source of truth
 //! for the syntax) into the AST of [`syntax::ast`], recovering to report every syntax error;
-//! [`format`] lays a source out canonically (`kin fmt`); [`diagnostic`] is the one
+//! [`format`](mod@format) lays a source out canonically (`kin fmt`); [`diagnostic`] is the one
 //! [`Diagnostic`] type every stage of the compiler reports through, with its [`Span`].
 
 pub mod diagnostic;

@@ -111,7 +111,7 @@ pub struct PathRates {
     /// One call for all poses, each pose's rows into its own place of N-row outputs (what a
     /// fit asks for).
     pub batch: f64,
-    /// One batch call per block of poses whose rows fit in [`BLOCK_BYTES`], into one reused
+    /// One batch call per block of poses whose rows fit in `BLOCK_BYTES`, into one reused
     /// block: the rows of a fit that consumes them a block at a time (`None` for the error).
     pub blocked: Option<f64>,
     /// The baseline, one pose per call into a reused buffer.

@@ -19,7 +19,7 @@ pub struct Available {
     /// How the data sample each axis (`None`: no position of it in the data).
     pub sampled: Vec<Option<Sampling>>,
     /// `reversals[a][b]`: at how many positions of axis `b` the data hold both directions of
-    /// motion of axis `a` (its range cut in [`REVERSAL_BINS`] equal parts, or its distinct
+    /// motion of axis `a` (its range cut in `REVERSAL_BINS` equal parts, or its distinct
     /// positions when fewer): what a reversal error of `a` that changes along `b` can be seen
     /// at. Empty when not computed.
     pub reversals: Vec<Vec<usize>>,
@@ -110,7 +110,7 @@ pub struct Proposal {
 /// here: the library sees the model's text, but a term can repeat what the model has on
 /// another frame (`linear(Z)` on `Y.tz` is the `s` of `Z.tz` when both translate alike), and
 /// only the design shows it. A line with such a term would make the refit rank-deficient
-/// (E0601), so the line given to the user keeps only the terms that add ([`restate`]).
+/// (E0601), so the line given to the user keeps only the terms that add (`restate`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Term {
     /// As suggested (`wavelength fit …`).

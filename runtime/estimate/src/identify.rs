@@ -92,7 +92,7 @@ const BLOCK_ROWS: usize = 256;
 
 /// Builds the design matrix of `observe` at `states` (row-major, columns = coefficients, then
 /// six alignment columns when `aligned`).
-/// As [`design_with`], evaluated by the interpreter.
+/// As `design_with`, evaluated by the interpreter.
 pub fn design(
     m: &Machine,
     states: &States,
@@ -911,7 +911,7 @@ pub enum Condition {
     Skip,
 }
 
-/// As [`sampled_with`], estimating the condition number only when asked.
+/// As `sampled_with`, estimating the condition number only when asked.
 pub fn sampled_verdicts(
     m: &Machine,
     observe: Observe,

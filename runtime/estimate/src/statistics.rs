@@ -23,7 +23,7 @@ pub fn chi_squared_p(statistic: f64, dof: f64) -> Option<f64> {
 }
 
 /// `P(X ≥ f)` for X F-distributed on `(d1, d2)` degrees of freedom, through its χ²(d1) limit
-/// beyond [`F_AS_CHI_SQUARED`] denominator degrees of freedom; a negative `f` (a rounding
+/// beyond `F_AS_CHI_SQUARED` denominator degrees of freedom; a negative `f` (a rounding
 /// artefact of a difference of sums of squares) counts as 0. `None` when a degree of freedom
 /// is not positive or `f` is not finite.
 pub fn f_p(f: f64, d1: f64, d2: f64) -> Option<f64> {

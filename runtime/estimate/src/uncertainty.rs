@@ -19,7 +19,7 @@
 //!
 //! `h` depends on the history of the inputs when θ is a time constant (the lag states are
 //! integrated over a run), so it is computed for a whole set of rows at once, by central
-//! differences ([`PredictionCovariance::nonlinear_gradients`]).
+//! differences (`PredictionCovariance::nonlinear_gradients`).
 
 use kin_compiler::ir::Machine;
 use kin_data::data::Rows;

@@ -29,8 +29,8 @@ impl AxisUnit {
         }
     }
 
-    /// SI (m or rad) to this unit.
-    pub fn from_si(self, v: f64) -> f64 {
+    /// `v` in SI (m or rad), in this unit.
+    pub fn of_si(self, v: f64) -> f64 {
         match self {
             AxisUnit::Millimetre => v * 1e3,
             AxisUnit::Degree => v.to_degrees(),
@@ -253,7 +253,7 @@ pub(crate) fn volcomp_csv(
     }
     out.push('\n');
     for (p, v) in table.nominal.iter().zip(&table.values) {
-        out.push_str(&fixed(unit.from_si(*p), DECIMALS));
+        out.push_str(&fixed(unit.of_si(*p), DECIMALS));
         for (k, x) in v.iter().enumerate() {
             // Translations in mm to the picometre, rotations in rad to the picoradian.
             let (value, decimals) = if k < 3 { (x * 1e3, 9) } else { (*x, 12) };

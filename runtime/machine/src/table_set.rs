@@ -414,14 +414,14 @@ impl<'a> TablePlan<'a> {
         // A value is what the axis's measuring system is off by: a positive one moves the axis
         // the negative way, so it is the negated correction.
         let values = |j: usize, corrections: &[f64]| -> Vec<f64> {
-            corrections.iter().map(|c| unit(j).from_si(-c)).collect()
+            corrections.iter().map(|c| unit(j).of_si(-c)).collect()
         };
         let step_min = |table: &AxisTable| {
             let u = unit(table.axis);
             let step = equidistant(&table.nominal).unwrap_or(0.0);
             (
-                u.from_si(table.nominal.first().copied().unwrap_or(0.0)),
-                u.from_si(step),
+                u.of_si(table.nominal.first().copied().unwrap_or(0.0)),
+                u.of_si(step),
             )
         };
         let mut lec = Vec::new();

@@ -105,7 +105,7 @@ pub struct Options {
     /// direction the machine cannot correct.
     pub rank_tolerance: f64,
     /// A step whose effect on the weighted error (`‖W J δ‖`, SI) is below this ends the
-    /// iteration: [`PICOMETRE`] by default. 0 runs all `iterations` solves at every call, the
+    /// iteration: `PICOMETRE` by default. 0 runs all `iterations` solves at every call, the
     /// slowest path, which `kin bench` times apart.
     pub converged: f64,
 }

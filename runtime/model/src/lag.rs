@@ -9,7 +9,7 @@
 //! was held before the run (`from`).
 //!
 //! A lag of a lag (two stages in cascade, a slow structure warmed by a faster one) is
-//! integrated exactly the same way, both states together: see [`lag2_step`].
+//! integrated exactly the same way, both states together: see `lag2_step`.
 
 use kin_compiler::ir::Lag;
 

@@ -147,7 +147,7 @@ pub struct FitResult {
     /// The fitted non-linear parameters, when the model has any.
     pub nonlinear: Option<nonlinear::NonlinearFit>,
     /// Set by a streamed fit ([`stream::fit`]), which keeps `residuals` only up to
-    /// [`report::MAX_RESIDUALS`] rows: the per-file statistics and the outliers of every row.
+    /// `report::MAX_RESIDUALS` rows: the per-file statistics and the outliers of every row.
     pub tally: Option<tally::Tally>,
 }
 

@@ -76,7 +76,7 @@ pub struct FitReport {
     #[serde(deserialize_with = "nan_if_null")]
     pub cook_threshold: f64,
     pub outliers: Vec<Residual>,
-    /// Every row's residual, unless there were more than [`MAX_RESIDUALS`].
+    /// Every row's residual, unless there were more than `MAX_RESIDUALS`.
     pub residuals: Vec<Residual>,
     pub residuals_omitted: usize,
     pub validation: Vec<FileSummary>,

@@ -1,7 +1,7 @@
 //! A fit that never holds its rows: the measurement files are read a block of rows at a time
 //! ([`kin_data::data::chunks`]) in each pass, so memory is the triangle (columns²), one block,
 //! and what the report keeps per row (the outliers, and every residual only up to
-//! [`MAX_RESIDUALS`] rows).
+//! `MAX_RESIDUALS` rows).
 //!
 //! The rows reach the same accumulators in the same order as in [`super::fit`], so the
 //! triangle, the solution, σ̂ and every statistic are the same numbers: on one thread for any

@@ -113,6 +113,9 @@ pub enum GenerateError {
     TooManyLevels(usize),
     #[error("an R-test needs a revolute axis; the machine has none")]
     NoRevoluteAxis,
+    /// The R-test's generator follows the sphere with the prismatic axes only.
+    #[error("an R-test follows the sphere with the prismatic axes; the machine has none")]
+    RtestWithoutPrismaticAxis,
     #[error("more than {MAX_GENERATED} sweeps; use a larger --angle-step")]
     TooManySweeps,
     /// The nominal kinematics could not place the tool (the R-test's inverse kinematics).
@@ -606,6 +609,10 @@ fn rtest(m: &Machine, g: &Generate, w: &mut Writer) -> Result<(), GenerateError>
                     })
                     .collect();
             }
+            if linear.is_empty() {
+                // Nothing to move the tool to the sphere with (and no Jacobian to solve).
+                return Err(GenerateError::RtestWithoutPrismaticAxis);
+            }
             for setting in settings {
                 let mut rows = Vec::new();
                 for &angle in grids.get(r).map_or(&[][..], |v| v.as_slice()) {
@@ -794,6 +801,20 @@ mod tests {
         assert!(matches!(
             generate(m, &g),
             Err(GenerateError::NotPrismatic(axis)) if axis == "C"
+        ));
+        // A turntable alone: no prismatic axis to follow the sphere with (and no empty
+        // Jacobian to solve).
+        let c = compile(
+            "machine turntable { task position units { length mm, angle deg, error um, tilt urad } \
+             axis C revolute about z range -90 deg .. 90 deg \
+             tool chain { tool t at (0, 0, 100) mm } workpiece chain { C fixed workpiece } \
+             errors { C.rz = const } }",
+        )
+        .compiled
+        .expect("compiles");
+        assert!(matches!(
+            generate(&c.machine, &request(Kind::Rtest)),
+            Err(GenerateError::RtestWithoutPrismaticAxis)
         ));
     }
 }

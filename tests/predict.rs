@@ -258,7 +258,7 @@ fn eval_and_predict_state_one_uncertainty_with_the_time_constants_share() {
     )
     .expect("rows");
     // The fitted parameters bound to the model, as `kin eval --params FIT.json` reads them.
-    let stdout = ok(&kin(&[
+    ok(&kin(&[
         "eval",
         &p(&dir, "m.kin"),
         &p(&dir, "rows.csv"),
@@ -268,11 +268,10 @@ fn eval_and_predict_state_one_uncertainty_with_the_time_constants_share() {
         "-o",
         &p(&dir, "eval.csv"),
     ]));
-    let _ = stdout;
-    let header = std::fs::read_to_string(dir.join("eval.csv")).expect("eval");
+    let written = std::fs::read_to_string(dir.join("eval.csv")).expect("eval");
     assert!(
-        header.contains("with the share of the fitted Z.tz.tau, Z.tx.tau"),
-        "{header}"
+        written.contains("with the share of the fitted Z.tz.tau, Z.tx.tau"),
+        "{written}"
     );
     let pred = read_csv(&dir.join("pred.csv"));
     let eval = read_csv(&dir.join("eval.csv"));

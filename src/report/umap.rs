@@ -93,10 +93,8 @@ pub fn map(m: &Machine, fit: &FitReport, data: &Ranges) -> Result<Map, String> {
     // The fitted model: its non-linear parameters (wavelengths, time constants) and β̂ shape
     // the Jacobian, the lag states and the non-linear parameters' share of the uncertainty.
     let mut fitted = m.clone();
-    for p in fitted.nonlinear.iter_mut() {
-        if let Some(e) = fit.nonlinear.iter().find(|e| e.name == p.name) {
-            p.value = p.unit.to_si(e.value);
-        }
+    for (p, v) in fitted.nonlinear.iter_mut().zip(fit.nonlinear_values(m)) {
+        p.value = v;
     }
     if fit.coefficients.len() == m.coefficients.len() {
         fitted.beta = fit

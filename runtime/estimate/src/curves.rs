@@ -359,17 +359,7 @@ pub fn curves(m: &Machine, fit: &FitReport, data: &Ranges) -> Result<Curves, Cur
     let cov = PredictionCovariance::new(m, fit).ok();
     let mut engine = Interpreter::new(m)?;
     // The fitted non-linear parameters (wavelengths, time constants) shape the curves too.
-    let nonlinear: Vec<f64> = m
-        .nonlinear
-        .iter()
-        .map(|p| {
-            fit.nonlinear
-                .iter()
-                .find(|e| e.name == p.name)
-                .map(|e| p.unit.to_si(e.value))
-                .unwrap_or(p.value)
-        })
-        .collect();
+    let nonlinear = fit.nonlinear_values(m);
     engine.set_nonlinear(&nonlinear)?;
     let mut reference = Reference::new(m, data);
     let described = reference.describe(m, data);

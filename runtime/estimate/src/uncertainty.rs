@@ -192,16 +192,16 @@ impl<'f> PredictionCovariance<'f> {
         };
         let mut out = Vec::with_capacity(self.included.len());
         let mut pass = |ev: &mut dyn Evaluator, states: &mut [&mut States], i: usize, sign: f64| {
-            let step = step(values.get(i).copied().unwrap_or(1.0));
+            let d = step(values.get(i).copied().unwrap_or(1.0));
             let mut v = values.clone();
             if let Some(x) = v.get_mut(i) {
-                *x += sign * step;
+                *x += sign * d;
             }
             set(ev, states, &v)?;
             (0..len)
                 .map(|r| value(ev, states, r).map_err(|source| RowError { row: r, source }))
                 .collect::<Result<Vec<[f64; E]>, RowError>>()
-                .map(|col| (col, step))
+                .map(|col| (col, d))
         };
         let mut result = Ok(());
         for &i in &self.included {

@@ -712,6 +712,20 @@ pub(crate) fn params_text(m: &Machine, beta: &[f64], nonlinear: &[Estimate]) -> 
 impl FitReport {
     /// Why this report's covariance cannot serve `m`'s predictions: it was fitted to a model
     /// with other coefficients (the file changed since), or carries no covariance.
+    /// The values of `m`'s non-linear parameters (SI) this fit estimated, each parameter it
+    /// does not name keeping `m`'s own value: what the fitted model evaluates with.
+    pub fn nonlinear_values(&self, m: &kin_compiler::ir::Machine) -> Vec<f64> {
+        m.nonlinear
+            .iter()
+            .map(|p| {
+                self.nonlinear
+                    .iter()
+                    .find(|e| e.name == p.name)
+                    .map_or(p.value, |e| p.unit.to_si(e.value))
+            })
+            .collect()
+    }
+
     pub fn covariance_mismatch(&self, m: &kin_compiler::ir::Machine) -> Option<String> {
         let n = m.coefficients.len();
         if self.coefficients.len() != n

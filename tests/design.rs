@@ -666,3 +666,48 @@ fn an_r_test_follows_each_sphere_and_sees_the_ellipticity_not_the_size() {
     ]);
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// A step gauge on one line of the 5-axis example (all other axes held) sees the error along
+/// the line at its faces and nothing else: a function of Y at 11 positions, lengths between
+/// them, so at most 10 directions of the 173 coefficients — whatever the spline bases make of
+/// them. The rank is decided once (`kin check` on the model's own sampling decides it the same
+/// way); an eigenvalue line drawn relative to the largest used to keep rounding noise as 25
+/// "determined" directions here.
+#[test]
+fn a_step_gauge_on_one_line_determines_no_more_than_its_faces_can_show() {
+    let d = dir("stepgauge-one-line");
+    let root = env!("CARGO_MANIFEST_DIR");
+    let m = format!("{root}/examples/milling_5axis.kin");
+    let gauge = d.join("gauge.csv");
+    let o = kin(&[
+        "design",
+        &m,
+        "--generate",
+        "stepgauge",
+        "-o",
+        gauge.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (h, rows) = read_csv(&gauge);
+    let mut faces: Vec<i64> = rows
+        .iter()
+        .flat_map(|r| [cell(&h, r, "Y_1"), cell(&h, r, "Y_2")])
+        .map(|y| (y * 1e3).round() as i64)
+        .collect();
+    faces.sort_unstable();
+    faces.dedup();
+    let v = json(&kin(&[
+        "check",
+        &m,
+        "--plan",
+        gauge.to_str().expect("utf8"),
+        "--format",
+        "json",
+    ]));
+    let rank = v["rank"].as_u64().expect("rank") as usize;
+    assert!(
+        (1..faces.len()).contains(&rank),
+        "{rank} directions from {} face positions",
+        faces.len()
+    );
+}

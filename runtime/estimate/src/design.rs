@@ -123,7 +123,8 @@ pub struct Estimability {
     /// Groups of coefficients the plan cannot separate, each with the combinations of them it
     /// does determine (weights per member, largest magnitude 1).
     pub groups: Vec<Group>,
-    /// Largest over smallest kept singular value of the column-scaled design.
+    /// Largest over smallest singular value of the column-scaled design restricted to the
+    /// independent columns (what the plan determines, whatever it cannot separate).
     pub condition: f64,
     /// Per coefficient: the variance inflation against an orthogonal design with the same
     /// column lengths, `(R⁻¹)ⱼⱼ` with `R` the scaled information (None when undetermined).
@@ -140,16 +141,19 @@ pub struct Group {
     pub combinations: Vec<Vec<f64>>,
 }
 
-/// Relative eigenvalue of the scaled information below which a direction counts as not
-/// observed. An eigenvalue of the information is only known to about 1e-16 of the largest
-/// (it is a square of the design's singular values), so the line is drawn at 1e-13: a
-/// direction seen less than 3e-7 as well as the best one is not determined in practice.
-const INVISIBLE: f64 = 1e-13;
-
 /// A weight below this (of the largest) in a null direction is rounding, not membership.
 const MEMBER: f64 = 1e-6;
 
 /// Analyses the information matrix `m` (`p × p`) of a plan.
+///
+/// Which coefficients the plan cannot separate is decided once for all of `kin`: by
+/// [`crate::identify`]'s factorisation of the column-scaled information in declaration order (a
+/// column whose part unexplained by the earlier independent columns is below a millionth of its
+/// length is their combination), the decision `kin check` makes on a model's own sampling. Each
+/// dependent column gives one unobserved direction — itself minus that combination — from which
+/// the groups follow. The figures of the determined coefficients come from the information of
+/// the independent columns alone: a determined coefficient lies in the row space, so its
+/// variance is the same from any generalised inverse, this one included.
 pub fn estimability(m: &DMatrix<f64>) -> Estimability {
     let p = m.nrows();
     let scale: Vec<f64> = (0..p)
@@ -162,38 +166,66 @@ pub fn estimability(m: &DMatrix<f64>) -> Estimability {
             }
         })
         .collect();
-    let mut r = m.clone();
-    for i in 0..p {
-        for j in 0..p {
-            let s = scale[i] * scale[j];
-            r[(i, j)] = if s > 0.0 { r[(i, j)] / s } else { 0.0 };
+    let blind = || Estimability {
+        rank: 0,
+        determined: vec![false; p],
+        groups: Vec::new(),
+        condition: f64::INFINITY,
+        vif: vec![None; p],
+        sigma: vec![None; p],
+    };
+    // Non-finite information (the callers refuse such candidates first) determines nothing.
+    let Ok(report) = crate::identify::analyse_information(p, |i, j| m[(i, j)]) else {
+        return blind();
+    };
+    let mut independent = vec![true; p];
+    let mut null: Vec<DVector<f64>> = Vec::with_capacity(report.dependencies.len());
+    for d in &report.dependencies {
+        let crate::identify::Column::Coefficient(j) = d.column else {
+            continue;
+        };
+        let mut v = DVector::zeros(p);
+        v[j] = 1.0;
+        for (c, w) in &d.combination {
+            if let crate::identify::Column::Coefficient(i) = *c {
+                v[i] = -w;
+            }
+        }
+        independent[j] = false;
+        null.push(v);
+    }
+    let kept: Vec<usize> = (0..p).filter(|&j| independent[j]).collect();
+    let rank = kept.len();
+    if rank == 0 {
+        return Estimability {
+            groups: groups(&null, &scale, &vec![false; p]),
+            ..blind()
+        };
+    }
+    // The scaled information of the independent columns: positive definite by the decision.
+    let r = DMatrix::from_fn(rank, rank, |a, b| {
+        let (i, j) = (kept[a], kept[b]);
+        m[(i, j)] / (scale[i] * scale[j])
+    });
+    let eig = r.symmetric_eigen();
+    let largest = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+    let smallest = eig
+        .eigenvalues
+        .iter()
+        .cloned()
+        .fold(f64::INFINITY, f64::min);
+    let condition = (largest / smallest).sqrt();
+    let mut inverse = DMatrix::zeros(rank, rank);
+    for k in 0..rank {
+        let v = eig.eigenvectors.column(k);
+        inverse += (v * v.transpose()) / eig.eigenvalues[k];
+    }
+    let mut rplus = DMatrix::zeros(p, p);
+    for (a, &i) in kept.iter().enumerate() {
+        for (b, &j) in kept.iter().enumerate() {
+            rplus[(i, j)] = inverse[(a, b)];
         }
     }
-    let eig = r.clone().symmetric_eigen();
-    let largest = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
-    let keep: Vec<usize> = (0..p)
-        .filter(|&k| eig.eigenvalues[k] > largest * INVISIBLE && largest > 0.0)
-        .collect();
-    let rank = keep.len();
-    let smallest = keep
-        .iter()
-        .map(|&k| eig.eigenvalues[k])
-        .fold(f64::INFINITY, f64::min);
-    let condition = if rank > 0 {
-        (largest / smallest).sqrt()
-    } else {
-        f64::INFINITY
-    };
-    // Pseudo-inverse of the scaled information over the kept directions.
-    let mut rplus = DMatrix::zeros(p, p);
-    for &k in &keep {
-        let v = eig.eigenvectors.column(k);
-        rplus += (v * v.transpose()) / eig.eigenvalues[k];
-    }
-    let null: Vec<DVector<f64>> = (0..p)
-        .filter(|k| !keep.contains(k))
-        .map(|k| eig.eigenvectors.column(k).into_owned())
-        .collect();
     // A coefficient is determined when no unobserved direction moves it (and it has an effect).
     let determined: Vec<bool> = (0..p)
         .map(|j| scale[j] > 0.0 && null.iter().all(|v| v[j].abs() <= MEMBER))
@@ -531,11 +563,13 @@ pub fn select(
             r[(i, j)] = if s > 0.0 { r[(i, j)] / s } else { 0.0 };
         }
     }
+    // The directions the candidates determine: as many of the largest eigenvalues' as
+    // `estimability` found independent columns (one rank decision).
     let eig = r.symmetric_eigen();
-    let largest = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
-    let keep: Vec<usize> = (0..p)
-        .filter(|&k| eig.eigenvalues[k] > largest * INVISIBLE)
-        .collect();
+    let mut keep: Vec<usize> = (0..p).collect();
+    keep.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    keep.truncate(reach.rank);
+    keep.sort_unstable();
     let q = keep.len();
     let mut basis = DMatrix::zeros(p, q);
     for (c, &k) in keep.iter().enumerate() {
@@ -869,6 +903,35 @@ fn swap_ratio(bb: &DMatrix<f64>, aa: &DMatrix<f64>, ba: &DMatrix<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `kin check` (the rows) and a plan's analysis (their information) call the same columns
+    /// dependent, including a near-dependency at a millionth of a column's length that an
+    /// eigenvalue line relative to the largest would keep.
+    #[test]
+    fn a_plan_and_its_rows_have_one_rank_decision() {
+        use crate::identify::{analyse, Column};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let (rows, p) = (40, 6);
+        let mut x = vec![0.0; rows * p];
+        for r in 0..rows {
+            for j in 0..4 {
+                x[r * p + j] = rng.random_range(-1.0..1.0);
+            }
+            // Column 4 is 2·c0 − c1 up to a millionth of its length; column 5 is c2 + c3 exactly.
+            let wobble = 2e-6 * rng.random_range(-1.0..1.0);
+            x[r * p + 4] = 2.0 * x[r * p] - x[r * p + 1] + wobble;
+            x[r * p + 5] = x[r * p + 2] + x[r * p + 3];
+        }
+        let columns: Vec<Column> = (0..p).map(Column::Coefficient).collect();
+        let report = analyse(&x, &columns).expect("analyses");
+        let m = DMatrix::from_row_slice(rows, p, &x);
+        let e = estimability(&(m.transpose() * &m));
+        assert_eq!(e.rank, report.rank);
+        assert_eq!(e.rank, 4);
+        assert_eq!(e.determined, vec![false; 6]);
+        let members: Vec<Vec<usize>> = e.groups.iter().map(|g| g.members.clone()).collect();
+        assert_eq!(members, vec![vec![0, 1, 4], vec![2, 3, 5]]);
+    }
 
     #[test]
     fn unrelated_unseen_coefficients_are_not_joined_whatever_the_null_basis() {

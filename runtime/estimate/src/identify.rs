@@ -563,6 +563,20 @@ pub fn analyse(x: &[f64], columns: &[Column]) -> Result<Report, IdentifyError> {
     analyse_gram(g, rows, columns, Condition::Estimate)
 }
 
+/// The analysis of an information matrix `XᵀX` given whole (`p × p`, symmetric; only its lower
+/// triangle is read): the decision [`analyse`] makes on the design itself, for the callers that
+/// hold the information of a plan rather than its rows (`design::estimability`), so that
+/// `kin check`, `kin check --plan` and `kin design` call the same columns dependent.
+pub(crate) fn analyse_information(
+    p: usize,
+    information: impl Fn(usize, usize) -> f64,
+) -> Result<Report, IdentifyError> {
+    let g = Mat::from_fn(p, p, |i, j| if i >= j { information(i, j) } else { 0.0 });
+    let columns: Vec<Column> = (0..p).map(Column::Coefficient).collect();
+    // The information of a plan no longer knows its rows; one stands for "some".
+    analyse_gram(g, 1, &columns, Condition::Skip)
+}
+
 /// The analysis from the lower triangle of `XᵀX` (what [`analyse`] does after accumulating it).
 ///
 /// The Gram matrix of the unit-scaled columns is factored `LLᵀ` in declaration order; a pivot at

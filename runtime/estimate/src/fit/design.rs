@@ -118,7 +118,7 @@ impl Weights {
 }
 
 /// Whether the files observe positions or lengths, and whether they observe rotations.
-pub fn kinds_observed(files: &[DataSet]) -> (bool, bool) {
+pub(crate) fn kinds_observed(files: &[DataSet]) -> (bool, bool) {
     let mut kinds = (false, false);
     for f in files {
         match &f.observations {

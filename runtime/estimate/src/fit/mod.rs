@@ -24,10 +24,10 @@ use kin_compiler::{Compiled, Diagnostic};
 use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor, Normal};
 use thiserror::Error;
 
+use design::kinds_observed;
 pub use design::{
-    count_rows, for_each_row, holdout, kinds_observed, rotation_weight, states, states_with,
-    DataSet, DesignError, FileStates, Layout, Noise, Nuisance, NuisanceKind, RowMeta, Weights,
-    LENGTH,
+    count_rows, for_each_row, holdout, rotation_weight, states, states_with, DataSet, DesignError,
+    FileStates, Layout, Noise, Nuisance, NuisanceKind, RowMeta, Weights, LENGTH,
 };
 pub use qr::{Reduced, StreamingQr};
 pub use solve::{Solution, Solver};

@@ -675,6 +675,27 @@ pub fn summary(r: &report::FitReport) -> String {
     for c in &r.constrained {
         s.push_str(&format!("  constrained (minimum norm): {c}\n"));
     }
+    for c in &r.cancelling {
+        let values: Vec<String> = c
+            .members
+            .iter()
+            .filter_map(|name| r.coefficients.iter().find(|e| &e.name == name))
+            .map(|e| format!("{} = {:.4} ± {:.4} {}", e.name, e.value, e.se, e.unit))
+            .collect();
+        s.push_str(&format!(
+            "\n  warning: {} cancel each other: alone the largest moves the fitted values by {:.0} σ̂, \
+             together they move them by {:.1} σ̂ — the data determine their joint effect far better \
+             than either. Large values that cancel are most often an effect the model lacks, \
+             imitated by alike terms: check before reading them as the machine's geometry or \
+             compensating with them (`kin diagnose`)\n",
+            match values.split_last() {
+                Some((last, rest)) if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
+                _ => values.join(""),
+            },
+            c.largest,
+            c.joint
+        ));
+    }
     s
 }
 

@@ -394,3 +394,63 @@ fn periodic_errors_at_different_wavelengths_are_not_merged() {
         assert_eq!(f["candidate"]["also"], serde_json::json!([]), "{s}");
     }
 }
+
+/// A short Z stroke under a long arm: a tilt of the Y carriage (lever 500 mm + Z) and an offset
+/// of Z in x are nearly the same column. A small bend along Z that the model lacks is imitated
+/// by the two together — a tilt of tens of µrad and an offset of tens of µm that cancel — and
+/// the fit says so, naming both; without the bend the same model fits noise and says nothing.
+#[test]
+fn a_fit_names_coefficients_that_cancel_each_other() {
+    let dir = scratch("cancel");
+    let model = dir.join("arm.kin");
+    std::fs::write(
+        &model,
+        "machine arm {
+    task position
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 500 mm
+    axis Z prismatic along z range 0 mm .. 20 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 400) mm
+        tool probe at (0, 0, 100) mm
+    }
+    errors {
+        Y.ry = const
+        Z.tx = const
+    }
+}
+",
+    )
+    .unwrap();
+    let m = model.to_str().unwrap();
+    let fit = |bend: f64, name: &str| {
+        let mut csv = String::from("X[mm],Y[mm],Z[mm],ex[um]\n");
+        for i in 0..200u32 {
+            let (x, y, z) = (
+                f64::from(i * 37 % 500),
+                f64::from(i * 53 % 500),
+                f64::from(i % 21),
+            );
+            // A deterministic ±0.05 µm of noise.
+            let noise = 0.05 * (f64::from(i) * 2.399).sin();
+            csv.push_str(&format!("{x},{y},{z},{}\n", bend * z * z + noise));
+        }
+        let data = dir.join(name);
+        std::fs::write(&data, csv).unwrap();
+        ok(&kin(&["fit", m, data.to_str().unwrap()]))
+    };
+    let bent = fit(0.002, "bent.csv");
+    let warning = bent
+        .lines()
+        .find(|l| l.contains("cancel each other"))
+        .unwrap_or_else(|| panic!("no warning:\n{bent}"));
+    assert!(
+        warning.contains("Y.ry[0] = ") && warning.contains("Z.tx[0] = "),
+        "{warning}"
+    );
+    let straight = fit(0.0, "straight.csv");
+    assert!(!straight.contains("cancel each other"), "{straight}");
+}

@@ -5,6 +5,7 @@
 //! (eq. 4.11) work on the small triangle. The second pass recomputes each row for its residual,
 //! leverage (eq. 4.12's quadratic form), studentized residual and Cook's distance.
 
+pub mod cancel;
 mod design;
 pub mod merge;
 pub mod nonlinear;

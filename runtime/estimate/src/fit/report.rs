@@ -99,6 +99,23 @@ pub struct FitReport {
     /// their standard uncertainties (spec/json.md); absent in reports of earlier versions.
     #[serde(default)]
     pub stations: Vec<super::stations::StationTable>,
+    /// Sets of coefficients whose large estimates cancel each other ([`super::cancel`]);
+    /// absent in reports of earlier versions.
+    #[serde(default)]
+    pub cancelling: Vec<CancellingSet>,
+}
+
+/// Coefficients whose effects on the data cancel (see [`super::cancel`]).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CancellingSet {
+    /// The coefficients' names, in declaration order.
+    pub members: Vec<String>,
+    /// The largest member's effect alone and the set's joint effect on the fitted values:
+    /// lengths over the rows in units of σ̂.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub largest: f64,
+    #[serde(deserialize_with = "nan_if_null")]
+    pub joint: f64,
 }
 
 /// The weights of a fit by a stated noise (`kin fit --noise`).
@@ -528,8 +545,21 @@ pub fn build(
                 .collect(),
         }
     };
+    let cancelling = super::cancel::cancelling(sol.beta.get(..n).unwrap_or(&[]), &covariance)
+        .into_iter()
+        .map(|c| CancellingSet {
+            members: c
+                .members
+                .iter()
+                .filter_map(|&j| coefficients.get(j).map(|e| e.name.clone()))
+                .collect(),
+            largest: c.largest,
+            joint: c.joint,
+        })
+        .collect();
     let mut report = FitReport {
         stations: Vec::new(),
+        cancelling,
         estimability: Some(estimability),
         version: VERSION,
         machine: m.name.clone(),

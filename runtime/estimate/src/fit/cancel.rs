@@ -1,0 +1,199 @@
+//! Coefficients that cancel each other: large estimates whose effects on the data are nearly
+//! opposite, so that only their small sum is what the data show (spec/cli.md, "Coefficients
+//! that cancel").
+//!
+//! With `C = σ̂²(XᵀX)⁻¹` the coefficients' covariance (nuisance parameters profiled out),
+//! `M = C⁻¹ = (XᵀX)/σ̂²` holds the columns' inner products in units of the noise: the effect of
+//! coefficient k alone on the fitted values has length `|β_k|·√M_kk` noise units, and the
+//! effect of a set S together `√(β_Sᵀ M_SS β_S)`. A set whose joint effect is below a tenth of
+//! its largest member's, each member with a variance inflation `C_kk·M_kk` of 10 or more and an
+//! estimate of three standard errors or more, and the set's estimates jointly far from zero
+//! (Wald's `β_Sᵀ C_SS⁻¹ β_S` beyond χ²'s 0.1 % point: noise of a sound fit does not produce
+//! it), is a set of terms trading off against each other:
+//! typically an effect the model lacks that several nearly alike columns imitate together
+//! (three constants moving by millimetres to explain micrometres). The values are then an
+//! artefact of the missing term, not the machine's geometry, and say so before anyone
+//! compensates with them.
+
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+/// Beyond this many determined coefficients the check (an inverse of their covariance) is
+/// left out: its cost grows with their cube.
+const MAX_COEFFICIENTS: usize = 1500;
+/// A member's variance inflation at least this (its standard error at least √10 times what
+/// it would be were its column alone).
+const INFLATED: f64 = 10.0;
+/// A member's estimate at least this many standard errors: not noise around zero.
+const SIGNIFICANT: f64 = 3.0;
+/// The set's joint Wald test below this p-value.
+const JOINTLY: f64 = 1e-3;
+/// Two members' columns at least this alike (cosine) to join one set.
+const ALIKE: f64 = 0.5;
+/// The set's joint effect at most this fraction of its largest member's effect.
+const CANCELS: f64 = 0.1;
+
+/// A set of coefficients whose effects cancel.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Cancelling {
+    /// Indices of the coefficients, in declaration order.
+    pub members: Vec<usize>,
+    /// The largest member's effect alone, and the set's joint effect: lengths over the fitted
+    /// rows in units of σ̂.
+    pub largest: f64,
+    pub joint: f64,
+}
+
+/// The sets of `beta` (SI) that cancel under the covariance `covariance` (row-major `n × n`,
+/// SI); coefficients with a non-finite or zero variance (undetermined, removed) take no part.
+pub fn cancelling(beta: &[f64], covariance: &[f64]) -> Vec<Cancelling> {
+    let n = beta.len();
+    if covariance.len() != n * n {
+        return Vec::new();
+    }
+    let var = |k: usize| covariance.get(k * n + k).copied().unwrap_or(f64::NAN);
+    let determined: Vec<usize> = (0..n)
+        .filter(|&k| var(k).is_finite() && var(k) > 0.0 && beta[k].is_finite())
+        .collect();
+    let d = determined.len();
+    if !(2..=MAX_COEFFICIENTS).contains(&d) {
+        return Vec::new();
+    }
+    let c = DMatrix::from_fn(d, d, |a, b| {
+        covariance
+            .get(determined[a] * n + determined[b])
+            .copied()
+            .unwrap_or(f64::NAN)
+    });
+    // Scaled to unit diagonal first: the coefficients' units span many decades.
+    let s: Vec<f64> = (0..d).map(|a| c[(a, a)].sqrt()).collect();
+    let r = DMatrix::from_fn(d, d, |a, b| c[(a, b)] / (s[a] * s[b]));
+    let Some(chol) = r.clone().cholesky() else {
+        return Vec::new();
+    };
+    // M in the scaled coordinates: M̃ = R⁻¹, M = S⁻¹ M̃ S⁻¹, and with z = β/se the effects are
+    // |z_k|·√M̃_kk alone and √(z_Sᵀ M̃_SS z_S) together.
+    let m = chol.inverse();
+    let z: Vec<f64> = (0..d).map(|a| beta[determined[a]] / s[a]).collect();
+    let effect = |a: usize| z[a].abs() * m[(a, a)].max(0.0).sqrt();
+    let candidate: Vec<bool> = (0..d)
+        .map(|a| m[(a, a)] >= INFLATED && z[a].abs() >= SIGNIFICANT)
+        .collect();
+    // Candidates whose columns are alike and whose effects oppose join one set.
+    let mut parent: Vec<usize> = (0..d).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for a in 0..d {
+        for b in a + 1..d {
+            if !(candidate[a] && candidate[b]) {
+                continue;
+            }
+            let cosine = m[(a, b)] / (m[(a, a)] * m[(b, b)]).sqrt();
+            if cosine.abs() >= ALIKE && z[a] * z[b] * cosine < 0.0 {
+                let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+                parent[ra] = rb;
+            }
+        }
+    }
+    let mut out = Vec::new();
+    let mut seen = vec![false; d];
+    for a in 0..d {
+        if !candidate[a] || seen[a] {
+            continue;
+        }
+        let ra = root(&mut parent, a);
+        let set: Vec<usize> = (0..d)
+            .filter(|&b| candidate[b] && root(&mut parent, b) == ra)
+            .collect();
+        for &b in &set {
+            seen[b] = true;
+        }
+        if set.len() < 2 {
+            continue;
+        }
+        let mut joint = 0.0;
+        for &i in &set {
+            for &j in &set {
+                joint += z[i] * m[(i, j)] * z[j];
+            }
+        }
+        let joint = joint.max(0.0).sqrt();
+        let largest = set.iter().map(|&i| effect(i)).fold(0.0, f64::max);
+        // Wald's statistic from the scaled covariance of the set (r restricted to it).
+        let rs = DMatrix::from_fn(set.len(), set.len(), |a, b| r[(set[a], set[b])]);
+        let zs = nalgebra::DVector::from_iterator(set.len(), set.iter().map(|&i| z[i]));
+        let wald = rs
+            .cholesky()
+            .map(|ch| zs.dot(&ch.solve(&zs)))
+            .unwrap_or(f64::NAN);
+        let p = crate::statistics::chi_squared_p(wald, set.len() as f64).unwrap_or(f64::NAN);
+        if joint <= CANCELS * largest && p < JOINTLY {
+            out.push(Cancelling {
+                members: set.iter().map(|&i| determined[i]).collect(),
+                largest,
+                joint,
+            });
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// The covariance σ²(XᵀX)⁻¹ and least-squares estimate of `y` on the columns of `x`.
+    fn fit(x: &DMatrix<f64>, y: &[f64], sigma: f64) -> (Vec<f64>, Vec<f64>) {
+        let xtx = x.transpose() * x;
+        let inv = xtx.clone().try_inverse().expect("invertible");
+        let beta = &inv * x.transpose() * nalgebra::DVector::from_row_slice(y);
+        let cov = inv * (sigma * sigma);
+        (
+            beta.iter().copied().collect(),
+            cov.transpose().iter().copied().collect(),
+        )
+    }
+
+    #[test]
+    fn constants_imitating_a_missing_curve_are_named_and_a_sound_fit_is_not() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        let rows = 200;
+        let t: Vec<f64> = (0..rows).map(|i| i as f64 / rows as f64).collect();
+        // Column 0: an offset; column 1: a lever that barely changes (0.4 to 0.405 m, growing
+        // with the square of the position); column 2: a slope.
+        let x = DMatrix::from_fn(rows, 3, |i, j| match j {
+            0 => 1.0,
+            1 => 0.4 + 0.005 * t[i] * t[i],
+            _ => t[i] - 0.5,
+        });
+        let noise = 1e-7;
+        // The truth has a small curve along t (a bending) the model lacks: offset and lever
+        // trade off to imitate it, by values far beyond the curve's size.
+        let y: Vec<f64> = (0..rows)
+            .map(|i| 2e-6 * t[i] * t[i] + 1e-5 * (t[i] - 0.5) + noise * rng.random_range(-1.7..1.7))
+            .collect();
+        let (beta, cov) = fit(&x, &y, noise);
+        let found = cancelling(&beta, &cov);
+        assert_eq!(found.len(), 1, "{found:?} {beta:?}");
+        assert_eq!(found[0].members, vec![0, 1]);
+        assert!(found[0].joint < 0.1 * found[0].largest);
+        // Without the curve the same model is sound: the estimates are noise around zero.
+        let y: Vec<f64> = (0..rows)
+            .map(|i| 1e-5 * (t[i] - 0.5) + noise * rng.random_range(-1.7..1.7))
+            .collect();
+        let (beta, cov) = fit(&x, &y, noise);
+        assert!(cancelling(&beta, &cov).is_empty(), "{beta:?}");
+    }
+
+    #[test]
+    fn undetermined_or_mismatched_input_gives_nothing() {
+        assert!(cancelling(&[1.0, 2.0], &[1.0]).is_empty());
+        assert!(cancelling(&[1.0, 2.0], &[f64::NAN, 0.0, 0.0, f64::NAN]).is_empty());
+    }
+}

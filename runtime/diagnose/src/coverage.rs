@@ -251,6 +251,13 @@ pub(super) const ROWS: &[Row] = &[
         family: Family::Drift,
         form: "time * const",
     },
+    Row {
+        key: "drift-scale",
+        element: Element::Prismatic,
+        components: Components::Along,
+        family: Family::Drift,
+        form: "time * linear(A)",
+    },
 ];
 
 /// The row a proposal of the library belongs to; `None` if no row describes it (the table is

@@ -663,8 +663,57 @@ pub fn propose(
                 None,
             );
         }
+        scale_drift(m, &mut out);
     }
     out
+}
+
+/// A prismatic axis' scale that drifts in time (thesis §3.4.4): the positioning error grows in
+/// proportion to both the time and the position along the axis, `time * linear(A)`, which a
+/// drift of the tool (`time * const`) cannot follow. Where a room or the machine's own warm-up
+/// changes a scale's temperature and no temperature is measured, this is what the data show.
+fn scale_drift(m: &Machine, out: &mut Vec<Proposal>) {
+    for (a, frame) in axis_frames(m) {
+        let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else {
+            continue;
+        };
+        if axis.kind != JointKind::Prismatic {
+            continue;
+        }
+        let comp = along(axis.direction);
+        let own = Var::Axis(a);
+        if has(m, frame, comp, |t| timed(t) && uses(t, own)) {
+            continue;
+        }
+        let target = format!("{name}.{}", comp.name());
+        push(
+            out,
+            Family::Drift,
+            target.clone(),
+            vec![Term::new(format!("time * linear({})", axis.name))],
+            format!(
+                "the {} scale drifts in time: {target} grows along the travel and with the time (a scale warming or cooling without a measured temperature)",
+                axis.name
+            ),
+            None,
+        );
+    }
+}
+
+/// Whether a term is scaled by `time`.
+fn timed(t: &kin_compiler::ir::Term) -> bool {
+    fn has_time(s: &kin_compiler::ir::Scalar) -> bool {
+        use kin_compiler::ir::Scalar;
+        match s {
+            Scalar::Var(Var::Time) => true,
+            Scalar::Num(_) | Scalar::Var(_) => false,
+            Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => has_time(a),
+            Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+                has_time(a) || has_time(b)
+            }
+        }
+    }
+    has_time(&t.scale)
 }
 
 /// The knot count a new spline along axis `own` on `frame` takes: the most any spline of that

@@ -664,8 +664,84 @@ pub fn propose(
             );
         }
         scale_drift(m, &mut out);
+        warm_up(m, taus, &mut out);
     }
     out
+}
+
+/// A warm-up that nothing measured follows (thesis §3.4.4, with the step response of the
+/// thermal lag of eq. 3.41–3.48): `warmup(time, tau fit τ)`, `1 − e^{−(t − t₀)/τ}` from each
+/// run's start, on the tool's translations (`* const`) and on each prismatic axis' scale
+/// (`* linear(A)`), at each scanned time constant; the time constants of one target are one
+/// group.
+fn warm_up(m: &Machine, taus: &[f64], out: &mut Vec<Proposal>) {
+    let mut targets: Vec<(FrameRef, Component, String, String, String)> =
+        [Component::Tx, Component::Ty, Component::Tz]
+            .iter()
+            .map(|c| {
+                (
+                    FrameRef::ToolEnd(None),
+                    *c,
+                    format!("tool.{}", c.name()),
+                    "const".to_string(),
+                    format!(
+                        "the tool moves along {} as the machine warms up",
+                        &c.name()[1..]
+                    ),
+                )
+            })
+            .collect();
+    for (a, frame) in axis_frames(m) {
+        let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else {
+            continue;
+        };
+        if axis.kind == JointKind::Prismatic {
+            let comp = along(axis.direction);
+            targets.push((
+                frame,
+                comp,
+                format!("{name}.{}", comp.name()),
+                format!("linear({})", axis.name),
+                format!("the {} scale grows as the machine warms up", axis.name),
+            ));
+        }
+    }
+    for (frame, comp, target, factor, what) in targets {
+        if has(m, frame, comp, |t| warms(m, t)) {
+            continue;
+        }
+        for &tau in taus {
+            let t = format!("{} min", round(tau / 60.0));
+            push(
+                out,
+                Family::Drift,
+                target.clone(),
+                vec![Term {
+                    text: format!("warmup(time, tau fit {t}) * {factor}"),
+                    test: format!("warmup(time, tau {t}) * {factor}"),
+                    harmonic: None,
+                }],
+                format!("{what} (time constant ≈ {t}, no temperature measured)"),
+                Some(format!("warmup {target}")),
+            );
+        }
+    }
+}
+
+/// Whether a term is scaled by a warm-up.
+fn warms(m: &Machine, t: &kin_compiler::ir::Term) -> bool {
+    fn walk(m: &Machine, s: &kin_compiler::ir::Scalar) -> bool {
+        use kin_compiler::ir::Scalar;
+        match s {
+            Scalar::Var(Var::Lag(l)) => m.lags.get(*l).is_some_and(|l| l.warmup),
+            Scalar::Num(_) | Scalar::Var(_) => false,
+            Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => walk(m, a),
+            Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+                walk(m, a) || walk(m, b)
+            }
+        }
+    }
+    walk(m, &t.scale)
 }
 
 /// A prismatic axis' scale that drifts in time (thesis §3.4.4): the positioning error grows in

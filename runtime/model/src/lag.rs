@@ -110,8 +110,14 @@ pub(crate) fn lag2_run_from(
 /// row and the drive taken as linear between rows (exact for the input itself).
 pub fn run(lag: &Lag, nonlinear: &[f64], times: &[f64], inputs: &[f64], out: &mut [f64]) {
     let tau1 = nonlinear.get(lag.tau.index).copied().unwrap_or(f64::NAN);
-    let drive: Vec<f64> = inputs.iter().map(|&u| lag.source.drive(u)).collect();
+    // A warm-up is the step response: the constant drive 1 from rest at the run's first row.
+    let drive: Vec<f64> = if lag.warmup {
+        vec![1.0; times.len()]
+    } else {
+        inputs.iter().map(|&u| lag.source.drive(u)).collect()
+    };
     let x0 = match lag.from {
+        _ if lag.warmup => 0.0,
         Some(held) => lag.steady(held),
         None => drive.first().copied().unwrap_or(0.0),
     };

@@ -2465,6 +2465,17 @@ mod tests {
     }
 
     #[test]
+    fn a_warm_up_is_a_lag_of_time_with_a_fitted_tau() {
+        let m = machine("X.tx += warmup(time, tau fit 30 min) * linear(X)");
+        assert_eq!(m.lags.len(), 1);
+        assert!(m.lags[0].warmup && m.lags[0].from.is_none());
+        assert_eq!(m.nonlinear.len(), 1);
+        assert!(m.nonlinear[0].fitted);
+        assert!((m.nonlinear[0].value - 1800.0).abs() < 1e-9);
+        assert_eq!(m.nonlinear[0].name, "X.tx.tau");
+    }
+
+    #[test]
     fn several_targets_share_one_lag() {
         let m = machine("tool.tz, X.rx += lag(T, tau fit 30 min) * const");
         assert_eq!(m.lags.len(), 1);

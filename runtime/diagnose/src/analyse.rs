@@ -1427,11 +1427,11 @@ fn sci(v: f64) -> String {
 const TREND: &str = "a trend over time";
 
 /// Per component, the trend over time of its residuals ([`trend::trend`]) where it is
-/// significant, at the Bonferroni level of the region tests. The rows of such a component are
-/// judged outliers against their own stretch of time, not against the whole fit: the trend is
-/// tested on every row first (the fit flags the first rows of a warm-up), then again without
-/// the rows that stay outliers after it; where the second test does not hold, the fit's flags
-/// stand.
+/// significant, at the Bonferroni level of the region tests. A row of such a component that
+/// the fit flags stays an outlier only if it is one against its own stretch of time too: the
+/// trend is tested on every row first (the fit flags the first rows of a warm-up), then again
+/// without the rows that stand out from their part; where the second test does not hold, the
+/// fit's flags stand.
 fn time_trends(
     m: &Machine,
     located: &mut Residuals,
@@ -1497,9 +1497,11 @@ fn time_trends(
         else {
             continue;
         };
+        // The trend clears the fit's flags on its own rows; it never flags a row the fit does
+        // not (a shape the parts' levels and slopes cannot follow is the missing effect's).
         for (k, t) in &mine {
             if let Some(r) = located.rows.get_mut(*k) {
-                r.outlier = trend::outlier(&second, t, threshold);
+                r.outlier = r.outlier && trend::outlier(&second, t, threshold);
             }
         }
         out.push((c, second));

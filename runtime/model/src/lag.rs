@@ -150,6 +150,27 @@ mod tests {
     }
 
     #[test]
+    fn a_warm_up_is_the_step_response_from_rest_in_each_run() {
+        let lag = Lag {
+            input: 0,
+            tau: kin_compiler::ir::NonLinear { index: 0 },
+            source: kin_compiler::ir::LagSource::default(),
+            tau2: None,
+            from: None,
+            warmup: true,
+        };
+        // Irregular times from a start at 1000 s; the inputs are not read.
+        let times = [1000.0, 1000.0, 1060.0, 1300.0, 5000.0];
+        let mut out = [f64::NAN; 5];
+        run(&lag, &[600.0], &times, &[f64::NAN; 5], &mut out);
+        for (t, x) in times.iter().zip(out) {
+            let w = 1.0 - (-(t - 1000.0) / 600.0f64).exp();
+            assert!((x - w).abs() < 1e-12, "t {t}: {x} against {w}");
+        }
+        assert_eq!(lag.steady(0.0), 1.0, "warm once settled");
+    }
+
+    #[test]
     fn ramp_is_exact_against_fine_integration() {
         let tau = 30.0;
         let (u0, u1, dt) = (2.0, 5.0, 45.0);

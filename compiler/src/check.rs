@@ -832,6 +832,7 @@ impl Checker<'_> {
         match f {
             "sin" | "cos" => return self.trig(f, args, span, sink),
             "lag" => return self.lag(args, span, sink),
+            "warmup" => return self.warmup(args, span, sink),
             "beam" => return self.beam(args, span, sink),
             "pow" => {
                 sink.push(
@@ -853,12 +854,12 @@ impl Checker<'_> {
                 FAMILIES
                     .iter()
                     .copied()
-                    .chain(["sin", "cos", "lag", "beam"]),
+                    .chain(["sin", "cos", "lag", "warmup", "beam"]),
             ) {
                 d = d.with_help(format!("did you mean `{s}`?"));
             } else {
                 d = d.with_note(format!(
-                    "factor families: {}, and the functions sin, cos, lag, beam",
+                    "factor families: {}, and the functions sin, cos, lag, warmup, beam",
                     FAMILIES.join(", ")
                 ));
             }
@@ -1186,6 +1187,52 @@ impl Checker<'_> {
         Some(t)
     }
 
+    /// `warmup(time, tau [fit] T)`: a known scalar, `1 − e^{−(t − t₀)/τ}` from each run's first
+    /// row — the step response of a unit lag (thesis eq. 3.41–3.48 with a heat source switched
+    /// on at the run's start and nothing measured). It is a lag whose drive is the constant 1
+    /// from rest, so that its states, its fitted τ and both engines are the lags' own.
+    fn warmup(&mut self, args: &[Arg], span: Span, sink: &mut Sink) -> Option<SymTerm> {
+        let mut opts = Options::new("warmup", args, span, sink)?;
+        let (var_name, var_span) = opts.variable(sink)?;
+        if var_name != "time" {
+            sink.push(
+                Diagnostic::error("E0305", "`warmup` runs in `time` only", var_span)
+                    .with_label(format!("`{var_name}` is not `time`"))
+                    .with_help("write `warmup(time, tau 30 min)`; a warm-up that follows an input is `lag(INPUT, tau …)`"),
+            );
+            self.mark_used(args);
+            return None;
+        }
+        let time_unit = self.st.units.time.clone();
+        let (tau, tau_span, fitted) = opts.required_quantity("tau", Dim::TIME, &time_unit, sink)?;
+        opts.finish(sink)?;
+        if !(tau > 0.0) {
+            sink.push(
+                Diagnostic::error("E0105", "the time constant must be positive", tau_span)
+                    .with_label("not positive"),
+            );
+            return None;
+        }
+        let index = self.nonlinear("tau", tau, time_unit, tau_span);
+        if let Some(p) = self.models.nonlinear.get_mut(index) {
+            p.fitted = fitted;
+        }
+        let lag = self.models.lags.len();
+        self.models.lags.push(ir::Lag {
+            input: 0,
+            tau: NonLinear { index },
+            source: ir::LagSource::default(),
+            tau2: None,
+            from: None,
+            warmup: true,
+        });
+        Some(SymTerm::scalar(
+            Scalar::Var(Var::Lag(lag)),
+            Dim::DIMENSIONLESS,
+            span,
+        ))
+    }
+
     /// One stage of a lag and, through its source, the stages inside it (at most two).
     fn lag_chain(
         &mut self,
@@ -1339,6 +1386,7 @@ impl Checker<'_> {
                 source: ir::LagSource::default(),
                 tau2: None,
                 from: None,
+                warmup: false,
             },
             dim: decl.unit.dim,
             absolute: decl.absolute,
@@ -1784,6 +1832,7 @@ fn allowed_options(f: &str) -> &'static [&'static str] {
         "fourier" => &["harmonics", "wavelength"],
         "periodic" => &["wavelength", "knots", "degree", "smooth", "phase"],
         "lag" => &["tau", "from"],
+        "warmup" => &["tau"],
         "beam" => &["ends", "mean", "upper", "lower", "gap", "across"],
         _ => &[],
     }
@@ -2413,6 +2462,17 @@ mod tests {
              X.ry += fourier(X, harmonics 1, wavelength fit 20 mm)",
         );
         assert_eq!(apart.nonlinear.len(), 2);
+    }
+
+    #[test]
+    fn a_warm_up_is_a_lag_of_time_with_a_fitted_tau() {
+        let m = machine("X.tx += warmup(time, tau fit 30 min) * linear(X)");
+        assert_eq!(m.lags.len(), 1);
+        assert!(m.lags[0].warmup && m.lags[0].from.is_none());
+        assert_eq!(m.nonlinear.len(), 1);
+        assert!(m.nonlinear[0].fitted);
+        assert!((m.nonlinear[0].value - 1800.0).abs() < 1e-9);
+        assert_eq!(m.nonlinear[0].name, "X.tx.tau");
     }
 
     #[test]

@@ -673,6 +673,10 @@ pub struct Lag {
     /// first input value.
     #[serde(default)]
     pub from: Option<f64>,
+    /// A warm-up (`warmup(time, tau τ)`): driven by the constant 1 from the state 0 at each
+    /// run's first row, `1 − e^{−(t − t₀)/τ}`; `input` is then unused (no input drives it).
+    #[serde(default)]
+    pub warmup: bool,
 }
 
 /// The heat-source relation of a lag: `s = (u / reference)^power`, `u` in SI.
@@ -712,7 +716,12 @@ impl LagSource {
 impl Lag {
     /// The state every stage settles at while the input is held at `u`: unit steady-state gain.
     pub fn steady(&self, u: f64) -> f64 {
-        self.source.drive(u)
+        if self.warmup {
+            // A machine warmed long enough: the warm-up is complete.
+            1.0
+        } else {
+            self.source.drive(u)
+        }
     }
 }
 

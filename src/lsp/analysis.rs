@@ -731,13 +731,16 @@ mod tests {
     #[test]
     fn families_and_options_come_from_the_spec() {
         let (f, o) = families_and_options();
-        for name in ["spline", "fourier", "periodic", "lag", "backlash", "const"] {
+        for name in [
+            "spline", "fourier", "periodic", "lag", "warmup", "backlash", "const",
+        ] {
             assert!(f.iter().any(|x| x == name), "{name} in {f:?}");
         }
         for name in ["knots", "degree", "harmonics", "wavelength", "tau", "fit"] {
             assert!(o.iter().any(|x| x == name), "{name} in {o:?}");
         }
         assert!(family_section("fourier").is_some_and(|s| s.contains("harmonics")));
+        assert!(family_section("warmup").is_some_and(|s| s.contains("1 − e^{−(t − t₀)/τ}")));
     }
 
     #[test]

@@ -9,6 +9,7 @@ use kin_estimate::statistics::{self, lack_of_fit};
 use thiserror::Error;
 
 use super::library::{self, Available, Proposal, Sampling};
+use super::trend::{self, Timed, Trend};
 use super::{pass, periodic, refit, spectrum};
 use super::{
     Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, NoiseCheck, Outlier, Plausibility,
@@ -147,8 +148,9 @@ pub fn diagnose(
         &mut proposals,
     );
     let findings = test_candidates(compiled, source, files, base, options, &proposals, settings)?;
-    let rows = positions(m, files, base);
-    let (regions, bins) = regions(m, &rows, base, settings);
+    let mut rows = positions(m, files, base);
+    let trends = time_trends(m, &mut rows, base, settings);
+    let (regions, bins) = regions(m, &rows, base, settings, &trends);
     // σ̂ and the RMS as the fit weighs its rows: with a stated noise, multiples of it.
     let all: Vec<f64> = base.residuals.iter().map(|r| r.residual / s).collect();
     Ok(Diagnosis {
@@ -163,7 +165,7 @@ pub fn diagnose(
         spectra,
         findings,
         noise: noise_check(m, &rows, base, settings),
-        outliers: outliers(m, files, base),
+        outliers: outliers(m, files, base, &rows),
         weighted: base.layout.weights.stated,
     })
 }
@@ -201,10 +203,14 @@ fn unit_of(m: &Machine, component: u8) -> &str {
     }
 }
 
-fn outliers(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<Outlier> {
-    base.residuals
+/// The outliers as judged after any trend over time ([`time_trends`]): the rows `located`
+/// flags.
+fn outliers(m: &Machine, files: &[DataSet], base: &FitResult, located: &Residuals) -> Vec<Outlier> {
+    located
+        .rows
         .iter()
-        .filter(|r| r.studentized.abs() > base.outlier_threshold)
+        .filter(|l| l.outlier)
+        .filter_map(|l| base.residuals.get(l.index as usize))
         .map(|r| Outlier {
             file: files
                 .get(r.meta.file as usize)
@@ -394,8 +400,11 @@ fn reversals(m: &Machine, files: &[DataSet], sampled: &[Option<Sampling>]) -> Ve
 struct Located {
     file: u32,
     component: u8,
-    /// Flagged by the fit (studentized residual): kept out of the region tests.
+    /// Flagged by the fit (studentized residual), or after a trend over time against its own
+    /// stretch of time ([`time_trends`]): kept out of the region tests.
     outlier: bool,
+    /// Its index in the fit's residuals.
+    index: u32,
     residual: f64,
     leverage: f64,
     /// Its pose's place ([`Places`]): the components of one pose share it.
@@ -506,7 +515,7 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Residuals {
     // A place is appended for every new (file, row); a pose's components follow one another.
     let mut last: Option<(u32, usize, u32)> = None;
     let mut rows = Vec::with_capacity(base.residuals.len());
-    for r in &base.residuals {
+    for (k, r) in base.residuals.iter().enumerate() {
         let Some(f) = files.get(r.meta.file as usize) else {
             continue;
         };
@@ -532,6 +541,7 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Residuals {
             file: r.meta.file,
             component: r.meta.component,
             outlier: r.studentized.abs() > base.outlier_threshold,
+            index: k as u32,
             residual: display(m, &base.layout.weights, r.meta.component, r.residual),
             leverage: r.leverage,
             at,
@@ -1413,6 +1423,148 @@ fn sci(v: f64) -> String {
     }
 }
 
+/// The condition of a region that is a trend over time.
+const TREND: &str = "a trend over time";
+
+/// Per component, the trend over time of its residuals ([`trend::trend`]) where it is
+/// significant, at the Bonferroni level of the region tests. A row of such a component that
+/// the fit flags stays an outlier only if it is one against its own stretch of time too: the
+/// trend is tested on every row first (the fit flags the first rows of a warm-up), then again
+/// without the rows that stand out from their part; where the second test does not hold, the
+/// fit's flags stand.
+fn time_trends(
+    m: &Machine,
+    located: &mut Residuals,
+    base: &FitResult,
+    settings: &Settings,
+) -> Vec<(u8, Trend)> {
+    let at = m.axes.len() + m.inputs.len();
+    let mut comps: Vec<u8> = located.rows.iter().map(|r| r.component).collect();
+    comps.sort_unstable();
+    comps.dedup();
+    let tests = (comps.len() * variables(m).len() * settings.bins * 2).max(1) as f64;
+    let level = settings.alpha / tests;
+    let threshold = base.outlier_threshold;
+    // Each axis' positions over the data, to normalise the slopes' columns to −1 … 1.
+    let axes = m.axes.len();
+    let mut span = vec![(f64::INFINITY, f64::NEG_INFINITY); axes];
+    for r in &located.rows {
+        for (s, v) in span.iter_mut().zip(located.values(r)) {
+            if v.is_finite() {
+                *s = (s.0.min(*v), s.1.max(*v));
+            }
+        }
+    }
+    let timed = |located: &Residuals, k: usize| -> Option<Timed> {
+        let r = located.rows.get(k)?;
+        let values = located.values(r);
+        let time = *values.get(at)?;
+        let x = span
+            .iter()
+            .zip(values)
+            .filter(|(s, _)| s.1 > s.0)
+            .map(|(s, v)| {
+                if v.is_finite() {
+                    2.0 * (v - s.0) / (s.1 - s.0) - 1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        time.is_finite().then_some(Timed {
+            time,
+            residual: r.residual,
+            leverage: r.leverage,
+            x,
+        })
+    };
+    let mut out = Vec::new();
+    for c in comps {
+        let mine: Vec<(usize, Timed)> = (0..located.rows.len())
+            .filter(|&k| located.rows.get(k).is_some_and(|r| r.component == c))
+            .filter_map(|k| Some((k, timed(located, k)?)))
+            .collect();
+        let all: Vec<Timed> = mine.iter().map(|(_, t)| t.clone()).collect();
+        let Some(first) = trend::trend(&all, settings.bins).filter(|t| t.significant(level)) else {
+            continue;
+        };
+        let kept: Vec<Timed> = all
+            .iter()
+            .filter(|t| !trend::outlier(&first, t, threshold))
+            .cloned()
+            .collect();
+        let Some(second) = trend::trend(&kept, settings.bins).filter(|t| t.significant(level))
+        else {
+            continue;
+        };
+        // The trend clears the fit's flags on its own rows; it never flags a row the fit does
+        // not (a shape the parts' levels and slopes cannot follow is the missing effect's).
+        for (k, t) in &mine {
+            if let Some(r) = located.rows.get_mut(*k) {
+                r.outlier = r.outlier && trend::outlier(&second, t, threshold);
+            }
+        }
+        out.push((c, second));
+    }
+    out
+}
+
+/// "Where the model fails" for a trend over time: how the residuals' level and spread change
+/// across the time bins.
+fn trend_region(m: &Machine, cname: &str, t: &Trend, sigma: f64, unit: &str) -> Region {
+    let filled: Vec<(usize, &trend::TimeBin)> = t
+        .bins
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.rows > 0)
+        .collect();
+    let pick = |better: fn(f64, f64) -> bool, key: fn(&trend::TimeBin) -> f64| {
+        filled
+            .iter()
+            .copied()
+            .reduce(|a, b| if better(key(b.1), key(a.1)) { b } else { a })
+    };
+    let tu = &m.units.time.name;
+    let when = |b: usize| {
+        let lo = t.lo + b as f64 * t.width;
+        format!("{}–{} {tu}", nice(lo), nice(lo + t.width))
+    };
+    let (Some(least), Some(most), Some(low), Some(high)) = (
+        pick(|a, b| a < b, |b| b.rms),
+        pick(|a, b| a > b, |b| b.rms),
+        pick(|a, b| a < b, |b| b.mean),
+        pick(|a, b| a > b, |b| b.mean),
+    ) else {
+        return Region {
+            component: cname.to_string(),
+            conditions: vec![TREND.into()],
+            ratio: t.ratio,
+            rows: 0,
+            p: t.p,
+            text: format!("{cname} residuals follow {TREND}"),
+        };
+    };
+    Region {
+        component: cname.to_string(),
+        conditions: vec![TREND.into()],
+        ratio: most.1.rms / sigma.max(f64::MIN_POSITIVE),
+        rows: filled.iter().map(|(_, b)| b.rows).sum(),
+        p: t.p,
+        text: format!(
+            "{cname} residuals follow {TREND}: their RMS is {} {unit} at {} and {} {unit} at {}, their mean {} {unit} at {} and {} {unit} at {} ({} equal parts of the time)",
+            nice(least.1.rms),
+            when(least.0),
+            nice(most.1.rms),
+            when(most.0),
+            nice(low.1.mean),
+            when(low.0),
+            nice(high.1.mean),
+            when(high.0),
+            t.bins.len()
+        ),
+    }
+}
+
 /// Residuals binned along every variable, and the regions where they exceed what the noise
 /// and the model's uncertainty allow (each residual's variance is σ̂²(1 − h)).
 fn regions(
@@ -1420,6 +1572,7 @@ fn regions(
     located: &Residuals,
     base: &FitResult,
     settings: &Settings,
+    trends: &[(u8, Trend)],
 ) -> (Vec<Region>, Vec<Bin>) {
     let vars = variables(m);
     let fitted = base.sigma / m.units.error.scale;
@@ -1479,7 +1632,14 @@ fn regions(
         // the bins then look for where it is worse than the component's own level.
         let (p_all, rms_all, allowed_all) = chi(&mine, sigma);
         let throughout = p_all < settings.alpha / tests && rms_all > 1.2 * allowed_all;
-        if throughout {
+        // A trend over time is where such a model fails: named instead of the whole workspace.
+        let trend = trends
+            .iter()
+            .find(|(tc, t)| *tc == c && t.significant(settings.alpha / tests));
+        if let Some((_, t)) = trend {
+            found.push(trend_region(m, &cname, t, sigma, unit_of(m, c)));
+        }
+        if throughout && trend.is_none() {
             found.push(Region {
                 component: cname.clone(),
                 conditions: vec!["throughout the workspace".into()],
@@ -1590,7 +1750,9 @@ fn regions(
                 } else {
                     p
                 };
-                if excess < settings.alpha / tests && ratio > 1.5 {
+                // Along time, a named trend already says where (and its bins are in the table).
+                let timed = trend.is_some() && v + 1 == vars.len();
+                if excess < settings.alpha / tests && ratio > 1.5 && !timed {
                     flagged.push((b, ratio, excess, inside.len()));
                 }
             }
@@ -1646,9 +1808,9 @@ fn regions(
 fn combine(found: Vec<Region>) -> Vec<Region> {
     let mut out: Vec<Region> = Vec::new();
     let local = |o: &Region| {
-        o.conditions
-            .iter()
-            .all(|c| c != "throughout the workspace" && !c.starts_with("direction of motion"))
+        o.conditions.iter().all(|c| {
+            c != "throughout the workspace" && !c.starts_with("direction of motion") && c != TREND
+        })
     };
     let variables = |o: &Region| -> Vec<String> {
         o.conditions

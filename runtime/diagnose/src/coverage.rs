@@ -251,6 +251,27 @@ pub(super) const ROWS: &[Row] = &[
         family: Family::Drift,
         form: "time * const",
     },
+    Row {
+        key: "drift-scale",
+        element: Element::Prismatic,
+        components: Components::Along,
+        family: Family::Drift,
+        form: "time * linear(A)",
+    },
+    Row {
+        key: "warm-up",
+        element: Element::Tool,
+        components: Components::Translations,
+        family: Family::Drift,
+        form: "warmup(time, tau fit τ) * const",
+    },
+    Row {
+        key: "warm-up-scale",
+        element: Element::Prismatic,
+        components: Components::Along,
+        family: Family::Drift,
+        form: "warmup(time, tau fit τ) * linear(A)",
+    },
 ];
 
 /// The row a proposal of the library belongs to; `None` if no row describes it (the table is
@@ -300,6 +321,7 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
         });
     let first = text.contains("harmonics 1)") || text.contains("harmonics 1..");
     let beam = text.contains("beam(");
+    let warm = text.contains("warmup(");
     let input = axis.is_some_and(|(_, a)| {
         m.inputs
             .iter()
@@ -321,6 +343,8 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
                 "coupling-axis" | "rotary-coupling-axis" => !input,
                 "coupling-input" | "rotary-coupling-input" => input,
                 "thermal-scale" => !beam,
+                "drift" | "drift-scale" => !warm,
+                "warm-up" | "warm-up-scale" => warm,
                 "beam-bending" => beam,
                 _ => true,
             }

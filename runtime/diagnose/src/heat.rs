@@ -27,7 +27,10 @@ fn reference(dim: Dim) -> Option<&'static str> {
 fn has_lag_of(m: &Machine, comp: Component, input: usize) -> bool {
     fn lagged(s: &Scalar, m: &Machine, input: usize) -> bool {
         match s {
-            Scalar::Var(Var::Lag(l)) => m.lags.get(*l).is_some_and(|l| l.input == input),
+            Scalar::Var(Var::Lag(l)) => m
+                .lags
+                .get(*l)
+                .is_some_and(|l| !l.warmup && l.input == input),
             Scalar::Num(_) | Scalar::Var(_) => false,
             Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => lagged(a, m, input),
             Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {

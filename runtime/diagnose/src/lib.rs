@@ -237,6 +237,7 @@ mod pass;
 mod periodic;
 mod refit;
 mod spectrum;
+mod trend;
 
 pub use analyse::{diagnose, DiagnoseError, Progress, Settings, Step};
 // The lack-of-fit test is the estimation layer's (the standard tests use it too).

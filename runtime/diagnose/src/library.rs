@@ -663,8 +663,133 @@ pub fn propose(
                 None,
             );
         }
+        scale_drift(m, &mut out);
+        warm_up(m, taus, &mut out);
     }
     out
+}
+
+/// A warm-up that nothing measured follows (thesis §3.4.4, with the step response of the
+/// thermal lag of eq. 3.41–3.48): `warmup(time, tau fit τ)`, `1 − e^{−(t − t₀)/τ}` from each
+/// run's start, on the tool's translations (`* const`) and on each prismatic axis' scale
+/// (`* linear(A)`), at each scanned time constant; the time constants of one target are one
+/// group.
+fn warm_up(m: &Machine, taus: &[f64], out: &mut Vec<Proposal>) {
+    let mut targets: Vec<(FrameRef, Component, String, String, String)> =
+        [Component::Tx, Component::Ty, Component::Tz]
+            .iter()
+            .map(|c| {
+                (
+                    FrameRef::ToolEnd(None),
+                    *c,
+                    format!("tool.{}", c.name()),
+                    "const".to_string(),
+                    format!(
+                        "the tool moves along {} as the machine warms up",
+                        &c.name()[1..]
+                    ),
+                )
+            })
+            .collect();
+    for (a, frame) in axis_frames(m) {
+        let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else {
+            continue;
+        };
+        if axis.kind == JointKind::Prismatic {
+            let comp = along(axis.direction);
+            targets.push((
+                frame,
+                comp,
+                format!("{name}.{}", comp.name()),
+                format!("linear({})", axis.name),
+                format!("the {} scale grows as the machine warms up", axis.name),
+            ));
+        }
+    }
+    for (frame, comp, target, factor, what) in targets {
+        if has(m, frame, comp, |t| warms(m, t)) {
+            continue;
+        }
+        for &tau in taus {
+            let t = format!("{} min", round(tau / 60.0));
+            push(
+                out,
+                Family::Drift,
+                target.clone(),
+                vec![Term {
+                    text: format!("warmup(time, tau fit {t}) * {factor}"),
+                    test: format!("warmup(time, tau {t}) * {factor}"),
+                    harmonic: None,
+                }],
+                format!("{what} (time constant ≈ {t}, no temperature measured)"),
+                Some(format!("warmup {target}")),
+            );
+        }
+    }
+}
+
+/// Whether a term is scaled by a warm-up.
+fn warms(m: &Machine, t: &kin_compiler::ir::Term) -> bool {
+    fn walk(m: &Machine, s: &kin_compiler::ir::Scalar) -> bool {
+        use kin_compiler::ir::Scalar;
+        match s {
+            Scalar::Var(Var::Lag(l)) => m.lags.get(*l).is_some_and(|l| l.warmup),
+            Scalar::Num(_) | Scalar::Var(_) => false,
+            Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => walk(m, a),
+            Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+                walk(m, a) || walk(m, b)
+            }
+        }
+    }
+    walk(m, &t.scale)
+}
+
+/// A prismatic axis' scale that drifts in time (thesis §3.4.4): the positioning error grows in
+/// proportion to both the time and the position along the axis, `time * linear(A)`, which a
+/// drift of the tool (`time * const`) cannot follow. Where a room or the machine's own warm-up
+/// changes a scale's temperature and no temperature is measured, this is what the data show.
+fn scale_drift(m: &Machine, out: &mut Vec<Proposal>) {
+    for (a, frame) in axis_frames(m) {
+        let (Some(axis), Some(name)) = (m.axes.get(a), frame_name(m, frame)) else {
+            continue;
+        };
+        if axis.kind != JointKind::Prismatic {
+            continue;
+        }
+        let comp = along(axis.direction);
+        let own = Var::Axis(a);
+        if has(m, frame, comp, |t| timed(t) && uses(t, own)) {
+            continue;
+        }
+        let target = format!("{name}.{}", comp.name());
+        push(
+            out,
+            Family::Drift,
+            target.clone(),
+            vec![Term::new(format!("time * linear({})", axis.name))],
+            format!(
+                "the {} scale drifts in time: {target} grows along the travel and with the time (a scale warming or cooling without a measured temperature)",
+                axis.name
+            ),
+            None,
+        );
+    }
+}
+
+/// Whether a term is scaled by `time`.
+fn timed(t: &kin_compiler::ir::Term) -> bool {
+    fn has_time(s: &kin_compiler::ir::Scalar) -> bool {
+        use kin_compiler::ir::Scalar;
+        match s {
+            Scalar::Var(Var::Time) => true,
+            Scalar::Num(_) | Scalar::Var(_) => false,
+            Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => has_time(a),
+            Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+                has_time(a) || has_time(b)
+            }
+        }
+    }
+    has_time(&t.scale)
 }
 
 /// The knot count a new spline along axis `own` on `frame` takes: the most any spline of that

@@ -108,6 +108,10 @@ pub fn var_unit(m: &Machine, v: Var) -> Unit {
             .lags
             .get(l)
             .and_then(|l| {
+                if l.warmup {
+                    // A warm-up's share of its end: a number from 0 to 1.
+                    return Some(Unit::dimensionless());
+                }
                 let unit = &m.inputs.get(l.input)?.unit;
                 Some(
                     if l.source.reference != 1.0 || l.source.power.fract() != 0.0 {
@@ -157,7 +161,10 @@ pub fn range_of(m: &Machine, v: Var, data: &Ranges) -> Option<(f64, f64)> {
                 _ => (0.0, 1.0),
             })
         }
-        Var::Lag(l) => range_of(m, Var::Input(m.lags.get(l)?.input), data),
+        Var::Lag(l) => match m.lags.get(l)? {
+            lag if lag.warmup => Some((0.0, 1.0)),
+            lag => range_of(m, Var::Input(lag.input), data),
+        },
         // A time axis only means something over the measurements' own span.
         Var::Time => data.get(&v).copied(),
         Var::Direction(_) => Some((-1.0, 1.0)),
@@ -187,7 +194,13 @@ impl Reference {
             lags: m
                 .lags
                 .iter()
-                .map(|l| inputs.get(l.input).copied().unwrap_or(0.0))
+                .map(|l| {
+                    if l.warmup {
+                        l.steady(0.0)
+                    } else {
+                        inputs.get(l.input).copied().unwrap_or(0.0)
+                    }
+                })
                 .collect(),
             inputs,
             time: mid(Var::Time),
@@ -542,7 +555,7 @@ fn set_with_lags(r: &mut Reference, m: &Machine, v: Var, x: f64) {
     r.set(v, x);
     if let Var::Input(i) = v {
         for (l, lag) in m.lags.iter().enumerate() {
-            if lag.input == i {
+            if !lag.warmup && lag.input == i {
                 r.set(Var::Lag(l), lag.steady(x));
             }
         }

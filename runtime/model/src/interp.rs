@@ -427,11 +427,13 @@ pub fn var_name(v: Var, m: &Machine) -> String {
     let name = match v {
         Var::Axis(i) => m.axes.get(i).map(|a| a.name.clone()),
         Var::Input(i) => m.inputs.get(i).map(|a| a.name.clone()),
-        Var::Lag(i) => m
-            .lags
-            .get(i)
-            .and_then(|l| m.inputs.get(l.input))
-            .map(|a| format!("lag of {}", a.name)),
+        Var::Lag(i) => m.lags.get(i).and_then(|l| {
+            if l.warmup {
+                Some("warm-up".to_string())
+            } else {
+                m.inputs.get(l.input).map(|a| format!("lag of {}", a.name))
+            }
+        }),
         Var::Time => Some("time".to_string()),
         Var::Direction(i) => m.axes.get(i).map(|a| format!("dir_{}", a.name)),
     };

@@ -110,8 +110,14 @@ pub(crate) fn lag2_run_from(
 /// row and the drive taken as linear between rows (exact for the input itself).
 pub fn run(lag: &Lag, nonlinear: &[f64], times: &[f64], inputs: &[f64], out: &mut [f64]) {
     let tau1 = nonlinear.get(lag.tau.index).copied().unwrap_or(f64::NAN);
-    let drive: Vec<f64> = inputs.iter().map(|&u| lag.source.drive(u)).collect();
+    // A warm-up is the step response: the constant drive 1 from rest at the run's first row.
+    let drive: Vec<f64> = if lag.warmup {
+        vec![1.0; times.len()]
+    } else {
+        inputs.iter().map(|&u| lag.source.drive(u)).collect()
+    };
     let x0 = match lag.from {
+        _ if lag.warmup => 0.0,
         Some(held) => lag.steady(held),
         None => drive.first().copied().unwrap_or(0.0),
     };
@@ -141,6 +147,27 @@ mod tests {
         assert!((out[2] - (1.0 - (-0.5f64).exp())).abs() < 1e-12);
         assert!((out[3] - (1.0 - (-1.0f64).exp())).abs() < 1e-12);
         assert!((out[4] - (1.0 - (-4.0f64).exp())).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_warm_up_is_the_step_response_from_rest_in_each_run() {
+        let lag = Lag {
+            input: 0,
+            tau: kin_compiler::ir::NonLinear { index: 0 },
+            source: kin_compiler::ir::LagSource::default(),
+            tau2: None,
+            from: None,
+            warmup: true,
+        };
+        // Irregular times from a start at 1000 s; the inputs are not read.
+        let times = [1000.0, 1000.0, 1060.0, 1300.0, 5000.0];
+        let mut out = [f64::NAN; 5];
+        run(&lag, &[600.0], &times, &[f64::NAN; 5], &mut out);
+        for (t, x) in times.iter().zip(out) {
+            let w = 1.0 - (-(t - 1000.0) / 600.0f64).exp();
+            assert!((x - w).abs() < 1e-12, "t {t}: {x} against {w}");
+        }
+        assert_eq!(lag.steady(0.0), 1.0, "warm once settled");
     }
 
     #[test]

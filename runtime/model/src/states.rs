@@ -67,7 +67,9 @@ pub fn used_vars(m: &Machine) -> Vec<Var> {
         out.extend(t.factors.iter().map(|f| f.var));
     }
     for l in &m.lags {
-        out.push(Var::Input(l.input));
+        if !l.warmup {
+            out.push(Var::Input(l.input));
+        }
         out.push(Var::Time);
     }
     out.sort_by_key(|v| format!("{v:?}"));
@@ -109,7 +111,8 @@ impl States {
             }
             let Some(col) = column_of(v) else {
                 if v == Var::Time {
-                    if let Some(l) = m.lags.first() {
+                    // A warm-up needs `time` as such: the plain missing column says it.
+                    if let Some(l) = m.lags.iter().find(|l| !l.warmup) {
                         return Err(StateError::NoTime {
                             input: m
                                 .inputs

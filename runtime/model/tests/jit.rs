@@ -668,7 +668,7 @@ impl Gen {
     /// A known scalar that scales a term (any dimension).
     fn known_scale(&mut self, axes: &[AxisDecl]) -> String {
         let revolute: Vec<&AxisDecl> = axes.iter().filter(|a| a.revolute).collect();
-        let cases = if self.heat { 9 } else { 7 };
+        let cases = if self.heat { 10 } else { 7 };
         match self.rng.random_range(0..cases) {
             0 if !revolute.is_empty() => format!("sin({})", self.pick(&revolute).name),
             1 if revolute.len() >= 2 => format!("cos({} + {})", revolute[0].name, revolute[1].name),
@@ -693,6 +693,11 @@ impl Gen {
                 self.f(10.0, 500.0),
                 if self.chance(0.5) { "fit " } else { "" },
                 self.f(10.0, 200.0)
+            ),
+            8 if self.heat => format!(
+                "warmup(time, tau {}{:.1} min)",
+                if self.chance(0.5) { "fit " } else { "" },
+                self.f(1.0, 60.0)
             ),
             _ => format!("{:.3}", self.f(-3.0, 3.0)),
         }
@@ -909,6 +914,7 @@ fn every_family_is_generated() {
         "direction(",
         "lag(",
         "lag(lag(",
+        "warmup(",
         "pow(",
         "from 0 rpm",
         "tau fit",

@@ -135,7 +135,8 @@ int kin_model_axis_range(const kin_model *model, size_t axis, double *lo, double
  * 0-4 K for a temperature rise, 0-1000 N for a force, 0-1 otherwise. */
 int kin_model_input_range(const kin_model *model, size_t input, double *lo, double *hi);
 
-/* The input that lag state `lag` follows (in steady state the lag state equals its value). */
+/* The input that lag state `lag` follows (in steady state the lag state equals its value);
+ * KIN_ERR_INDEX for a warm-up's state (`warmup(time, ...)`), which follows no input and settles at 1. */
 int kin_model_lag_input(const kin_model *model, size_t lag, size_t *input);
 
 /* Copies the name of axis, input, tool or coefficient `index` (what = KIN_NAME_*) into buf as

@@ -876,7 +876,8 @@ pub unsafe extern "C" fn kin_model_input_range(
     })
 }
 
-/// The input whose lag lag state `lag` is (its steady state equals that input's value).
+/// The input whose lag lag state `lag` is (its steady state equals that input's value);
+/// `KIN_ERR_INDEX` for a warm-up's state, which follows no input (its steady state is 1).
 ///
 /// # Safety
 ///
@@ -893,6 +894,14 @@ pub unsafe extern "C" fn kin_model_lag_input(
         let Some(l) = m.machine().lags.get(lag) else {
             return Err(Fail(KIN_ERR_INDEX, format!("lag {lag} of {}", m.lags())));
         };
+        // A warm-up follows the constant 1 from each run's start, not an input: answering an
+        // input index would have the caller feed it that input's value.
+        if l.warmup {
+            return Err(Fail(
+                KIN_ERR_INDEX,
+                format!("lag {lag} is a warm-up (`warmup(time, …)`): it follows no input; its steady state is 1"),
+            ));
+        }
         out.copy_from_slice(&[l.input]);
         Ok(())
     })
@@ -1395,6 +1404,44 @@ mod tests {
             assert!(out.is_null());
             Err((code, msg))
         }
+    }
+
+    /// A warm-up's lag state follows no input: asking which one is refused, never answered
+    /// with input 0 (whose value a caller would then feed it).
+    #[test]
+    fn a_warm_up_lag_names_no_input() {
+        let src = "machine m {
+            task position
+            units { length mm, error um, time min }
+            axis X prismatic along x range 0 mm .. 500 mm
+            input T : temperature rise
+            tool chain { X moving tool t at (0, 0, -100) mm }
+            errors {
+                X.tx = lag(T, tau 10 min) * const
+                X.ty = warmup(time, tau 20 min) * const
+            }
+        }";
+        let model = compile(src).expect("compiles");
+        // SAFETY: a live model.
+        let lags = unsafe { kin_model_lags(model) };
+        assert_eq!(lags, 2);
+        let (mut inputs, mut warm) = (Vec::new(), 0);
+        for lag in 0..lags {
+            let mut input = usize::MAX;
+            // SAFETY: a live model; `input` is valid for one size_t.
+            match unsafe { kin_model_lag_input(model, lag, &mut input) } {
+                KIN_OK => inputs.push(input),
+                KIN_ERR_INDEX => {
+                    assert!(last_error().contains("warm-up"), "{}", last_error());
+                    assert_eq!(input, usize::MAX, "nothing written");
+                    warm += 1;
+                }
+                code => panic!("code {code}: {}", last_error()),
+            }
+        }
+        assert_eq!((inputs, warm), (vec![0], 1));
+        // SAFETY: a live model, freed once.
+        unsafe { kin_model_free(model) };
     }
 
     fn last_error() -> String {

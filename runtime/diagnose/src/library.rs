@@ -182,7 +182,7 @@ fn harmonics(hs: &[u32]) -> String {
 
 /// What an error motion of a revolute axis is called (ISO 230-7): along or about its own
 /// axis it is axial motion or its angular positioning error, across it radial or tilt motion.
-fn motion_name(comp: Component, axis_direction: [f64; 3]) -> &'static str {
+pub(super) fn motion_name(comp: Component, axis_direction: [f64; 3]) -> &'static str {
     let own = along(axis_direction);
     match (
         comp.is_rotation(),
@@ -392,7 +392,7 @@ pub fn propose(
 &mut out,
                         Family::AbbeAngular,
                         target.clone(),
-                        vec![Term::new(format!("spline({}, knots {})", axis.name, sibling_knots(m, frame, own)))],
+                        vec![Term::new(format!("spline({}, {})", axis.name, knots_option(m, available, a, sibling_knots(m, frame, own))))],
                         format!("the {} carriage tilts about {} as it travels; the tool sees the tilt times its Abbe offset", axis.name, &comp.name()[1..]),
                         None,
                     );
@@ -582,6 +582,9 @@ pub fn propose(
     // coverage table of spec/diagnosis.md).
     super::motions::propose(m, available, &mut out);
 
+    // Deflection under gravity of what a tilting axis carries (gravity.rs).
+    super::gravity::propose(m, available, &mut out);
+
     // Thermal drift: a temperature input through a lag, on the tool (growth of the spindle or
     // ram) and on each prismatic axis' scale.
     for (i, input) in m.inputs.iter().enumerate() {
@@ -681,6 +684,45 @@ pub(super) fn sibling_knots(m: &Machine, frame: FrameRef, own: Var) -> usize {
             _ => None,
         })
         .fold(2, usize::max)
+}
+
+/// The `knots` option of a new spline with `n` knots along axis `a`: `knots n`, evenly over
+/// the declared range, when the data reach both ends of it within half a knot spacing; else `n`
+/// knots evenly over the range the data cover, written as positions (`knots at (…) UNIT`). A
+/// knot the data do not reach gives a function that is zero (or a multiple of another) on
+/// every row: the line would add a column the data cannot see and be dropped as not
+/// identifiable — a joint declared over ±360° and measured over ±90° would never get a spline.
+pub(super) fn knots_option(m: &Machine, available: &Available, a: usize, n: usize) -> String {
+    let (Some(axis), Some(Some(s))) = (m.axes.get(a), available.sampled.get(a)) else {
+        return format!("knots {n}");
+    };
+    let [lo, hi] = axis.range;
+    let spacing = (hi - lo) / (n + 1) as f64;
+    if n == 0 || (s.lo <= lo + spacing / 2.0 && s.hi >= hi - spacing / 2.0) || s.span() <= 0.0 {
+        return format!("knots {n}");
+    }
+    let unit = if axis.kind == JointKind::Revolute {
+        &m.units.angle
+    } else {
+        &m.units.length
+    };
+    let at: Vec<String> = (1..=n)
+        .map(|k| {
+            let x = s.lo + s.span() * k as f64 / (n + 1) as f64;
+            round_at(
+                unit.from_si(x),
+                unit.from_si(s.lo + s.span()) - unit.from_si(s.lo),
+            )
+            .to_string()
+        })
+        .collect();
+    format!("knots at ({}) {}", at.join(", "), unit.name)
+}
+
+/// `v` rounded to four significant digits of `span` (knot positions need no more).
+fn round_at(v: f64, span: f64) -> f64 {
+    let p = 10f64.powi(3 - span.abs().max(1e-300).log10().floor() as i32);
+    (v * p).round() / p
 }
 
 pub(super) fn round(v: f64) -> f64 {

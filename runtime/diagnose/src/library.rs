@@ -751,6 +751,43 @@ mod tests {
         }
     }
 
+    /// A joint declared over ±360° and measured over ±90°: the spline's knots go where the
+    /// data are, and the line compiles; data over the whole range keep `knots N`.
+    #[test]
+    fn knots_are_placed_over_the_range_the_data_cover() {
+        let src = "machine arm {\n    task position\n    units { length mm, angle deg, error um, tilt urad }\n    axis J1 revolute about z range -360 deg .. 360 deg\n    tool chain {\n        J1 fixed\n        tool flange at (500, 0, 0) mm\n    }\n    errors {\n        J1.rz = const\n    }\n}\n";
+        let Some(c) = kin_compiler::compile(src).compiled else {
+            panic!("{src}")
+        };
+        let deg = std::f64::consts::PI / 180.0;
+        let at = |lo: f64, hi: f64| Available {
+            sampled: vec![Sampling::of(
+                (0..=36).map(|k| (lo + (hi - lo) * f64::from(k) / 36.0) * deg),
+            )],
+            ..Available::default()
+        };
+        let text = |a: &Available| {
+            propose(&c.machine, a, &[], &[])
+                .into_iter()
+                .find(|p| p.candidate.family == Family::ErrorMotion)
+                .map(|p| p.candidate.text)
+        };
+        let part = text(&at(-90.0, 90.0));
+        assert_eq!(
+            part.as_deref(),
+            Some("J1.rz += spline(J1, knots at (-30, 30) deg)")
+        );
+        let with = src.replace(
+            "J1.rz = const",
+            &format!("J1.rz = const\n        {}", part.unwrap_or_default()),
+        );
+        assert!(kin_compiler::compile(&with).compiled.is_some(), "{with}");
+        assert_eq!(
+            text(&at(-355.0, 355.0)).as_deref(),
+            Some("J1.rz += spline(J1, knots 2)")
+        );
+    }
+
     #[test]
     fn harmonics_are_written_as_one_fourier() {
         let terms: Vec<Term> = (2..=4).map(|h| Term::harmonic("C", h)).collect();

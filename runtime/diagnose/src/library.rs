@@ -430,7 +430,7 @@ pub fn propose(
         }
 
         // Error motions of a revolute axis at 2, 3, 4 per revolution, those whose period the
-        // data cover (once per revolution is what the location constants are).
+        // data cover (once per revolution: motions.rs, with what the location constants absorb).
         if revolute {
             let hs = available
                 .sampled

@@ -304,7 +304,10 @@ fn once_per_rev(
         .map(|x| motion_name(comp, x.direction))
         .unwrap_or("error motion");
     let others = !siblings.is_empty() && !has(m, frame, comp, |t| uses(t, own));
-    let group = if others {
+    // Across the axis the first harmonic is a group of its own: in the 2 … 4 line's group it
+    // would take that line's place in the list whenever neither is significant.
+    let across = matches!(motion, "radial error motion" | "tilt error motion");
+    let group = if others && !across {
         let terms: Vec<Term> = siblings.iter().map(|&h| Term::harmonic(axis, h)).collect();
         let all: Vec<&Term> = terms.iter().collect();
         line(&target, &all, true)

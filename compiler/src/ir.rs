@@ -258,6 +258,16 @@ impl AliasError {
 }
 
 impl Machine {
+    /// The direction of axis `axis` in the base's axes at the home position (every joint at
+    /// 0): its own direction turned by the rotations of the shapes up to its element.
+    pub fn home_direction(&self, axis: usize) -> Option<[f64; 3]> {
+        let a = self.axes.get(axis)?;
+        placed(&self.layout())
+            .iter()
+            .find(|p| p.axis == axis)
+            .map(|p| apply(&p.rotation, a.direction))
+    }
+
     pub fn layout(&self) -> Layout<'_> {
         Layout {
             axes: &self.axes,

@@ -196,6 +196,20 @@ pub(super) const ROWS: &[Row] = &[
         form: "fourier(A, harmonics 1) | fourier(A, harmonics 1..4)",
     },
     Row {
+        key: "once-per-rev-radial",
+        element: Element::Revolute,
+        components: Components::Across,
+        family: Family::RevoluteHarmonics,
+        form: "fourier(A, harmonics 1) | fourier(A, harmonics 1..4)",
+    },
+    Row {
+        key: "once-per-rev-tilt",
+        element: Element::Revolute,
+        components: Components::Tilt,
+        family: Family::RevoluteHarmonics,
+        form: "fourier(A, harmonics 1) | fourier(A, harmonics 1..4)",
+    },
+    Row {
         key: "angular-positioning",
         element: Element::Revolute,
         components: Components::About,
@@ -229,6 +243,27 @@ pub(super) const ROWS: &[Row] = &[
         components: Components::All,
         family: Family::CrossCoupling,
         form: "linear(B)",
+    },
+    Row {
+        key: "gravity",
+        element: Element::Revolute,
+        components: Components::All,
+        family: Family::CrossCoupling,
+        form: "sin(B) * const + cos(B) * const",
+    },
+    Row {
+        key: "gravity-carriage",
+        element: Element::Prismatic,
+        components: Components::All,
+        family: Family::CrossCoupling,
+        form: "sin(B) * const + cos(B) * const",
+    },
+    Row {
+        key: "gravity-end",
+        element: Element::Tool,
+        components: Components::All,
+        family: Family::CrossCoupling,
+        form: "sin(B) * const + cos(B) * const",
     },
     Row {
         key: "rotary-coupling-input",
@@ -322,6 +357,7 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
     let first = text.contains("harmonics 1)") || text.contains("harmonics 1..");
     let beam = text.contains("beam(");
     let warm = text.contains("warmup(");
+    let gravity = text.contains("sin(");
     let input = axis.is_some_and(|(_, a)| {
         m.inputs
             .iter()
@@ -339,9 +375,13 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
                 "backlash-width" | "hysteresis-width" | "rotary-backlash-width" => width && !across,
                 "backlash-across" | "hysteresis-across" | "rotary-backlash-across" => across,
                 "harmonics" => !first,
-                "once-per-rev" | "once-per-rev-angular" => first,
-                "coupling-axis" | "rotary-coupling-axis" => !input,
-                "coupling-input" | "rotary-coupling-input" => input,
+                "once-per-rev"
+                | "once-per-rev-angular"
+                | "once-per-rev-radial"
+                | "once-per-rev-tilt" => first,
+                "coupling-axis" | "rotary-coupling-axis" => !input && !gravity,
+                "coupling-input" | "rotary-coupling-input" => input && !gravity,
+                "gravity" | "gravity-carriage" | "gravity-end" => gravity,
                 "thermal-scale" => !beam,
                 "drift" | "drift-scale" => !warm,
                 "warm-up" | "warm-up-scale" => warm,
@@ -449,6 +489,12 @@ machine cover {{
         keys.extend(rows(&machine(
             "        X.tx = spline(X, knots 2) + backlash(X)\n        X.rz = backlash(X)",
         )));
+        // A tilting axis carrying a carriage: gravity on a prismatic element.
+        let src = "machine tilt {\n    task position\n    units { length mm, angle deg, error um, tilt urad }\n    axis A revolute about x range -30 deg .. 30 deg\n    axis X prismatic along x range 0 mm .. 100 mm\n    workpiece chain {\n        A fixed\n        X moving\n        workpiece at (0, 0, 0) mm\n    }\n    tool chain {\n        tool probe at (0, 0, 100) mm\n    }\n}\n";
+        match compile(src).compiled {
+            Some(c) => keys.extend(rows(&c.machine)),
+            None => panic!("{src}"),
+        }
         let all: BTreeSet<&str> = ROWS.iter().map(|r| r.key).collect();
         let missing: Vec<&&str> = all.difference(&keys).collect();
         assert!(missing.is_empty(), "rows never generated: {missing:?}");

@@ -230,6 +230,7 @@ mod beam;
 // The coverage table the library is audited against (its tests; spec/diagnosis.md for users).
 #[cfg(test)]
 mod coverage;
+mod gravity;
 mod heat;
 pub mod library;
 mod motions;

@@ -182,7 +182,7 @@ fn harmonics(hs: &[u32]) -> String {
 
 /// What an error motion of a revolute axis is called (ISO 230-7): along or about its own
 /// axis it is axial motion or its angular positioning error, across it radial or tilt motion.
-fn motion_name(comp: Component, axis_direction: [f64; 3]) -> &'static str {
+pub(super) fn motion_name(comp: Component, axis_direction: [f64; 3]) -> &'static str {
     let own = along(axis_direction);
     match (
         comp.is_rotation(),
@@ -392,7 +392,7 @@ pub fn propose(
 &mut out,
                         Family::AbbeAngular,
                         target.clone(),
-                        vec![Term::new(format!("spline({}, knots {})", axis.name, sibling_knots(m, frame, own)))],
+                        vec![Term::new(format!("spline({}, {})", axis.name, knots_option(m, available, a, sibling_knots(m, frame, own))))],
                         format!("the {} carriage tilts about {} as it travels; the tool sees the tilt times its Abbe offset", axis.name, &comp.name()[1..]),
                         None,
                     );
@@ -430,7 +430,7 @@ pub fn propose(
         }
 
         // Error motions of a revolute axis at 2, 3, 4 per revolution, those whose period the
-        // data cover (once per revolution is what the location constants are).
+        // data cover (once per revolution: motions.rs, with what the location constants absorb).
         if revolute {
             let hs = available
                 .sampled
@@ -581,6 +581,9 @@ pub fn propose(
     // The error motions, reversal widths and offsets the families above leave out (the
     // coverage table of spec/diagnosis.md).
     super::motions::propose(m, available, &mut out);
+
+    // Deflection under gravity of what a tilting axis carries (gravity.rs).
+    super::gravity::propose(m, available, &mut out);
 
     // Thermal drift: a temperature input through a lag, on the tool (growth of the spindle or
     // ram) and on each prismatic axis' scale.
@@ -808,6 +811,45 @@ pub(super) fn sibling_knots(m: &Machine, frame: FrameRef, own: Var) -> usize {
         .fold(2, usize::max)
 }
 
+/// The `knots` option of a new spline with `n` knots along axis `a`: `knots n`, evenly over
+/// the declared range, when the data reach both ends of it within half a knot spacing; else `n`
+/// knots evenly over the range the data cover, written as positions (`knots at (…) UNIT`). A
+/// knot the data do not reach gives a function that is zero (or a multiple of another) on
+/// every row: the line would add a column the data cannot see and be dropped as not
+/// identifiable — a joint declared over ±360° and measured over ±90° would never get a spline.
+pub(super) fn knots_option(m: &Machine, available: &Available, a: usize, n: usize) -> String {
+    let (Some(axis), Some(Some(s))) = (m.axes.get(a), available.sampled.get(a)) else {
+        return format!("knots {n}");
+    };
+    let [lo, hi] = axis.range;
+    let spacing = (hi - lo) / (n + 1) as f64;
+    if n == 0 || (s.lo <= lo + spacing / 2.0 && s.hi >= hi - spacing / 2.0) || s.span() <= 0.0 {
+        return format!("knots {n}");
+    }
+    let unit = if axis.kind == JointKind::Revolute {
+        &m.units.angle
+    } else {
+        &m.units.length
+    };
+    let at: Vec<String> = (1..=n)
+        .map(|k| {
+            let x = s.lo + s.span() * k as f64 / (n + 1) as f64;
+            round_at(
+                unit.from_si(x),
+                unit.from_si(s.lo + s.span()) - unit.from_si(s.lo),
+            )
+            .to_string()
+        })
+        .collect();
+    format!("knots at ({}) {}", at.join(", "), unit.name)
+}
+
+/// `v` rounded to four significant digits of `span` (knot positions need no more).
+fn round_at(v: f64, span: f64) -> f64 {
+    let p = 10f64.powi(3 - span.abs().max(1e-300).log10().floor() as i32);
+    (v * p).round() / p
+}
+
 pub(super) fn round(v: f64) -> f64 {
     let p = 10f64.powi(4 - v.abs().log10().ceil().max(0.0) as i32);
     (v * p).round() / p
@@ -832,6 +874,43 @@ mod tests {
             terms,
             motion: "radial error motion".into(),
         }
+    }
+
+    /// A joint declared over ±360° and measured over ±90°: the spline's knots go where the
+    /// data are, and the line compiles; data over the whole range keep `knots N`.
+    #[test]
+    fn knots_are_placed_over_the_range_the_data_cover() {
+        let src = "machine arm {\n    task position\n    units { length mm, angle deg, error um, tilt urad }\n    axis J1 revolute about z range -360 deg .. 360 deg\n    tool chain {\n        J1 fixed\n        tool flange at (500, 0, 0) mm\n    }\n    errors {\n        J1.rz = const\n    }\n}\n";
+        let Some(c) = kin_compiler::compile(src).compiled else {
+            panic!("{src}")
+        };
+        let deg = std::f64::consts::PI / 180.0;
+        let at = |lo: f64, hi: f64| Available {
+            sampled: vec![Sampling::of(
+                (0..=36).map(|k| (lo + (hi - lo) * f64::from(k) / 36.0) * deg),
+            )],
+            ..Available::default()
+        };
+        let text = |a: &Available| {
+            propose(&c.machine, a, &[], &[])
+                .into_iter()
+                .find(|p| p.candidate.family == Family::ErrorMotion)
+                .map(|p| p.candidate.text)
+        };
+        let part = text(&at(-90.0, 90.0));
+        assert_eq!(
+            part.as_deref(),
+            Some("J1.rz += spline(J1, knots at (-30, 30) deg)")
+        );
+        let with = src.replace(
+            "J1.rz = const",
+            &format!("J1.rz = const\n        {}", part.unwrap_or_default()),
+        );
+        assert!(kin_compiler::compile(&with).compiled.is_some(), "{with}");
+        assert_eq!(
+            text(&at(-355.0, 355.0)).as_deref(),
+            Some("J1.rz += spline(J1, knots 2)")
+        );
     }
 
     #[test]

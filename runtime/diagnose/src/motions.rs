@@ -7,8 +7,8 @@ use kin_compiler::basis::Basis;
 use kin_compiler::ir::{Component, FrameRef, JointKind, Machine, Var};
 
 use super::library::{
-    along, axis_frames, frame_name, has, line, push, rotation_about, sibling_knots, uses,
-    Available, Proposal, Term,
+    along, axis_frames, frame_name, has, knots_option, line, motion_name, push, rotation_about,
+    sibling_knots, uses, Available, Proposal, Term,
 };
 use super::Family;
 
@@ -20,6 +20,8 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
         };
         let own = Var::Axis(a);
         let knots = sibling_knots(m, frame, own);
+        // The option as written: over the data's range where they do not reach the ends.
+        let knots_at = knots_option(m, available, a, knots);
         if axis.kind == JointKind::Prismatic {
             travel(
                 m,
@@ -28,7 +30,7 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                 &axis.name,
                 own,
                 along(axis.direction),
-                knots,
+                &knots_at,
                 out,
             );
         } else {
@@ -39,6 +41,13 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                 let siblings = sampled.map(|s| s.harmonics(2..=4)).unwrap_or_default();
                 for comp in [axial, angular] {
                     once_per_rev(m, frame, &name, &axis.name, comp, &siblings, out);
+                }
+                // Radial and tilt motion at once per revolution: what no location constant
+                // absorbs (see `once_per_rev`).
+                for comp in Component::ALL {
+                    if comp != axial && comp != angular {
+                        once_per_rev(m, frame, &name, &axis.name, comp, &siblings, out);
+                    }
                 }
             } else if !axis.continuous
                 && sampled.is_some()
@@ -53,7 +62,7 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                     out,
                     Family::ErrorMotion,
                     target.clone(),
-                    vec![Term::new(format!("spline({}, knots {knots})", axis.name))],
+                    vec![Term::new(format!("spline({}, {knots_at})", axis.name))],
                     format!(
                         "{target} varies over the range of {}: an angular positioning error of the axis (its encoder or drive)",
                         axis.name
@@ -77,7 +86,7 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                 // A continuous axis wraps: a reversal width linear in its angle would jump by
                 // the slope × 2π where the angle wraps.
                 if !(axis.kind == JointKind::Revolute && axis.continuous) {
-                    reversal_width(m, frame, &name, &axis.name, a, comp, knots, out);
+                    reversal_width(m, frame, &name, &axis.name, a, comp, &knots_at, out);
                 }
                 for (b, other) in m.axes.iter().enumerate() {
                     let at = available
@@ -97,6 +106,12 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
                         axis: &axis.name,
                         other: &other.name,
                         knots: sibling_knots(m, frame, Var::Axis(b)),
+                        knots_at: knots_option(
+                            m,
+                            available,
+                            b,
+                            sibling_knots(m, frame, Var::Axis(b)),
+                        ),
                         positions: at,
                     };
                     reversal_across(m, frame, &name, comp, &across, out);
@@ -118,6 +133,8 @@ struct Across<'a> {
     other: &'a str,
     /// Knots of a spline along `b` on this frame (its siblings', at least 2).
     knots: usize,
+    /// The same as the `knots` option written (over the data's range of `b` where needed).
+    knots_at: String,
     /// Positions of `b` with reversals of `a` in the data.
     positions: usize,
 }
@@ -163,8 +180,8 @@ fn reversal_across(
     // spline(B, knots N) has N + 2 functions.
     if x.positions > x.knots + 2 {
         forms.push(format!(
-            "spline({}, knots {}) * backlash({})",
-            x.other, x.knots, x.axis
+            "spline({}, {}) * backlash({})",
+            x.other, x.knots_at, x.axis
         ));
     }
     for width in forms {
@@ -199,7 +216,7 @@ fn travel(
     axis: &str,
     own: Var,
     motion: Component,
-    knots: usize,
+    knots: &str,
     out: &mut Vec<Proposal>,
 ) {
     for comp in [Component::Tx, Component::Ty, Component::Tz] {
@@ -221,7 +238,7 @@ fn travel(
                 out,
                 Family::ErrorMotion,
                 target.clone(),
-                vec![Term::new(format!("spline({axis}, knots {knots})"))],
+                vec![Term::new(format!("spline({axis}, {knots})"))],
                 format!("{target} varies along {axis}: a positioning error of the axis (its scale or leadscrew)"),
                 Some(group),
             );
@@ -230,7 +247,7 @@ fn travel(
                 out,
                 Family::ErrorMotion,
                 target.clone(),
-                vec![Term::new(format!("straightness({axis}, knots {knots})"))],
+                vec![Term::new(format!("straightness({axis}, {knots})"))],
                 format!("the {axis} carriage does not travel straight along {}: a straightness error of its guideway (the linear trend is a squareness)", &comp.name()[1..]),
                 None,
             );
@@ -238,11 +255,18 @@ fn travel(
     }
 }
 
-/// Once-per-revolution axial motion and angular positioning error of a revolute axis that
-/// covers a revolution. Unlike radial and tilt motion, which at once per revolution are the
-/// axis' location (Soons 1993, appendix B), these two are not absorbed by any constant. Offered
-/// alone and with the 2 … 4 per revolution the library tests anyway, in that candidate's
-/// group, so the reading with the better information criterion is the finding.
+/// Once-per-revolution error motion of a revolute axis that covers a revolution, on one
+/// component. Axial motion and the angular positioning error at once per revolution are not
+/// absorbed by any constant. Across the axis (radial and tilt motion) the first harmonic of
+/// the two components, written in the axis' non-rotating frame, is the sum of a vector that
+/// turns with the axis and one that turns the other way (spec/diagnosis.md derives it): a
+/// constant of what the axis carries (the workpiece's location on the table) is the first;
+/// the second is an error motion no constant absorbs. One component's first harmonic spans,
+/// with those constants, the whole counter-rotating part; what the model's constants already
+/// span is left out by the identifiability test of the diagnosis, which drops the candidate
+/// when nothing is new. Offered alone and with the 2 … 4 per revolution the library tests
+/// anyway, in that candidate's group, so the reading with the better information criterion
+/// is the finding.
 fn once_per_rev(
     m: &Machine,
     frame: FrameRef,
@@ -274,13 +298,16 @@ fn once_per_rev(
         return;
     }
     let target = format!("{name}.{}", comp.name());
-    let motion = if comp.is_rotation() {
-        "angular positioning error"
-    } else {
-        "axial error motion"
-    };
+    let motion = m
+        .axes
+        .get(a)
+        .map(|x| motion_name(comp, x.direction))
+        .unwrap_or("error motion");
     let others = !siblings.is_empty() && !has(m, frame, comp, |t| uses(t, own));
-    let group = if others {
+    // Across the axis the first harmonic is a group of its own: in the 2 … 4 line's group it
+    // would take that line's place in the list whenever neither is significant.
+    let across = matches!(motion, "radial error motion" | "tilt error motion");
+    let group = if others && !across {
         let terms: Vec<Term> = siblings.iter().map(|&h| Term::harmonic(axis, h)).collect();
         let all: Vec<&Term> = terms.iter().collect();
         line(&target, &all, true)
@@ -288,9 +315,14 @@ fn once_per_rev(
         format!("once per revolution {target}")
     };
     let first = out.len();
-    let what = format!(
-        "a {motion} of the {axis} axis at once per revolution (a tilted or eccentric bearing face, an eccentric encoder), which no location error absorbs"
-    );
+    let what = match motion {
+        "radial error motion" | "tilt error motion" => format!(
+            "a {motion} of the {axis} axis at once per revolution that does not turn with it (it turns the other way or keeps its direction: bearing races of unequal waviness, a drive pulling to one side); the part turning with the axis is the location of what it carries"
+        ),
+        _ => format!(
+            "a {motion} of the {axis} axis at once per revolution (a tilted or eccentric bearing face, an eccentric encoder), which no location error absorbs"
+        ),
+    };
     push(
         out,
         Family::RevoluteHarmonics,
@@ -340,7 +372,7 @@ fn reversal_width(
     axis: &str,
     a: usize,
     comp: Component,
-    knots: usize,
+    knots: &str,
     out: &mut Vec<Proposal>,
 ) {
     let (own, dir) = (Var::Axis(a), Var::Direction(a));
@@ -368,7 +400,7 @@ fn reversal_width(
     };
     for width in [
         format!("linear({axis}) * backlash({axis})"),
-        format!("spline({axis}, knots {knots}) * backlash({axis})"),
+        format!("spline({axis}, {knots}) * backlash({axis})"),
     ] {
         let mut terms = Vec::new();
         if !constant {

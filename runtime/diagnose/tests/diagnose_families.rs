@@ -99,6 +99,49 @@ machine cmm3t {
 }
 "#;
 
+/// A 5-axis machine with a trunnion: B tilts about y and carries a C rotary table (no time, no
+/// inputs). The model has the locations of both axis lines and of the workpiece on the table.
+const TILT: &str = r#"
+machine tilt5 {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis Y prismatic along -y range 0 mm .. 400 mm
+    axis X prismatic along -x range 0 mm .. 500 mm
+    axis Z prismatic along z range -300 mm .. 0 mm
+    axis B revolute about y range -90 deg .. 90 deg
+    axis C revolute about z continuous
+    workpiece chain {
+        Y fixed at (0, 200, 0) mm
+        X fixed at (250, 0, 120) mm
+        B fixed at (0, 0, 150) mm
+        C fixed at (0, 0, -60) mm
+        workpiece at (0, 0, 20) mm
+    }
+    tool chain {
+        Z moving at (0, 0, 700) mm
+        tool spindle at (0, 0, -150) mm
+        tool probe at (0, 0, -130) mm
+    }
+    errors {
+        X.tx = linear(X)
+        Y.ty = linear(Y)
+        Z.tz = linear(Z)
+        B.tx = const
+        B.tz = const
+        B.rx = const
+        B.rz = const
+        C.tx = const
+        C.ty = const
+        C.rx = const
+        C.ry = const
+        workpiece.tx = const
+        workpiece.ty = const
+        workpiece.rx = const
+        workpiece.ry = const
+    }
+}
+"#;
+
 /// The length of the [`TIMED`] measurement, whatever the number of rows.
 const TIMED_HOURS: f64 = 6.0;
 
@@ -109,6 +152,7 @@ enum Kind {
     Cmm,
     Mill,
     Timed,
+    Tilt,
 }
 
 /// One hidden effect: the line added to the truth (fixed non-linear values), its coefficients in
@@ -321,6 +365,28 @@ const CASES: &[Case] = &[
         values: &[8.0, -6.0],
         form: "harmonics 1)",
     },
+    Case {
+        name: "tilting table under gravity (C.tx)",
+        kind: Kind::Tilt,
+        family: Family::CrossCoupling,
+        target: "C.tx",
+        // The C table and its load on the B trunnion: gravity in the table's frame turns with
+        // B, so its radial compliance gives ≈ 1.7 µm as a·sin B + b·cos B.
+        hidden: "C.tx += sin(B) * const + cos(B) * const",
+        values: &[1.5, 0.8],
+        form: "sin(B) * const + cos(B) * const",
+    },
+    Case {
+        name: "counter-rotating tilt motion (C)",
+        kind: Kind::Tilt,
+        family: Family::RevoluteHarmonics,
+        target: "C.rx",
+        // A tilt of 5 µrad that turns against the table once per revolution: R(−C) v on
+        // (C.rx, C.ry), seen through up to ≈ 0.4 m of arm. No location constant absorbs it.
+        hidden: "C.rx, C.ry += fourier(C, harmonics 1)",
+        values: &[4.0, -3.0, -3.0, -4.0],
+        form: "harmonics 1)",
+    },
 ];
 
 fn compiled(src: &str) -> Compiled {
@@ -334,6 +400,7 @@ fn base_source(kind: Kind) -> &'static str {
         Kind::Cmm => CMM,
         Kind::Mill => MILL,
         Kind::Timed => TIMED,
+        Kind::Tilt => TILT,
     }
 }
 
@@ -720,7 +787,7 @@ fn every_family_is_found_and_fixes_the_fit() {
 fn complete_models_raise_no_false_alarm() {
     let (seeds, sizes) = plan();
     let (mut alarms, mut runs) = (0, 0);
-    for kind in [Kind::Cmm, Kind::Mill] {
+    for kind in [Kind::Cmm, Kind::Mill, Kind::Tilt] {
         for &n in &sizes {
             let mut t = Tally::default();
             for &seed in &seeds {
@@ -729,7 +796,12 @@ fn complete_models_raise_no_false_alarm() {
             report(
                 &format!(
                     "control {} n={n}",
-                    if kind == Kind::Cmm { "cmm" } else { "mill" }
+                    match kind {
+                        Kind::Cmm => "cmm",
+                        Kind::Mill => "mill",
+                        Kind::Tilt => "tilt",
+                        Kind::Timed => "timed",
+                    }
                 ),
                 &t,
             );

@@ -1,0 +1,205 @@
+//! Deflection under gravity of what a tilting rotary axis carries (spec/diagnosis.md,
+//! "Gravity on a tilting axis"). A frame that turns with a revolute axis A and with no other
+//! joint's rotation sees gravity as `R(u, q)ᵀ g`: the part of g along A's direction u stays,
+//! the part across it turns with the angle, so every component of that vector is
+//! `a + b cos q + c sin q`. A linearly compliant structure (a table on its bearing, a fixture,
+//! a head on its trunnion) deflects in proportion to the load it sees in its own frame, so each
+//! of its six parametric errors is `a + b cos q + c sin q`: the constant is a location, the two
+//! others the candidate `sin(A) * const + cos(A) * const`. Where A is vertical, g lies along u
+//! and nothing turns.
+
+use kin_compiler::ir::{Component, FrameKind, FrameRef, JointKind, Machine, Var};
+
+use super::library::{frame_name, has, push, uses, Available, Proposal, Term};
+use super::Family;
+
+/// The direction of gravity in the base frame: −z (the base's z points up).
+const GRAVITY: [f64; 3] = [0.0, 0.0, -1.0];
+
+/// An axis whose direction is within this (the sine of the angle) of gravity's is vertical:
+/// the turning part of gravity is at most this fraction of it, far below any deflection a
+/// measurement resolves against the constant part.
+const VERTICAL: f64 = 1e-3;
+
+/// Appends, for each revolute axis that is not vertical and that the data move, the sin/cos
+/// couplings on every component of each frame it carries that lacks a term in its angle.
+pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal>) {
+    let chains = [(&m.tool_chain, true), (&m.workpiece_chain, false)];
+    for (chain, tool) in chains {
+        for (j, e) in chain.iter().enumerate() {
+            let Some(axis) = m.axes.get(e.axis) else {
+                continue;
+            };
+            if axis.kind != JointKind::Revolute
+                || !available.sampled.get(e.axis).is_some_and(|s| s.is_some())
+                || m.home_direction(e.axis)
+                    .is_none_or(|u| across(u, GRAVITY) <= VERTICAL)
+            {
+                continue;
+            }
+            for frame in carried(m, chain, j, tool) {
+                let Some(name) = frame_name(m, frame) else {
+                    continue;
+                };
+                for comp in Component::ALL {
+                    if has(m, frame, comp, |t| uses(t, Var::Axis(e.axis))) {
+                        continue;
+                    }
+                    let target = format!("{name}.{}", comp.name());
+                    push(
+                        out,
+                        Family::CrossCoupling,
+                        target.clone(),
+                        vec![
+                            Term::new(format!("sin({}) * const", axis.name)),
+                            Term::new(format!("cos({}) * const", axis.name)),
+                        ],
+                        format!(
+                            "{target} deflects under the weight {} carries: tilting {} turns gravity in the frame of what it carries, so a compliant structure deflects as a·sin {} + b·cos {}",
+                            axis.name, axis.name, axis.name, axis.name
+                        ),
+                        None,
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The frames that turn with the joint of element `j` and with no other rotation: its own when
+/// it is `moving` (placed after its joint), the later elements' up to and including the first
+/// later revolute one that is `fixed` (placed before its own joint), and the chain's end when no
+/// later revolute joint lies between (spec/kinematics.md: a moving frame sits after its joint,
+/// a fixed one before it).
+fn carried(
+    m: &Machine,
+    chain: &[kin_compiler::ir::Element],
+    j: usize,
+    tool: bool,
+) -> Vec<FrameRef> {
+    let at = |k: usize| {
+        if tool {
+            FrameRef::Tool(k)
+        } else {
+            FrameRef::Workpiece(k)
+        }
+    };
+    let mut out = Vec::new();
+    if chain.get(j).is_some_and(|e| e.frame == FrameKind::Moving) {
+        out.push(at(j));
+    }
+    for (k, e) in chain.iter().enumerate().skip(j + 1) {
+        let revolute = m
+            .axes
+            .get(e.axis)
+            .is_some_and(|a| a.kind == JointKind::Revolute);
+        if !revolute {
+            out.push(at(k));
+            continue;
+        }
+        // A later revolute joint: its fixed frame still turns only with j's; beyond it,
+        // gravity also turns with its angle.
+        if e.frame == FrameKind::Fixed {
+            out.push(at(k));
+        }
+        return out;
+    }
+    out.push(if tool {
+        FrameRef::ToolEnd(None)
+    } else {
+        FrameRef::WorkpieceEnd
+    });
+    out
+}
+
+/// `|a × b|` of two unit vectors: the sine of the angle between them.
+fn across(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let c = [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ];
+    (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use kin_compiler::compile;
+
+    use super::super::library::Sampling;
+    use super::*;
+
+    fn machine(b_about: &str) -> Machine {
+        let src = format!(
+            r#"
+machine trunnion {{
+    task position
+    units {{ length mm, angle deg, error um, tilt urad }}
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis B revolute about {b_about} range -90 deg .. 90 deg
+    axis C revolute about z continuous
+    workpiece chain {{
+        X fixed
+        B fixed at (0, 0, 100) mm
+        C fixed at (0, 0, 50) mm
+        workpiece at (0, 0, 0) mm
+    }}
+    tool chain {{
+        tool probe at (0, 0, 300) mm
+    }}
+    errors {{
+        C.tx = const + linear(B)
+    }}
+}}
+"#
+        );
+        match compile(&src).compiled {
+            Some(c) => c.machine,
+            None => panic!("{src}"),
+        }
+    }
+
+    fn targets(m: &Machine) -> Vec<String> {
+        let available = Available {
+            sampled: m
+                .axes
+                .iter()
+                .map(|a| {
+                    Sampling::of(
+                        [a.range[0], 0.5 * (a.range[0] + a.range[1]), a.range[1]].into_iter(),
+                    )
+                })
+                .collect(),
+            ..Available::default()
+        };
+        let mut out = Vec::new();
+        propose(m, &available, &mut out);
+        out.iter().map(|p| p.candidate.text.clone()).collect()
+    }
+
+    /// A B axis about y carries the C table's fixed frame, which turns with B only; the
+    /// workpiece also turns with C, so its gravity depends on both angles and it is left out.
+    /// A component with a term in B already (`linear(B)`) gets none.
+    #[test]
+    fn a_tilting_table_carries_the_rotary_tables_frame() {
+        let t = targets(&machine("y"));
+        assert!(
+            t.contains(&"C.tz += sin(B) * const + cos(B) * const".to_string()),
+            "{t:?}"
+        );
+        assert!(
+            t.contains(&"C.rx += sin(B) * const + cos(B) * const".to_string()),
+            "{t:?}"
+        );
+        assert_eq!(t.len(), 5, "{t:?}");
+        assert!(t
+            .iter()
+            .all(|x| x.starts_with("C.") && !x.starts_with("C.tx")));
+    }
+
+    /// A vertical axis turns nothing of gravity: no candidate.
+    #[test]
+    fn a_vertical_axis_gets_none() {
+        assert!(targets(&machine("z")).iter().all(|t| !t.contains("(B)")));
+    }
+}

@@ -112,7 +112,9 @@ pub fn noise_arg(text: &str) -> Result<NoiseArg, String> {
 }
 
 /// The σ for every file (at most one) and the per-file ones of repeated `--noise`.
-pub fn split_noise(args: Vec<NoiseArg>) -> Result<(Option<Spread>, Vec<(PathBuf, Spread)>), String> {
+pub fn split_noise(
+    args: Vec<NoiseArg>,
+) -> Result<(Option<Spread>, Vec<(PathBuf, Spread)>), String> {
     let mut all = None;
     let mut files = Vec::new();
     for a in args {

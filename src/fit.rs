@@ -186,9 +186,8 @@ fn streams(a: &FitArgs) -> bool {
     }
     // So are they when a file states its own in its header (or its header is bad: the
     // whole-file path reports it).
-    let header = |d: &PathBuf| {
-        kin_data::data::noise::stated_noise(d).map_or(true, |n| !n.is_empty())
-    };
+    let header =
+        |d: &PathBuf| kin_data::data::noise::stated_noise(d).map_or(true, |n| !n.is_empty());
     if a.data.iter().any(header) {
         return false;
     }

@@ -962,28 +962,28 @@ fn run(command: Command) -> ExitCode {
                 }
             };
             fit::run(
-            fit::FitArgs {
-                machine,
-                data,
-                validate,
-                output,
-                solver,
-                tolerance,
-                min_norm,
-                stepwise,
-                enter,
-                holdout,
-                seed,
-                noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
-                file_noise,
-                noise_per_file,
-                engine,
-                threads,
-                ignore: ignore.options(),
-                color: color.enabled(),
-            },
-            format,
-        )
+                fit::FitArgs {
+                    machine,
+                    data,
+                    validate,
+                    output,
+                    solver,
+                    tolerance,
+                    min_norm,
+                    stepwise,
+                    enter,
+                    holdout,
+                    seed,
+                    noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
+                    file_noise,
+                    noise_per_file,
+                    engine,
+                    threads,
+                    ignore: ignore.options(),
+                    color: color.enabled(),
+                },
+                format,
+            )
         }
         Command::Demo { dir, rounds, color } => demo::run(dir, rounds, color.enabled()),
         Command::Diagnose {
@@ -1010,39 +1010,39 @@ fn run(command: Command) -> ExitCode {
                 }
             };
             diagnose::run(diagnose::DiagnoseArgs {
-            fit: fit::FitArgs {
-                machine,
-                data,
-                validate: Vec::new(),
-                output: None,
-                solver: fit::SolverArg::Qr,
-                tolerance: 1e-10,
-                // A model the data do not fully determine is diagnosed on its determined part
-                // (its undetermined coefficients are marked so), not refused.
-                min_norm: true,
-                stepwise: None,
-                enter: None,
-                holdout: None,
-                seed: 0,
-                // Every fit of the diagnosis weighs its rows by the stated noise, kind by kind
-                // (positions and lengths by --noise, rotations by --noise-tilt).
-                noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
-                file_noise,
-                noise_per_file,
-                engine,
-                threads: None,
-                ignore: ignore.options(),
-                color: color.enabled(),
-            },
-            alpha,
-            output,
-            apply,
-            force,
-            dry_run,
-            noise,
-            noise_tilt,
-            format,
-        })
+                fit: fit::FitArgs {
+                    machine,
+                    data,
+                    validate: Vec::new(),
+                    output: None,
+                    solver: fit::SolverArg::Qr,
+                    tolerance: 1e-10,
+                    // A model the data do not fully determine is diagnosed on its determined part
+                    // (its undetermined coefficients are marked so), not refused.
+                    min_norm: true,
+                    stepwise: None,
+                    enter: None,
+                    holdout: None,
+                    seed: 0,
+                    // Every fit of the diagnosis weighs its rows by the stated noise, kind by kind
+                    // (positions and lengths by --noise, rotations by --noise-tilt).
+                    noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
+                    file_noise,
+                    noise_per_file,
+                    engine,
+                    threads: None,
+                    ignore: ignore.options(),
+                    color: color.enabled(),
+                },
+                alpha,
+                output,
+                apply,
+                force,
+                dry_run,
+                noise,
+                noise_tilt,
+                format,
+            })
         }
         Command::Predict {
             machine,

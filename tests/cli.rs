@@ -856,7 +856,15 @@ fn fit_weighs_each_file_by_its_own_noise() {
     for (name, noise, seed) in [("laser.csv", "0.1um", "3"), ("tracker.csv", "2um", "4")] {
         let p = dir.join(name);
         let out = kin(&[
-            "simulate", model_arg, "--sample", "400", "--noise", noise, "--seed", seed, "-o",
+            "simulate",
+            model_arg,
+            "--sample",
+            "400",
+            "--noise",
+            noise,
+            "--seed",
+            seed,
+            "-o",
             p.to_str().unwrap(),
         ]);
         assert!(out.status.success(), "{}", text(&out.stderr));

@@ -11,12 +11,12 @@ use thiserror::Error;
 use super::library::{self, Available, Proposal, Sampling};
 use super::{pass, periodic, refit, spectrum};
 use super::{
-    Bin, Candidate, ChiSquare, Diagnosis, Family, FileSigma, Finding, NoiseCheck, Outlier, Plausibility,
-    Region, Spectrum,
+    Bin, Candidate, ChiSquare, Diagnosis, Family, FileSigma, Finding, NoiseCheck, Outlier,
+    Plausibility, Region, Spectrum,
 };
 use kin_data::data::Observations;
-use kin_estimate::fit::report::{component_name, model_hash};
 use kin_estimate::fit::components::RowKind;
+use kin_estimate::fit::report::{component_name, model_hash};
 use kin_estimate::fit::{self, DataSet, FitResult, Layout, Weights, LENGTH};
 
 #[derive(Debug, Error)]

@@ -108,11 +108,7 @@ fn warmup(n: usize) -> (Vec<f64>, Vec<f64>) {
 
 /// Poses of `n` rows for `kind`: directions of motion for every axis, and on the CMM time, the
 /// temperature rise and a load (changed every 20 rows).
-fn poses(
-    m: &kin_compiler::ir::Machine,
-    n: usize,
-    seed: u64,
-) -> kin_data::data::PointData {
+fn poses(m: &kin_compiler::ir::Machine, n: usize, seed: u64) -> kin_data::data::PointData {
     let mut p = sample_points(m, n, seed);
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0xd1);
     for d in p.pose.dir.iter_mut() {
@@ -486,7 +482,10 @@ fn one_sigma_for_both_files_hides_the_precise_files_gross_errors() {
     let own = fit_model(&base, &files, &per_file()).expect("fit");
     let (one_flagged, _) = flagged(&one, &gross);
     let (own_flagged, _) = flagged(&own, &gross);
-    assert!(!one_flagged[0], "one σ flagged the precise file's gross errors");
+    assert!(
+        !one_flagged[0],
+        "one σ flagged the precise file's gross errors"
+    );
     assert_eq!(own_flagged, [true, true]);
     let r = ratios(&own);
     assert!(r.iter().all(|x| (0.9..=1.1).contains(x)), "σ̂/σ {r:?}");

@@ -46,7 +46,10 @@ pub enum NoiseHeaderError {
 pub struct IoText(String);
 
 /// The keys, the dimension of their value and what they set.
-const KEYS: [(&str, Dim, bool); 2] = [("noise-tilt", Dim::ANGLE, true), ("noise", Dim::LENGTH, false)];
+const KEYS: [(&str, Dim, bool); 2] = [
+    ("noise-tilt", Dim::ANGLE, true),
+    ("noise", Dim::LENGTH, false),
+];
 
 /// Reads the stated noise from the comments before the header of the file at `path` (only
 /// those lines are read: a file of gigabytes costs its first lines).
@@ -173,14 +176,37 @@ mod tests {
     fn a_bad_value_is_located() {
         let e = read("# a\n# noise: 0.1 urad\nX[mm]\n");
         assert!(
-            matches!(&e, Err(NoiseHeaderError::Value { line: 2, column: 10, .. })),
+            matches!(
+                &e,
+                Err(NoiseHeaderError::Value {
+                    line: 2,
+                    column: 10,
+                    ..
+                })
+            ),
             "{e:?}"
         );
         let e = read("# noise: 0 um\nX[mm]\n");
-        assert!(matches!(&e, Err(NoiseHeaderError::Value { line: 1, .. })), "{e:?}");
+        assert!(
+            matches!(&e, Err(NoiseHeaderError::Value { line: 1, .. })),
+            "{e:?}"
+        );
         let e = read("# noise: 1 um\n# noise: 2 um\nX[mm]\n");
-        assert!(matches!(&e, Err(NoiseHeaderError::Value { line: 2, .. })), "{e:?}");
+        assert!(
+            matches!(&e, Err(NoiseHeaderError::Value { line: 2, .. })),
+            "{e:?}"
+        );
         let e = read("# noise: fast\nX[mm]\n");
-        assert!(matches!(&e, Err(NoiseHeaderError::Value { line: 1, column: 10, .. })), "{e:?}");
+        assert!(
+            matches!(
+                &e,
+                Err(NoiseHeaderError::Value {
+                    line: 1,
+                    column: 10,
+                    ..
+                })
+            ),
+            "{e:?}"
+        );
     }
 }

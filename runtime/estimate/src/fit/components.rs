@@ -156,10 +156,9 @@ pub(crate) fn fit(
                 if fixed || s.rows == 0 {
                     continue;
                 }
-                if let (Some(rho), Some(slot)) = (
-                    ratio(s, scale),
-                    next.get_mut(f).and_then(|x| x.get_mut(g)),
-                ) {
+                if let (Some(rho), Some(slot)) =
+                    (ratio(s, scale), next.get_mut(f).and_then(|x| x.get_mut(g)))
+                {
                     moved = moved.max((rho - 1.0).abs());
                     *slot *= rho;
                 }
@@ -196,7 +195,11 @@ fn components(
                 } else {
                     RowKind::Rotation
                 },
-                sigma: sigma.get(f).and_then(|x| x.get(g)).copied().unwrap_or(f64::NAN),
+                sigma: sigma
+                    .get(f)
+                    .and_then(|x| x.get(g))
+                    .copied()
+                    .unwrap_or(f64::NAN),
                 stated: stated.get(f).and_then(|x| x[g]).is_some(),
                 ratio: ratio(s, scale).unwrap_or(f64::NAN),
                 rows: s.rows,
@@ -207,4 +210,3 @@ fn components(
     }
     out
 }
-

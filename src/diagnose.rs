@@ -307,7 +307,12 @@ fn replace(path: &Path, base: &str, revised: &str, keep: bool) -> Result<(), Fai
 /// The terminal report: where, then against the noise, then what.
 pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     let u = &d.error_unit;
-    let mut s = if d.weighted {
+    let mut s = if !d.noise_per_file.is_empty() {
+        format!(
+            "diagnosis of `{}`: σ̂/σ = {:.4}, residual RMS {:.4} σ (every fit weighs each row by its own file's σ)\n",
+            d.machine, sigma, rms
+        )
+    } else if d.weighted {
         format!(
             "diagnosis of `{}`: σ̂/σ = {:.4}, residual RMS {:.4} σ (every fit weighs each row by its stated noise)\n",
             d.machine, sigma, rms

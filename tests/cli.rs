@@ -910,6 +910,17 @@ fn fit_weighs_each_file_by_its_own_noise() {
     let out = kin(&["fit", model_arg, laser, "--noise", "other.csv=1um"]);
     assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
 
+    // The diagnosis weighs each file by its own σ and lists each file's σ̂ against its noise.
+    let out = kin(&["diagnose", model_arg, laser, tracker, "--noise", &flag]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    assert!(s.contains("its own file's σ"), "{s}");
+    assert!(s.contains("its stated σ = 0.1000 um"), "{s}");
+    assert!(
+        s.contains("estimated by the fit (no noise stated for it)"),
+        "{s}"
+    );
+
     let bad = dir.join("laser_bad.csv");
     std::fs::write(&bad, format!("# laser\n# noise: 0.1 urad\n{body}")).unwrap();
     let out = kin(&["fit", model_arg, bad.to_str().unwrap(), tracker]);

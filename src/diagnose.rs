@@ -307,7 +307,7 @@ fn replace(path: &Path, base: &str, revised: &str, keep: bool) -> Result<(), Fai
 /// The terminal report: where, then against the noise, then what.
 pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     let u = &d.error_unit;
-    let mut s = if !d.noise_per_file.is_empty() {
+    let mut s = if !d.noise.per_file.is_empty() {
         format!(
             "diagnosis of `{}`: σ̂/σ = {:.4}, residual RMS {:.4} σ (every fit weighs each row by its own file's σ)\n",
             d.machine, sigma, rms
@@ -368,7 +368,7 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     s.push_str("\nagainst the noise\n");
     s.push_str(&format!("  {}\n", noise_line(d)));
     // With a σ per file: each file's scatter against its own noise.
-    for f in &d.noise_per_file {
+    for f in &d.noise.per_file {
         let kind = match f.kind {
             kin_estimate::fit::components::RowKind::Position => "positions",
             kin_estimate::fit::components::RowKind::Rotation => "rotations",
@@ -481,7 +481,7 @@ fn noise_line(d: &Diagnosis) -> String {
                 "more than the instrument explains"
             }
         ),
-        None if !d.noise_per_file.is_empty() => {
+        None if !d.noise.per_file.is_empty() => {
             "no file's noise stated: each file's σ is estimated by the fit and every row judged against its own file's σ̂ (below)".to_string()
         }
         None => format!(

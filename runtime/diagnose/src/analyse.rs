@@ -173,10 +173,12 @@ pub fn diagnose(
         bins,
         spectra,
         findings,
-        noise: noise_check(m, &rows, base, settings),
+        noise: NoiseCheck {
+            per_file: noise_per_file(m, files, base),
+            ..noise_check(m, &rows, base, settings)
+        },
         outliers: outliers(m, files, base),
         weighted: base.layout.weights.stated,
-        noise_per_file: noise_per_file(m, files, base),
     })
 }
 
@@ -407,6 +409,7 @@ fn noise_check(
         stated_tilt: settings.noise_tilt.map(|v| v / m.units.tilt.scale),
         chi2,
         lack_of_fit,
+        per_file: Vec::new(),
     }
 }
 

@@ -140,6 +140,10 @@ pub struct NoiseCheck {
     pub chi2: Option<ChiSquare>,
     /// Lack of fit against the scatter of repeated poses.
     pub lack_of_fit: Option<LackOfFit>,
+    /// With a σ per file: each file's σ̂ per kind of row against its noise (stated, or
+    /// estimated by the base fit). Every fit of the diagnosis weighs the file's rows by it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_file: Vec<FileSigma>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -223,10 +227,6 @@ pub struct Diagnosis {
     /// weighted by the stated noise (`--noise`, `--noise-tilt`).
     #[serde(default)]
     pub weighted: bool,
-    /// With a σ per file: each file's σ̂ per kind of row against its noise (stated, or
-    /// estimated by the base fit). Every fit of the diagnosis weighs the file's rows by it.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub noise_per_file: Vec<FileSigma>,
 }
 
 /// One file's scatter of one kind of row against its noise.

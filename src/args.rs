@@ -111,10 +111,11 @@ pub fn noise_arg(text: &str) -> Result<NoiseArg, String> {
     }
 }
 
+/// `--noise FILE=Q` values: each file with its σ.
+pub type FileNoise = Vec<(PathBuf, Spread)>;
+
 /// The σ for every file (at most one) and the per-file ones of repeated `--noise`.
-pub fn split_noise(
-    args: Vec<NoiseArg>,
-) -> Result<(Option<Spread>, Vec<(PathBuf, Spread)>), String> {
+pub fn split_noise(args: Vec<NoiseArg>) -> Result<(Option<Spread>, FileNoise), String> {
     let mut all = None;
     let mut files = Vec::new();
     for a in args {

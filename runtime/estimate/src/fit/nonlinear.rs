@@ -1748,7 +1748,7 @@ machine m {
                     &files,
                     &states,
                     &values,
-                    None,
+                    (None, &[]),
                     Differences {
                         moving,
                         beta: &beta,
@@ -2059,7 +2059,7 @@ machine m {
             let mut held = None;
             for (i, v) in steps.iter().enumerate() {
                 let (st, _) = team
-                    .at_values(&c.machine, &files, v, None)
+                    .at_values(&c.machine, &files, v, (None, &[]))
                     .expect("at values");
                 assert_eq!(lags(&st), fresh(v), "step {i}");
                 if i == 1 {

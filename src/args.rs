@@ -3,6 +3,8 @@
 //! message naming the option and what it accepts (clap prefixes the option's name; exit 2)
 //! instead of being ignored or reaching code that would misbehave on it.
 
+use std::path::PathBuf;
+
 use kin_compiler::units::Dim;
 
 /// At most this many poses for `kin simulate --sample` and `kin bench --poses`: every pose is
@@ -85,6 +87,47 @@ pub fn rounds(text: &str) -> Result<usize, String> {
 pub struct Spread {
     pub text: String,
     pub si: f64,
+}
+
+/// `--noise Q` (every file) or `--noise FILE=Q` (one data file's positions and lengths).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NoiseArg {
+    pub file: Option<PathBuf>,
+    pub spread: Spread,
+}
+
+/// A `--noise` value: a σ above 0, for every file or, as `FILE=Q`, for one (the last `=`
+/// separates them: a quantity holds none).
+pub fn noise_arg(text: &str) -> Result<NoiseArg, String> {
+    match text.rsplit_once('=') {
+        Some((file, q)) if !file.is_empty() => Ok(NoiseArg {
+            file: Some(PathBuf::from(file)),
+            spread: stated_length_noise(q)?,
+        }),
+        _ => Ok(NoiseArg {
+            file: None,
+            spread: stated_length_noise(text.trim_start_matches('='))?,
+        }),
+    }
+}
+
+/// `--noise FILE=Q` values: each file with its σ.
+pub type FileNoise = Vec<(PathBuf, Spread)>;
+
+/// The σ for every file (at most one) and the per-file ones of repeated `--noise`.
+pub fn split_noise(args: Vec<NoiseArg>) -> Result<(Option<Spread>, FileNoise), String> {
+    let mut all = None;
+    let mut files = Vec::new();
+    for a in args {
+        match a.file {
+            Some(f) => files.push((f, a.spread)),
+            None if all.is_some() => {
+                return Err("--noise for every file is given twice".into());
+            }
+            None => all = Some(a.spread),
+        }
+    }
+    Ok((all, files))
 }
 
 /// A positive duration with its unit, e.g. `1min`, `30 s` (`kin simulate --every`).

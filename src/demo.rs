@@ -98,6 +98,8 @@ fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> 
         holdout: None,
         seed: 0,
         noise: None,
+        file_noise: Vec::new(),
+        noise_per_file: false,
         threads: None,
         engine: kin_model::engine::Engine::default(),
         ignore: Default::default(),

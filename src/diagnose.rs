@@ -307,7 +307,12 @@ fn replace(path: &Path, base: &str, revised: &str, keep: bool) -> Result<(), Fai
 /// The terminal report: where, then against the noise, then what.
 pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     let u = &d.error_unit;
-    let mut s = if d.weighted {
+    let mut s = if !d.noise.per_file.is_empty() {
+        format!(
+            "diagnosis of `{}`: σ̂/σ = {:.4}, residual RMS {:.4} σ (every fit weighs each row by its own file's σ)\n",
+            d.machine, sigma, rms
+        )
+    } else if d.weighted {
         format!(
             "diagnosis of `{}`: σ̂/σ = {:.4}, residual RMS {:.4} σ (every fit weighs each row by its stated noise)\n",
             d.machine, sigma, rms
@@ -362,6 +367,32 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
     }
     s.push_str("\nagainst the noise\n");
     s.push_str(&format!("  {}\n", noise_line(d)));
+    // With a σ per file: each file's scatter against its own noise.
+    for f in &d.noise.per_file {
+        let kind = match f.kind {
+            kin_estimate::fit::components::RowKind::Position => "positions",
+            kin_estimate::fit::components::RowKind::Rotation => "rotations",
+        };
+        let against = match f.p {
+            Some(p) if f.stated => format!(
+                "{:.2}× its stated σ = {:.4} {} (χ² p {}): {}",
+                f.ratio,
+                f.sigma,
+                f.unit,
+                pvalue(p),
+                if p >= d.alpha {
+                    "down to its noise"
+                } else {
+                    "more than its instrument explains"
+                }
+            ),
+            _ => "its σ, estimated by the fit (no noise stated for it)".to_string(),
+        };
+        s.push_str(&format!(
+            "  {} {kind}: σ̂ = {:.4} {}, {against}; {} outliers of {} rows\n",
+            f.file, f.sigma_hat, f.unit, f.outliers, f.rows
+        ));
+    }
     if let Some(l) = &d.noise.lack_of_fit {
         s.push_str(&format!(
             "  {} repeated poses ({} rows): pure-error σ = {:.4} {u}; lack of fit F = {:.2}, p {}{}\n",
@@ -450,6 +481,9 @@ fn noise_line(d: &Diagnosis) -> String {
                 "more than the instrument explains"
             }
         ),
+        None if !d.noise.per_file.is_empty() => {
+            "no file's noise stated: each file's σ is estimated by the fit and every row judged against its own file's σ̂ (below)".to_string()
+        }
         None => format!(
             "no instrument noise stated (--noise, --noise-tilt): the tests are relative to the model's own residual scatter σ̂ = {:.4} {u}",
             d.sigma

@@ -30,6 +30,10 @@ pub struct FitArgs {
     pub seed: u64,
     /// The instrument's stated noise: rows are weighted by it.
     pub noise: Option<fit::Noise>,
+    /// `--noise FILE=Q`: a data file's own σ of positions and lengths.
+    pub file_noise: Vec<(PathBuf, crate::args::Spread)>,
+    /// `--noise-per-file`: estimate a σ per file where none is stated.
+    pub noise_per_file: bool,
     pub engine: kin_model::engine::Engine,
     /// Threads of the fit (`--threads`); every core when `None`.
     pub threads: Option<usize>,
@@ -176,6 +180,17 @@ fn streams(a: &FitArgs) -> bool {
     if !a.validate.is_empty() || a.holdout.is_some() || a.noise.is_some() {
         return false;
     }
+    // σs per file are estimated by refitting (the whole-file path does it).
+    if a.noise_per_file || !a.file_noise.is_empty() {
+        return false;
+    }
+    // So are they when a file states its own in its header (or its header is bad: the
+    // whole-file path reports it).
+    let header =
+        |d: &PathBuf| kin_data::data::noise::stated_noise(d).map_or(true, |n| !n.is_empty());
+    if a.data.iter().any(header) {
+        return false;
+    }
     let mut total = 0u64;
     for path in &a.data {
         match std::fs::metadata(path) {
@@ -267,6 +282,60 @@ fn options(a: &FitArgs) -> Options {
     }
 }
 
+/// Each data file's own σs (`--noise FILE=Q` over its `# noise:` header lines), and whether σs
+/// are estimated per file: when any file states one, or with `--noise-per-file`. Without
+/// either, nothing per file: the fit is the one of `--noise` alone, bit for bit.
+fn per_file_noise(a: &FitArgs) -> Result<(Vec<fit::Noise>, bool), Failed> {
+    for (path, _) in &a.file_noise {
+        if !a.data.iter().any(|d| same_file(d, path)) {
+            eprintln!(
+                "error: --noise {}=…: no data file of the fit is {}",
+                path.display(),
+                path.display()
+            );
+            return Err(Failed::USAGE);
+        }
+    }
+    let mut out = Vec::with_capacity(a.data.len());
+    for d in &a.data {
+        // A pipe or a missing file has no header to read here: the reader reports it.
+        let header = if std::fs::metadata(d).is_ok_and(|m| m.is_file()) {
+            kin_data::data::noise::stated_noise(d).map_err(|e| {
+                eprintln!("error: {e}");
+                Failed::INPUT
+            })?
+        } else {
+            kin_data::data::noise::StatedNoise::default()
+        };
+        let flag = a
+            .file_noise
+            .iter()
+            .rev()
+            .find(|(p, _)| same_file(d, p))
+            .map(|(_, s)| s.si);
+        out.push(fit::Noise {
+            position: flag.or(header.position),
+            rotation: header.rotation,
+        });
+    }
+    let stated = out
+        .iter()
+        .any(|n| n.position.is_some() || n.rotation.is_some());
+    if !stated && !a.noise_per_file {
+        return Ok((Vec::new(), false));
+    }
+    Ok((out, true))
+}
+
+/// Whether two paths name one file (as given, or after resolving both).
+fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    a == b
+        || matches!(
+            (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+            (Ok(x), Ok(y)) if x == y
+        )
+}
+
 /// Prints why a fit failed: a rank-deficient design with the invisible combinations located
 /// in the model.
 fn fit_failed(a: &FitArgs, source: &str, e: FitError) -> Failed {
@@ -312,7 +381,8 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         }
         None => files,
     };
-    let options = options(a);
+    let mut options = options(a);
+    (options.file_noise, options.components) = per_file_noise(a)?;
     let total = fit::count_rows(&files) as u64;
     let bar = ProgressBar::new(2 * total);
     crate::warnings::hush(&bar);
@@ -731,11 +801,61 @@ pub fn mixed_units(r: &report::FitReport) -> Option<String> {
     ))
 }
 
+/// σ̂ of a fit with a σ per file: the overall ratios, then each file's σ (stated or
+/// estimated) and its σ̂.
+fn per_file_lines(r: &report::FitReport, per: &report::NoisePerFile) -> String {
+    let mut out = format!(
+        "  σ̂/σ = {:.4}   RMS {:.4} σ   max {:.4} σ   R² = {:.6}   (every row divided by its own file's σ)\n",
+        r.sigma, r.rms, r.max, r.r2
+    );
+    let how = if per.converged {
+        format!("{} weighted fits", per.iterations)
+    } else {
+        format!(
+            "not settled after {} weighted fits: the σs below are the last ones",
+            per.iterations
+        )
+    };
+    out.push_str(&format!("  noise per file ({how}):\n"));
+    for f in &per.files {
+        let kind = match f.kind {
+            fit::components::RowKind::Position => "positions",
+            fit::components::RowKind::Rotation => "rotations",
+        };
+        let line = if f.stated {
+            format!(
+                "    {:<24} {kind:<9} σ = {:.4} {u} stated    σ̂ = {:.4} {u} (σ̂/σ = {:.3})",
+                f.file,
+                f.sigma,
+                f.sigma_hat,
+                f.ratio,
+                u = f.unit
+            )
+        } else {
+            format!(
+                "    {:<24} {kind:<9} σ̂ = {:.4} {u} estimated",
+                f.file,
+                f.sigma,
+                u = f.unit
+            )
+        };
+        out.push_str(&line);
+        out.push_str(&format!(
+            "   {} rows, {:.1} degrees of freedom, {} outliers\n",
+            f.rows, f.redundancy, f.outliers
+        ));
+    }
+    out
+}
+
 /// σ̂, RMS and max, saying what they are: ratios to the stated noise, with its χ² test; in the
 /// error unit; or, for mixed rows without a stated noise, in the error unit for positions and
 /// the tilt unit for rotations (one tilt unit weighing as one error unit).
 fn sigma_line(r: &report::FitReport) -> String {
     let u = &r.error_unit;
+    if let Some(per) = &r.noise_per_file {
+        return per_file_lines(r, per);
+    }
     if let Some(w) = &r.weights {
         let mut stated = Vec::new();
         if let Some(p) = w.position {

@@ -232,9 +232,15 @@ enum Command {
         seed: u64,
         /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: every
         /// row is divided by its stated noise (weighted least squares), σ̂ becomes σ̂/σ and is
-        /// tested against 1 (χ²). Rotation rows then need --noise-tilt.
-        #[arg(long, value_name = "Q", value_parser = args::stated_length_noise, allow_hyphen_values = true)]
-        noise: Option<Spread>,
+        /// tested against 1 (χ²). Rotation rows then need --noise-tilt. `FILE=Q` (repeatable)
+        /// states one data file's own σ, as a `# noise: Q` line above its header does; files
+        /// without one then get a σ estimated per file (spec/cli.md, "Noise per file").
+        #[arg(long, value_name = "[FILE=]Q", value_parser = args::noise_arg, allow_hyphen_values = true)]
+        noise: Vec<args::NoiseArg>,
+        /// Estimate a σ per data file (and kind of row) wherever none is stated: variance
+        /// components, reweighted until stable, each file's rows weighed by its own σ.
+        #[arg(long)]
+        noise_per_file: bool,
         /// The instrument's standard deviation on rotations, e.g. `1urad`.
         #[arg(long, value_name = "Q", value_parser = args::stated_angle_noise, allow_hyphen_values = true)]
         noise_tilt: Option<Spread>,
@@ -302,9 +308,16 @@ enum Command {
         /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: every fit
         /// of the diagnosis divides each row by its kind's σ (weighted least squares), and the
         /// residuals are judged against it (χ² test, region tests) instead of against the
-        /// fit's own σ̂; only then can the verdict be "down to the noise".
-        #[arg(long, value_name = "Q", value_parser = args::stated_length_noise, allow_hyphen_values = true)]
-        noise: Option<Spread>,
+        /// fit's own σ̂; only then can the verdict be "down to the noise". `FILE=Q`
+        /// (repeatable) states one data file's own σ, as a `# noise: Q` line above its header
+        /// does; the other files' σs are then estimated per file, every fit of the diagnosis
+        /// weighs each file by its own, and outliers are judged against it.
+        #[arg(long, value_name = "[FILE=]Q", value_parser = args::noise_arg, allow_hyphen_values = true)]
+        noise: Vec<args::NoiseArg>,
+        /// Estimate a σ per data file (and kind of row) wherever none is stated, and weigh
+        /// every fit of the diagnosis by it.
+        #[arg(long)]
+        noise_per_file: bool,
         /// The instrument's standard deviation on rotations, e.g. `20urad` (pose data need both).
         #[arg(long, value_name = "Q", value_parser = args::stated_angle_noise, allow_hyphen_values = true)]
         noise_tilt: Option<Spread>,
@@ -933,33 +946,45 @@ fn run(command: Command) -> ExitCode {
             holdout,
             seed,
             noise,
+            noise_per_file,
             noise_tilt,
             engine,
             threads,
             ignore,
             color,
             format,
-        } => fit::run(
-            fit::FitArgs {
-                machine,
-                data,
-                validate,
-                output,
-                solver,
-                tolerance,
-                min_norm,
-                stepwise,
-                enter,
-                holdout,
-                seed,
-                noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
-                engine,
-                threads,
-                ignore: ignore.options(),
-                color: color.enabled(),
-            },
-            format,
-        ),
+        } => {
+            let (noise, file_noise) = match args::split_noise(noise) {
+                Ok(n) => n,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            fit::run(
+                fit::FitArgs {
+                    machine,
+                    data,
+                    validate,
+                    output,
+                    solver,
+                    tolerance,
+                    min_norm,
+                    stepwise,
+                    enter,
+                    holdout,
+                    seed,
+                    noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
+                    file_noise,
+                    noise_per_file,
+                    engine,
+                    threads,
+                    ignore: ignore.options(),
+                    color: color.enabled(),
+                },
+                format,
+            )
+        }
         Command::Demo { dir, rounds, color } => demo::run(dir, rounds, color.enabled()),
         Command::Diagnose {
             machine,
@@ -970,43 +995,55 @@ fn run(command: Command) -> ExitCode {
             force,
             dry_run,
             noise,
+            noise_per_file,
             noise_tilt,
             engine,
             ignore,
             color,
             format,
-        } => diagnose::run(diagnose::DiagnoseArgs {
-            fit: fit::FitArgs {
-                machine,
-                data,
-                validate: Vec::new(),
-                output: None,
-                solver: fit::SolverArg::Qr,
-                tolerance: 1e-10,
-                // A model the data do not fully determine is diagnosed on its determined part
-                // (its undetermined coefficients are marked so), not refused.
-                min_norm: true,
-                stepwise: None,
-                enter: None,
-                holdout: None,
-                seed: 0,
-                // Every fit of the diagnosis weighs its rows by the stated noise, kind by kind
-                // (positions and lengths by --noise, rotations by --noise-tilt).
-                noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
-                engine,
-                threads: None,
-                ignore: ignore.options(),
-                color: color.enabled(),
-            },
-            alpha,
-            output,
-            apply,
-            force,
-            dry_run,
-            noise,
-            noise_tilt,
-            format,
-        }),
+        } => {
+            let (noise, file_noise) = match args::split_noise(noise) {
+                Ok(n) => n,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            diagnose::run(diagnose::DiagnoseArgs {
+                fit: fit::FitArgs {
+                    machine,
+                    data,
+                    validate: Vec::new(),
+                    output: None,
+                    solver: fit::SolverArg::Qr,
+                    tolerance: 1e-10,
+                    // A model the data do not fully determine is diagnosed on its determined part
+                    // (its undetermined coefficients are marked so), not refused.
+                    min_norm: true,
+                    stepwise: None,
+                    enter: None,
+                    holdout: None,
+                    seed: 0,
+                    // Every fit of the diagnosis weighs its rows by the stated noise, kind by kind
+                    // (positions and lengths by --noise, rotations by --noise-tilt).
+                    noise: fit::stated_noise(noise.as_ref(), noise_tilt.as_ref()),
+                    file_noise,
+                    noise_per_file,
+                    engine,
+                    threads: None,
+                    ignore: ignore.options(),
+                    color: color.enabled(),
+                },
+                alpha,
+                output,
+                apply,
+                force,
+                dry_run,
+                noise,
+                noise_tilt,
+                format,
+            })
+        }
         Command::Predict {
             machine,
             fit,

@@ -822,3 +822,109 @@ fn eval_ellipsoids_hold_the_position_uncertainty_at_the_stated_level() {
     ]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+/// Two instruments 20× apart (issue #31): `kin fit` with a σ per file prints each file's σ̂
+/// near its simulated noise; `--noise FILE=Q` and a `# noise:` header line state one file's σ
+/// (fixed, its σ̂/σ reported); a bad header value is located by file, line and column.
+#[test]
+fn fit_weighs_each_file_by_its_own_noise() {
+    let model = "machine cmm3 {
+    task measure
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 800 mm
+    axis Y prismatic along y range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 500) mm
+        tool probe at (0, 0, -100) mm
+    }
+    errors {
+        X.tx = spline(X, knots 2)
+        Y.ty = linear(Y)
+        Z.tz = linear(Z)
+    }
+}
+";
+    let dir = tmp("noise-per-file");
+    std::fs::create_dir_all(&dir).unwrap();
+    let model_path = dir.join("cmm3.kin");
+    std::fs::write(&model_path, model).unwrap();
+    let model_arg = model_path.to_str().unwrap();
+    let mut paths = Vec::new();
+    for (name, noise, seed) in [("laser.csv", "0.1um", "3"), ("tracker.csv", "2um", "4")] {
+        let p = dir.join(name);
+        let out = kin(&[
+            "simulate",
+            model_arg,
+            "--sample",
+            "400",
+            "--noise",
+            noise,
+            "--seed",
+            seed,
+            "-o",
+            p.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        paths.push(p);
+    }
+    let (laser, tracker) = (paths[0].to_str().unwrap(), paths[1].to_str().unwrap());
+    // The σ̂ printed for `file` (estimated or stated).
+    let sigma_hat = |s: &str, file: &str| -> f64 {
+        let line = s
+            .lines()
+            .find(|l| l.trim_start().starts_with(file) && l.contains("positions"))
+            .unwrap_or_else(|| panic!("no line for {file}: {s}"));
+        line.split("σ̂ = ")
+            .nth(1)
+            .and_then(|t| t.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("{line}"))
+    };
+
+    let out = kin(&["fit", model_arg, laser, tracker, "--noise-per-file"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    let (a, b) = (sigma_hat(&s, laser), sigma_hat(&s, tracker));
+    assert!((0.09..0.11).contains(&a), "laser σ̂ {a}: {s}");
+    assert!((1.8..2.2).contains(&b), "tracker σ̂ {b}: {s}");
+    assert!(s.contains("estimated"), "{s}");
+
+    // The laser's σ stated by the flag: fixed, its σ̂ against it; the tracker's estimated.
+    let flag = format!("{laser}=0.1um");
+    let out = kin(&["fit", model_arg, laser, tracker, "--noise", &flag]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    assert!(s.contains("σ = 0.1000 um stated"), "{s}");
+    assert!((1.8..2.2).contains(&sigma_hat(&s, tracker)), "{s}");
+
+    // The same by the file's header; a flag naming no data file is a usage error.
+    let body = std::fs::read_to_string(&paths[0]).unwrap();
+    let headed = dir.join("laser_headed.csv");
+    std::fs::write(&headed, format!("# noise: 0.1 um\n{body}")).unwrap();
+    let out = kin(&["fit", model_arg, headed.to_str().unwrap(), tracker]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stdout).contains("σ = 0.1000 um stated"));
+    let out = kin(&["fit", model_arg, laser, "--noise", "other.csv=1um"]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+
+    // The diagnosis weighs each file by its own σ and lists each file's σ̂ against its noise.
+    let out = kin(&["diagnose", model_arg, laser, tracker, "--noise", &flag]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    assert!(s.contains("its own file's σ"), "{s}");
+    assert!(s.contains("its stated σ = 0.1000 um"), "{s}");
+    assert!(
+        s.contains("estimated by the fit (no noise stated for it)"),
+        "{s}"
+    );
+
+    let bad = dir.join("laser_bad.csv");
+    std::fs::write(&bad, format!("# laser\n# noise: 0.1 urad\n{body}")).unwrap();
+    let out = kin(&["fit", model_arg, bad.to_str().unwrap(), tracker]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stderr));
+    let e = text(&out.stderr);
+    assert!(e.contains("laser_bad.csv, line 2, column 10"), "{e}");
+}

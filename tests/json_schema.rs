@@ -120,6 +120,8 @@ fn fit_prints_fit_json_alone_and_every_field_is_documented() {
         vec!["--noise", "0.2um"],
         vec!["--stepwise", "1e-4"],
         vec!["--validate", DATA],
+        // A σ per file: `noise_per_file`.
+        vec!["--noise-per-file"],
     ] {
         let mut args = vec!["fit", model, DATA, "--format", "json", "-o", out_s];
         args.extend(extra.iter().copied());
@@ -155,6 +157,7 @@ fn fit_prints_fit_json_alone_and_every_field_is_documented() {
     assert!(seen[1]["stepwise"]["steps"].is_array());
     assert!(!seen[2]["validation"].as_array().expect("array").is_empty());
     assert!(!seen[0]["nonlinear"].as_array().expect("array").is_empty());
+    assert!(seen[3]["noise_per_file"]["files"][0]["sigma_hat"].is_number());
 }
 
 #[test]

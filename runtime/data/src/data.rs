@@ -15,6 +15,7 @@ use thiserror::Error;
 use kin_compiler::units::UnitError;
 
 mod chunks;
+pub mod noise;
 pub mod ranges;
 mod read;
 mod write;

@@ -12,10 +12,11 @@ use super::library::{self, Available, Proposal, Sampling};
 use super::trend::{self, Timed, Trend};
 use super::{pass, periodic, refit, spectrum};
 use super::{
-    Bin, Candidate, ChiSquare, Diagnosis, Family, Finding, NoiseCheck, Outlier, Plausibility,
-    Region, Spectrum,
+    Bin, Candidate, ChiSquare, Diagnosis, Family, FileSigma, Finding, NoiseCheck, Outlier,
+    Plausibility, Region, Spectrum,
 };
 use kin_data::data::Observations;
+use kin_estimate::fit::components::RowKind;
 use kin_estimate::fit::report::{component_name, model_hash};
 use kin_estimate::fit::{self, DataSet, FitResult, Layout, Weights, LENGTH};
 
@@ -116,6 +117,16 @@ pub fn diagnose(
 ) -> Result<Diagnosis, DiagnoseError> {
     let m = &compiled.machine;
     let s = m.units.error.scale;
+    // With σs per file, every refit of the diagnosis weighs the files by the base fit's σs,
+    // held fixed: fits compared by their residual sums of squares must weigh rows alike.
+    let fixed;
+    let options = match held_sigmas(base, options, files.len()) {
+        Some(o) => {
+            fixed = o;
+            &fixed
+        }
+        None => options,
+    };
     let available = available(m, files);
     // The located residuals are built twice, for the spectra here and for the regions after
     // the candidate pass, so that they and that pass's buffers are never held together: at
@@ -164,7 +175,10 @@ pub fn diagnose(
         bins,
         spectra,
         findings,
-        noise: noise_check(m, &rows, base, settings),
+        noise: NoiseCheck {
+            per_file: noise_per_file(m, files, base),
+            ..noise_check(m, &rows, base, settings)
+        },
         outliers: outliers(m, files, base, &rows),
         weighted: base.layout.weights.stated,
     })
@@ -182,6 +196,109 @@ fn display(m: &Machine, weights: &Weights, component: u8, residual: f64) -> f64 
     } else {
         residual / m.units.error.scale
     }
+}
+
+/// Each file's σ̂ against its noise, when the base fit weighed files by their own σs.
+fn noise_per_file(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<FileSigma> {
+    let Some(c) = &base.components else {
+        return Vec::new();
+    };
+    c.groups
+        .iter()
+        .map(|g| {
+            let unit = match g.kind {
+                RowKind::Position => &m.units.error,
+                RowKind::Rotation => &m.units.tilt,
+            };
+            let sigma = g.sigma / unit.scale;
+            // Σ(r/σ)² over the group's redundancy is χ²-distributed when σ is right.
+            let p = g.stated.then(|| {
+                let dof = g.redundancy.max(1.0);
+                statistics::chi_squared_p(g.ratio * g.ratio * dof, dof).unwrap_or(0.0)
+            });
+            FileSigma {
+                file: files
+                    .get(g.file)
+                    .map(|f| f.path.display().to_string())
+                    .unwrap_or_default(),
+                kind: g.kind,
+                unit: unit.name.clone(),
+                sigma,
+                stated: g.stated,
+                sigma_hat: sigma * g.ratio,
+                ratio: g.ratio,
+                p,
+                rows: g.rows,
+                outliers: g.outliers,
+            }
+        })
+        .collect()
+}
+
+/// The options of the base fit with its σs per file stated (none estimated again), when it
+/// had σs per file.
+fn held_sigmas(base: &FitResult, options: &fit::Options, files: usize) -> Option<fit::Options> {
+    let c = base.components.as_ref()?;
+    let mut file_noise = vec![
+        fit::Noise {
+            position: None,
+            rotation: None,
+        };
+        files
+    ];
+    for g in &c.groups {
+        if let Some(n) = file_noise.get_mut(g.file) {
+            match g.kind {
+                RowKind::Position => n.position = Some(g.sigma),
+                RowKind::Rotation => n.rotation = Some(g.sigma),
+            }
+        }
+    }
+    Some(fit::Options {
+        file_noise,
+        components: true,
+        ..options.clone()
+    })
+}
+
+/// Whether the base fit weighed each file by its own σs: its residuals are then multiples of
+/// their rows' σs, and each row is judged against its own file's σ.
+fn per_file(base: &FitResult) -> bool {
+    base.components.is_some()
+}
+
+/// The σ a row is judged against when locating failures, in the unit of its located residual:
+/// with σs per file, 1 (the located residuals are multiples of each row's own σ); else the
+/// stated σ of its kind.
+fn reference(m: &Machine, settings: &Settings, base: &FitResult, component: u8) -> Option<f64> {
+    if per_file(base) {
+        return Some(1.0);
+    }
+    stated(m, settings, component)
+}
+
+/// The stated σ a row's residual is tested against (χ²), in the unit of its located residual:
+/// with σs per file, 1 for the rows of a group whose σ was stated (an estimated σ is the
+/// scatter itself, nothing to test it against).
+fn stated_for(
+    m: &Machine,
+    settings: &Settings,
+    base: &FitResult,
+    file: u32,
+    component: u8,
+) -> Option<f64> {
+    let Some(c) = &base.components else {
+        return stated(m, settings, component);
+    };
+    let kind = if (3..6).contains(&component) {
+        RowKind::Rotation
+    } else {
+        RowKind::Position
+    };
+    c.groups
+        .iter()
+        .any(|g| g.file == file as usize && g.kind == kind && g.stated)
+        .then_some(1.0)
 }
 
 /// The stated σ of a component's rows, in its display unit (error unit; tilt unit for
@@ -218,7 +335,12 @@ fn outliers(m: &Machine, files: &[DataSet], base: &FitResult, located: &Residual
                 .unwrap_or_default(),
             line: r.meta.line as usize,
             component: component_name(r.meta.component).to_string(),
-            residual: display(m, &base.layout.weights, r.meta.component, r.residual),
+            residual: display(
+                m,
+                &base.layout.weights_of(r.meta.file as usize),
+                r.meta.component,
+                r.residual,
+            ),
             studentized: r.studentized,
         })
         .collect()
@@ -239,7 +361,12 @@ fn noise_check(
     let chi2 = {
         let with: Vec<(f64, f64)> = used
             .iter()
-            .filter_map(|r| Some((r.residual, stated(m, settings, r.component)?)))
+            .filter_map(|r| {
+                Some((
+                    r.residual,
+                    stated_for(m, settings, base, r.file, r.component)?,
+                ))
+            })
             .filter(|(_, s)| *s > 0.0)
             .collect();
         let dof = with.len() as f64 * keep;
@@ -288,6 +415,7 @@ fn noise_check(
         stated_tilt: settings.noise_tilt.map(|v| v / m.units.tilt.scale),
         chi2,
         lack_of_fit,
+        per_file: Vec::new(),
     }
 }
 
@@ -542,7 +670,13 @@ fn positions(m: &Machine, files: &[DataSet], base: &FitResult) -> Residuals {
             component: r.meta.component,
             outlier: r.studentized.abs() > base.outlier_threshold,
             index: k as u32,
-            residual: display(m, &base.layout.weights, r.meta.component, r.residual),
+            // With σs per file, a multiple of the row's own σ: files of unequal precision are
+            // then judged alike, each against its own noise.
+            residual: if per_file(base) {
+                r.residual / m.units.error.scale
+            } else {
+                display(m, &base.layout.weights, r.meta.component, r.residual)
+            },
             leverage: r.leverage,
             at,
         });
@@ -821,6 +955,7 @@ fn test_candidates(
     // (The base fit's weights, so that the tests and the base fit agree on them.)
     let mut layout = Layout::new(&sup.machine, files);
     layout.weights = base.layout.weights;
+    layout.file_weights = base.layout.file_weights.clone();
     let states = fit::states_with(&sup.machine, files, &values)?;
     let n_base = m.coefficients.len();
     let width = layout.columns();
@@ -1610,7 +1745,8 @@ fn regions(
         let cname = component_name(c).to_string();
         // The reference: the stated noise when given, else the fit's own σ̂ (and the words
         // say which).
-        let (sigma, against) = match stated(m, settings, c) {
+        let (sigma, against) = match reference(m, settings, base, c) {
+            Some(v) if v > 0.0 && per_file(base) => (v, "what each file's own σ allows".into()),
             Some(v) if v > 0.0 => (
                 v,
                 format!(

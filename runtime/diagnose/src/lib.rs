@@ -140,6 +140,10 @@ pub struct NoiseCheck {
     pub chi2: Option<ChiSquare>,
     /// Lack of fit against the scatter of repeated poses.
     pub lack_of_fit: Option<LackOfFit>,
+    /// With a σ per file: each file's σ̂ per kind of row against its noise (stated, or
+    /// estimated by the base fit). Every fit of the diagnosis weighs the file's rows by it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_file: Vec<FileSigma>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -223,6 +227,26 @@ pub struct Diagnosis {
     /// weighted by the stated noise (`--noise`, `--noise-tilt`).
     #[serde(default)]
     pub weighted: bool,
+}
+
+/// One file's scatter of one kind of row against its noise.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FileSigma {
+    pub file: String,
+    /// `position` (positions and lengths) or `rotation`.
+    pub kind: kin_estimate::fit::components::RowKind,
+    pub unit: String,
+    /// The σ the rows were weighted by: stated, or the base fit's estimate.
+    pub sigma: f64,
+    pub stated: bool,
+    /// σ̂ of the file's rows, outliers left out, in `unit`.
+    pub sigma_hat: f64,
+    /// σ̂/σ, and for a stated σ the χ² test of it (an estimated σ is its own σ̂).
+    pub ratio: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p: Option<f64>,
+    pub rows: usize,
+    pub outliers: usize,
 }
 
 mod analyse;

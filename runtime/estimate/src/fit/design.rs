@@ -149,6 +149,9 @@ pub struct Layout {
     first: Vec<Vec<usize>>,
     /// What each row is multiplied by: the one place where rows are weighted.
     pub weights: Weights,
+    /// Per file, its own weights when files have σs of their own (stated per file, or
+    /// estimated as variance components); empty: every file weighs by `weights`.
+    pub file_weights: Vec<Weights>,
 }
 
 impl Layout {
@@ -186,15 +189,39 @@ impl Layout {
             nuisance,
             first,
             weights: Weights::unit(m),
+            file_weights: Vec::new(),
         }
     }
 
-    /// The layout with rows weighted by a stated `noise` (unit weights when `None`).
-    pub fn weighted(self, m: &Machine, noise: Option<Noise>) -> Layout {
+    /// The layout with rows weighted by a stated `noise` (unit weights when `None`) and, when
+    /// `per_file` is not empty, each file's rows by its own σs (a kind a file states no σ for
+    /// takes `noise`'s).
+    pub fn weighted(self, m: &Machine, noise: Option<Noise>, per_file: &[Noise]) -> Layout {
+        let file_weights = per_file
+            .iter()
+            .map(|f| {
+                Weights::from_noise(
+                    m,
+                    Some(Noise {
+                        position: f.position.or(noise.and_then(|n| n.position)),
+                        rotation: f.rotation.or(noise.and_then(|n| n.rotation)),
+                    }),
+                )
+            })
+            .collect();
+        let mut weights = Weights::from_noise(m, noise);
+        // Per-file σs make every row a multiple of its own σ: σ̂ is then a ratio.
+        weights.stated |= !per_file.is_empty();
         Layout {
-            weights: Weights::from_noise(m, noise),
+            weights,
+            file_weights,
             ..self
         }
+    }
+
+    /// The weights of file `f`'s rows.
+    pub fn weights_of(&self, f: usize) -> Weights {
+        self.file_weights.get(f).copied().unwrap_or(self.weights)
     }
 
     pub fn columns(&self) -> usize {
@@ -589,10 +616,10 @@ fn rows_of(
     let mut x = vec![0.0; width];
     let mut lrow = vec![0.0; n];
     let mut err = [0.0; 6];
-    let weights = layout.weights;
     // The first observation of the current file in the count over all files.
     let mut offset = 0usize;
     for (f, (file, st)) in files.iter().zip(states).enumerate() {
+        let weights = layout.weights_of(f);
         let path = || file.path.display().to_string();
         let rows = file.observations.rows();
         let count = match st {

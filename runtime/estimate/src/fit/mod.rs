@@ -6,6 +6,7 @@
 //! leverage (eq. 4.12's quadratic form), studentized residual and Cook's distance.
 
 pub mod cancel;
+pub mod components;
 mod design;
 pub mod merge;
 pub mod nonlinear;
@@ -85,6 +86,12 @@ pub struct Options {
     pub stepwise: Option<Stepwise>,
     /// The instrument's stated noise: rows are weighted by it (see [`Weights`]).
     pub noise: Option<Noise>,
+    /// Per fitted file (in order), the σs stated for it; a kind it leaves `None` takes
+    /// `noise`'s or, without one, is estimated ([`components`]). Empty: every file as `noise`.
+    pub file_noise: Vec<Noise>,
+    /// Estimate a σ per file and kind of row wherever none is stated, even when no file has
+    /// one of its own (variance components, [`components`]).
+    pub components: bool,
     /// Threads factoring the blocks of rows and computing the residual pass's leverages
     /// (default: the cores this process may use). A given count gives the same bits on every
     /// run; another count differs only by rounding ([`StreamingQr`]).
@@ -109,6 +116,8 @@ impl Default for Options {
             outlier_alpha: 0.05,
             stepwise: None,
             noise: None,
+            file_noise: Vec::new(),
+            components: false,
             threads: crate::rank_update::threads(),
         }
     }
@@ -150,6 +159,8 @@ pub struct FitResult {
     /// Set by a streamed fit ([`stream::fit`]), which keeps `residuals` only up to
     /// `report::MAX_RESIDUALS` rows: the per-file statistics and the outliers of every row.
     pub tally: Option<tally::Tally>,
+    /// With a σ per file: each file's σs, stated or estimated, and σ̂/σ.
+    pub components: Option<components::Components>,
 }
 
 /// Progress callback: rows done in the current pass, and the pass name (`optimising` for the
@@ -254,8 +265,27 @@ fn residual_pass(
     Ok(())
 }
 
-/// Fits `files` (and checks against `validate`).
+/// Fits `files` (and checks against `validate`). With a σ per file (`file_noise`, or
+/// `components`), the estimated ones by reweighted fits ([`components`]).
 pub fn fit(
+    compiled: &Compiled,
+    engine: &mut dyn Evaluator,
+    files: &[DataSet],
+    validate: &[DataSet],
+    options: &Options,
+    progress: Progress,
+) -> Result<FitResult, FitError> {
+    if !components::per_file(options) {
+        return fit_once(compiled, engine, files, validate, options, progress);
+    }
+    design::check_artifacts(files)?;
+    components::fit(&compiled.machine, files.len(), options, |o| {
+        fit_once(compiled, engine, files, validate, o, &mut *progress)
+    })
+}
+
+/// One weighted fit: the weights as `options` state them.
+fn fit_once(
     compiled: &Compiled,
     engine: &mut dyn Evaluator,
     files: &[DataSet],
@@ -265,8 +295,11 @@ pub fn fit(
 ) -> Result<FitResult, FitError> {
     let m = &compiled.machine;
     design::check_artifacts(files)?;
-    check_noise(files, options.noise)?;
-    let layout = Layout::new(m, files).weighted(m, options.noise);
+    // With σs per file every group of rows has one (stated or being estimated).
+    if options.file_noise.is_empty() {
+        check_noise(files, options.noise)?;
+    }
+    let layout = Layout::new(m, files).weighted(m, options.noise, &options.file_noise);
     // Fitted wavelengths and time constants first: the linear problem below is the one at
     // their optimum. Its passes report no rows: the pass name says what the time goes to.
     if m.nonlinear.iter().any(|p| p.fitted) {
@@ -329,6 +362,7 @@ pub fn fit(
         selection,
         nonlinear,
         tally: None,
+        components: None,
     })
 }
 
@@ -613,7 +647,8 @@ fn validation_residuals(
 ) -> Result<Vec<ResidualRow>, FitError> {
     let m = &compiled.machine;
     check_noise(files, options.noise)?;
-    let layout = Layout::new(m, files).weighted(m, options.noise);
+    // Validation files are other files: they weigh by the σs stated for every file.
+    let layout = Layout::new(m, files).weighted(m, options.noise, &[]);
     let n = layout.coefficients;
     let states = design::states_with(m, files, values)?;
     let beta = solution.beta.get(..n).unwrap_or(&[]);

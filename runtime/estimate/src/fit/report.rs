@@ -95,6 +95,10 @@ pub struct FitReport {
     /// residuals and the per-file and per-component summaries stay in display units.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub weights: Option<StatedWeights>,
+    /// With a σ per file (`--noise FILE=…`, a file's `# noise:` header, `--noise-per-file`):
+    /// each file's σ per kind of row, stated or estimated, and σ̂ against it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_per_file: Option<NoisePerFile>,
     /// Every error component that varies along one axis, as values at stations along it with
     /// their standard uncertainties (spec/json.md); absent in reports of earlier versions.
     #[serde(default)]
@@ -136,6 +140,40 @@ pub struct StatedWeights {
     /// P(χ²_dof ≥ chi2): small when the residuals exceed what the stated noise gives.
     #[serde(deserialize_with = "nan_if_null")]
     pub p: f64,
+}
+
+/// The σs of a fit with a σ per file ([`super::components`]).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct NoisePerFile {
+    /// Weighted fits made (1 when every σ was stated).
+    pub iterations: usize,
+    /// Whether the estimated σs settled (every σ̂/σ within 1e-3 of 1).
+    pub converged: bool,
+    pub files: Vec<FileNoise>,
+}
+
+/// One file's σ of one kind of row.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FileNoise {
+    pub file: String,
+    /// `position` (positions and lengths, error unit) or `rotation` (tilt unit).
+    pub kind: super::components::RowKind,
+    pub unit: String,
+    /// The σ the rows were weighted by: the stated one, or the converged estimate.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub sigma: f64,
+    pub stated: bool,
+    /// σ̂ of the file's rows (outliers left out), in `unit`.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub sigma_hat: f64,
+    /// σ̂/σ: 1 for an estimated σ; for a stated one, how the file's scatter compares with it.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub ratio: f64,
+    pub rows: usize,
+    /// Σ (1 − leverage) over the rows used: the degrees of freedom the file contributes.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub redundancy: f64,
+    pub outliers: usize,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -495,18 +533,28 @@ pub fn build(
     let tally = match &result.tally {
         Some(t) => t,
         None => {
-            held = Tally::of(
-                &result.residuals,
+            let mut t = Tally::new(
                 files.len(),
                 display_factors(m, w),
                 s,
                 result.outlier_threshold,
                 result.cook_threshold,
+            )
+            .with_file_display(
+                (0..result.layout.file_weights.len())
+                    .map(|f| display_factors(m, &result.layout.weights_of(f)))
+                    .collect(),
             );
+            for r in &result.residuals {
+                t.add(r);
+            }
+            held = t;
             &held
         }
     };
-    let outliers: Vec<Residual> = tally.outliers().iter().map(|r| residual(m, w, r)).collect();
+    // A fit with σs per file weighs each file's rows by its own.
+    let own = |r: &ResidualRow| residual(m, &result.layout.weights_of(r.meta.file as usize), r);
+    let outliers: Vec<Residual> = tally.outliers().iter().map(own).collect();
     let keep = result.rows <= MAX_RESIDUALS && result.residuals.len() == result.rows;
     let estimability = {
         let names: Vec<String> = coefficients
@@ -580,6 +628,7 @@ pub fn build(
         tilt_unit: m.units.tilt.name.clone(),
         files: summaries(m, files, tally),
         weights: stated_weights(m, options, result),
+        noise_per_file: noise_per_file(m, files, result),
         params: params_text(m, &sol.beta, &nonlinear),
         stepwise: result
             .selection
@@ -603,7 +652,7 @@ pub fn build(
         cook_threshold: result.cook_threshold,
         outliers,
         residuals: if keep {
-            result.residuals.iter().map(|r| residual(m, w, r)).collect()
+            result.residuals.iter().map(own).collect()
         } else {
             Vec::new()
         },
@@ -651,7 +700,15 @@ pub fn build(
 /// residual sum of squares is χ²-distributed on the residual degrees of freedom when the model
 /// is complete and the noise is what was stated.
 fn stated_weights(m: &Machine, options: &Options, result: &FitResult) -> Option<StatedWeights> {
-    let n = options.noise?;
+    // With σs per file every row is a multiple of its own σ, as with a stated noise.
+    let n = match (options.noise, &result.components) {
+        (Some(n), _) => n,
+        (None, Some(_)) => super::Noise {
+            position: None,
+            rotation: None,
+        },
+        (None, None) => return None,
+    };
     let dof = result.rows.saturating_sub(result.solution.rank);
     let ratio = result.sigma / m.units.error.scale;
     let chi2 = ratio * ratio * dof as f64;
@@ -664,6 +721,41 @@ fn stated_weights(m: &Machine, options: &Options, result: &FitResult) -> Option<
         chi2,
         dof,
         p,
+    })
+}
+
+fn noise_per_file(m: &Machine, files: &[DataSet], result: &FitResult) -> Option<NoisePerFile> {
+    let c = result.components.as_ref()?;
+    let files = c
+        .groups
+        .iter()
+        .map(|g| {
+            let unit = match g.kind {
+                super::components::RowKind::Position => &m.units.error,
+                super::components::RowKind::Rotation => &m.units.tilt,
+            };
+            let sigma = g.sigma / unit.scale;
+            FileNoise {
+                file: files
+                    .get(g.file)
+                    .map(|f| f.path.display().to_string())
+                    .unwrap_or_default(),
+                kind: g.kind,
+                unit: unit.name.clone(),
+                sigma,
+                stated: g.stated,
+                sigma_hat: sigma * g.ratio,
+                ratio: g.ratio,
+                rows: g.rows,
+                redundancy: g.redundancy,
+                outliers: g.outliers,
+            }
+        })
+        .collect();
+    Some(NoisePerFile {
+        iterations: c.iterations,
+        converged: c.converged,
+        files,
     })
 }
 

@@ -137,6 +137,7 @@ pub fn fit_in_chunks(
             selection,
             nonlinear: None,
             tally: Some(tally),
+            components: None,
         })
     })
     .map(|result| Streamed { result, files })

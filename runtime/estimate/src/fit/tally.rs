@@ -51,6 +51,8 @@ pub struct Tally {
     outliers: Vec<ResidualRow>,
     /// Multiplies a residual of each component into its display unit (weights undone).
     display: [f64; LENGTH as usize + 1],
+    /// Per file, its own factors when files weigh their rows by their own σs.
+    file_display: Vec<[f64; LENGTH as usize + 1]>,
     /// Divides a residual into the unit of the overall figures, which mix kinds as σ̂ does.
     scale: f64,
     outlier_threshold: f64,
@@ -72,6 +74,7 @@ impl Tally {
             all: Sum::default(),
             outliers: Vec::new(),
             display,
+            file_display: Vec::new(),
             scale,
             outlier_threshold,
             cook_threshold,
@@ -94,12 +97,23 @@ impl Tally {
         t
     }
 
+    /// The tally with each file's rows turned into display units by its own factors (a fit
+    /// with σs per file); set before any row is added.
+    pub fn with_file_display(mut self, file_display: Vec<[f64; LENGTH as usize + 1]>) -> Tally {
+        self.file_display = file_display;
+        self
+    }
+
     pub fn add(&mut self, r: &ResidualRow) {
         let v = r.residual / self.scale;
         self.all.add(v);
         if let Some(f) = self.files.get_mut(r.meta.file as usize) {
             let c = r.meta.component as usize;
-            if let (Some(sum), Some(d)) = (f.components.get_mut(c), self.display.get(c)) {
+            let display = self
+                .file_display
+                .get(r.meta.file as usize)
+                .unwrap_or(&self.display);
+            if let (Some(sum), Some(d)) = (f.components.get_mut(c), display.get(c)) {
                 sum.add(r.residual * d);
             }
             f.all.add(v);

@@ -137,7 +137,7 @@ pub fn diagnose(
         &available.sampled,
         options.threads,
     );
-    let peaks: Vec<(usize, f64)> = spectra
+    let peaks: Vec<library::Peak> = spectra
         .iter()
         .filter(|sp| sp.peak_false_alarm < 0.01)
         .filter_map(|sp| {
@@ -148,7 +148,16 @@ pub fn diagnose(
                 .enumerate()
                 .max_by(|x, y| x.1.total_cmp(y.1))?;
             let unit = &m.units.length;
-            Some((a, unit.to_si(*sp.wavelengths.get(k)?) - unit.to_si(0.0)))
+            let si = |v: f64| unit.to_si(v) - unit.to_si(0.0);
+            // The spectrum's independent wavelengths: the periods its shortest wavelength
+            // spans over the range covered (as its false-alarm probability counts them).
+            let shortest = sp.wavelengths.iter().copied().fold(f64::INFINITY, f64::min);
+            let range = available.sampled.get(a).copied().flatten()?.span();
+            Some(library::Peak {
+                axis: a,
+                wavelength: si(*sp.wavelengths.get(k)?),
+                searched: (range / si(shortest)).max(1.0),
+            })
         })
         .collect();
     let mut proposals = library::propose(m, &available, &peaks, &settings.taus);
@@ -1048,7 +1057,13 @@ fn test_candidates(
             continue;
         }
         let f = ((rss_base - rss) / n_added as f64) / (rss / dof);
-        let p = statistics::f_p(f, n_added as f64, dof).unwrap_or(1.0);
+        // A candidate placed by a search (a periodic error at the residual spectrum's highest
+        // peak) is tested where the data fit it best: Šidák's correction over the independent
+        // values searched makes its p-value that of the whole search, as the peak's own
+        // false-alarm probability is.
+        let p_at = statistics::f_p(f, n_added as f64, dof).unwrap_or(1.0);
+        let searched = proposals.get(*k).map_or(1.0, |p| p.searched.max(1.0));
+        let p = -(searched * (-p_at).ln_1p()).exp_m1();
         tested.push(Tested {
             proposal: *k,
             finding: Finding {

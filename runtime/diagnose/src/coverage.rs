@@ -467,7 +467,16 @@ machine cover {{
     fn rows(m: &Machine) -> BTreeSet<&'static str> {
         let a = available(m);
         // A spectral peak along X of 100 mm, which 36 positions over 800 mm resolve.
-        let mut proposals = propose(m, &a, &[(0, 0.1)], &[600.0]);
+        let mut proposals = propose(
+            m,
+            &a,
+            &[super::super::library::Peak {
+                axis: 0,
+                wavelength: 0.1,
+                searched: 1.0,
+            }],
+            &[600.0],
+        );
         super::super::beam::propose(m, &a, &Default::default(), &mut proposals);
         let mut keys = BTreeSet::new();
         for p in &proposals {

@@ -104,6 +104,19 @@ pub struct Proposal {
     pub terms: Vec<Term>,
     /// For revolute harmonics, the name of the error motion (for restated explanations).
     pub motion: String,
+    /// How many independent values of a parameter were searched to place the candidate (the
+    /// wavelengths of the spectrum its peak was found in); 1 when none was. The candidate's
+    /// F-test is made at the value the search chose, so its p-value is corrected for the search.
+    pub searched: f64,
+}
+
+/// A spectral peak along a prismatic axis: the wavelength (SI) and how many independent
+/// wavelengths its spectrum searched.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Peak {
+    pub axis: usize,
+    pub wavelength: f64,
+    pub searched: f64,
 }
 
 /// One term of a candidate's line. Whether a term adds anything is decided on the data, not
@@ -338,16 +351,16 @@ pub(super) fn push(
         group,
         terms,
         motion: String::new(),
+        searched: 1.0,
     });
 }
 
 /// Every candidate the library proposes for `m` given what the data offer. `wavelengths` are
-/// spectral peaks found along axes (axis index → wavelength in SI), `taus` the time constants
-/// scanned for lags (SI).
+/// spectral peaks found along axes, `taus` the time constants scanned for lags (SI).
 pub fn propose(
     m: &Machine,
     available: &Available,
-    wavelengths: &[(usize, f64)],
+    wavelengths: &[Peak],
     taus: &[f64],
 ) -> Vec<Proposal> {
     let mut out = Vec::new();
@@ -873,6 +886,7 @@ mod tests {
             group: String::new(),
             terms,
             motion: "radial error motion".into(),
+            searched: 1.0,
         }
     }
 

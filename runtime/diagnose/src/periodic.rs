@@ -3,7 +3,7 @@
 
 use kin_compiler::ir::{Axis, Machine};
 
-use super::library::{push, round, Available, Proposal, Term};
+use super::library::{push, round, Available, Peak, Proposal, Term};
 use super::Family;
 
 /// Appends the periodic candidates for the prismatic axis `a` (`name` its frame's name,
@@ -12,7 +12,7 @@ pub(super) fn propose(
     out: &mut Vec<Proposal>,
     m: &Machine,
     available: &Available,
-    wavelengths: &[(usize, f64)],
+    wavelengths: &[Peak],
     a: usize,
     axis: &Axis,
     target: &str,
@@ -28,7 +28,9 @@ pub(super) fn propose(
         format!("{} {}", (v * p).round() / p, length.name)
     };
     let sampled = available.sampled.get(a).copied().flatten();
-    for &(_, lambda) in wavelengths.iter().filter(|(pa, _)| *pa == a) {
+    for peak in wavelengths.iter().filter(|p| p.axis == a) {
+        let lambda = peak.wavelength;
+        let first = out.len();
         let Some(sampling) = sampled.filter(|s| s.resolves(lambda)) else {
             continue;
         };
@@ -99,6 +101,9 @@ pub(super) fn propose(
             ),
             Some(group),
         );
+        for p in out.iter_mut().skip(first) {
+            p.searched = peak.searched;
+        }
     }
 }
 

@@ -213,7 +213,7 @@ fn apply_writes_the_fitted_wavelength_back_and_the_report_keeps_every_round() {
     let truth = dir.join("truth.params");
     std::fs::write(
         &truth,
-        "params {\n    X.tx = [3, -2, 1, 0.5, 1.2, 0.8] um\n    X.rz[0] = 4 urad\n    Y.ty[0] = 1.5 um\n    Z.tz[0] = 2 um\n}\n",
+        "params {\n    X.tx = [3, -2, 1, 0.5, 3.6, 2.4] um\n    X.rz[0] = 4 urad\n    Y.ty[0] = 1.5 um\n    Z.tz[0] = 2 um\n}\n",
     )
     .unwrap();
     let data = dir.join("points.csv");

@@ -1116,7 +1116,7 @@ fn fitted_tau(poses: usize) {
         let mut engine =
             kin_model::engine::make(m, kin_model::engine::Engine::default()).expect("engine");
         let values: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
-        let layout = fit::Layout::new(m, &files).weighted(m, opts.noise);
+        let layout = fit::Layout::new(m, &files).weighted(m, opts.noise, &[]);
         let clock = Clock::start();
         let cpu0 = process_cpu();
         let states = fit::states_with(m, &files, &values).expect("states");

@@ -77,6 +77,13 @@ pub(super) const ROWS: &[Row] = &[
         form: "linear(A) | spline(A, knots N)",
     },
     Row {
+        key: "positioning-shape",
+        element: Element::Prismatic,
+        components: Components::Along,
+        family: Family::ErrorMotion,
+        form: "straightness(A, knots N)",
+    },
+    Row {
         key: "straightness",
         element: Element::Prismatic,
         components: Components::Across,
@@ -374,6 +381,8 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
                 "backlash" | "hysteresis" | "rotary-backlash" => !width,
                 "backlash-width" | "hysteresis-width" | "rotary-backlash-width" => width && !across,
                 "backlash-across" | "hysteresis-across" | "rotary-backlash-across" => across,
+                "positioning" => !text.contains("straightness("),
+                "positioning-shape" => text.contains("straightness("),
                 "harmonics" => !first,
                 "once-per-rev"
                 | "once-per-rev-angular"
@@ -498,6 +507,8 @@ machine cover {{
         keys.extend(rows(&machine(
             "        X.tx = spline(X, knots 2) + backlash(X)\n        X.rz = backlash(X)",
         )));
+        // A scale error alone: the shape of the positioning error on top of it.
+        keys.extend(rows(&machine("        X.tx = linear(X)")));
         // A tilting axis carrying a carriage: gravity on a prismatic element.
         let src = "machine tilt {\n    task position\n    units { length mm, angle deg, error um, tilt urad }\n    axis A revolute about x range -30 deg .. 30 deg\n    axis X prismatic along x range 0 mm .. 100 mm\n    workpiece chain {\n        A fixed\n        X moving\n        workpiece at (0, 0, 0) mm\n    }\n    tool chain {\n        tool probe at (0, 0, 100) mm\n    }\n}\n";
         match compile(src).compiled {

@@ -221,6 +221,21 @@ fn travel(
 ) {
     for comp in [Component::Tx, Component::Ty, Component::Tz] {
         if has(m, frame, comp, |t| uses(t, own)) {
+            // A scale error alone along the motion (`linear(A)`) leaves the shape of the
+            // positioning error out: offered as the curve with its line removed, which adds
+            // exactly what the line lacks (a spline would repeat the line's column, and the
+            // candidate would be dropped for it).
+            if comp == motion && !has(m, frame, comp, |t| uses(t, own) && !is_line_of(t, own)) {
+                let target = format!("{name}.{}", comp.name());
+                push(
+                    out,
+                    Family::ErrorMotion,
+                    target.clone(),
+                    vec![Term::new(format!("straightness({axis}, {knots})"))],
+                    format!("{target} varies along {axis} beyond the scale error the model has: the shape of the axis' positioning error (its scale or leadscrew)"),
+                    None,
+                );
+            }
             continue;
         }
         let target = format!("{name}.{}", comp.name());
@@ -253,6 +268,14 @@ fn travel(
             );
         }
     }
+}
+
+/// Whether `t` is `linear(v)` alone (a scale error, no shape).
+fn is_line_of(t: &kin_compiler::ir::Term, v: Var) -> bool {
+    matches!(
+        t.factors.as_slice(),
+        [f] if f.var == v && matches!(f.basis, kin_compiler::basis::Basis::Linear { .. })
+    )
 }
 
 /// Once-per-revolution error motion of a revolute axis that covers a revolution, on one

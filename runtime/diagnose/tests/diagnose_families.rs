@@ -1159,3 +1159,29 @@ fn drifts_in_time_are_found_and_fixed_in_one_round() {
         assert_eq!(hits, runs);
     }
 }
+
+/// A model with a scale error alone (`X.tx = const + linear(X)`) on data whose X positioning error has
+/// a shape (the truth's spline): the shape is proposed on top of the line — the curve with its
+/// line removed — first, and brings the residual to the noise. Before, the spline candidate
+/// repeated the line's column and was dropped, and nothing along X was left to propose.
+#[test]
+fn a_shape_is_proposed_on_top_of_a_scale_error() {
+    let base = CMM.replace("X.tx = spline(X, knots 2)", "X.tx = const + linear(X)");
+    assert_ne!(base, CMM, "the CMM model changed");
+    for seed in [0, 1] {
+        let (o, d) = run_on(&base, Kind::Cmm, None, 500, 900 + seed);
+        let top = o.top.as_ref().map(|t| t.2.as_str());
+        assert_eq!(
+            top,
+            Some("X.tx += straightness(X, knots 2)"),
+            "seed {seed}: {}",
+            describe(&d)
+        );
+        assert!(
+            o.top.as_ref().is_some_and(|t| t.3),
+            "seed {seed}: not significant"
+        );
+        let after = o.rms_after.unwrap_or(f64::INFINITY);
+        assert!(after <= 1.2, "seed {seed}: rms after {after}");
+    }
+}

@@ -137,6 +137,37 @@ pub(super) fn restate(
             unit: u.name.clone(),
         });
     }
+    // A warm-up whose fitted time constant is shorter than the time between measurements is
+    // complete from the first rows on: the data see a constant, and a constant the model lacks
+    // (an offset along the tool's direction) takes this shape. Say so before it is applied.
+    if let Some(step) = time_step(files) {
+        for lag in c.machine.lags.iter().filter(|l| l.warmup) {
+            let i = lag.tau.index;
+            let (Some(p), Some(&tau)) = (c.machine.nonlinear.get(i), nl.values.get(i)) else {
+                continue;
+            };
+            let new = p.fitted && !base.machine.nonlinear.iter().any(|q| q.name == p.name);
+            if new && tau < step {
+                let u = &p.unit;
+                let at = |v: f64| {
+                    format!(
+                        "{} {}",
+                        significant(u.from_si(v) - u.from_si(0.0), 0.0),
+                        u.name
+                    )
+                };
+                finding
+                    .plausibility
+                    .get_or_insert_with(Default::default)
+                    .warnings
+                    .push(format!(
+                        "the fitted warm-up time constant ({}) is shorter than the time between measurements ({}): the data see a constant from the first rows on, not a warm-up (a constant the model lacks looks alike)",
+                        at(tau),
+                        at(step)
+                    ));
+            }
+        }
+    }
     finding.candidate.text = with_values(&finding.candidate.text, &fitted);
     for f in &fitted {
         let what = f.name.rsplit('.').next().unwrap_or(&f.name);
@@ -271,6 +302,25 @@ fn significant(v: f64, se: f64) -> String {
     };
     let decimals = by_se.max(by_value).clamp(0, 12) as usize;
     format!("{v:.decimals$}")
+}
+
+/// The median time between consecutive rows of one run, over every file (s); `None` without
+/// time in the data.
+fn time_step(files: &[DataSet]) -> Option<f64> {
+    let mut steps = Vec::new();
+    for f in files {
+        let rows = f.observations.rows();
+        let Some(time) = &rows.time else { continue };
+        let run = |k: usize| rows.run.as_ref().and_then(|r| r.of_row.get(k).copied());
+        for k in 1..time.len() {
+            let dt = time[k] - time[k - 1];
+            if run(k) == run(k - 1) && dt > 0.0 && dt.is_finite() {
+                steps.push(dt);
+            }
+        }
+    }
+    steps.sort_by(f64::total_cmp);
+    steps.get(steps.len() / 2).copied()
 }
 
 #[cfg(test)]

@@ -1185,3 +1185,28 @@ fn a_shape_is_proposed_on_top_of_a_scale_error() {
         assert!(after <= 1.2, "seed {seed}: rms after {after}");
     }
 }
+
+/// A model without the constant of `X.tx` (`X.tx = linear(X)`) on data with one: the warm-up
+/// candidate of the tool takes the constant's place with a time constant shorter than the time
+/// between measurements. It may rank high — it does fit the constant — but its refit says what
+/// it is, so `--apply` asks for `--force`.
+#[test]
+fn a_warm_up_faster_than_the_sampling_is_called_a_constant() {
+    let base = CMM.replace("X.tx = spline(X, knots 2)", "X.tx = linear(X)");
+    let (_, d) = run_on(&base, Kind::Cmm, None, 500, 900);
+    let warm = d
+        .findings
+        .iter()
+        .find(|f| f.significant && f.candidate.text.contains("warmup("))
+        .unwrap_or_else(|| panic!("no significant warm-up: {}", describe(&d)));
+    let doubts = warm
+        .plausibility
+        .as_ref()
+        .map(|p| p.warnings.join("; "))
+        .unwrap_or_default();
+    assert!(
+        doubts.contains("shorter than the time between measurements"),
+        "{}: {doubts}",
+        warm.candidate.text
+    );
+}

@@ -149,14 +149,12 @@ pub fn diagnose(
                 .max_by(|x, y| x.1.total_cmp(y.1))?;
             let unit = &m.units.length;
             let si = |v: f64| unit.to_si(v) - unit.to_si(0.0);
-            // The spectrum's independent wavelengths: the periods its shortest wavelength
-            // spans over the range covered (as its false-alarm probability counts them).
             let shortest = sp.wavelengths.iter().copied().fold(f64::INFINITY, f64::min);
             let range = available.sampled.get(a).copied().flatten()?.span();
             Some(library::Peak {
                 axis: a,
                 wavelength: si(*sp.wavelengths.get(k)?),
-                searched: (range / si(shortest)).max(1.0),
+                searched: spectrum::independent(range, si(shortest)),
             })
         })
         .collect();
@@ -221,10 +219,14 @@ fn noise_per_file(m: &Machine, files: &[DataSet], base: &FitResult) -> Vec<FileS
             };
             let sigma = g.sigma / unit.scale;
             // Σ(r/σ)² over the group's redundancy is χ²-distributed when σ is right.
-            let p = g.stated.then(|| {
-                let dof = g.redundancy.max(1.0);
-                statistics::chi_squared_p(g.ratio * g.ratio * dof, dof).unwrap_or(0.0)
-            });
+            // No p-value (rather than 0, a rejection) when the ratio is not a number.
+            let p = g
+                .stated
+                .then(|| {
+                    let dof = g.redundancy.max(1.0);
+                    statistics::chi_squared_p(g.ratio * g.ratio * dof, dof)
+                })
+                .flatten();
             FileSigma {
                 file: files
                     .get(g.file)

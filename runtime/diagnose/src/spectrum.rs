@@ -204,8 +204,7 @@ pub(super) fn spectra(
             let mut power: Vec<f64> = powers.iter().map(|p| p[i]).collect();
             refine(positions, slot, var, &mut wavelengths, &mut power);
             let peak = power.iter().copied().fold(0.0, f64::max);
-            // Independent frequencies ≈ the number of periods the grid spans over the range.
-            let independent = (range / shortest).max(1.0);
+            let independent = independent(range, shortest);
             let fap = 1.0 - (1.0 - (-peak).exp()).powf(independent);
             out.push(Computed {
                 slot,
@@ -217,6 +216,13 @@ pub(super) fn spectra(
     }
     out.sort_by_key(|c| c.slot);
     out
+}
+
+/// How many independent wavelengths a spectrum over `range` down to `shortest` searches: the
+/// periods its shortest wavelength spans over the range (either unit, the same for both). The
+/// peak's false-alarm probability and the p-value of a candidate placed at the peak count them.
+pub(super) fn independent(range: f64, shortest: f64) -> f64 {
+    (range / shortest).max(1.0)
 }
 
 /// The powers at every wavelength (row) for the components `which` (column), the wavelengths

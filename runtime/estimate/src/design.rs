@@ -348,19 +348,21 @@ fn circuits(null: &[DVector<f64>]) -> Vec<DVector<f64>> {
         .collect()
 }
 
+/// The representative of `i`'s set in a union–find forest `parent` (paths halved on the way).
+pub(crate) fn root(parent: &mut [usize], mut i: usize) -> usize {
+    while parent[i] != i {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    i
+}
+
 /// Joins coefficients that share an unobserved direction, and finds per group the combinations
 /// the plan determines: the directions within the group orthogonal to every unobserved one.
 fn groups(null: &[DVector<f64>], scale: &[f64], determined: &[bool]) -> Vec<Group> {
     let null = &circuits(null)[..];
     let p = determined.len();
     let mut parent: Vec<usize> = (0..p).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
     for v in null {
         let members: Vec<usize> = (0..p).filter(|&j| v[j].abs() > MEMBER).collect();
         for w in members.windows(2) {

@@ -16,6 +16,8 @@
 //! compensates with them.
 
 use nalgebra::DMatrix;
+
+use crate::design::root;
 use serde::{Deserialize, Serialize};
 
 /// Beyond this many determined coefficients the check (an inverse of their covariance) is
@@ -81,13 +83,6 @@ pub fn cancelling(beta: &[f64], covariance: &[f64]) -> Vec<Cancelling> {
         .collect();
     // Candidates whose columns are alike and whose effects oppose join one set.
     let mut parent: Vec<usize> = (0..d).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
     for a in 0..d {
         for b in a + 1..d {
             if !(candidate[a] && candidate[b]) {

@@ -116,13 +116,7 @@ fn projected_fit(
         split,
         false,
     )?;
-    let (states, layout) = at_values(
-        compiled,
-        engine,
-        files,
-        values,
-        (options.noise, &options.file_noise),
-    )?;
+    let (states, layout) = at_values(compiled, engine, files, values, options)?;
     let mut r = Vec::with_capacity(point.rows);
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
         r.push(y - x.iter().zip(&point.beta).map(|(a, b)| a * b).sum::<f64>());
@@ -157,12 +151,7 @@ fn split_for(
     }
     let moving_columns: Vec<usize> = (0..columns).filter(|&j| moving[j]).collect();
     let keep = kaufman && keeps(files, moving_columns.len(), fitted.len());
-    let (states, layout) = team.at_values(
-        &compiled.machine,
-        files,
-        values,
-        (options.noise, &options.file_noise),
-    )?;
+    let (states, layout) = team.at_values(&compiled.machine, files, values, options)?;
     // One part alone keeps the factorisation's own worker threads.
     let threads = if team.parts() > 1 { 1 } else { options.threads };
     struct Part {
@@ -274,13 +263,7 @@ fn triangle_at(
     options: &Options,
     without: &[bool],
 ) -> Result<(Reduced, Vec<design::FileStates>, Layout), FitError> {
-    let (states, layout) = at_values(
-        compiled,
-        engine,
-        files,
-        values,
-        (options.noise, &options.file_noise),
-    )?;
+    let (states, layout) = at_values(compiled, engine, files, values, options)?;
     let mut acc = StreamingQr::with_threads(layout.columns(), options.block, options.threads);
     let mut row = vec![0.0; layout.columns()];
     design::for_each_row(engine, files, &states, &layout, |_, x, y| {
@@ -337,13 +320,7 @@ fn predictions(
     beta: &[f64],
     options: &Options,
 ) -> Result<Vec<f64>, FitError> {
-    let (states, layout) = at_values(
-        compiled,
-        engine,
-        files,
-        values,
-        (options.noise, &options.file_noise),
-    )?;
+    let (states, layout) = at_values(compiled, engine, files, values, options)?;
     let mut out = Vec::new();
     design::for_each_row(engine, files, &states, &layout, |_, x, _| {
         out.push(x.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>())
@@ -398,13 +375,7 @@ fn difference_triangle(
                 .collect(),
         );
     }
-    let (states, layout) = at_values(
-        compiled,
-        engine,
-        files,
-        values,
-        (options.noise, &options.file_noise),
-    )?;
+    let (states, layout) = at_values(compiled, engine, files, values, options)?;
     let p = layout.columns();
     let mut row = vec![0.0; p + k];
     let mut i = 0usize;
@@ -620,13 +591,7 @@ fn term_gain(
         let products = match at {
             Some(p) => p,
             None => {
-                let (states, layout) = at_values(
-                    compiled,
-                    engine,
-                    files,
-                    values,
-                    (options.noise, &options.file_noise),
-                )?;
+                let (states, layout) = at_values(compiled, engine, files, values, options)?;
                 let mut products = split.products();
                 design::for_each_row(engine, files, &states, &layout, |_, x, y| {
                     split.push(&mut products, x, y)
@@ -786,14 +751,18 @@ impl Moving {
         files: &[DataSet],
         states: &[FileStates],
         values: &[f64],
-        noise: (Option<design::Noise>, &[design::Noise]),
+        options: &Options,
         mut out: Differences,
     ) -> Result<bool, FitError> {
         let Ok(mut engine) = kin_model::engine::make(&self.machine, kind) else {
             return Ok(false);
         };
         design::set_values(engine.as_mut(), values)?;
-        let layout = Layout::new(&self.machine, files).weighted(&self.machine, noise.0, noise.1);
+        let layout = Layout::new(&self.machine, files).weighted(
+            &self.machine,
+            options.noise,
+            &options.file_noise,
+        );
         // Each moving column's place among this model's columns.
         let at: Vec<Option<usize>> = out
             .moving
@@ -1022,12 +991,8 @@ impl Problem<'_> {
             p[c] += H_COLUMNS;
             let values = self.values(&p);
             let last = c + 1 == k;
-            let (states, layout) = team.at_values(
-                &self.compiled.machine,
-                self.files,
-                &values,
-                (self.options.noise, &self.options.file_noise),
-            )?;
+            let (states, layout) =
+                team.at_values(&self.compiled.machine, self.files, &values, self.options)?;
             // Only the last pass needs every column (the products of [X | D]); the others
             // need the moving columns alone, which the moving terms' own model gives.
             if !last {
@@ -1039,7 +1004,7 @@ impl Problem<'_> {
                         self.files,
                         &states,
                         &values,
-                        (self.options.noise, &self.options.file_noise),
+                        self.options,
                         Differences {
                             moving,
                             beta: &beta_b,
@@ -1168,12 +1133,7 @@ fn projected(
     split: &Split,
     keep: bool,
 ) -> Result<Point, FitError> {
-    let (states, layout) = team.at_values(
-        &compiled.machine,
-        files,
-        values,
-        (options.noise, &options.file_noise),
-    )?;
+    let (states, layout) = team.at_values(&compiled.machine, files, values, options)?;
     let nb = split.moving();
     let moving = split.order.get(split.order.len() - nb..).unwrap_or(&[]);
     let mut parts: Vec<(projection::Products, Vec<f64>)> = (0..team.parts())
@@ -1506,13 +1466,7 @@ fn moved_columns(
     options: &Options,
 ) -> Result<Vec<Vec<bool>>, FitError> {
     let mut projection = |values: &[f64]| -> Result<Vec<(f64, f64)>, FitError> {
-        let (states, layout) = at_values(
-            compiled,
-            engine,
-            files,
-            values,
-            (options.noise, &options.file_noise),
-        )?;
+        let (states, layout) = at_values(compiled, engine, files, values, options)?;
         let mut sums = vec![(0.0, 0.0); layout.columns()];
         let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
         design::for_each_row(engine, files, &states, &layout, |_, x, _| {
@@ -1748,7 +1702,7 @@ machine m {
                     &files,
                     &states,
                     &values,
-                    (None, &[]),
+                    &Options::default(),
                     Differences {
                         moving,
                         beta: &beta,
@@ -2059,7 +2013,7 @@ machine m {
             let mut held = None;
             for (i, v) in steps.iter().enumerate() {
                 let (st, _) = team
-                    .at_values(&c.machine, &files, v, (None, &[]))
+                    .at_values(&c.machine, &files, v, &Options::default())
                     .expect("at values");
                 assert_eq!(lags(&st), fresh(v), "step {i}");
                 if i == 1 {

@@ -13,7 +13,7 @@ use kin_compiler::ir::Machine;
 use kin_compiler::Compiled;
 
 use super::design::{self, DataSet, FileStates, Layout, RowMeta};
-use super::FitError;
+use super::{FitError, Options};
 use kin_data::data::Observations;
 use kin_model::engine::Evaluator;
 
@@ -84,7 +84,7 @@ impl Team<'_, '_> {
         m: &Machine,
         files: &[DataSet],
         values: &[f64],
-        noise: (Option<design::Noise>, &[design::Noise]),
+        options: &Options,
     ) -> Result<(Arc<Vec<FileStates>>, Layout), FitError> {
         for e in self.rest.iter_mut() {
             design::set_values(e.as_mut(), values)?;
@@ -130,7 +130,10 @@ impl Team<'_, '_> {
         };
         let shared = Arc::clone(&states.states);
         self.states = Some(states);
-        Ok((shared, Layout::new(m, files).weighted(m, noise.0, noise.1)))
+        Ok((
+            shared,
+            Layout::new(m, files).weighted(m, options.noise, &options.file_noise),
+        ))
     }
 
     /// One pass over the rows, part `t` of them into `parts[t]`.
@@ -229,12 +232,12 @@ pub(super) fn at_values(
     engine: &mut dyn Evaluator,
     files: &[DataSet],
     values: &[f64],
-    noise: (Option<design::Noise>, &[design::Noise]),
+    options: &Options,
 ) -> Result<(Vec<FileStates>, Layout), FitError> {
     let m = &compiled.machine;
     design::set_values(engine, values)?;
     Ok((
         design::states_with(m, files, values)?,
-        Layout::new(m, files).weighted(m, noise.0, noise.1),
+        Layout::new(m, files).weighted(m, options.noise, &options.file_noise),
     ))
 }

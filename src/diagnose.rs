@@ -20,6 +20,8 @@ pub struct DiagnoseArgs {
     pub force: bool,
     /// Show what `--apply` would add; change nothing.
     pub dry_run: bool,
+    /// List the candidates that are not findings, with the reason.
+    pub explain: bool,
     /// The stated instrument noise on positions and on rotations.
     pub noise: Option<crate::args::Spread>,
     pub noise_tilt: Option<crate::args::Spread>,
@@ -106,6 +108,9 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         said.insert_str(at, &format!("  ({note})\n"));
     }
     print!("{said}");
+    if a.explain {
+        print!("{}", dropped(&diagnosis));
+    }
     if let Some(out) = &a.output {
         files::write(out, fitcmd::to_json(&diagnosis)?.as_bytes())?;
         println!("wrote {}", out.display());
@@ -125,6 +130,14 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
             "error: candidate {n} (`{}`) is not significant (adjusted p = {:.2} at α = {}); the model was not changed. \
              Add it anyway with --apply {n} --force",
             finding.candidate.text, finding.p_adjusted, diagnosis.alpha
+        );
+        return Err(Failed::INPUT);
+    }
+    if let (Some(c), false) = (finding.contradiction(), a.force) {
+        eprintln!(
+            "error: candidate {n} (`{}`) is contradicted by the data: {c}; the model was not changed. \
+             Add it anyway with --apply {n} --force",
+            finding.candidate.text
         );
         return Err(Failed::INPUT);
     }
@@ -442,8 +455,14 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
                 "      the data cannot decide between these readings: {sep}\n"
             ));
         }
+        if let Some(c) = f.contradiction() {
+            s.push_str(&format!("      contradicted: {c}\n"));
+        }
         for w in f.plausibility.iter().flat_map(|p| &p.warnings) {
             s.push_str(&format!("      doubtful: {w}\n"));
+        }
+        if let Some(why) = &f.candidate.no_path {
+            s.push_str(&format!("      no physical path: {why}\n"));
         }
     }
     if significant.len() > 10 {
@@ -453,6 +472,18 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
         ));
     }
     s.push_str("\n  add one with `kin diagnose … --apply N` (or paste its line into the errors block), then refit\n");
+    s
+}
+
+/// The candidates proposed that are not findings, each with its reason (`--explain`).
+fn dropped(d: &Diagnosis) -> String {
+    let mut s = format!(
+        "\ncandidates proposed that are not findings ({})\n",
+        d.dropped.len()
+    );
+    for c in &d.dropped {
+        s.push_str(&format!("  {}\n      {}\n", c.text, c.reason));
+    }
     s
 }
 

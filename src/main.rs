@@ -305,6 +305,10 @@ enum Command {
         /// With --apply: print the lines that would be added, change nothing.
         #[arg(long, requires = "apply")]
         dry_run: bool,
+        /// Also list every candidate proposed that is not a finding, with the reason (already
+        /// in the model, not testable on these data, another reading chosen, …).
+        #[arg(long)]
+        explain: bool,
         /// The instrument's standard deviation on positions and lengths, e.g. `0.3um`: every fit
         /// of the diagnosis divides each row by its kind's σ (weighted least squares), and the
         /// residuals are judged against it (χ² test, region tests) instead of against the
@@ -994,6 +998,7 @@ fn run(command: Command) -> ExitCode {
             apply,
             force,
             dry_run,
+            explain,
             noise,
             noise_per_file,
             noise_tilt,
@@ -1039,6 +1044,7 @@ fn run(command: Command) -> ExitCode {
                 apply,
                 force,
                 dry_run,
+                explain,
                 noise,
                 noise_tilt,
                 format,

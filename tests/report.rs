@@ -73,6 +73,7 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
             also: Vec::new(),
             text: text.into(),
             explanation: format!("{target} <explained> & so on"),
+            no_path: None,
         },
         columns: 2,
         explained,
@@ -86,6 +87,7 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
         bic: -100.0,
         plausibility: None,
         fitted: Vec::new(),
+        contradicted: Vec::new(),
     };
     Diagnosis {
         machine: "bridge_cmm".into(),
@@ -93,6 +95,8 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
         sigma: 0.2,
         rms: 0.2,
         weighted: false,
+        proposed: 0,
+        dropped: Vec::new(),
         error_unit: "um".into(),
         alpha: 0.01,
         regions: vec![Region {

@@ -10,9 +10,9 @@ use thiserror::Error;
 
 use super::library::{self, Available, Proposal, Sampling};
 use super::trend::{self, Timed, Trend};
-use super::{pass, periodic, refit, spectrum};
+use super::{evidence, pass, periodic, refit, spectrum};
 use super::{
-    Bin, Candidate, ChiSquare, Diagnosis, Family, FileSigma, Finding, NoiseCheck, Outlier,
+    Bin, Candidate, ChiSquare, Diagnosis, Dropped, Family, FileSigma, Finding, NoiseCheck, Outlier,
     Plausibility, Region, Spectrum,
 };
 use kin_data::data::Observations;
@@ -165,7 +165,9 @@ pub fn diagnose(
         &super::beam::Beams::of(source),
         &mut proposals,
     );
-    let findings = test_candidates(compiled, source, files, base, options, &proposals, settings)?;
+    library::mark_paths(m, &mut proposals);
+    let (findings, dropped) =
+        test_candidates(compiled, source, files, base, options, &proposals, settings)?;
     let mut rows = positions(m, files, base);
     let trends = time_trends(m, &mut rows, base, settings);
     let (regions, bins) = regions(m, &rows, base, settings, &trends);
@@ -188,6 +190,8 @@ pub fn diagnose(
         },
         outliers: outliers(m, files, base, &rows),
         weighted: base.layout.weights.stated,
+        proposed: proposals.len(),
+        dropped,
     })
 }
 
@@ -195,7 +199,7 @@ pub fn diagnose(
 /// rotations), whatever the fit weighed its row by: a stated noise weighs every row by
 /// `scale/σ` of its kind, the unit weighting a tilt unit as an error unit. Locating failures,
 /// the spectra and the noise tests work on the physical residual, each kind against its own σ.
-fn display(m: &Machine, weights: &Weights, component: u8, residual: f64) -> f64 {
+pub(super) fn display(m: &Machine, weights: &Weights, component: u8, residual: f64) -> f64 {
     let w = weights.of(component);
     let unit = Weights::unit(m).of(component);
     if w > 0.0 && w.is_finite() {
@@ -805,6 +809,7 @@ fn super_model(
     compiled: &Compiled,
     source: &str,
     proposals: &[Proposal],
+    dropped: &mut Vec<Dropped>,
 ) -> Result<(Compiled, TermColumns), DiagnoseError> {
     let file = kin_compiler::syntax::parse_file(source)
         .map_err(|d| DiagnoseError::Candidates(d.message))?;
@@ -846,17 +851,29 @@ fn super_model(
         text.push_str(source.get(at..).unwrap_or(""));
         (text, ranges)
     };
-    let compiles = |chosen: &[usize]| -> bool {
+    // The first error of the model with the chosen candidates, if any.
+    let error = |chosen: &[usize]| -> Option<String> {
         compile(&build(chosen).0)
             .diagnostics
-            .iter()
-            .all(|d: &Diagnostic| !d.is_error())
+            .into_iter()
+            .find(Diagnostic::is_error)
+            .map(|d| d.message)
     };
     let all: Vec<usize> = (0..proposals.len()).collect();
-    let chosen: Vec<usize> = if compiles(&all) {
+    let chosen: Vec<usize> = if error(&all).is_none() {
         all
     } else {
-        (0..proposals.len()).filter(|&k| compiles(&[k])).collect()
+        let mut chosen = Vec::new();
+        for (k, p) in proposals.iter().enumerate() {
+            match error(&[k]) {
+                None => chosen.push(k),
+                Some(e) => dropped.push(Dropped {
+                    text: p.candidate.text.clone(),
+                    reason: format!("the model with it does not compile: {e}"),
+                }),
+            }
+        }
+        chosen
     };
     let (text, ranges) = build(&chosen);
     let out = compile(&text);
@@ -938,12 +955,13 @@ fn test_candidates(
     options: &fit::Options,
     proposals: &[Proposal],
     settings: &Settings,
-) -> Result<Vec<Finding>, DiagnoseError> {
+) -> Result<(Vec<Finding>, Vec<Dropped>), DiagnoseError> {
+    let mut dropped = Vec::new();
     if proposals.is_empty() {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), dropped));
     }
     let m = &compiled.machine;
-    let (sup, columns) = super_model(compiled, source, proposals)?;
+    let (sup, columns) = super_model(compiled, source, proposals, &mut dropped)?;
     let values: Vec<f64> = match &base.nonlinear {
         Some(n) => sup
             .machine
@@ -1038,8 +1056,15 @@ fn test_candidates(
     };
 
     let mut tested: Vec<Tested> = Vec::new();
+    let mut drop = |k: usize, reason: &str| {
+        dropped.push(Dropped {
+            text: proposals[k].candidate.text.clone(),
+            reason: reason.to_string(),
+        })
+    };
     for (k, terms) in &columns {
         let Some(added) = space.added(terms) else {
+            drop(*k, "its columns were not in the pass over the rows");
             continue;
         };
         // A candidate the model already contains, or one the data cannot see, adds nothing.
@@ -1049,13 +1074,22 @@ fn test_candidates(
         // elsewhere already make) cannot be: a line adds all of a term's functions or none,
         // and with all of them the refit would be rank-deficient (E0601). Such a candidate is
         // not proposed, nor one whose terms could not be told apart in the super-model.
-        if added.basis.is_empty() || !added.appliable {
+        if added.basis.is_empty() {
+            drop(*k, "the model already spans it on these data (or the data cannot see it): it adds no direction");
+            continue;
+        }
+        if !added.appliable {
+            drop(*k, "the model spans part of one of its terms: a line adds all of a term's functions or none, and with all of them the refit would be rank-deficient");
             continue;
         }
         let n_added = added.basis.len();
         let rss = added.rss;
         let dof = rows - (base_rank + n_added) as f64;
         if dof <= 0.0 || rss <= 0.0 {
+            drop(
+                *k,
+                "too few rows to test it: no residual degrees of freedom are left",
+            );
             continue;
         }
         let f = ((rss_base - rss) / n_added as f64) / (rss / dof);
@@ -1082,6 +1116,7 @@ fn test_candidates(
                 bic: rows * (rss / rss_base).ln() + n_added as f64 * rows.ln(),
                 plausibility: None,
                 fitted: Vec::new(),
+                contradicted: Vec::new(),
             },
             terms: terms.clone(),
             columns: added.columns,
@@ -1135,19 +1170,45 @@ fn test_candidates(
                     bic: t.finding.bic,
                 })
                 .collect();
-            if let Some(i) = periodic::choose(&readings, rows, base_rank, settings.alpha) {
-                all.push(members.swap_remove(i));
+            let chosen = periodic::choose(&readings, rows, base_rank, settings.alpha);
+            let kept = chosen.map(|i| members.swap_remove(i));
+            let why = match &kept {
+                Some(k) => format!(
+                    "another reading of the same periodic error is chosen: `{}` (as many harmonics as the data support)",
+                    k.finding.candidate.text
+                ),
+                None => "no reading of this periodic error is supported by the data".to_string(),
+            };
+            for t in &members {
+                drop(t.proposal, &why);
             }
+            all.extend(kept);
             continue;
         }
         let mut best: Option<Tested> = None;
+        let mut losers = Vec::new();
         for t in members {
             match &best {
                 Some(b)
                     if b.finding.bic < t.finding.bic
                         || (b.finding.bic == t.finding.bic
-                            && b.finding.candidate.text <= t.finding.candidate.text) => {}
-                _ => best = Some(t),
+                            && b.finding.candidate.text <= t.finding.candidate.text) =>
+                {
+                    losers.push(t.proposal)
+                }
+                _ => {
+                    losers.extend(best.take().map(|b| b.proposal));
+                    best = Some(t)
+                }
+            }
+        }
+        if let Some(b) = &best {
+            let why = format!(
+                "another member of its group fits at a lower BIC: `{}`",
+                b.finding.candidate.text
+            );
+            for k in losers {
+                drop(k, &why);
             }
         }
         all.extend(best);
@@ -1190,9 +1251,62 @@ fn test_candidates(
         )?;
     }
     settings.progress.report(Step::Refits, refits, refits);
-    refit::one_per_effect(&mut out);
+    for f in refit::one_per_effect(&mut out) {
+        dropped.push(Dropped {
+            text: f.candidate.text,
+            reason:
+                "its component is part of a joint line of the same effect, listed as one finding"
+                    .into(),
+        });
+    }
     out.sort_by(rank_order);
-    Ok(out)
+    contradictions(&mut out, source, files, base, options, settings)?;
+    Ok((out, dropped))
+}
+
+/// Refits checked for contradicted components at most: each is a fit of the whole data.
+const EVIDENCE_CHECKS: usize = 4;
+
+/// Checks the findings that would rank first, in rank order, for measured components their
+/// refit makes worse ([`evidence`]) until one is not contradicted: a contradicted one moves
+/// after every finding that is not, so the head of the list is one the data do not
+/// contradict (as far as [`EVIDENCE_CHECKS`] refits reach).
+fn contradictions(
+    out: &mut [Finding],
+    source: &str,
+    files: &[DataSet],
+    base: &FitResult,
+    options: &fit::Options,
+    settings: &Settings,
+) -> Result<(), DiagnoseError> {
+    let mut checked: Vec<String> = Vec::new();
+    for _ in 0..EVIDENCE_CHECKS {
+        let Some(head) = out
+            .iter_mut()
+            .find(|f| f.significant && !doubtful(f) && !checked.contains(&f.candidate.text))
+        else {
+            break;
+        };
+        checked.push(head.candidate.text.clone());
+        if let Some((c, r)) = refit::with(
+            &head.candidate.text,
+            source,
+            files,
+            options,
+            settings.engine,
+        )? {
+            let added = head
+                .columns
+                .max(r.solution.rank.saturating_sub(base.solution.rank));
+            head.contradicted = evidence::worse(&c.machine, base, &r, added, settings.alpha);
+        }
+        let clean = head.contradicted.is_empty();
+        out.sort_by(rank_order);
+        if clean {
+            break;
+        }
+    }
+    Ok(())
 }
 
 /// A candidate as tested: its finding, its terms' super-model columns, the columns that add a
@@ -1341,17 +1455,24 @@ impl Space<'_> {
     }
 }
 
-/// The ranking: significant before not; a significant finding whose refit is implausible after
-/// the plausible ones; then by BIC (a column must pay ln n), the simpler family, the text.
+/// Whether a finding's refit is implausible (ill-conditioned, a length beyond the machine's).
+fn doubtful(f: &Finding) -> bool {
+    f.plausibility
+        .as_ref()
+        .is_some_and(|p| !p.warnings.is_empty())
+}
+
+/// The ranking: significant before not; a significant finding the data contradict after the
+/// rest, one whose refit is implausible after the plausible ones, a coupling with no physical
+/// path after those that have one; then by BIC (a column must pay ln n), the simpler family, the text.
 fn rank_order(a: &Finding, b: &Finding) -> std::cmp::Ordering {
-    let doubtful = |f: &Finding| {
-        f.plausibility
-            .as_ref()
-            .is_some_and(|p| !p.warnings.is_empty())
-    };
+    let contradicted = |f: &Finding| !f.contradicted.is_empty();
+    let no_path = |f: &Finding| f.candidate.no_path.is_some();
     b.significant
         .cmp(&a.significant)
+        .then(contradicted(a).cmp(&contradicted(b)))
         .then(doubtful(a).cmp(&doubtful(b)))
+        .then(no_path(a).cmp(&no_path(b)))
         .then(a.bic.total_cmp(&b.bic))
         .then(simplicity(a.candidate.family).cmp(&simplicity(b.candidate.family)))
         .then_with(|| a.candidate.text.cmp(&b.candidate.text))
@@ -2052,6 +2173,56 @@ fn nice(v: f64) -> String {
 mod tests {
     use super::*;
     use kin_estimate::fit::StreamingQr;
+
+    fn finding(text: &str, bic: f64) -> Finding {
+        Finding {
+            candidate: Candidate {
+                family: Family::CrossCoupling,
+                target: "X.tx".into(),
+                also: Vec::new(),
+                text: text.into(),
+                explanation: String::new(),
+                no_path: None,
+            },
+            alternatives: Vec::new(),
+            separation: None,
+            columns: 1,
+            explained: 0.5,
+            f: 50.0,
+            p: 1e-9,
+            p_adjusted: 1e-8,
+            significant: true,
+            rms_after: 1.0,
+            bic,
+            plausibility: None,
+            fitted: Vec::new(),
+            contradicted: Vec::new(),
+        }
+    }
+
+    /// The evidence and the structure outrank BIC: a contradicted line after every other
+    /// significant one, a coupling with no physical path after those with one, and both
+    /// still before what is not significant.
+    #[test]
+    fn contradicted_and_pathless_lines_rank_after_the_rest() {
+        let mut contradicted = finding("contradicted", -500.0);
+        contradicted.contradicted.push(super::super::Worse {
+            component: "erz".into(),
+            rms_before: 414.0,
+            rms_after: 541.0,
+            unit: "urad".into(),
+            p: 1e-30,
+        });
+        let mut pathless = finding("pathless", -400.0);
+        pathless.candidate.no_path = Some("no path".into());
+        let plain = finding("plain", -10.0);
+        let mut weak = finding("weak", 5.0);
+        weak.significant = false;
+        let mut all = [weak, contradicted, pathless, plain];
+        all.sort_by(rank_order);
+        let order: Vec<&str> = all.iter().map(|f| f.candidate.text.as_str()).collect();
+        assert_eq!(order, ["plain", "pathless", "contradicted", "weak"]);
+    }
 
     fn region(component: &str, cond: &str, ratio: f64) -> Region {
         Region {

@@ -63,6 +63,13 @@ pub(super) const ROWS: &[Row] = &[
         form: "const",
     },
     Row {
+        key: "offset",
+        element: Element::Prismatic,
+        components: Components::Translations,
+        family: Family::Constant,
+        form: "const",
+    },
+    Row {
         key: "angular-motion",
         element: Element::Prismatic,
         components: Components::Rotations,

@@ -55,6 +55,10 @@ pub struct Candidate {
     pub text: String,
     /// What it would mean physically, in plain words.
     pub explanation: String,
+    /// Why no load or motion path links the axes the line couples (they sit on different
+    /// chains); ranked after the candidates that have one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub no_path: Option<String>,
 }
 
 /// A tested candidate: the canonical line of a group of lines the data cannot tell apart.
@@ -90,6 +94,31 @@ pub struct Finding {
     /// findings only); `rms_after` is then that refit's too.
     #[serde(default)]
     pub fitted: Vec<Fitted>,
+    /// The measured components the refit with the line makes worse beyond their noise
+    /// (checked for the findings ranked first): a contradicted line is ranked after every
+    /// one that is not, and `--apply` refuses it without `--force`.
+    #[serde(default)]
+    pub contradicted: Vec<Worse>,
+}
+
+impl Finding {
+    /// What the finding's contradicted components say, when there are any.
+    pub fn contradiction(&self) -> Option<String> {
+        (!self.contradicted.is_empty()).then(|| evidence::said(&self.contradicted))
+    }
+}
+
+/// A measured component a candidate's refit makes worse beyond its noise.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Worse {
+    /// The observed component (`ex` … `erz`, `dL`).
+    pub component: String,
+    /// Its RMS in the base fit and in the refit with the line (`unit`).
+    pub rms_before: f64,
+    pub rms_after: f64,
+    pub unit: String,
+    /// The probability of growth this large by chance (χ² of the columns added).
+    pub p: f64,
 }
 
 /// A non-linear parameter (wavelength, time constant) of a refit, in its display unit.
@@ -227,6 +256,22 @@ pub struct Diagnosis {
     /// weighted by the stated noise (`--noise`, `--noise-tilt`).
     #[serde(default)]
     pub weighted: bool,
+    /// How many candidate lines the library proposed: each is a finding, another reading of
+    /// one (`alternatives`) or `dropped`.
+    #[serde(default)]
+    pub proposed: usize,
+    /// Every candidate the library proposed that is not among the findings, with the reason
+    /// (`kin diagnose --explain` prints them).
+    #[serde(default)]
+    pub dropped: Vec<Dropped>,
+}
+
+/// A proposed candidate that is not a finding, and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Dropped {
+    /// The line as proposed.
+    pub text: String,
+    pub reason: String,
 }
 
 /// One file's scatter of one kind of row against its noise.
@@ -254,6 +299,7 @@ mod beam;
 // The coverage table the library is audited against (its tests; spec/diagnosis.md for users).
 #[cfg(test)]
 mod coverage;
+mod evidence;
 mod gravity;
 mod heat;
 pub mod library;

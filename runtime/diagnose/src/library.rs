@@ -346,6 +346,7 @@ pub(super) fn push(
             also: Vec::new(),
             text,
             explanation,
+            no_path: None,
         },
         test_text,
         group,
@@ -376,13 +377,21 @@ pub fn propose(
         let motion = along(axis.direction);
 
         // Missing squareness / axis-location constants.
+        // A prismatic carriage's constant offset (its zero along its motion, its location
+        // across it) matters where a revolute axis it carries turns the offset; elsewhere it is
+        // the chain's one constant translation, which the pass finds already spanned once any
+        // other element has it (and says so: `dropped`).
         for comp in Component::ALL {
-            if (comp.is_rotation() || revolute) && !has(m, frame, comp, is_const) {
+            if !has(m, frame, comp, is_const) {
                 let target = format!("{name}.{}", comp.name());
                 let what = if comp.is_rotation() {
                     format!("a constant rotation of the {name} axis about {} (a squareness or tilt of the axes it carries)", &comp.name()[1..])
-                } else {
+                } else if revolute {
                     format!("a constant offset of the {name} axis line along {} (an axis-location error)", &comp.name()[1..])
+                } else if comp == motion {
+                    format!("a constant offset of the {name} carriage along its motion (its zero)")
+                } else {
+                    format!("a constant offset of the {name} carriage along {} (its location across its motion)", &comp.name()[1..])
                 };
                 push(
                     &mut out,
@@ -685,6 +694,53 @@ pub fn propose(
     out
 }
 
+/// Marks every proposal on an axis whose terms use an axis of the other chain: no load or
+/// motion path links them. An error of one axis changes with another's position through a
+/// load path (the other's weight or moment rides on it, eq. 3.19) or through what one carries
+/// of the other; axes on different chains meet only at the machine's base, whose deformation
+/// under a moving carriage the model does not express this way. Such a line can still win on
+/// BIC where it fits something else by chance: it is kept, ranked after those with a path.
+pub fn mark_paths(m: &Machine, proposals: &mut [Proposal]) {
+    let chain_of = |name: &str| -> Option<(&'static str, usize)> {
+        let tool = m.tool_chain.iter().map(|e| ("tool", e.axis));
+        let workpiece = m.workpiece_chain.iter().map(|e| ("workpiece", e.axis));
+        tool.chain(workpiece)
+            .find(|(_, a)| m.axes.get(*a).is_some_and(|x| x.name == name))
+    };
+    for p in proposals.iter_mut() {
+        let Some((frame, _)) = p.candidate.target.split_once('.') else {
+            continue;
+        };
+        let Some((own, a)) = chain_of(frame) else {
+            continue;
+        };
+        let others: Vec<&str> = p
+            .terms
+            .iter()
+            .flat_map(|t| identifiers(&t.test))
+            .filter_map(|word| {
+                let (chain, b) = chain_of(word)?;
+                (b != a && chain != own).then_some(word)
+            })
+            .collect();
+        if let Some(other) = others.first() {
+            p.candidate.no_path = Some(format!(
+                "{frame} is on the {own} chain and {other} on the other: no load or motion path links them"
+            ));
+        }
+    }
+}
+
+/// The identifiers of a term's text (`linear(X) * backlash(Y)`: linear, X, backlash, Y).
+fn identifiers(text: &str) -> impl Iterator<Item = &str> {
+    text.split(|c: char| !(c.is_alphanumeric() || c == '_'))
+        .filter(|w| {
+            w.chars()
+                .next()
+                .is_some_and(|c| c.is_alphabetic() || c == '_')
+        })
+}
+
 /// A warm-up that nothing measured follows (thesis §3.4.4, with the step response of the
 /// thermal lag of eq. 3.41–3.48): `warmup(time, tau fit τ)`, `1 − e^{−(t − t₀)/τ}` from each
 /// run's start, on the tool's translations (`* const`) and on each prismatic axis' scale
@@ -881,6 +937,7 @@ mod tests {
                 also: Vec::new(),
                 text: line(target, &all, false),
                 explanation,
+                no_path: None,
             },
             test_text: line(target, &all, true),
             group: String::new(),
@@ -892,6 +949,68 @@ mod tests {
 
     /// A joint declared over ±360° and measured over ±90°: the spline's knots go where the
     /// data are, and the line compiles; data over the whole range keep `knots N`.
+    /// A mill: Y and X move the table (workpiece chain), Z the spindle (tool chain). X's
+    /// weight rides on Y, so Y's error may change with X; nothing links Z to the table's axes.
+    #[test]
+    fn couplings_across_chains_have_no_physical_path() {
+        let src = "machine mill {
+            task position
+            units { length mm, error um, tilt urad }
+            axis Y prismatic along -y range 0 mm .. 400 mm
+            axis X prismatic along -x range 0 mm .. 500 mm
+            axis Z prismatic along z range -300 mm .. 0 mm
+            workpiece chain {
+                Y fixed
+                X fixed at (0, 0, 100) mm
+                workpiece at (0, 0, 0) mm
+            }
+            tool chain {
+                Z moving at (0, 0, 500) mm
+                tool spindle at (0, 0, -100) mm
+            }
+            errors {
+                X.tx = linear(X)
+            }
+        }";
+        let Some(c) = kin_compiler::compile(src).compiled else {
+            panic!("{src}")
+        };
+        let term = |t: &str| vec![Term::new(t.into())];
+        let mut all = vec![
+            proposal(
+                Family::CrossCoupling,
+                "Y.tz",
+                term("linear(X)"),
+                String::new(),
+            ),
+            proposal(
+                Family::CrossCoupling,
+                "Z.tx",
+                term("linear(X)"),
+                String::new(),
+            ),
+            proposal(
+                Family::Backlash,
+                "Y.ty",
+                term("linear(Z) * backlash(Y)"),
+                String::new(),
+            ),
+            proposal(
+                Family::Drift,
+                "tool.tx",
+                term("time * const"),
+                String::new(),
+            ),
+        ];
+        mark_paths(&c.machine, &mut all);
+        let marked: Vec<bool> = all.iter().map(|p| p.candidate.no_path.is_some()).collect();
+        assert_eq!(marked, [false, true, true, false]);
+        assert_eq!(
+            all[1].candidate.no_path.as_deref(),
+            Some("Z is on the tool chain and X on the other: no load or motion path links them")
+        );
+    }
+
     #[test]
     fn knots_are_placed_over_the_range_the_data_cover() {
         let src = "machine arm {\n    task position\n    units { length mm, angle deg, error um, tilt urad }\n    axis J1 revolute about z range -360 deg .. 360 deg\n    tool chain {\n        J1 fixed\n        tool flange at (500, 0, 0) mm\n    }\n    errors {\n        J1.rz = const\n    }\n}\n";

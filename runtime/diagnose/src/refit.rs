@@ -24,6 +24,25 @@ fn with_line(source: &str, line: &str) -> Result<String, DiagnoseError> {
     Ok(format!("{head}\n{open}{line}\n{close}{tail}"))
 }
 
+/// The model `source` with `line` added, compiled and fitted to `files`; `None` when it does
+/// not compile or its fit fails.
+pub(super) fn with(
+    line: &str,
+    source: &str,
+    files: &[DataSet],
+    options: &fit::Options,
+    engine: kin_model::engine::Engine,
+) -> Result<Option<(Compiled, fit::FitResult)>, DiagnoseError> {
+    let Some(c) = compile(&with_line(source, line)?).compiled else {
+        return Ok(None);
+    };
+    let r = {
+        let mut eval = kin_model::engine::make(&c.machine, engine)?;
+        fit::fit(&c, eval.as_mut(), files, &[], options, &mut |_, _| {}).ok()
+    };
+    Ok(r.map(|r| (c, r)))
+}
+
 /// Refits the model with the finding's line and states the refit's values: the residual RMS
 /// after, each new non-linear parameter with its standard error, and the line with the fitted
 /// values as its start values. A refit that fails leaves the finding as the scan stated it.
@@ -36,16 +55,7 @@ pub(super) fn restate(
     engine: kin_model::engine::Engine,
     alpha: f64,
 ) -> Result<(), DiagnoseError> {
-    let refit = |line: &str| -> Result<Option<(Compiled, fit::FitResult)>, DiagnoseError> {
-        let Some(c) = compile(&with_line(source, line)?).compiled else {
-            return Ok(None);
-        };
-        let r = {
-            let mut eval = kin_model::engine::make(&c.machine, engine)?;
-            fit::fit(&c, eval.as_mut(), files, &[], options, &mut |_, _| {}).ok()
-        };
-        Ok(r.map(|r| (c, r)))
-    };
+    let refit = |line: &str| with(line, source, files, options, engine);
     let Some((mut c, mut r)) = refit(&finding.candidate.text)? else {
         return Ok(());
     };
@@ -187,7 +197,7 @@ pub(super) fn restate(
 /// whose components all belong to another finding's joint line of the same family is dropped,
 /// the one kept being led by the component that showed the effect most (then by text), so that
 /// its parameter is named after that component.
-pub(super) fn one_per_effect(findings: &mut Vec<Finding>) {
+pub(super) fn one_per_effect(findings: &mut Vec<Finding>) -> Vec<Finding> {
     fn set(f: &Finding) -> Vec<&str> {
         let mut v: Vec<&str> = std::iter::once(f.candidate.target.as_str())
             .chain(f.candidate.also.iter().map(String::as_str))
@@ -214,11 +224,17 @@ pub(super) fn one_per_effect(findings: &mut Vec<Finding>) {
                 .any(|(j, a)| i != j && covered(b, a))
         })
         .collect();
-    let mut k = 0;
-    findings.retain(|_| {
-        k += 1;
-        !drop.get(k - 1).copied().unwrap_or(false)
-    });
+    let mut kept = Vec::with_capacity(findings.len());
+    let mut gone = Vec::new();
+    for (f, d) in findings.drain(..).zip(drop) {
+        if d {
+            gone.push(f);
+        } else {
+            kept.push(f);
+        }
+    }
+    *findings = kept;
+    gone
 }
 
 /// The components where the effect of `c`'s line is physically expected with the same
@@ -335,6 +351,7 @@ mod tests {
             also: Vec::new(),
             text: text.into(),
             explanation: String::new(),
+            no_path: None,
         };
         use super::super::Family;
         let periodic = c(
@@ -369,6 +386,7 @@ mod tests {
                 also: also.iter().map(|s| s.to_string()).collect(),
                 text: format!("{target} += lag(T, tau fit 40 min) * const"),
                 explanation: String::new(),
+                no_path: None,
             },
             alternatives: Vec::new(),
             separation: None,
@@ -382,6 +400,7 @@ mod tests {
             bic: -1.0,
             plausibility: None,
             fitted: Vec::new(),
+            contradicted: Vec::new(),
         };
         let mut all = vec![
             f("tool.tx", &["tool.tz"], 0.08),

@@ -422,6 +422,42 @@ fn check_line(
     Err((added, why.join("; ")))
 }
 
+/// Nothing the library proposes disappears without a word: every line is a finding, another
+/// reading of one, or dropped with its reason.
+#[test]
+fn every_proposed_line_is_a_finding_or_dropped_with_a_reason() {
+    for (k, &(name, src, observe)) in MODELS.iter().enumerate() {
+        let (_, _, d) = diagnosed(src, observe, 300, 40 + k as u64);
+        let listed = d.findings.len()
+            + d.findings
+                .iter()
+                .map(|f| f.alternatives.len())
+                .sum::<usize>()
+            + d.dropped.len();
+        assert_eq!(
+            listed, d.proposed,
+            "{name}: findings, alternatives and dropped"
+        );
+        assert!(d.proposed > 0, "{name}");
+        for x in &d.dropped {
+            assert!(!x.reason.is_empty(), "{name}: `{}` has no reason", x.text);
+        }
+        let texts: std::collections::HashSet<&str> = d
+            .findings
+            .iter()
+            .map(|f| f.candidate.text.as_str())
+            .collect();
+        for x in &d.dropped {
+            assert!(
+                !texts.contains(x.text.as_str()),
+                "{name}: `{}` is both a finding and dropped ({})",
+                x.text,
+                x.reason
+            );
+        }
+    }
+}
+
 #[test]
 fn every_proposed_line_refits() {
     let mut failures: Vec<String> = Vec::new();

@@ -810,7 +810,69 @@ fn complete_models_raise_no_false_alarm() {
         }
     }
     println!("false alarms {alarms}/{runs}");
-    assert_eq!(alarms, 0);
+    if full() {
+        // Each run raises a false alarm with probability α = 0.01 at most (Holm–Bonferroni is
+        // family-wise): over 30 runs one alarm comes with probability 26 %, and demanding none
+        // would demand a test that never errs. Allowed: what α makes improbable (the count
+        // that more runs exceed with probability under 0.1 %). The rate itself is measured by
+        // `false_alarm_rate_of_the_controls` (0.7 % on each of two kinds, 150 runs each).
+        let allowed = binomial_bound(runs, Settings::default().alpha, 1e-3);
+        assert!(
+            alarms <= allowed,
+            "{alarms} false alarms in {runs} runs (allowed {allowed})"
+        );
+    } else {
+        assert_eq!(alarms, 0);
+    }
+}
+
+/// The smallest `k` with P(X > k) < `tail` for X binomial(`n`, `p`).
+fn binomial_bound(n: usize, p: f64, tail: f64) -> usize {
+    let mut term = (1.0 - p).powi(n as i32);
+    let mut below = term;
+    for k in 0..n {
+        if 1.0 - below < tail {
+            return k;
+        }
+        term *= (n - k) as f64 / (k + 1) as f64 * p / (1.0 - p);
+        below += term;
+    }
+    n
+}
+
+#[test]
+fn binomial_bounds() {
+    // 30 runs at 1 %: P(X ≥ 3) = 0.33 %, P(X ≥ 4) = 0.02 %.
+    assert_eq!(binomial_bound(30, 0.01, 1e-3), 3);
+    assert_eq!(binomial_bound(30, 0.01, 1e-2), 2);
+    assert_eq!(binomial_bound(10, 0.0, 1e-3), 0);
+}
+
+/// The false-alarm rate of the controls over many seeds: at α = 0.01 family-wise, at most
+/// about 1 % of the runs may raise an alarm. A measurement (ignored): run with `--release
+/// --ignored --nocapture`, `KIN_ALARM_SEEDS=N` seeds per control (200 by default).
+#[test]
+#[ignore = "measurement: run with --release --ignored --nocapture"]
+fn false_alarm_rate_of_the_controls() {
+    let seeds: u64 = std::env::var("KIN_ALARM_SEEDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(200);
+    for (name, kind, n) in [("tilt", Kind::Tilt, 3000), ("mill", Kind::Mill, 3000)] {
+        let mut t = Tally::default();
+        for seed in 0..seeds {
+            control(kind, n, 10_000 + seed, &mut t);
+        }
+        let alarms = t.runs - t.hits;
+        println!(
+            "control {name} n={n}: {alarms} false alarms in {} runs ({:.1} %)",
+            t.runs,
+            100.0 * alarms as f64 / t.runs as f64
+        );
+        for m in &t.misses {
+            println!("    {}", m.lines().next().unwrap_or(""));
+        }
+    }
 }
 
 /// Lengths between consecutive sampled poses of the CMM (a step gauge or ballbar plan).

@@ -6,8 +6,9 @@
 //! `M = C⁻¹ = (XᵀX)/σ̂²` holds the columns' inner products in units of the noise: the effect of
 //! coefficient k alone on the fitted values has length `|β_k|·√M_kk` noise units, and the
 //! effect of a set S together `√(β_Sᵀ M_SS β_S)`. A set whose joint effect is below a tenth of
-//! its largest member's, each member with a variance inflation `C_kk·M_kk` of 10 or more and an
-//! estimate of three standard errors or more, and the set's estimates jointly far from zero
+//! its largest member's, each member with a variance inflation `C_kk·M_kk` of 10 or more (or
+//! below a third, each inflated a hundredfold or more) and an estimate of three standard errors
+//! or more, and the set's estimates jointly far from zero
 //! (Wald's `β_Sᵀ C_SS⁻¹ β_S` beyond χ²'s 0.1 % point: noise of a sound fit does not produce
 //! it), is a set of terms trading off against each other:
 //! typically an effect the model lacks that several nearly alike columns imitate together
@@ -34,6 +35,13 @@ const JOINTLY: f64 = 1e-3;
 const ALIKE: f64 = 0.5;
 /// The set's joint effect at most this fraction of its largest member's effect.
 const CANCELS: f64 = 0.1;
+/// Or at most this fraction, when every member is inflated [`DEEPLY`] or more: a member whose
+/// standard error is ten times its own column's is almost wholly a combination of the others'
+/// columns, and two thirds of its effect undone by them makes its value an artefact of the
+/// trade-off as surely (a cosine that is nearly constant over a short arc beside a constant:
+/// the two move by millimetres to draw a small curve).
+const CANCELS_DEEPLY: f64 = 1.0 / 3.0;
+const DEEPLY: f64 = 100.0;
 
 /// A set of coefficients whose effects cancel.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -127,7 +135,9 @@ pub fn cancelling(beta: &[f64], covariance: &[f64]) -> Vec<Cancelling> {
             .map(|ch| zs.dot(&ch.solve(&zs)))
             .unwrap_or(f64::NAN);
         let p = crate::statistics::chi_squared_p(wald, set.len() as f64).unwrap_or(f64::NAN);
-        if joint <= CANCELS * largest && p < JOINTLY {
+        let deeply = set.iter().all(|&i| m[(i, i)] >= DEEPLY);
+        let cancels = if deeply { CANCELS_DEEPLY } else { CANCELS };
+        if joint <= cancels * largest && p < JOINTLY {
             out.push(Cancelling {
                 members: set.iter().map(|&i| determined[i]).collect(),
                 largest,
@@ -184,6 +194,35 @@ mod tests {
             .collect();
         let (beta, cov) = fit(&x, &y, noise);
         assert!(cancelling(&beta, &cov).is_empty(), "{beta:?}");
+    }
+
+    /// A tilting axis over ±30°: its cosine is nearly a constant, so beside a constant the two
+    /// columns trade off (inflation in the hundreds). A curve `1 − cos θ` beside an offset
+    /// makes the two estimates undo most, but not nine tenths, of each other: named by the
+    /// deep tier. Over a whole turn the same data leave both columns their own: nothing.
+    #[test]
+    fn a_short_arc_cosine_beside_a_constant_is_named() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let rows = 200;
+        let noise = 2e-6;
+        let run = |half_arc: f64, rng: &mut rand::rngs::StdRng| {
+            let theta: Vec<f64> = (0..rows)
+                .map(|i| half_arc * (2.0 * i as f64 / (rows - 1) as f64 - 1.0))
+                .collect();
+            let x = DMatrix::from_fn(rows, 2, |i, j| if j == 0 { 1.0 } else { theta[i].cos() });
+            let y: Vec<f64> = theta
+                .iter()
+                .map(|t| 2e-3 * (1.0 - t.cos()) + 0.4e-3 + noise * rng.random_range(-1.7..1.7))
+                .collect();
+            let (beta, cov) = fit(&x, &y, noise);
+            cancelling(&beta, &cov)
+        };
+        let short = run(30f64.to_radians(), &mut rng);
+        assert_eq!(short.len(), 1, "{short:?}");
+        assert_eq!(short[0].members, vec![0, 1]);
+        let ratio = short[0].joint / short[0].largest;
+        assert!(ratio > CANCELS && ratio <= CANCELS_DEEPLY, "{ratio}");
+        assert!(run(std::f64::consts::PI, &mut rng).is_empty());
     }
 
     #[test]

@@ -512,6 +512,23 @@ pub fn comparison(before: &history::Entry, after: &history::Entry) -> String {
                 b.rms,
                 f.rms
             ));
+            // Ratios to a stated noise compare alike; ratios to each fit's own estimate of a
+            // file's σ (`--noise-per-file`) do not: the physical RMS does, in every case.
+            // Shown where the file's RMS is not already one physical quantity: ratios, or µm
+            // and µrad rows in one number.
+            let shown = *u == STATED || f.units.len() > 1;
+            let physical: Vec<String> = f
+                .units
+                .iter()
+                .filter(|_| shown)
+                .filter_map(|a| {
+                    let was = b.units.iter().find(|x| x.unit == a.unit)?;
+                    Some(format!("{:.4} → {:.4} {}", was.rms, a.rms, a.unit))
+                })
+                .collect();
+            if !physical.is_empty() {
+                s.push_str(&format!("    {:<36} RMS {}\n", "", physical.join(", ")));
+            }
         }
     }
     s

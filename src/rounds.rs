@@ -22,6 +22,7 @@ pub fn entry(fitted: &Fitted, replaced: Option<&str>) -> Entry {
             hash: history::content_hash(&d.path)
                 .map_err(|e| eprintln!("warning: {e}"))
                 .ok(),
+            units: by_unit(f),
         })
         .collect();
     Entry {
@@ -40,6 +41,31 @@ pub fn entry(fitted: &Fitted, replaced: Option<&str>) -> Entry {
         source: replaced.map(str::to_string),
         binned: binned(fitted),
     }
+}
+
+/// A file's residual RMS per display unit, from its components' RMS and rows.
+fn by_unit(f: &kin_estimate::fit::report::FileSummary) -> Vec<history::UnitRms> {
+    let mut out: Vec<(String, f64, usize)> = Vec::new();
+    for c in &f.components {
+        let at = match out.iter().position(|(u, _, _)| *u == c.unit) {
+            Some(i) => i,
+            None => {
+                out.push((c.unit.clone(), 0.0, 0));
+                out.len() - 1
+            }
+        };
+        if let Some(u) = out.get_mut(at) {
+            u.1 += c.rms * c.rms * c.rows as f64;
+            u.2 += c.rows;
+        }
+    }
+    out.into_iter()
+        .filter(|(_, _, rows)| *rows > 0)
+        .map(|(unit, sum, rows)| history::UnitRms {
+            unit,
+            rms: (sum / rows as f64).sqrt(),
+        })
+        .collect()
 }
 
 /// What the rows were weighted by, and how many were fitted (a `--holdout` fits part of the

@@ -36,6 +36,20 @@ pub struct FileRms {
     /// kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hash: Option<String>,
+    /// The RMS of the file's residuals in each display unit (µm for positions and lengths,
+    /// µrad for rotations), whatever the rows were weighted by: a fit that estimates each
+    /// file's σ states `rms` as a ratio to its own σ̂, which two fits do not share. Absent in
+    /// records written before it was kept.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub units: Vec<UnitRms>,
+}
+
+/// A file's residual RMS over its rows of one display unit.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct UnitRms {
+    pub unit: String,
+    #[serde(deserialize_with = "nan_if_null")]
+    pub rms: f64,
 }
 
 /// One fit of one revision of a model.
@@ -303,6 +317,7 @@ mod tests {
                 path: "a.csv".into(),
                 rms: sigma,
                 hash: Some("0123".into()),
+                units: Vec::new(),
             }],
             source: None,
             data_hash: Some("d".into()),
@@ -366,6 +381,7 @@ mod tests {
             path: path.into(),
             rms: 1.0,
             hash: Some(hash.into()),
+            units: Vec::new(),
         };
         let k = data_key(&[f("a.csv", "1")], "um");
         assert_eq!(k, data_key(&[f("a.csv", "1")], "um"));

@@ -208,6 +208,15 @@ pub(super) fn motion_name(comp: Component, axis_direction: [f64; 3]) -> &'static
     }
 }
 
+/// `a` or `an` before a motion's name (`an axial error motion`, `a tilt error motion`).
+pub(super) fn article(word: &str) -> &'static str {
+    if word.starts_with(['a', 'e', 'i', 'o', 'u']) {
+        "an"
+    } else {
+        "a"
+    }
+}
+
 fn harmonics_explanation(axis: &str, hs: &[u32], motion: &str) -> String {
     let at = match hs {
         [h] => format!("{h}"),
@@ -223,7 +232,10 @@ fn harmonics_explanation(axis: &str, hs: &[u32], motion: &str) -> String {
         ),
         [] => String::new(),
     };
-    format!("a {motion} of the {axis} axis at {at} per revolution (its bearing or drive)")
+    format!(
+        "{} {motion} of the {axis} axis at {at} per revolution (its bearing or drive)",
+        article(motion)
+    )
 }
 
 /// The candidate with only the terms marked `kept` (those that add to the model on the data).
@@ -1009,6 +1021,16 @@ mod tests {
             all[1].candidate.no_path.as_deref(),
             Some("Z is on the tool chain and X on the other: no load or motion path links them")
         );
+    }
+
+    #[test]
+    fn motions_take_their_article() {
+        assert!(harmonics_explanation("C", &[2], "axial error motion").starts_with("an axial"));
+        assert!(
+            harmonics_explanation("C", &[2, 3], "angular positioning error")
+                .starts_with("an angular")
+        );
+        assert!(harmonics_explanation("C", &[2], "tilt error motion").starts_with("a tilt"));
     }
 
     #[test]

@@ -7,8 +7,8 @@ use kin_compiler::basis::Basis;
 use kin_compiler::ir::{Component, FrameRef, JointKind, Machine, Var};
 
 use super::library::{
-    along, axis_frames, frame_name, has, knots_option, line, motion_name, push, rotation_about,
-    sibling_knots, uses, Available, Proposal, Term,
+    along, article, axis_frames, frame_name, has, knots_option, line, motion_name, push,
+    rotation_about, sibling_knots, uses, Available, Proposal, Term,
 };
 use super::Family;
 
@@ -340,10 +340,12 @@ fn once_per_rev(
     let first = out.len();
     let what = match motion {
         "radial error motion" | "tilt error motion" => format!(
-            "a {motion} of the {axis} axis at once per revolution that does not turn with it (it turns the other way or keeps its direction: bearing races of unequal waviness, a drive pulling to one side); the part turning with the axis is the location of what it carries"
+            "{} {motion} of the {axis} axis at once per revolution that does not turn with it (it turns the other way or keeps its direction: bearing races of unequal waviness, a drive pulling to one side); the part turning with the axis is the location of what it carries",
+            article(motion)
         ),
         _ => format!(
-            "a {motion} of the {axis} axis at once per revolution (a tilted or eccentric bearing face, an eccentric encoder), which no location error absorbs"
+            "{} {motion} of the {axis} axis at once per revolution (a tilted or eccentric bearing face, an eccentric encoder), which no location error absorbs",
+            article(motion)
         ),
     };
     push(

@@ -127,9 +127,9 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
     };
     if !finding.significant && !a.force {
         eprintln!(
-            "error: candidate {n} (`{}`) is not significant (adjusted p = {:.2} at α = {}); the model was not changed. \
+            "error: candidate {n} (`{}`) is not significant (adjusted p = {} at α = {}); the model was not changed. \
              Add it anyway with --apply {n} --force",
-            finding.candidate.text, finding.p_adjusted, diagnosis.alpha
+            finding.candidate.text, probability(finding.p_adjusted), diagnosis.alpha
         );
         return Err(Failed::INPUT);
     }
@@ -543,6 +543,13 @@ pub fn verdict(d: &Diagnosis) -> String {
             l.groups,
             pvalue(l.p)
         ),
+        // Relative to σ̂ alone the residuals are "consistent" only where no region stands
+        // out: regions that fail (above) are what the library did not account for.
+        (None, None) if !d.regions.is_empty() => format!(
+            "but the residuals exceed the model's own residual scatter in {} region{} (above), which no effect of the library accounts for: something it does not propose is missing there; with no instrument noise stated the absolute level is not judged (state it with --noise)",
+            d.regions.len(),
+            if d.regions.len() == 1 { "" } else { "s" }
+        ),
         (None, None) => format!(
             "the residuals are consistent with the model's own residual scatter (σ̂ = {:.4} {}); with no instrument noise stated this says nothing of the absolute level (state it with --noise)",
             d.sigma, d.error_unit
@@ -550,9 +557,66 @@ pub fn verdict(d: &Diagnosis) -> String {
     }
 }
 
+/// A probability with three significant digits, never rounded onto a level it is compared
+/// with (`0.0103`, not `0.01` beside α = 0.01).
+fn probability(p: f64) -> String {
+    if p.is_nan() || p <= 0.0 || !p.is_finite() || p >= 0.1 {
+        return format!("{p:.2}");
+    }
+    if p < 1e-4 {
+        return format!("{p:.2e}");
+    }
+    let decimals = (2 - p.log10().floor() as i32).max(0) as usize;
+    format!("{p:.decimals$}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// With no noise stated and no repeated poses, the verdict under region failures says
+    /// they are unexplained, never that the residuals are consistent.
+    #[test]
+    fn failing_regions_are_not_called_consistent() {
+        let mut d = Diagnosis {
+            machine: "m".into(),
+            model_hash: String::new(),
+            sigma: 0.2,
+            rms: 0.2,
+            error_unit: "um".into(),
+            alpha: 0.01,
+            regions: Vec::new(),
+            bins: Vec::new(),
+            spectra: Vec::new(),
+            findings: Vec::new(),
+            noise: Default::default(),
+            outliers: Vec::new(),
+            weighted: false,
+            proposed: 0,
+            dropped: Vec::new(),
+        };
+        assert!(verdict(&d).contains("consistent"));
+        d.regions.push(diagnose::Region {
+            component: "ex".into(),
+            conditions: vec!["X < 100 mm".into()],
+            ratio: 2.8,
+            rows: 40,
+            p: 1e-8,
+            text: String::new(),
+        });
+        let v = verdict(&d);
+        assert!(!v.contains("consistent"), "{v}");
+        assert!(v.contains("1 region (above)"), "{v}");
+    }
+
+    #[test]
+    fn probabilities_keep_three_significant_digits() {
+        assert_eq!(probability(0.0103), "0.0103");
+        assert_eq!(probability(0.00999), "0.00999");
+        assert_eq!(probability(0.5), "0.50");
+        assert_eq!(probability(3.2e-7), "3.20e-7");
+        assert_eq!(probability(1.0), "1.00");
+    }
 
     #[test]
     fn a_model_changed_since_it_was_read_is_not_replaced() {

@@ -655,7 +655,9 @@ pub fn summary(r: &report::FitReport) -> String {
                 .iter()
                 .zip(t.values.iter().zip(&t.u))
                 .map(|(p, (v, u))| {
-                    if u.is_nan() {
+                    if v.is_nan() {
+                        format!("{p}: undetermined")
+                    } else if u.is_nan() {
                         format!("{p}: {v:.3}±?")
                     } else {
                         format!("{p}: {v:.3}±{u:.3}")

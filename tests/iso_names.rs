@@ -316,3 +316,132 @@ fn squareness_constants_are_named_by_iso_in_fit_output() {
         );
     }
 }
+
+/// A squareness written with its own axis in its scale (`(Y + 250 mm) / 1000 mm * const`, the
+/// slope of Y's path in x counted from 250 mm before Y's zero) belongs in Y's table with its
+/// straightness: the stations show their sum, as a laser run along Y would.
+#[test]
+fn a_squareness_written_with_its_axis_is_in_the_station_table() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = dir.path().join("column.kin");
+    let source = "machine column {
+            task position
+            units { length mm, error um, tilt urad }
+            axis Y prismatic along y range 0 mm .. 500 mm
+            tool chain { Y moving  tool t at (0, 0, 0) mm }
+            errors { Y.tx = (Y + 250 mm) / 1000 mm * const + straightness(Y, knots 2) }
+        }";
+    std::fs::write(&model, source).expect("write");
+    let truth_text = "params { Y.tx = [12.0, 3.0, -2.0, 1.5] um }";
+    let truth = dir.path().join("truth.params");
+    std::fs::write(&truth, truth_text).expect("write");
+    let data = dir.path().join("run.csv");
+    let fit = dir.path().join("fit.json");
+    let (m_s, t_s, d_s, f_s) = (
+        model.to_str().expect("utf-8"),
+        truth.to_str().expect("utf-8"),
+        data.to_str().expect("utf-8"),
+        fit.to_str().expect("utf-8"),
+    );
+    let out = kin(&[
+        "simulate",
+        m_s,
+        "--params",
+        t_s,
+        "--sample",
+        "300",
+        "--noise",
+        "0.5um",
+        "--seed",
+        "3",
+        "--components",
+        "position",
+        "-o",
+        d_s,
+    ]);
+    assert!(out.status.success(), "{out:?}");
+    let out = kin(&["fit", m_s, d_s, "-o", f_s]);
+    assert!(out.status.success(), "{out:?}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fit).expect("FIT.json")).expect("json");
+    let table = report["stations"]
+        .as_array()
+        .expect("stations")
+        .iter()
+        .find(|t| t["error"] == "Y.tx")
+        .expect("Y.tx at stations");
+    assert_eq!(table["partial"], false, "{table}");
+    let positions: Vec<f64> =
+        serde_json::from_value(table["positions"].clone()).expect("positions");
+    let values: Vec<f64> = serde_json::from_value(table["values"].clone()).expect("values");
+    let u: Vec<f64> = serde_json::from_value(table["u"].clone()).expect("u");
+    let truth_model = Model::compile(source)
+        .expect("compiles")
+        .with_params(truth_text)
+        .expect("binds");
+    for ((p, v), u) in positions.iter().zip(&values).zip(&u) {
+        let mut s = truth_model.state();
+        s.q[0] = p * 1e-3;
+        let mut e = [0.0; 6];
+        truth_model
+            .eval(&s.get(), truth_model.beta(), &mut e)
+            .expect("eval");
+        let t = e[0] * 1e6;
+        assert!(
+            (v - t).abs() < 4.0 * u.max(1e-9),
+            "station {p} mm: fitted {v} ± {u}, truth {t}"
+        );
+    }
+    // The straightness is zero at both ends: there the squareness alone, 12 µm × 500/1000.
+    let span = values.last().copied().unwrap_or(f64::NAN) - values[0];
+    assert!((span - 6.0).abs() < 3.0, "{values:?}");
+}
+
+/// Data along the first quarter of X leave the spline's far coefficients undetermined: a
+/// minimum-norm fit states no value there (`null`, printed `undetermined`), never a number the
+/// solver's choice made.
+#[test]
+fn stations_the_data_do_not_reach_are_undetermined() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let model = dir.path().join("stage.kin");
+    std::fs::write(
+        &model,
+        "machine stage {
+            task position
+            units { length mm, error um, tilt urad }
+            axis X prismatic along x range 0 mm .. 400 mm
+            tool chain { X moving  tool t at (0, 0, 0) mm }
+            errors { X.tx = spline(X, knots 3) }
+        }",
+    )
+    .expect("write");
+    let data = dir.path().join("run.csv");
+    let mut rows = String::from("X[mm],ex[um]\n");
+    for k in 0..=40 {
+        let x = 2.5 * f64::from(k);
+        rows.push_str(&format!("{x},{}\n", 0.01 * x + 0.1 * f64::from(k % 3)));
+    }
+    std::fs::write(&data, rows).expect("write");
+    let fit = dir.path().join("fit.json");
+    let (m_s, d_s, f_s) = (
+        model.to_str().expect("utf-8"),
+        data.to_str().expect("utf-8"),
+        fit.to_str().expect("utf-8"),
+    );
+    let out = kin(&["fit", m_s, d_s, "--min-norm", "-o", f_s]);
+    assert!(out.status.success(), "{out:?}");
+    let printed = String::from_utf8_lossy(&out.stdout);
+    assert!(printed.contains("400: undetermined"), "{printed}");
+    assert!(!printed.contains("±?"), "{printed}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fit).expect("FIT.json")).expect("json");
+    let table = report["stations"]
+        .as_array()
+        .expect("stations")
+        .iter()
+        .find(|t| t["error"] == "X.tx")
+        .expect("X.tx at stations");
+    let values = table["values"].as_array().expect("values");
+    assert!(values.first().is_some_and(|v| v.is_number()), "{table}");
+    assert!(values.last().is_some_and(|v| v.is_null()), "{table}");
+}

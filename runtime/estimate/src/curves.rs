@@ -129,7 +129,8 @@ pub fn var_unit(m: &Machine, v: Var) -> Unit {
     }
 }
 
-fn scalar_vars(s: &Scalar, out: &mut Vec<Var>) {
+/// The variables a known scalar reads (with repeats).
+pub(crate) fn scalar_vars(s: &Scalar, out: &mut Vec<Var>) {
     match s {
         Scalar::Num(_) => {}
         Scalar::Var(v) => out.push(*v),

@@ -24,6 +24,7 @@ pub struct StationTable {
     /// Unit of `values` and `u` (the error or tilt unit).
     pub unit: String,
     pub positions: Vec<f64>,
+    /// `null` where a coefficient it depends on is undetermined.
     #[serde(deserialize_with = "super::report::nans_if_null")]
     pub values: Vec<f64>,
     /// Standard uncertainty of each value (eq. 4.12); `null` where a coefficient it depends on
@@ -81,20 +82,57 @@ pub fn tables(
         // The axis of the first term with a position factor; terms of that axis alone (with a
         // plain number as scale) make the table.
         let axis_of = |t: &kin_compiler::ir::Term| {
-            t.factors.iter().find_map(|f| match f.var {
-                Var::Axis(a) if !matches!(f.basis, Basis::Const) => Some(a),
-                _ => None,
-            })
+            let mut read = Vec::new();
+            crate::curves::scalar_vars(&t.scale, &mut read);
+            let scaled = (t.coefficients > 0)
+                .then(|| match read.as_slice() {
+                    [Var::Axis(a), rest @ ..] if rest.iter().all(|v| *v == Var::Axis(*a)) => {
+                        Some(*a)
+                    }
+                    _ => None,
+                })
+                .flatten();
+            t.factors
+                .iter()
+                .find_map(|f| match f.var {
+                    Var::Axis(a) if !matches!(f.basis, Basis::Const) => Some(a),
+                    _ => None,
+                })
+                .or(scaled)
         };
         let Some(a) = model.terms.iter().find_map(axis_of) else {
             continue;
         };
+        // A term of this axis alone: its factors of the axis (or `const`), its scale a number
+        // or an expression of the axis (a squareness written `(Y + 250 mm) / 1000 mm * const`).
         let alone = |t: &kin_compiler::ir::Term| {
-            matches!(t.scale, Scalar::Num(_))
+            let mut read = Vec::new();
+            crate::curves::scalar_vars(&t.scale, &mut read);
+            read.iter().all(|v| *v == Var::Axis(a))
                 && t.coefficients > 0
                 && t.factors
                     .iter()
                     .all(|f| matches!(f.basis, Basis::Const) || f.var == Var::Axis(a))
+        };
+        let axes = m.axes.len();
+        let none = vec![f64::NAN; axes.max(m.inputs.len()).max(m.lags.len())];
+        // The scale of such a term at q (SI): the axis at q, nothing else read.
+        let scale_at = |t: &kin_compiler::ir::Term, q: f64| -> Option<f64> {
+            if let Scalar::Num(x) = t.scale {
+                return Some(x);
+            }
+            let mut qs = vec![0.0; axes];
+            *qs.get_mut(a)? = q;
+            let state = kin_model::interp::State {
+                q: &qs,
+                inputs: &none[..m.inputs.len()],
+                lags: &none[..m.lags.len()],
+                time: f64::NAN,
+                dirs: &none[..axes],
+                tool: 0,
+                tool_offset: None,
+            };
+            kin_model::interp::scalar(&t.scale, &state, m).ok()
         };
         let Some(axis) = m.axes.get(a) else {
             continue;
@@ -133,7 +171,7 @@ pub fn tables(
             g.resize(n, 0.0);
             let mut f = Vec::new();
             for t in model.terms.iter().filter(|t| alone(t)) {
-                let Scalar::Num(scale) = t.scale else {
+                let Some(scale) = scale_at(t, q) else {
                     continue;
                 };
                 // Row-major tensor product of the factors (all of this axis or `const`).
@@ -164,8 +202,15 @@ pub fn tables(
             let undetermined = g.iter().enumerate().any(|(j, w)| {
                 *w != 0.0 && report.coefficients.get(j).is_some_and(|c| c.note.is_some())
             });
+            // A value that rests on an undetermined coefficient is whatever the minimum-norm
+            // solution put there: not a value of the machine.
+            if undetermined {
+                values.push(f64::NAN);
+                u.push(f64::NAN);
+                continue;
+            }
             values.push(unit.from_si(value));
-            let Some(cov) = cov.as_ref().filter(|_| !undetermined) else {
+            let Some(cov) = cov.as_ref() else {
                 u.push(f64::NAN);
                 continue;
             };

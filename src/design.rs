@@ -26,6 +26,8 @@ pub struct DesignArgs {
     pub engine: kin_model::engine::Engine,
     pub ignore: crate::args::DataOptions,
     pub color: bool,
+    /// Every group, combination and coefficient, not only the summary.
+    pub detail: bool,
 }
 
 #[derive(Serialize)]
@@ -57,6 +59,24 @@ struct Term {
     vif: Option<f64>,
 }
 
+/// One error component as the plan sees it: the summary read first.
+#[derive(Serialize)]
+struct Component {
+    /// kin's name (`X.tx`).
+    error: String,
+    /// The ISO 230-1 names of its coefficients (`EXX`; `-EC0Y` for a squareness constant).
+    iso: Vec<String>,
+    coefficients: usize,
+    /// Coefficients the plan determines on their own.
+    determined: usize,
+    /// Coefficients no row of the plan sees, alone or with others.
+    unseen: usize,
+    /// Coefficients the plan sees only in combination with others, and the components those
+    /// others belong to.
+    traded: usize,
+    with: Vec<String>,
+}
+
 #[derive(Serialize)]
 struct Report {
     coefficients: usize,
@@ -64,6 +84,7 @@ struct Report {
     /// Directions the candidates (or the plan) determine.
     rank: usize,
     condition: f64,
+    components: Vec<Component>,
     undetermined: Vec<Undetermined>,
     terms: Vec<Term>,
     chosen: Option<usize>,
@@ -78,6 +99,7 @@ pub fn check_plan(
     format: Format,
     engine: kin_model::engine::Engine,
     color: bool,
+    detail: bool,
 ) -> Result<(), Failed> {
     let compiled = load::machine(machine, None, color)?;
     let m = &compiled.machine;
@@ -98,7 +120,7 @@ pub fn check_plan(
         Failed::INPUT
     })?;
     let report = assess(m, &planned, None);
-    print(&report, format, "the plan");
+    print(&report, format, "the plan", detail);
     Ok(())
 }
 
@@ -165,7 +187,7 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
                 &planned,
                 over.as_ref().map(|(c, path)| (c, path.as_path())),
             );
-            print(&report, a.format, "the plan");
+            print(&report, a.format, "the plan", a.detail);
             Ok(())
         }
         (Some(cands), None) => {
@@ -203,13 +225,14 @@ pub fn run(a: DesignArgs) -> Result<(), Failed> {
                 candidates: Some(c.units.len()),
                 rank: selection.reach.rank,
                 condition: selection.reach.condition,
+                components: components(m, &selection.reach),
                 undetermined: undetermined(m, &selection.reach),
                 terms: terms(m, &selection.reach),
                 chosen: Some(selection.chosen.len()),
                 exchanges: Some(selection.exchanges),
                 figures,
             };
-            print(&report, a.format, "the candidates");
+            print(&report, a.format, "the candidates", a.detail);
             Ok(())
         }
     }
@@ -269,6 +292,7 @@ fn assess(m: &Machine, planned: &Plan, over: Option<(&Plan, &Path)>) -> Report {
         candidates: over.map(|(c, _)| c.units.len()),
         rank: reach.rank,
         condition: reach.condition,
+        components: components(m, &reach),
         undetermined: undetermined(m, &reach),
         terms: terms(m, &reach),
         chosen: None,
@@ -290,6 +314,120 @@ fn terms(m: &Machine, e: &Estimability) -> Vec<Term> {
         .collect()
 }
 
+/// Per error component (in declaration order): how many of its coefficients the plan
+/// determines, sees only with others (and whose), or does not see at all.
+fn components(m: &Machine, e: &Estimability) -> Vec<Component> {
+    let iso = m.iso_names();
+    let component_of = |j: usize| {
+        m.coefficients
+            .get(j)
+            .and_then(|c| c.name.rsplit_once('[').map(|(b, _)| b.to_string()))
+            .unwrap_or_default()
+    };
+    let mut out: Vec<Component> = Vec::new();
+    for j in 0..m.coefficients.len() {
+        let name = component_of(j);
+        // A component's coefficients are contiguous per line; a second line (`+=`) adds more.
+        let at = match out.iter().position(|c| c.error == name) {
+            Some(at) => at,
+            None => {
+                out.push(Component {
+                    error: name.clone(),
+                    iso: Vec::new(),
+                    coefficients: 0,
+                    determined: 0,
+                    unseen: 0,
+                    traded: 0,
+                    with: Vec::new(),
+                });
+                out.len() - 1
+            }
+        };
+        let Some(entry) = out.get_mut(at) else {
+            continue;
+        };
+        entry.coefficients += 1;
+        if let Some(Some(n)) = iso.get(j) {
+            if !entry.iso.contains(n) {
+                entry.iso.push(n.clone());
+            }
+        }
+        if e.determined.get(j).copied().unwrap_or(false) {
+            entry.determined += 1;
+            continue;
+        }
+        match e.groups.iter().find(|g| g.members.contains(&j)) {
+            Some(g) if !g.combinations.is_empty() => {
+                entry.traded += 1;
+                for &k in &g.members {
+                    let other = component_of(k);
+                    if other != name && !entry.with.contains(&other) {
+                        entry.with.push(other);
+                    }
+                }
+            }
+            _ => entry.unseen += 1,
+        }
+    }
+    out
+}
+
+/// A determined combination in physical terms: a rotation's weight beside a translation's is an
+/// arm (`X.tx[0] + 265 mm × X.ry[0]`: the translation seen 265 mm off the axis line); weights
+/// of like quantities are plain numbers. Weights are in SI per coefficient (largest 1).
+fn physical(m: &Machine, members: &[usize], weights: &[f64]) -> String {
+    use kin_compiler::units::Dim;
+    let dim = |j: usize| m.coefficients.get(j).map(|c| c.unit.dim);
+    // The reference: the first length coefficient with a weight, else the first with one.
+    let lead = members
+        .iter()
+        .zip(weights)
+        .filter(|(_, w)| **w != 0.0)
+        .find(|(j, _)| dim(**j) == Some(Dim::LENGTH))
+        .or_else(|| members.iter().zip(weights).find(|(_, w)| **w != 0.0));
+    let Some((&lead_j, &lead_w)) = lead else {
+        return String::new();
+    };
+    let length = &m.units.length;
+    let mut parts: Vec<(f64, String)> = Vec::new();
+    for (&j, &w) in members.iter().zip(weights) {
+        if w == 0.0 {
+            continue;
+        }
+        let name = m
+            .coefficients
+            .get(j)
+            .map_or_else(|| format!("#{j}"), |c| c.name.clone());
+        let r = w / lead_w;
+        let text = if j == lead_j {
+            name
+        } else if dim(lead_j) == Some(Dim::LENGTH) && dim(j) == Some(Dim::ANGLE) {
+            // m of translation per rad of rotation: an arm, in the machine's length unit.
+            format!(
+                "{} {} × {name}",
+                kin_estimate::curves::num(length.from_si(r.abs()) - length.from_si(0.0), 3),
+                length.name
+            )
+        } else if (r.abs() - 1.0).abs() < 5e-4 {
+            // Equal weights to the precision shown: a plain sum or difference.
+            name
+        } else {
+            format!("{} × {name}", kin_estimate::curves::num(r.abs(), 3))
+        };
+        parts.push((r, text));
+    }
+    let mut out = String::new();
+    for (i, (r, text)) in parts.iter().enumerate() {
+        if i > 0 {
+            out.push_str(if *r < 0.0 { " - " } else { " + " });
+        } else if *r < 0.0 {
+            out.push('-');
+        }
+        out.push_str(text);
+    }
+    out
+}
+
 fn undetermined(m: &Machine, e: &Estimability) -> Vec<Undetermined> {
     let name = |j: usize| {
         m.coefficients
@@ -305,7 +443,7 @@ fn undetermined(m: &Machine, e: &Estimability) -> Vec<Undetermined> {
                 determined: g
                     .combinations
                     .iter()
-                    .map(|w| design::combination_text(&names, w))
+                    .map(|w| physical(m, &g.members, w))
                     .collect(),
             }
         })
@@ -344,7 +482,114 @@ fn files_write(path: &Path, text: &str) -> Result<(), Failed> {
     crate::files::write(path, text.as_bytes())
 }
 
-fn print(r: &Report, format: Format, what: &str) {
+/// Combinations listed in the summary before the rest is left to `--detail`.
+const SHOWN_COMBINATIONS: usize = 12;
+
+/// What a metrologist reads first: per error component, what the plan determines, sees only
+/// with others, or does not see; the components it sees nothing of, per frame, on a line; the
+/// combinations it determines of what it cannot separate, in physical terms.
+fn summary(out: &mut String, r: &Report, detail: bool) {
+    if r.rank == r.coefficients {
+        let _ = writeln!(out, "  every coefficient is determined");
+    }
+    let named = |c: &Component| {
+        if c.iso.is_empty() {
+            c.error.clone()
+        } else {
+            format!("{} {}", c.error, c.iso.join("/"))
+        }
+    };
+    let partial: Vec<&Component> = r
+        .components
+        .iter()
+        .filter(|c| c.determined + c.traded > 0 && c.determined < c.coefficients)
+        .collect();
+    if !partial.is_empty() {
+        let _ = writeln!(
+            out,
+            "  error components the plan does not wholly determine (ISO 230-1 names):"
+        );
+    }
+    for c in &partial {
+        let mut parts = vec![format!("{} determined", c.determined)];
+        if c.traded > 0 {
+            let with = if c.with.is_empty() {
+                "each other".to_string()
+            } else {
+                c.with.join(", ")
+            };
+            parts.push(format!("{} only in combination with {with}", c.traded));
+        }
+        if c.unseen > 0 {
+            parts.push(format!("{} not seen", c.unseen));
+        }
+        let _ = writeln!(
+            out,
+            "    {:<18} {} of {}: {}",
+            named(c),
+            c.determined,
+            c.coefficients,
+            parts[1..].join(", ")
+        );
+    }
+    // Components of which nothing is seen, per frame, wrapped.
+    let mut frames: Vec<(String, Vec<String>)> = Vec::new();
+    for c in r
+        .components
+        .iter()
+        .filter(|c| c.determined + c.traded == 0 && c.coefficients > 0)
+    {
+        let frame = c.error.split('.').next().unwrap_or("").to_string();
+        let item = format!("{} ({})", named(c), c.coefficients);
+        match frames.iter_mut().find(|(f, _)| *f == frame) {
+            Some((_, items)) => items.push(item),
+            None => frames.push((frame, vec![item])),
+        }
+    }
+    if !frames.is_empty() {
+        let _ = writeln!(out, "  not seen at all (coefficients):");
+        for (_, items) in &frames {
+            let mut line = String::from("   ");
+            for item in items {
+                if line.len() + item.len() > 100 && line.len() > 3 {
+                    let _ = writeln!(out, "{}", line.trim_end_matches(','));
+                    line = String::from("   ");
+                }
+                line.push(' ');
+                line.push_str(item);
+                line.push(',');
+            }
+            let _ = writeln!(out, "{}", line.trim_end_matches(','));
+        }
+    }
+    let combinations: Vec<&String> = r.undetermined.iter().flat_map(|u| &u.determined).collect();
+    if !combinations.is_empty() {
+        let shown = if detail {
+            0
+        } else {
+            combinations.len().min(SHOWN_COMBINATIONS)
+        };
+        if shown > 0 {
+            let _ = writeln!(
+                out,
+                "  determined only in combination ({} of {}):",
+                shown,
+                combinations.len()
+            );
+            for c in combinations.iter().take(shown) {
+                let _ = writeln!(out, "    {c}");
+            }
+        }
+    }
+    if !detail && r.rank < r.coefficients {
+        let _ = writeln!(
+            out,
+            "  (--detail: every group and combination, and each coefficient's σ per unit noise and VIF)"
+        );
+    }
+}
+
+fn print(r: &Report, format: Format, what: &str, detail: bool) {
     match format {
         Format::Json => match serde_json::to_string_pretty(r) {
             Ok(s) => println!("{s}"),
@@ -363,31 +608,37 @@ fn print(r: &Report, format: Format, what: &str) {
                 r.coefficients,
                 r.condition
             );
-            for u in &r.undetermined {
-                if u.determined.is_empty() {
-                    let _ = writeln!(out, "  not determined at all: {}", u.terms.join(", "));
-                } else {
-                    let _ = writeln!(
-                        out,
-                        "  cannot separate {}; determined: {}",
-                        u.terms.join(", "),
-                        u.determined.join("; ")
-                    );
-                }
-            }
-            let _ = writeln!(
-                out,
-                "  {:<24} {:>14} {:>10}",
-                "coefficient", "σ / unit noise", "VIF"
-            );
-            for t in &r.terms {
-                match (t.sigma_per_unit_noise, t.vif) {
-                    (Some(s), Some(v)) => {
-                        let _ = writeln!(out, "  {:<24} {s:>14.4e} {v:>10.3}", t.name);
+            summary(&mut out, r, detail);
+            if detail {
+                for u in &r.undetermined {
+                    if u.determined.is_empty() {
+                        let _ = writeln!(out, "  not determined at all: {}", u.terms.join(", "));
+                    } else {
+                        let _ = writeln!(
+                            out,
+                            "  cannot separate {}; determined: {}",
+                            u.terms.join(", "),
+                            u.determined.join("; ")
+                        );
                     }
-                    _ => {
-                        let _ =
-                            writeln!(out, "  {:<24} {:>14} {:>10}", t.name, "undetermined", "-");
+                }
+                let _ = writeln!(
+                    out,
+                    "  {:<24} {:>14} {:>10}",
+                    "coefficient", "σ / unit noise", "VIF"
+                );
+                for t in &r.terms {
+                    match (t.sigma_per_unit_noise, t.vif) {
+                        (Some(s), Some(v)) => {
+                            let _ = writeln!(out, "  {:<24} {s:>14.4e} {v:>10.3}", t.name);
+                        }
+                        _ => {
+                            let _ = writeln!(
+                                out,
+                                "  {:<24} {:>14} {:>10}",
+                                t.name, "undetermined", "-"
+                            );
+                        }
                     }
                 }
             }

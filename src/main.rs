@@ -115,6 +115,10 @@ enum Command {
         /// not needed), together; reports what it determines (spec/design.md).
         #[arg(long, num_args = 1.., value_name = "FILE")]
         plan: Vec<PathBuf>,
+        /// With --plan: every group, combination and coefficient (σ per unit noise, VIF), not
+        /// only the summary per error component.
+        #[arg(long, requires = "plan")]
+        detail: bool,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_model::engine::Engine,
@@ -683,6 +687,10 @@ enum Command {
         /// repeat for more spheres (default: (0,0,50), (100,0,50), (0,100,50) mm).
         #[arg(long, value_parser = args::point)]
         sphere: Vec<[f64; 3]>,
+        /// Every group, combination and coefficient (σ per unit noise, VIF), not only the
+        /// summary per error component.
+        #[arg(long)]
+        detail: bool,
         #[arg(long, value_enum, default_value_t = Format::Human)]
         format: Format,
         #[arg(long, default_value = "jit")]
@@ -891,11 +899,14 @@ fn run(command: Command) -> ExitCode {
             aligned,
             no_identify,
             plan,
+            detail,
             engine,
         } => {
             let color = color.enabled();
             if !plan.is_empty() {
-                return load::Failed::exit(design::check_plan(&file, &plan, format, engine, color));
+                return load::Failed::exit(design::check_plan(
+                    &file, &plan, format, engine, color, detail,
+                ));
             }
             let identify = (!no_identify).then_some((observe, aligned));
             check::run(&file, format, color, identify, engine)
@@ -1176,6 +1187,7 @@ fn run(command: Command) -> ExitCode {
             axis,
             levels,
             sphere,
+            detail,
             format,
             engine,
             ignore,
@@ -1204,6 +1216,7 @@ fn run(command: Command) -> ExitCode {
             engine,
             ignore: ignore.options(),
             color: color.enabled(),
+            detail,
         })),
         Command::Fmt {
             files,

@@ -249,6 +249,26 @@ fn check_plan_takes_artifacts_placement_and_length_out() {
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.contains("determines 1 of 3"), "{out}");
+    // The summary: per component, the unseen ones per frame, the combination.
+    assert!(
+        out.contains("X.tx EXX           0 of 1: 1 only in combination with Y.ty"),
+        "{out}"
+    );
+    assert!(out.contains("    X.tx[0] - Y.ty[0]\n"), "{out}");
+    assert!(out.contains("Y.rz "), "{out}");
+    assert!(
+        !out.contains("coefficient              σ"),
+        "the detail is behind --detail: {out}"
+    );
+    let o = kin(&[
+        "check",
+        m,
+        "--plan",
+        bar.to_str().expect("utf8"),
+        "--detail",
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(
         out.contains("cannot separate X.tx[0], Y.ty[0]; determined: X.tx[0] - Y.ty[0]"),
         "{out}"
@@ -645,7 +665,13 @@ fn an_r_test_follows_each_sphere_and_sees_the_ellipticity_not_the_size() {
     // same circle about another sphere position, so only the difference of the two scales is
     // seen (an R-test sees the ellipticity, not the size); the spheres stay at one height, so
     // Z's scale is not seen at all.
-    let o = kin(&["check", m, "--plan", out.to_str().expect("utf8")]);
+    let o = kin(&[
+        "check",
+        m,
+        "--plan",
+        out.to_str().expect("utf8"),
+        "--detail",
+    ]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(
@@ -710,4 +736,75 @@ fn a_step_gauge_on_one_line_determines_no_more_than_its_faces_can_show() {
         "{rank} directions from {} face positions",
         faces.len()
     );
+}
+
+/// A 3-axis mill with the 21 component errors of ISO 230-1 (splines along each axis and the
+/// three squarenesses): a step gauge along X measured at one height and one y sees EXX and
+/// EBX only through the gauge's Abbe arm. The summary fits on a screen, names what is not
+/// seen by kin's and ISO 230-1's names, and states the Abbe combinations with their arm.
+#[test]
+fn a_step_gauge_plan_fits_on_a_screen_in_iso_terms() {
+    let d = dir("step-gauge-summary");
+    let machine = d.join("mill3.kin");
+    let mut errors = String::new();
+    for axis in ["X", "Y", "Z"] {
+        for c in ["tx", "ty", "tz", "rx", "ry", "rz"] {
+            errors.push_str(&format!("        {axis}.{c} = spline({axis}, knots 3)\n"));
+        }
+    }
+    errors.push_str("        Y.rz += const\n        Z.rx += const\n        Z.ry += const\n");
+    let source = format!(
+        "machine mill3 {{
+    task position
+    units {{ length mm, error um, tilt urad }}
+    axis Y prismatic along -y range 0 mm .. 400 mm
+    axis X prismatic along -x range 0 mm .. 600 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    workpiece chain {{
+        Y fixed at (0, 200, 0) mm
+        X fixed at (300, 0, 100) mm
+        workpiece at (0, 0, 0) mm
+    }}
+    tool chain {{
+        Z moving at (0, 0, 600) mm
+        tool spindle at (0, 0, -150) mm
+    }}
+    errors {{
+{errors}    }}
+}}
+"
+    );
+    std::fs::write(&machine, source).expect("write");
+    let m = machine.to_str().expect("utf8");
+    let gauge = d.join("gauge.csv");
+    let g = gauge.to_str().expect("utf8");
+    let o = kin(&[
+        "design",
+        m,
+        "--generate",
+        "stepgauge",
+        "--axis",
+        "X",
+        "-o",
+        g,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = kin(&["check", m, "--plan", g]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let lines = out.lines().count();
+    assert!(lines <= 30, "{lines} lines:\n{out}");
+    assert!(out.contains("X.tx EXX"), "{out}");
+    assert!(out.contains("Y.ty EYY ("), "{out}");
+    assert!(out.contains("Z.tz EZZ ("), "{out}");
+    // EXX seen through the arm between the gauge and X's frame: translation + arm × rotation.
+    assert!(
+        out.lines()
+            .any(|l| l.trim_start().starts_with("X.tx[") && l.contains(" mm × X.r")),
+        "{out}"
+    );
+    // The detail is all there behind --detail.
+    let o = kin(&["check", m, "--plan", g, "--detail"]);
+    let detail = String::from_utf8_lossy(&o.stdout);
+    assert!(detail.lines().count() > 3 * lines, "{detail}");
 }

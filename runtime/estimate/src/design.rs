@@ -405,10 +405,19 @@ fn groups(null: &[DVector<f64>], scale: &[f64], determined: &[bool]) -> Vec<Grou
             // The rows of Vᵀ beyond the rank of A span its null space: the determined
             // combinations. Vᵀ has min(rows, k) rows; complete it when A is wide or short.
             let full = complete_basis(&vt, k);
-            for row in full.iter().skip(null_rank) {
+            // An orthonormal basis of the determined combinations mixes every member; the
+            // reduced echelon form of the same span gives each combination a member of its own
+            // and as few others as the span allows (`EXX[0] + 265 mm × EBX[0]`, not a
+            // 24-member blend), whatever basis the decomposition returned.
+            let rows: Vec<DVector<f64>> = full
+                .iter()
+                .skip(null_rank)
+                .map(|r| DVector::from_column_slice(r))
+                .collect();
+            for row in circuits(&rows) {
                 let weights: Vec<f64> = members
                     .iter()
-                    .zip(row)
+                    .zip(row.iter())
                     .map(|(&m, w)| if scale[m] > 0.0 { w * scale[m] } else { 0.0 })
                     .collect();
                 let big = weights.iter().fold(0.0f64, |a, w| a.max(w.abs()));

@@ -12,13 +12,13 @@ use std::path::{Path, PathBuf};
 use kin_compiler::Diagnostic;
 use kin_data::data::{self, Observations, ReadError, ReadOptions};
 use kin_diagnose as diagnose;
-use kin_model::embed::Error as ModelError;
 use kin_estimate::fit::{self, merge, report, DataSet, Reduced, Solver, StreamingQr};
+use kin_model::embed::Error as ModelError;
 use kin_model::interp::State;
 use kin_model::Model;
+use numpy::ndarray::{Dimension, Ix1, Ix2};
 use numpy::{
-    PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
-    PyUntypedArrayMethods,
+    PyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray, PyUntypedArrayMethods,
 };
 use pyo3::create_exception;
 use pyo3::exceptions::PyException;
@@ -259,10 +259,56 @@ fn shape_error(py: Python<'_>, message: String) -> PyErr {
     raise::<EvalError>(py, message, Place::default())
 }
 
-fn contiguous<'a>(
+/// A float64 array argument in any form a numpy user passes: a C-contiguous float64 array as
+/// it is (read in place, no copy); anything else — a list, integers, float32, a Fortran-ordered
+/// or strided array (what `DataFrame.to_numpy()` returns) — converted by
+/// `numpy.ascontiguousarray(x, dtype=float64)`, so that rows are read as rows and every array
+/// argument goes through the same conversion.
+struct Floats<'py, D: Dimension>(PyReadonlyArray<'py, f64, D>);
+
+type Floats1<'py> = Floats<'py, Ix1>;
+type Floats2<'py> = Floats<'py, Ix2>;
+
+impl<'a, 'py, D: Dimension> FromPyObject<'a, 'py> for Floats<'py, D> {
+    type Error = PyErr;
+
+    fn extract(obj: Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
+        let py = obj.py();
+        let kwargs = PyDict::new(py);
+        kwargs.set_item("dtype", "float64")?;
+        let converted =
+            py.import("numpy")?
+                .call_method("ascontiguousarray", (obj,), Some(&kwargs))?;
+        let dims = converted
+            .getattr("ndim")
+            .and_then(|n| n.extract::<usize>())
+            .unwrap_or(0);
+        let array = converted.cast_into::<PyArray<f64, D>>().map_err(|_| {
+            shape_error(
+                py,
+                format!(
+                    "expected a {}-dimensional array of numbers, got {dims} dimension{}",
+                    D::NDIM.unwrap_or(0),
+                    if dims == 1 { "" } else { "s" }
+                ),
+            )
+        })?;
+        Ok(Floats(array.readonly()))
+    }
+}
+
+impl<'py, D: Dimension> std::ops::Deref for Floats<'py, D> {
+    type Target = PyReadonlyArray<'py, f64, D>;
+
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+fn contiguous<'a, D: Dimension>(
     py: Python<'_>,
     what: &str,
-    a: &'a numpy::PyReadonlyArray<'_, f64, impl numpy::ndarray::Dimension>,
+    a: &'a PyReadonlyArray<'_, f64, D>,
 ) -> PyResult<&'a [f64]> {
     let refuse = || {
         shape_error(
@@ -322,10 +368,10 @@ impl PyModel {
     fn batch<'a>(
         &self,
         py: Python<'_>,
-        states: &'a PyReadonlyArray2<'_, f64>,
-        inputs: &'a Option<PyReadonlyArray2<'_, f64>>,
-        time: &'a Option<PyReadonlyArray1<'_, f64>>,
-        dirs: &'a Option<PyReadonlyArray2<'_, f64>>,
+        states: &'a Floats2<'_>,
+        inputs: &'a Option<Floats2<'_>>,
+        time: &'a Option<Floats1<'_>>,
+        dirs: &'a Option<Floats2<'_>>,
         tool: usize,
     ) -> PyResult<Batch<'a>> {
         let m = self.model.machine();
@@ -456,7 +502,7 @@ impl PyModel {
     }
 
     /// This model with β replaced (SI, in the order of `coefficients`).
-    fn with_beta(&self, py: Python<'_>, beta: PyReadonlyArray1<'_, f64>) -> PyResult<PyModel> {
+    fn with_beta(&self, py: Python<'_>, beta: Floats1<'_>) -> PyResult<PyModel> {
         let mut model = self.model.clone();
         let beta = contiguous(py, "beta", &beta)?;
         model.set_beta(beta).map_err(|e| kin_error(py, e))?;
@@ -545,10 +591,10 @@ impl PyModel {
     fn eval<'py>(
         &self,
         py: Python<'py>,
-        states: PyReadonlyArray2<'py, f64>,
-        inputs: Option<PyReadonlyArray2<'py, f64>>,
-        time: Option<PyReadonlyArray1<'py, f64>>,
-        dirs: Option<PyReadonlyArray2<'py, f64>>,
+        states: Floats2<'py>,
+        inputs: Option<Floats2<'py>>,
+        time: Option<Floats1<'py>>,
+        dirs: Option<Floats2<'py>>,
         tool: usize,
         out: Option<Bound<'py, PyArray2<f64>>>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
@@ -586,10 +632,10 @@ impl PyModel {
     fn eval_jacobian<'py>(
         &self,
         py: Python<'py>,
-        states: PyReadonlyArray2<'py, f64>,
-        inputs: Option<PyReadonlyArray2<'py, f64>>,
-        time: Option<PyReadonlyArray1<'py, f64>>,
-        dirs: Option<PyReadonlyArray2<'py, f64>>,
+        states: Floats2<'py>,
+        inputs: Option<Floats2<'py>>,
+        time: Option<Floats1<'py>>,
+        dirs: Option<Floats2<'py>>,
         tool: usize,
         out: Option<Bound<'py, PyArray2<f64>>>,
         jac_out: Option<Bound<'py, PyArray3<f64>>>,
@@ -632,7 +678,7 @@ impl PyModel {
     fn joint_jacobian<'py>(
         &self,
         py: Python<'py>,
-        states: PyReadonlyArray2<'py, f64>,
+        states: Floats2<'py>,
         tool: usize,
         out: Option<Bound<'py, PyArray3<f64>>>,
     ) -> PyResult<Bound<'py, PyArray3<f64>>> {
@@ -667,9 +713,9 @@ impl PyModel {
     fn compensate<'py>(
         &self,
         py: Python<'py>,
-        states: PyReadonlyArray2<'py, f64>,
-        inputs: Option<PyReadonlyArray2<'py, f64>>,
-        time: Option<PyReadonlyArray1<'py, f64>>,
+        states: Floats2<'py>,
+        inputs: Option<Floats2<'py>>,
+        time: Option<Floats1<'py>>,
         tool: usize,
         position_only: bool,
         out: Option<Bound<'py, PyArray2<f64>>>,
@@ -835,11 +881,11 @@ impl PyStreamingFit {
     fn add_batch(
         &mut self,
         py: Python<'_>,
-        states: PyReadonlyArray2<'_, f64>,
-        observations: PyReadonlyArray2<'_, f64>,
-        inputs: Option<PyReadonlyArray2<'_, f64>>,
-        time: Option<PyReadonlyArray1<'_, f64>>,
-        dirs: Option<PyReadonlyArray2<'_, f64>>,
+        states: Floats2<'_>,
+        observations: Floats2<'_>,
+        inputs: Option<Floats2<'_>>,
+        time: Option<Floats1<'_>>,
+        dirs: Option<Floats2<'_>>,
         tool: usize,
     ) -> PyResult<()> {
         let holder = PyModel {
@@ -1269,7 +1315,7 @@ fn simulate(
 fn _rust_eval_seconds(
     py: Python<'_>,
     model: &PyModel,
-    states: PyReadonlyArray2<'_, f64>,
+    states: Floats2<'_>,
     repeats: usize,
 ) -> PyResult<f64> {
     let m = &model.model;

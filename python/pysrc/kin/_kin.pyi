@@ -6,6 +6,9 @@ import numpy as np
 import numpy.typing as npt
 
 F64 = npt.NDArray[np.float64]
+# What array arguments accept: anything numpy converts to float64 (lists, integers, float32,
+# Fortran-ordered or strided arrays); a C-contiguous float64 array is read in place.
+ArrayIn = npt.ArrayLike
 
 class KinError(Exception):
     message: str
@@ -36,7 +39,7 @@ class Model:
     @staticmethod
     def load(path: str) -> Model: ...
     def with_params(self, params: str) -> Model: ...
-    def with_beta(self, beta: F64) -> Model: ...
+    def with_beta(self, beta: ArrayIn) -> Model: ...
     @property
     def name(self) -> str: ...
     @property
@@ -55,32 +58,32 @@ class Model:
     def warnings(self) -> List[str]: ...
     def eval(
         self,
-        states: F64,
+        states: ArrayIn,
         *,
-        inputs: Optional[F64] = None,
-        time: Optional[F64] = None,
-        dirs: Optional[F64] = None,
+        inputs: Optional[ArrayIn] = None,
+        time: Optional[ArrayIn] = None,
+        dirs: Optional[ArrayIn] = None,
         tool: int = 0,
         out: Optional[F64] = None,
     ) -> F64: ...
     def eval_jacobian(
         self,
-        states: F64,
+        states: ArrayIn,
         *,
-        inputs: Optional[F64] = None,
-        time: Optional[F64] = None,
-        dirs: Optional[F64] = None,
+        inputs: Optional[ArrayIn] = None,
+        time: Optional[ArrayIn] = None,
+        dirs: Optional[ArrayIn] = None,
         tool: int = 0,
         out: Optional[F64] = None,
         jac_out: Optional[F64] = None,
     ) -> Tuple[F64, F64]: ...
-    def joint_jacobian(self, states: F64, *, tool: int = 0, out: Optional[F64] = None) -> F64: ...
+    def joint_jacobian(self, states: ArrayIn, *, tool: int = 0, out: Optional[F64] = None) -> F64: ...
     def compensate(
         self,
-        states: F64,
+        states: ArrayIn,
         *,
-        inputs: Optional[F64] = None,
-        time: Optional[F64] = None,
+        inputs: Optional[ArrayIn] = None,
+        time: Optional[ArrayIn] = None,
         tool: int = 0,
         position_only: bool = False,
         out: Optional[F64] = None,
@@ -100,12 +103,12 @@ class StreamingFit:
     ) -> None: ...
     def add_batch(
         self,
-        states: F64,
-        observations: F64,
+        states: ArrayIn,
+        observations: ArrayIn,
         *,
-        inputs: Optional[F64] = None,
-        time: Optional[F64] = None,
-        dirs: Optional[F64] = None,
+        inputs: Optional[ArrayIn] = None,
+        time: Optional[ArrayIn] = None,
+        dirs: Optional[ArrayIn] = None,
         tool: int = 0,
     ) -> None: ...
     @property
@@ -140,4 +143,4 @@ def simulate(
     seed: int = 0,
     observe: Optional[Sequence[str]] = None,
 ) -> None: ...
-def _rust_eval_seconds(model: Model, states: F64, repeats: int) -> float: ...
+def _rust_eval_seconds(model: Model, states: ArrayIn, repeats: int) -> float: ...

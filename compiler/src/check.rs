@@ -136,7 +136,11 @@ impl Checker<'_> {
                 return;
             }
             named.insert((frame, component), t.span);
-            let Some(index) = self.claim(frame, component, &display, t.span, def.add, sink) else {
+            // Written as an ISO 230-1 name (`EC0Y`): a clash then names the component it is.
+            let written = t.component.is_none().then(|| (t.frame.node.as_str(), sign));
+            let Some(index) =
+                self.claim(frame, component, &display, written, t.span, def.add, sink)
+            else {
                 return;
             };
             claimed.push((index, component, display, t.span, sign));
@@ -180,11 +184,13 @@ impl Checker<'_> {
 
     /// The error model of `(frame, component)`: a new one, or for `+=` the existing one; a
     /// second `=` is an error.
+    #[allow(clippy::too_many_arguments)]
     fn claim(
         &mut self,
         frame: FrameRef,
         component: Component,
         display: &str,
+        written: Option<(&str, f64)>,
         span: Span,
         add: bool,
         sink: &mut Sink,
@@ -192,12 +198,22 @@ impl Checker<'_> {
         match self.defined.get(&(frame, component)).copied() {
             Some((index, first)) => {
                 if !add {
-                    let mut d =
-                        Diagnostic::error("E0102", format!("`{display}` is defined twice"), span)
-                            .with_label("second definition")
-                            .with_help(format!(
-                                "use `{display} += …` to add terms to an existing model"
-                            ));
+                    let message = match written {
+                        Some((name, sign)) => format!(
+                            "`{display}` is defined twice: `{name}` is `{}{display}` on this machine",
+                            if sign < 0.0 { "−" } else { "" }
+                        ),
+                        None => format!("`{display}` is defined twice"),
+                    };
+                    let help = match written {
+                        Some((name, _)) => format!(
+                            "use `{name} += …` to add terms to the model of `{display}` defined above"
+                        ),
+                        None => format!("use `{display} += …` to add terms to an existing model"),
+                    };
+                    let mut d = Diagnostic::error("E0102", message, span)
+                        .with_label("second definition")
+                        .with_help(help);
                     if let Some(first) =
                         first.or_else(|| self.models.error_spans.get(index).copied())
                     {

@@ -127,8 +127,48 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
         sink.push(d);
         return;
     }
+    // A location or squareness name (`EC0Y`) is the constant of its component, not the
+    // component: `X.rz = spline(X, knots 2) + const` holds the squareness in its `const` term,
+    // and `EC0Y[0]` must not bind the spline's first coefficient.
+    let members = match location {
+        Some(_) => {
+            let constants = constant_members(machine, &members);
+            match constants.len() {
+                1 => constants,
+                n => {
+                    let first_name = def.path.first().map_or("", |p| p.node.as_str());
+                    sink.push(
+                        Diagnostic::error(
+                            "E0501",
+                            if n == 0 {
+                                format!("`{first_name}` is a constant of `{full}`, which has no constant term")
+                            } else {
+                                format!("`{first_name}` is a constant of `{full}`, which has {n} constant terms")
+                            },
+                            path_span,
+                        )
+                        .with_label(format!("`{first_name}` is `{full}`'s constant (ISO 230-1)"))
+                        .with_help(if n == 0 {
+                            format!("add `{first_name} = const` to the errors block, or bind `{full}[k]` by its index")
+                        } else {
+                            format!("bind the one meant by its index, `{full}[k]`")
+                        }),
+                    );
+                    return;
+                }
+            }
+        }
+        None => members,
+    };
     match (&def.index, &def.value) {
-        (Some(i), value) => {
+        // A location name holds one value: `EC0Y = 15 urad`.
+        (None, ParamValue::Scalar(_)) if location.is_some() => {
+            let Some(&k) = members.first() else {
+                return;
+            };
+            bind_scalar(machine, def, bound, k, location, sink);
+        }
+        (Some(i), _) => {
             let Some(&k) = usize::try_from(i.node).ok().and_then(|i| members.get(i)) else {
                 sink.push(
                     Diagnostic::error(
@@ -148,25 +188,7 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
                 );
                 return;
             };
-            let name = machine
-                .coefficients
-                .get(k)
-                .map(|c| c.name.clone())
-                .unwrap_or_default();
-            if !Bound::claim(&mut bound.coefficients, k, &name, def.span, sink) {
-                return;
-            }
-            let unit = machine
-                .coefficients
-                .get(k)
-                .map(|c| c.unit.clone())
-                .unwrap_or_else(Unit::dimensionless);
-            let sign = location.map_or(1.0, |s| s * scale_sign(machine, k));
-            if let Some(v) = scalar_value(value, &unit, sink) {
-                if let Some(b) = machine.beta.get_mut(k) {
-                    *b = sign * v;
-                }
-            }
+            bind_scalar(machine, def, bound, k, location, sink);
         }
         (None, ParamValue::List { values, unit, span }) => {
             if values.len() != members.len() {
@@ -250,6 +272,63 @@ fn bind_one(machine: &mut ir::Machine, def: &ast::ParamDef, bound: &mut Bound, s
             );
         }
     }
+}
+
+/// Binds coefficient `k` to the definition's single value (with a location name's sign).
+fn bind_scalar(
+    machine: &mut ir::Machine,
+    def: &ast::ParamDef,
+    bound: &mut Bound,
+    k: usize,
+    location: Option<f64>,
+    sink: &mut Sink,
+) {
+    let name = machine
+        .coefficients
+        .get(k)
+        .map(|c| c.name.clone())
+        .unwrap_or_default();
+    if !Bound::claim(&mut bound.coefficients, k, &name, def.span, sink) {
+        return;
+    }
+    let unit = machine
+        .coefficients
+        .get(k)
+        .map(|c| c.unit.clone())
+        .unwrap_or_else(Unit::dimensionless);
+    let sign = location.map_or(1.0, |s| s * scale_sign(machine, k));
+    if let Some(v) = scalar_value(&def.value, &unit, sink) {
+        if let Some(b) = machine.beta.get_mut(k) {
+            *b = sign * v;
+        }
+    }
+}
+
+/// The coefficients among `members` that are a constant term of their component (`const`
+/// with a plain-number scale, no factor that varies): where a location or squareness is held.
+fn constant_members(machine: &ir::Machine, members: &[usize]) -> Vec<usize> {
+    members
+        .iter()
+        .copied()
+        .filter(|&k| {
+            machine
+                .coefficients
+                .get(k)
+                .and_then(|c| machine.errors.get(c.error))
+                .and_then(|e| {
+                    e.terms
+                        .iter()
+                        .find(|t| t.first <= k && k < t.first + t.coefficients)
+                })
+                .is_some_and(|t| {
+                    t.coefficients == 1
+                        && matches!(t.scale, ir::Scalar::Num(_))
+                        && t.factors
+                            .iter()
+                            .all(|f| matches!(f.basis, crate::basis::Basis::Const))
+                })
+        })
+        .collect()
 }
 
 /// The name `path` stands for, and for a location name the sign relating its value to the
@@ -454,5 +533,53 @@ mod tests {
         let diagnostics = crate::bind_params(&mut m, "params { EY0X[0] = 1 um }");
         assert_eq!(diagnostics.len(), 1);
         assert_eq!(diagnostics[0].code, "E0107", "{diagnostics:?}");
+    }
+
+    /// `EC0Y` is the squareness, the constant of its component: beside a yaw spline it binds
+    /// the `const` term, never the spline's first coefficient; without a constant term it is
+    /// an error that says so.
+    #[test]
+    fn a_squareness_name_binds_the_constant_not_the_component() {
+        let machine = |errors: &str| {
+            crate::compile(&format!(
+                "machine m {{ task position
+                    units {{ tilt urad }}
+                    axis Y prismatic along y range 0 mm .. 500 mm
+                    axis X prismatic along x range 0 mm .. 500 mm
+                    workpiece chain {{ Y moving  X moving }}
+                    tool chain {{ tool t }}
+                    errors {{ {errors} }} }}"
+            ))
+            .compiled
+            .expect("the machine compiles")
+            .machine
+        };
+        let mut m = machine("Y.rz = spline(Y, knots 2) + const");
+        let diagnostics = crate::bind_params(&mut m, "params { EC0Y = 15 urad }");
+        assert!(diagnostics.is_empty(), "{diagnostics:?}");
+        let constant = m
+            .coefficients
+            .iter()
+            .position(|c| c.label.is_empty() || !c.label.contains("spline"))
+            .expect("the const coefficient");
+        for (j, b) in m.beta.iter().enumerate() {
+            if j == constant {
+                assert!((b + 15e-6).abs() < 1e-18, "{:?}", m.beta);
+            } else {
+                assert_eq!(*b, 0.0, "the spline is untouched: {:?}", m.beta);
+            }
+        }
+        let mut m = machine("Y.rz = spline(Y, knots 2) + const");
+        let diagnostics = crate::bind_params(&mut m, "params { EC0Y[0] = 15 urad }");
+        assert!(diagnostics.is_empty(), "{diagnostics:?}");
+        assert!((m.beta[constant] + 15e-6).abs() < 1e-18, "{:?}", m.beta);
+        let mut m = machine("Y.rz = spline(Y, knots 2)");
+        let diagnostics = crate::bind_params(&mut m, "params { EC0Y = 15 urad }");
+        assert_eq!(diagnostics.len(), 1, "{diagnostics:?}");
+        assert!(
+            diagnostics[0].message.contains("no constant term"),
+            "{diagnostics:?}"
+        );
+        assert!(m.beta.iter().all(|b| *b == 0.0));
     }
 }

@@ -358,5 +358,11 @@ mod tests {
         let s = length_spread("0.3um").map(|s| s.si);
         assert!(matches!(s, Ok(v) if (v - 3e-7).abs() < 1e-18));
         assert_eq!(angle_spread("0urad").map(|s| s.si), Ok(0.0));
+        // A bare number is refused with the unit it needs, not as "empty unit".
+        let bare = length_spread("0.3").map(|s| s.si);
+        assert!(
+            matches!(&bare, Err(e) if e.contains("has no unit") && e.contains("`0.3um`")),
+            "{bare:?}"
+        );
     }
 }

@@ -37,7 +37,7 @@ const MARKER: &str = ".kin-demo";
 
 /// Prepares DIR for the demo: refuses (exit 2) a folder the user chose that holds a file of the
 /// demo's names the demo did not write, else marks it as the demo's. The default folder
-/// (`kin-demo` in the temporary folder) is the demo's own by its name: an older kin wrote it
+/// (`kin-demo-USER` in the temporary folder) is the demo's own by its name: an older kin wrote it
 /// without a marker, and refusing it would break `kin demo` for no user's benefit.
 fn claim(dir: &Path, chosen: bool) -> Result<(), Failed> {
     let marker = dir.join(MARKER);
@@ -67,7 +67,19 @@ fn claim(dir: &Path, chosen: bool) -> Result<(), Failed> {
 
 fn demo(dir: Option<PathBuf>, rounds: usize, color: bool) -> Result<(), Failed> {
     let chosen = dir.is_some();
-    let dir = dir.unwrap_or_else(|| std::env::temp_dir().join("kin-demo"));
+    // One folder per user: on a shared machine another user's `kin-demo` is not ours to
+    // replace, nor readable to us.
+    let dir = dir.unwrap_or_else(|| {
+        let user = std::env::var("USER")
+            .ok()
+            .filter(|u| {
+                !u.is_empty()
+                    && u.chars()
+                        .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+            })
+            .unwrap_or_else(|| "user".into());
+        std::env::temp_dir().join(format!("kin-demo-{user}"))
+    });
     claim(&dir, chosen)?;
     let write = |name: &str, text: &str| -> Result<PathBuf, Failed> {
         let path = dir.join(name);

@@ -496,6 +496,20 @@ pub fn quantity(text: &str, dim: kin_compiler::units::Dim) -> Result<f64, String
     let value: f64 = num
         .parse()
         .map_err(|_| format!("`{text}` does not start with a number"))?;
+    if unit.trim().is_empty() {
+        // A bare number would be read in some unit the user did not say: 0.3 of what?
+        let example = match dim {
+            kin_compiler::units::Dim::LENGTH => "um",
+            kin_compiler::units::Dim::ANGLE => "urad",
+            kin_compiler::units::Dim::TEMPERATURE => "degC",
+            kin_compiler::units::Dim::TIME => "s",
+            _ => "",
+        };
+        return Err(format!(
+            "`{text}` has no unit ({} expected): write it with one, e.g. `{num}{example}`",
+            dim.describe()
+        ));
+    }
     let unit =
         kin_compiler::units::Unit::parse(unit.trim()).map_err(|e| format!("{e} in `{text}`"))?;
     if unit.dim != dim {

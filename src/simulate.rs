@@ -92,6 +92,15 @@ fn run_simulate(a: SimulateArgs) -> Result<(), Failed> {
     }
     let compiled = load::machine(&a.machine, a.params.as_deref(), a.color)?;
     let m = &compiled.machine;
+    // A truth with no values simulates a perfect machine: say so rather than write zeros.
+    if !m.beta.is_empty() && m.beta.iter().all(|b| *b == 0.0) && !crate::warnings::quiet() {
+        eprintln!(
+            "warning: every coefficient of `{}` is 0 (the model binds no values and no --params was given): \
+             the simulated errors are those of a perfect machine{}",
+            m.name,
+            if a.noise.is_some() || a.noise_tilt.is_some() { ", plus the noise" } else { "" }
+        );
+    }
     let mut cycle_comment = None;
     let poses = match (&a.poses, a.sample, &a.cycle) {
         (_, _, Some(text)) => {

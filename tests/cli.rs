@@ -928,3 +928,32 @@ fn fit_weighs_each_file_by_its_own_noise() {
     let e = text(&out.stderr);
     assert!(e.contains("laser_bad.csv, line 2, column 10"), "{e}");
 }
+
+/// A truth with no values simulates a perfect machine: said on standard error, not written as
+/// zeros without a word; with values bound, nothing is said.
+#[test]
+fn simulate_says_when_the_truth_has_no_values() {
+    let out = tmp("perfect.csv");
+    let o = kin(&[
+        "simulate",
+        "examples/xy_table.kin",
+        "--sample",
+        "3",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("every coefficient"), "{}", text(&o.stderr));
+    let o = kin(&[
+        "simulate",
+        "examples/xy_table.kin",
+        "--params",
+        "examples/data/ballbar_xy_truth.params",
+        "--sample",
+        "3",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(!text(&o.stderr).contains("every coefficient"), "{}", text(&o.stderr));
+}

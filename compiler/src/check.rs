@@ -137,7 +137,10 @@ impl Checker<'_> {
             }
             named.insert((frame, component), t.span);
             // Written as an ISO 230-1 name (`EC0Y`): a clash then names the component it is.
-            let written = t.component.is_none().then_some((t.frame.node.as_str(), sign));
+            let written = t
+                .component
+                .is_none()
+                .then_some((t.frame.node.as_str(), sign));
             let Some(index) =
                 self.claim(frame, component, &display, written, t.span, def.add, sink)
             else {

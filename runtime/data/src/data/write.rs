@@ -285,6 +285,9 @@ impl Column<'_> {
 /// Shortest text that reads back to the same `f64`; exponent form only where plain digits
 /// would run long.
 fn push_number(buf: &mut String, v: f64) {
+    // −0 (a product of a zero and a negative number) is written `0`: the same value, and a
+    // `-0` in a file reads as a sign that means something.
+    let v = if v == 0.0 { 0.0 } else { v };
     let a = v.abs();
     // Writing into a `String` cannot fail.
     let _ = if a == 0.0 || (1e-5..1e15).contains(&a) {

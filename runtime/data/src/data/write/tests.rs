@@ -528,3 +528,14 @@ fn the_json_document_holds_what_the_file_holds() {
     }
     assert!(labels >= 7, "{labels}");
 }
+
+#[test]
+fn negative_zero_is_written_as_zero() {
+    let mut buf = String::new();
+    super::push_number(&mut buf, -0.0);
+    buf.push(',');
+    super::push_number(&mut buf, 0.0);
+    buf.push(',');
+    super::push_number(&mut buf, -1.5);
+    assert_eq!(buf, "0,0,-1.5");
+}

@@ -26,35 +26,35 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 create_exception!(
-    _kin,
+    kin,
     KinError,
     PyException,
     "Base class of every error kin raises. Attributes: `message`, and where known `code`, \
      `path`, `line`, `column`, `row`."
 );
 create_exception!(
-    _kin,
+    kin,
     CompileError,
     KinError,
     "A .kin source or parameter text does not compile: `code` (e.g. E0101), `message`, `line` \
      and `column` of the first error; `diagnostics` lists every one."
 );
 create_exception!(
-    _kin,
+    kin,
     DataError,
     KinError,
     "A measurement file is wrong: `path`, and `line` and `column` of its first problem; \
      `problems` lists each (at most 20)."
 );
 create_exception!(
-    _kin,
+    kin,
     EvalError,
     KinError,
     "A state cannot be evaluated (a value the model uses is NaN, a tool index out of range, \
      arrays of the wrong shape): `row` is the state's index."
 );
 create_exception!(
-    _kin,
+    kin,
     FitError,
     KinError,
     "The data cannot determine the model (rank-deficient, too few rows) or a fit failed."
@@ -1353,6 +1353,7 @@ fn _kin(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("DataError", py.get_type::<DataError>())?;
     m.add("EvalError", py.get_type::<EvalError>())?;
     m.add("FitError", py.get_type::<FitError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(fit_json, m)?)?;
     m.add_function(wrap_pyfunction!(diagnose_json, m)?)?;
     m.add_function(wrap_pyfunction!(check_measurements, m)?)?;

@@ -44,3 +44,19 @@ def test_diagnose_names_the_missing_effect_with_its_line(tmp_path):
     assert "backlash(X)" in d.top.line and d.top.line.startswith("X.tx")
     assert d.top.rms_after < d.rms
     assert d.fit.sigma > 2  # σ̂/σ: the nominal model fails
+    # Printed, a result is a line, not the megabytes of its document; notebooks get a table.
+    for shown in (repr(d), repr(d.fit)):
+        assert len(shown) < 300 and shown.startswith("<kin."), shown
+    assert "backlash(X)" in repr(d)
+    assert "<table>" in d._repr_html_() and "<table>" in d.fit._repr_html_()
+
+
+def test_the_package_says_its_version_and_its_errors_are_kin_s():
+    assert kin.__version__.count(".") == 2
+    assert kin.KinError.__module__ == "kin"
+    try:
+        kin.Model.compile("machine {")
+    except kin.CompileError as e:
+        assert type(e).__module__ == "kin" and type(e).__name__ == "CompileError"
+    else:
+        raise AssertionError("no error")

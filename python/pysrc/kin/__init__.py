@@ -38,6 +38,8 @@ from ._kin import (  # noqa: F401  (re-exported)
 )
 from . import _kin
 
+__version__: str = _kin.__version__
+
 __all__ = [
     "Model",
     "StreamingFit",
@@ -83,7 +85,17 @@ class Coefficient:
     iso: Optional[str] = None
 
 
-@dataclass
+def _html_table(rows: Sequence[Sequence[str]], head: Sequence[str]) -> str:
+    import html
+
+    cells = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows
+    )
+    return f"<table><tr>{cells}</tr>{body}</table>"
+
+
+@dataclass(repr=False)
 class FitResult:
     """A fit (FIT.json's document): `sigma` (σ̂, in `error_unit`), `rms`, `rows`, `rank`,
     `coefficients` with names and standard errors, `residuals` as a DataFrame, `params` (the
@@ -148,6 +160,30 @@ class FitResult:
     def to_json(self) -> str:
         return json.dumps(self.document)
 
+    def __repr__(self) -> str:
+        # The whole document is megabytes (every residual): a line that says what it is.
+        return (
+            f"<kin.FitResult {self.document.get('machine', '?')}: {self.rows} rows, "
+            f"{len(self.coefficients)} coefficients (rank {self.rank}), "
+            f"σ̂ = {self.sigma:.4g} {self.error_unit}, RMS {self.rms:.4g}>"
+        )
+
+    def _repr_html_(self) -> str:
+        head = (
+            f"<p><b>kin fit</b> of <code>{self.document.get('machine', '?')}</code>: "
+            f"{self.rows} rows, rank {self.rank}, σ̂ = {self.sigma:.4g} {self.error_unit}</p>"
+        )
+        rows = [
+            (c.name, c.iso or "", f"{c.value:.4g}", f"{c.se:.2g}", c.unit)
+            for c in self.coefficients[:50]
+        ]
+        more = (
+            f"<p>… and {len(self.coefficients) - 50} more (coefficient_table())</p>"
+            if len(self.coefficients) > 50
+            else ""
+        )
+        return head + _html_table(rows, ["coefficient", "ISO", "value", "se", "unit"]) + more
+
     def write(self, path: PathLike, inputs: Sequence[PathLike] = ()) -> None:
         """Writes FIT.json at `path` and FIT.params beside it, atomically and as one set (as
         `kin fit -o`); refuses a `path` that names one of `inputs`."""
@@ -177,7 +213,7 @@ class Finding:
     alternatives: List[str]
 
 
-@dataclass
+@dataclass(repr=False)
 class Diagnosis:
     """`kin diagnose`'s result: the fit it started from, `findings` ranked (lower ΔBIC first),
     `sigma` and `rms` of the fit, and `document` (DIAGNOSE.json as a dict)."""
@@ -198,6 +234,25 @@ class Diagnosis:
     def top(self) -> Optional[Finding]:
         """The first significant finding, if any."""
         return next((f for f in self.findings if f.significant), None)
+
+    def __repr__(self) -> str:
+        significant = sum(1 for f in self.findings if f.significant)
+        top = self.top
+        return (
+            f"<kin.Diagnosis {self.document.get('machine', '?')}: {significant} of "
+            f"{len(self.findings)} candidates significant"
+            + (f"; first: {top.line}" if top is not None else "")
+            + ">"
+        )
+
+    def _repr_html_(self) -> str:
+        rows = [
+            (f.line, f.family, f"{100 * f.explained:.1f} %", f"{f.p_adjusted:.2g}", f.explanation)
+            for f in self.findings
+            if f.significant
+        ][:20]
+        head = f"<p><b>kin diagnose</b>: {len(rows)} significant candidate(s)</p>"
+        return head + _html_table(rows, ["line", "family", "explains", "adjusted p", "meaning"])
 
     def write(self, path: PathLike, inputs: Sequence[PathLike] = ()) -> None:
         """Writes DIAGNOSE.json at `path` atomically."""

@@ -10,6 +10,8 @@ F64 = npt.NDArray[np.float64]
 # Fortran-ordered or strided arrays); a C-contiguous float64 array is read in place.
 ArrayIn = npt.ArrayLike
 
+__version__: str
+
 class KinError(Exception):
     message: str
     code: Optional[str]

@@ -338,6 +338,9 @@ fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
 
 /// Prints why a fit failed: a rank-deficient design with the invisible combinations located
 /// in the model.
+/// Dependent coefficients shown when a fit is refused for them (all of them with `-v`).
+const SHOWN_DEPENDENCIES: usize = 5;
+
 fn fit_failed(a: &FitArgs, source: &str, e: FitError) -> Failed {
     match e {
         FitError::RankDeficient {
@@ -345,17 +348,32 @@ fn fit_failed(a: &FitArgs, source: &str, e: FitError) -> Failed {
             columns,
             diagnostics,
         } => {
+            // The sentence that matters first; then the first few combinations the data cannot
+            // see (a 2-row file against a large model has hundreds: `-v` shows every one, and
+            // `kin check --plan` summarises them per error component).
+            eprintln!("error: the data determine only {rank} of {columns} parameters");
+            let shown = if crate::warnings::verbose() {
+                diagnostics.len()
+            } else {
+                diagnostics.len().min(SHOWN_DEPENDENCIES)
+            };
             let mut stderr = std::io::stderr().lock();
             let _ = crate::render::human(
                 &a.machine.display().to_string(),
                 source,
-                &diagnostics,
+                &diagnostics[..shown],
                 a.color,
                 &mut stderr,
             );
+            if shown < diagnostics.len() {
+                eprintln!(
+                    "… and {} more coefficients the data cannot tell apart (-v shows every one; `kin check {} --plan DATA…` summarises them per error component)",
+                    diagnostics.len() - shown,
+                    a.machine.display()
+                );
+            }
             eprintln!(
-                "error: the data determine only {rank} of {columns} parameters; the combinations above are invisible to them.\n\
-                 Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
+                "Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
             );
             Failed::INPUT
         }

@@ -957,3 +957,24 @@ fn simulate_says_when_the_truth_has_no_values() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     assert!(!text(&o.stderr).contains("every coefficient"), "{}", text(&o.stderr));
 }
+
+/// Two rows against a model of 89 coefficients: the one sentence that matters comes first, and
+/// the combinations the data cannot see are capped with a count (every one with `-v`).
+#[test]
+fn too_few_rows_say_so_first_and_briefly() {
+    let all = std::fs::read_to_string("examples/data/bridge_cmm_points.csv").expect("data");
+    let few: Vec<&str> = all.lines().filter(|l| !l.starts_with('#')).take(3).collect();
+    let path = tmp("two-rows.csv");
+    std::fs::write(&path, few.join("\n") + "\n").expect("write");
+    let o = kin(&["fit", "examples/bridge_cmm.kin", path.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = text(&o.stderr);
+    assert!(
+        err.lines().next().is_some_and(|l| l.contains("the data determine only")),
+        "{err}"
+    );
+    assert!(err.lines().count() < 100, "{} lines", err.lines().count());
+    assert!(err.contains("more coefficients the data cannot tell apart"), "{err}");
+    let o = kin(&["fit", "-v", "examples/bridge_cmm.kin", path.to_str().unwrap()]);
+    assert!(text(&o.stderr).lines().count() > 300);
+}

@@ -615,6 +615,20 @@ pub fn summary(r: &report::FitReport) -> String {
         ));
     }
     s.push_str("\n  error component   coefficients (value ± standard error)\n");
+    // A component whose terms are not contiguous (`X.tx = spline(X, …)` and, after other
+    // lines, `X.tx += backlash(X)`) takes several rows: each then says which terms it holds.
+    let base_of = |name: &str| name.rsplit_once('[').map(|(b, _)| b.to_string());
+    let mut runs: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
+    let mut previous: Option<String> = None;
+    for c in &r.coefficients {
+        let base = base_of(&c.name);
+        if base != previous {
+            if let Some(b) = &base {
+                *runs.entry(b.clone()).or_default() += 1;
+            }
+        }
+        previous = base;
+    }
     let mut i = 0;
     while i < r.coefficients.len() {
         let base = r.coefficients[i]
@@ -634,8 +648,14 @@ pub fn summary(r: &report::FitReport) -> String {
             .map(|n| format!(" {n}"))
             .unwrap_or_default();
         let mut parts = Vec::new();
+        let mut forms: Vec<String> = Vec::new();
         while i < r.coefficients.len() && r.coefficients[i].name.starts_with(&format!("{base}[")) {
             let c = &r.coefficients[i];
+            // `spline(X):s^2` → `spline(X)`: the term, once per row.
+            let form = c.label.split(['#', ':']).next().unwrap_or("").to_string();
+            if !form.is_empty() && !forms.contains(&form) {
+                forms.push(form);
+            }
             // Coefficients of scaled terms carry derived units: name them where they differ.
             let own = if c.unit == unit {
                 String::new()
@@ -657,7 +677,15 @@ pub fn summary(r: &report::FitReport) -> String {
             i += 1;
         }
         let named = format!("{base}{iso}");
-        s.push_str(&format!("  {named:<16} [{unit}] {}\n", parts.join("  ")));
+        let terms = if runs.get(&base).copied().unwrap_or(0) > 1 && !forms.is_empty() {
+            format!(" {}:", forms.join(" + "))
+        } else {
+            String::new()
+        };
+        s.push_str(&format!(
+            "  {named:<16} [{unit}]{terms} {}\n",
+            parts.join("  ")
+        ));
     }
     if !r.stations.is_empty() {
         s.push_str("\n  errors at stations along their axis (value ± standard uncertainty)\n");

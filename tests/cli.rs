@@ -978,3 +978,37 @@ fn too_few_rows_say_so_first_and_briefly() {
     let o = kin(&["fit", "-v", "examples/bridge_cmm.kin", path.to_str().unwrap()]);
     assert!(text(&o.stderr).lines().count() > 300);
 }
+
+/// A component written in two places (`X.tx = spline(…)`, then `X.tx += backlash(X)` after
+/// another line) takes two rows of the coefficient table; each says which term it holds.
+#[test]
+fn a_component_in_two_rows_names_each_row_s_terms() {
+    let model = tmp("two_runs.kin");
+    std::fs::write(
+        &model,
+        "machine s {
+    task position
+    units { length mm, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 500 mm
+    tool chain { X moving  tool t at (0, 0, -100) mm }
+    errors {
+        X.tx = spline(X, knots 2)
+        X.ry = const
+        X.tx += backlash(X)
+    }
+}
+params { X.tx = [2, -1, 0.5, 0.2, 1.0] um  X.ry[0] = 3 urad }
+",
+    )
+    .expect("write");
+    let data = tmp("two_runs.csv");
+    let (m, d) = (model.to_str().unwrap(), data.to_str().unwrap());
+    let o = kin(&["simulate", m, "--sample", "200", "--noise", "0.1um", "-o", d]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let o = kin(&["fit", m, d]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    assert!(out.contains("X.tx EXX         [um] spline(X): "), "{out}");
+    assert!(out.contains("X.tx EXX         [um] backlash(X): "), "{out}");
+    assert!(out.contains("X.ry EBX         [urad] 3."), "a one-row component is as before: {out}");
+}

@@ -450,6 +450,29 @@ pub fn text(d: &Diagnosis, sigma: f64, rms: f64) -> String {
         for alt in &f.alternatives {
             s.push_str(&format!("      or, equally on these data: {}\n", alt.text));
         }
+        // Another reading of an effect a line above explains: name it by its number.
+        let earlier: Vec<String> = f
+            .same_effect_as
+            .iter()
+            .filter_map(|t| {
+                significant
+                    .iter()
+                    .take(i)
+                    .position(|g| g.candidate.text == *t)
+                    .map(|k| (k + 1).to_string())
+            })
+            .collect();
+        if !earlier.is_empty() {
+            s.push_str(&format!(
+                "      the same effect as {}: with {} added, this one adds nothing significant\n",
+                earlier.join(" and "),
+                if earlier.len() == 1 {
+                    "that line"
+                } else {
+                    "either line"
+                }
+            ));
+        }
         if let Some(sep) = &f.separation {
             s.push_str(&format!(
                 "      the data cannot decide between these readings: {sep}\n"

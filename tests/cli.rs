@@ -943,7 +943,11 @@ fn simulate_says_when_the_truth_has_no_values() {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    assert!(text(&o.stderr).contains("every coefficient"), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("every coefficient"),
+        "{}",
+        text(&o.stderr)
+    );
     let o = kin(&[
         "simulate",
         "examples/xy_table.kin",
@@ -955,7 +959,11 @@ fn simulate_says_when_the_truth_has_no_values() {
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    assert!(!text(&o.stderr).contains("every coefficient"), "{}", text(&o.stderr));
+    assert!(
+        !text(&o.stderr).contains("every coefficient"),
+        "{}",
+        text(&o.stderr)
+    );
 }
 
 /// Two rows against a model of 89 coefficients: the one sentence that matters comes first, and
@@ -963,19 +971,33 @@ fn simulate_says_when_the_truth_has_no_values() {
 #[test]
 fn too_few_rows_say_so_first_and_briefly() {
     let all = std::fs::read_to_string("examples/data/bridge_cmm_points.csv").expect("data");
-    let few: Vec<&str> = all.lines().filter(|l| !l.starts_with('#')).take(3).collect();
+    let few: Vec<&str> = all
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .take(3)
+        .collect();
     let path = tmp("two-rows.csv");
     std::fs::write(&path, few.join("\n") + "\n").expect("write");
     let o = kin(&["fit", "examples/bridge_cmm.kin", path.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1));
     let err = text(&o.stderr);
     assert!(
-        err.lines().next().is_some_and(|l| l.contains("the data determine only")),
+        err.lines()
+            .next()
+            .is_some_and(|l| l.contains("the data determine only")),
         "{err}"
     );
     assert!(err.lines().count() < 100, "{} lines", err.lines().count());
-    assert!(err.contains("more coefficients the data cannot tell apart"), "{err}");
-    let o = kin(&["fit", "-v", "examples/bridge_cmm.kin", path.to_str().unwrap()]);
+    assert!(
+        err.contains("more coefficients the data cannot tell apart"),
+        "{err}"
+    );
+    let o = kin(&[
+        "fit",
+        "-v",
+        "examples/bridge_cmm.kin",
+        path.to_str().unwrap(),
+    ]);
     assert!(text(&o.stderr).lines().count() > 300);
 }
 
@@ -1003,12 +1025,17 @@ params { X.tx = [2, -1, 0.5, 0.2, 1.0] um  X.ry[0] = 3 urad }
     .expect("write");
     let data = tmp("two_runs.csv");
     let (m, d) = (model.to_str().unwrap(), data.to_str().unwrap());
-    let o = kin(&["simulate", m, "--sample", "200", "--noise", "0.1um", "-o", d]);
+    let o = kin(&[
+        "simulate", m, "--sample", "200", "--noise", "0.1um", "-o", d,
+    ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let o = kin(&["fit", m, d]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let out = text(&o.stdout);
     assert!(out.contains("X.tx EXX         [um] spline(X): "), "{out}");
     assert!(out.contains("X.tx EXX         [um] backlash(X): "), "{out}");
-    assert!(out.contains("X.ry EBX         [urad] 3."), "a one-row component is as before: {out}");
+    assert!(
+        out.contains("X.ry EBX         [urad] 3."),
+        "a one-row component is as before: {out}"
+    );
 }

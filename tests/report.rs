@@ -88,6 +88,7 @@ fn diagnosis(model_hash: &str) -> Diagnosis {
         plausibility: None,
         fitted: Vec::new(),
         contradicted: Vec::new(),
+        same_effect_as: Vec::new(),
     };
     Diagnosis {
         machine: "bridge_cmm".into(),

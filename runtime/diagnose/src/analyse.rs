@@ -1117,6 +1117,7 @@ fn test_candidates(
                 plausibility: None,
                 fitted: Vec::new(),
                 contradicted: Vec::new(),
+                same_effect_as: Vec::new(),
             },
             terms: terms.clone(),
             columns: added.columns,
@@ -1228,18 +1229,21 @@ fn test_candidates(
         );
         f.finding.plausibility = Some(p);
     }
+    same_effects(&mut findings, &space, rows, base_rank, settings.alpha);
     let mut out: Vec<Finding> = findings.into_iter().map(|t| t.finding).collect();
     // What a line with a fitted wavelength or time constant states comes from its refit.
     let refits = out
         .iter()
         .filter(|f| f.significant && f.candidate.text.contains(" fit "))
         .count() as u64;
+    let mut renamed: Vec<(String, String)> = Vec::new();
     for (i, f) in out
         .iter_mut()
         .filter(|f| f.significant && f.candidate.text.contains(" fit "))
         .enumerate()
     {
         settings.progress.report(Step::Refits, i as u64, refits);
+        let before = f.candidate.text.clone();
         refit::restate(
             f,
             compiled,
@@ -1249,8 +1253,19 @@ fn test_candidates(
             settings.engine,
             settings.alpha,
         )?;
+        if f.candidate.text != before {
+            renamed.push((before, f.candidate.text.clone()));
+        }
     }
     settings.progress.report(Step::Refits, refits, refits);
+    // The lines others are readings of, by their restated text.
+    for f in &mut out {
+        for name in &mut f.same_effect_as {
+            if let Some((_, new)) = renamed.iter().find(|(old, _)| old == name) {
+                *name = new.clone();
+            }
+        }
+    }
     for f in refit::one_per_effect(&mut out) {
         dropped.push(Dropped {
             text: f.candidate.text,
@@ -1262,6 +1277,45 @@ fn test_candidates(
     out.sort_by(rank_order);
     contradictions(&mut out, source, files, base, options, settings)?;
     Ok((out, dropped))
+}
+
+/// Significant findings compared pairwise for being readings of one effect.
+const SAME_EFFECT_FINDINGS: usize = 10;
+
+/// Marks significant findings that are readings of an effect an earlier one (lower BIC)
+/// explains: with the earlier line in the model, this one adds nothing significant (its partial
+/// F-test given the earlier one, at `alpha`). Backlash of X seen as `X.tx`, as `X.ry` through
+/// an arm and as `X.rz`: one effect, one line to add, not three.
+fn same_effects(findings: &mut [Tested], space: &Space, rows: f64, base_rank: usize, alpha: f64) {
+    let top: Vec<usize> = (0..findings.len())
+        .filter(|&i| findings[i].finding.significant)
+        .take(SAME_EFFECT_FINDINGS)
+        .collect();
+    for (a, &i) in top.iter().enumerate() {
+        let mut same = Vec::new();
+        for &j in &top[..a] {
+            let (ti, tj) = (&findings[i], &findings[j]);
+            let terms: Vec<Vec<usize>> = tj.terms.iter().chain(&ti.terms).cloned().collect();
+            let Some(joint) = space.added(&terms) else {
+                continue;
+            };
+            let own_j = tj.columns.len();
+            let more = joint.basis.len().saturating_sub(own_j);
+            let dof = rows - (base_rank + joint.basis.len()) as f64;
+            let absorbed = if more == 0 {
+                true
+            } else if dof > 0.0 && joint.rss > 0.0 {
+                let f = ((tj.rss - joint.rss) / more as f64) / (joint.rss / dof);
+                statistics::f_p(f, more as f64, dof).is_some_and(|p| p >= alpha)
+            } else {
+                false
+            };
+            if absorbed {
+                same.push(tj.finding.candidate.text.clone());
+            }
+        }
+        findings[i].finding.same_effect_as = same;
+    }
 }
 
 /// Refits checked for contradicted components at most: each is a fit of the whole data.
@@ -2197,6 +2251,7 @@ mod tests {
             plausibility: None,
             fitted: Vec::new(),
             contradicted: Vec::new(),
+            same_effect_as: Vec::new(),
         }
     }
 

@@ -99,6 +99,11 @@ pub struct Finding {
     /// one that is not, and `--apply` refuses it without `--force`.
     #[serde(default)]
     pub contradicted: Vec<Worse>,
+    /// Earlier findings (lower ΔBIC) whose line leaves this one nothing significant to add: it
+    /// is another reading of the effect they explain (checked among the first significant
+    /// findings).
+    #[serde(default)]
+    pub same_effect_as: Vec<String>,
 }
 
 impl Finding {

@@ -401,6 +401,7 @@ mod tests {
             plausibility: None,
             fitted: Vec::new(),
             contradicted: Vec::new(),
+            same_effect_as: Vec::new(),
         };
         let mut all = vec![
             f("tool.tx", &["tool.tz"], 0.08),

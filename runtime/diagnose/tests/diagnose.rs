@@ -172,6 +172,32 @@ fn a_hidden_backlash_of_x_is_found_first() {
             .collect::<Vec<_>>()
     );
     assert_eq!(top.candidate.target, "X.tx");
+    // Other significant lines that only re-read the backlash (through an Abbe arm, on another
+    // component) say they are the same effect as the first; none says so of a line after it.
+    let significant: Vec<_> = d.findings.iter().filter(|f| f.significant).collect();
+    for (i, f) in significant.iter().enumerate() {
+        for t in &f.same_effect_as {
+            let at = significant.iter().position(|g| &g.candidate.text == t);
+            assert!(at.is_some_and(|k| k < i), "{t} for {}", f.candidate.text);
+        }
+    }
+    let readings: Vec<&str> = significant
+        .iter()
+        .skip(1)
+        .filter(|f| f.candidate.family == Family::Backlash)
+        .filter(|f| f.same_effect_as.contains(&top.candidate.text))
+        .map(|f| f.candidate.text.as_str())
+        .collect();
+    let backlash_lines = significant
+        .iter()
+        .skip(1)
+        .filter(|f| f.candidate.family == Family::Backlash)
+        .count();
+    assert!(
+        backlash_lines > 0,
+        "the case shows re-readings: {significant:#?}"
+    );
+    assert_eq!(readings.len(), backlash_lines, "{significant:#?}");
 }
 
 // ---------------------------------------------------------------------------------------------

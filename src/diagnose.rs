@@ -107,7 +107,14 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         let at = said.find('\n').map_or(said.len(), |i| i + 1);
         said.insert_str(at, &format!("  ({note})\n"));
     }
-    print!("{said}");
+    match a.apply {
+        // The user chose N from the list already printed: the header, then what is added.
+        Some(_) => {
+            let header = said.lines().next().unwrap_or_default();
+            println!("{header}");
+        }
+        None => print!("{said}"),
+    }
     if a.explain {
         print!("{}", dropped(&diagnosis));
     }

@@ -84,7 +84,25 @@ fn directory_of(path: &Path) -> PathBuf {
 /// the user may not write is refused as an in-place write would be; a symbolic link is
 /// followed, so the file it points to is replaced and the link stays.
 pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
+    if is_stream(path) {
+        return write_stream(path, contents);
+    }
     stage(path, contents)?.commit()
+}
+
+/// Whether `path` names something that is not a file to replace: a device (`/dev/null`,
+/// `/dev/stdout`), a pipe (`-o >(gzip > x)`, a FIFO) or a socket. Renaming a temporary file
+/// over it would put a regular file in its place (as root, over the system's `/dev/null`) and
+/// the reader would get nothing: such an output is written to, in place, instead.
+fn is_stream(path: &Path) -> bool {
+    std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir())
+}
+
+/// Writes `contents` to a device or pipe as any program writing to it would.
+fn write_stream(path: &Path, contents: &[u8]) -> io::Result<()> {
+    let mut f = std::fs::OpenOptions::new().write(true).open(path)?;
+    f.write_all(contents)?;
+    f.flush()
 }
 
 /// Replaces several files as one set, as far as a file system allows: every file's bytes are
@@ -92,11 +110,16 @@ pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
 /// they renamed over their targets, one after the other. A failure while writing (a full disk,
 /// a read-only target) replaces none of them; what can still interleave is only the renames.
 pub fn replace_all(files: &[(&Path, &[u8])]) -> io::Result<()> {
+    let (streams, files): (Vec<_>, Vec<_>) = files.iter().partition(|(path, _)| is_stream(path));
     let staged = files
         .iter()
         .map(|(path, contents)| stage(path, contents))
         .collect::<io::Result<Vec<Staged>>>()?;
-    staged.into_iter().try_for_each(Staged::commit)
+    staged.into_iter().try_for_each(Staged::commit)?;
+    // Devices and pipes take their bytes once the files are in place.
+    streams
+        .iter()
+        .try_for_each(|(path, contents)| write_stream(path, contents))
 }
 
 /// A file's new contents on disk beside it, not yet renamed over it; dropped, it is removed.
@@ -206,6 +229,34 @@ mod tests {
 
     fn dir() -> tempfile::TempDir {
         tempfile::tempdir().expect("temp dir")
+    }
+
+    /// A device stays a device, and a pipe's reader gets the bytes: neither is replaced by a
+    /// regular file. (`mkfifo` makes the pipe; the reader runs beside the write.)
+    #[cfg(unix)]
+    #[test]
+    fn devices_and_pipes_are_written_to_not_replaced() {
+        use std::os::unix::fs::FileTypeExt;
+        replace(Path::new("/dev/null"), b"nothing").unwrap();
+        replace_all(&[(Path::new("/dev/null"), b"nothing" as &[u8])]).unwrap();
+        let kind = std::fs::metadata("/dev/null").unwrap().file_type();
+        assert!(kind.is_char_device());
+
+        let d = dir();
+        let fifo = d.path().join("pipe");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if !made.is_ok_and(|s| s.success()) {
+            return; // no mkfifo on this system
+        }
+        let reader = {
+            let fifo = fifo.clone();
+            std::thread::spawn(move || std::fs::read(fifo).unwrap())
+        };
+        let regular = d.path().join("table.txt");
+        replace_all(&[(&fifo, b"streamed" as &[u8]), (&regular, b"kept")]).unwrap();
+        assert_eq!(reader.join().unwrap(), b"streamed");
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+        assert_eq!(std::fs::read(&regular).unwrap(), b"kept");
     }
 
     #[test]

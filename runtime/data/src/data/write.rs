@@ -259,7 +259,11 @@ impl Column<'_> {
     /// Row `row`'s cell as a JSON value: what [`Column::cell`] writes, typed.
     fn json_cell(&self, row: usize) -> serde_json::Value {
         use serde_json::Value;
-        let number = |v: f64| serde_json::Number::from_f64(v).map_or(Value::Null, Value::Number);
+        // −0 as 0, as the file writes it ([`push_number`]).
+        let number = |v: f64| {
+            let v = if v == 0.0 { 0.0 } else { v };
+            serde_json::Number::from_f64(v).map_or(Value::Null, Value::Number)
+        };
         match &self.cells {
             Cells::Number { unit, values, .. } => values
                 .get(row)

@@ -782,6 +782,28 @@ fn restore_default_sigpipe() {
 #[cfg(not(unix))]
 fn restore_default_sigpipe() {}
 
+/// `print!` panics when standard output (or error) cannot be written: a full disk, `>
+/// /dev/full`, a closed terminal. That is not a bug of kin but the end of its output: say so on
+/// standard error if it can still be written, and exit 1 (the files kin writes are replaced
+/// atomically, so nothing was cut). Every other panic keeps the default report.
+fn quiet_output_failures() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let message = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if message.starts_with("failed printing to std") {
+            use std::io::Write;
+            let _ = writeln!(std::io::stderr(), "error: {message}");
+            std::process::exit(1);
+        }
+        default(info);
+    }));
+}
+
 /// The formats `kin import` reads.
 #[derive(Subcommand)]
 enum ImportCommand {
@@ -834,6 +856,7 @@ fn exit_number(code: ExitCode) -> u8 {
 
 fn main() -> ExitCode {
     restore_default_sigpipe();
+    quiet_output_failures();
     let started = std::time::Instant::now();
     let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
     let json = asks_json(&args);

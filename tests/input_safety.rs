@@ -581,3 +581,24 @@ fn an_absurd_offset_or_range_is_blamed_on_the_number() {
         "{stderr}"
     );
 }
+
+/// Unix: standard output that cannot be written (`> /dev/full`) ends kin with exit 1 and one
+/// line on standard error, not a panic (exit 101).
+#[cfg(unix)]
+#[test]
+fn a_full_standard_output_is_an_error_not_a_panic() {
+    let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") else {
+        return; // no /dev/full on this system
+    };
+    let out = Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(["check", "examples/xy_table.kin", "--format", "json"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .stdout(Stdio::from(full))
+        .stderr(Stdio::piped())
+        .output()
+        .expect("kin runs");
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.starts_with("error: failed printing to stdout"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}

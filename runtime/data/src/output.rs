@@ -49,12 +49,25 @@ pub fn check_target(output: &Path, inputs: &[&Path]) -> Result<(), TargetError> 
     }
 }
 
-/// Whether two paths name the same existing file. A path that does not exist is no file.
+/// Whether two paths name the same file: for two existing files, by identity (device and inode
+/// on Unix); otherwise by where they point — the same name in the same folder however spelled
+/// (`./fit.json` and `fit.json`), so that an output is caught naming an input that does not
+/// exist yet (a model's first history) or another output of the same command.
 pub fn same_file(a: &Path, b: &Path) -> bool {
     match (std::fs::metadata(a), std::fs::metadata(b)) {
         (Ok(ma), Ok(mb)) => same_identity(a, &ma, b, &mb),
-        _ => false,
+        _ => match (location(a), location(b)) {
+            (Some(x), Some(y)) => x == y,
+            _ => a == b,
+        },
     }
+}
+
+/// A path's folder, resolved, and its name: where it points whether it exists or not.
+fn location(path: &Path) -> Option<(PathBuf, std::ffi::OsString)> {
+    let name = path.file_name()?.to_os_string();
+    let dir = directory_of(path).canonicalize().ok()?;
+    Some((dir, name))
 }
 
 #[cfg(unix)]
@@ -229,6 +242,20 @@ mod tests {
 
     fn dir() -> tempfile::TempDir {
         tempfile::tempdir().expect("temp dir")
+    }
+
+    /// Two spellings of a file that does not exist yet are one file: an output is caught
+    /// naming a model's first history or another output of the same command.
+    #[test]
+    fn paths_not_yet_written_are_compared_by_where_they_point() {
+        let d = dir();
+        let a = d.path().join("fit.json");
+        let b = d.path().join(".").join("fit.json");
+        assert!(same_file(&a, &b));
+        assert!(!same_file(&a, &d.path().join("other.json")));
+        assert!(check_target(&a, &[&b]).is_err());
+        std::fs::write(&a, b"x").unwrap();
+        assert!(same_file(&a, &b));
     }
 
     /// A device stays a device, and a pipe's reader gets the bytes: neither is replaced by a

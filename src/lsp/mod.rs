@@ -8,6 +8,7 @@
 //! are the pure functions of [`analysis`].
 
 mod analysis;
+mod transport;
 
 use std::collections::HashMap;
 use std::process::ExitCode;
@@ -50,7 +51,7 @@ struct Doc {
 /// Runs the server until the client says `exit`. Exit code 0 after a `shutdown` request, 2 if
 /// the connection broke or the client exited without one.
 pub fn run() -> ExitCode {
-    let (connection, io_threads) = Connection::stdio();
+    let (connection, io_threads) = transport::stdio();
     let code = match serve(&connection) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

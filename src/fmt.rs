@@ -152,13 +152,20 @@ fn diff(name: &str, old: &str, new: &str) -> String {
 
 fn stdin(check: bool, color: bool) -> Result<(), Failed> {
     let mut bytes = Vec::new();
+    let limit = kin_data::bounded_read::MAX_TEXT_BYTES;
+    // One byte past the limit tells a text that fits from one that was cut (`< /dev/zero`):
+    // a cut text would be formatted as if it were whole.
     std::io::stdin()
-        .take(kin_data::bounded_read::MAX_TEXT_BYTES)
+        .take(limit + 1)
         .read_to_end(&mut bytes)
         .map_err(|e| {
             eprintln!("error: cannot read standard input: {e}");
             Failed::USAGE
         })?;
+    if bytes.len() as u64 > limit {
+        eprintln!("error: <stdin>: more than {limit} bytes, larger than any .kin source kin reads");
+        return Err(Failed::INPUT);
+    }
     let Ok(text) = String::from_utf8(bytes) else {
         eprintln!("error: <stdin>: not UTF-8 text");
         return Err(Failed::INPUT);

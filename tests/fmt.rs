@@ -348,3 +348,20 @@ fn every_spec_block_is_formatted() {
         unformatted.join("\n")
     );
 }
+
+/// An endless standard input (`kin fmt < /dev/zero`) is refused once it passes the size any
+/// source can have, not formatted as if the part read were whole.
+#[cfg(unix)]
+#[test]
+fn an_endless_standard_input_is_refused() {
+    let Ok(zero) = std::fs::File::open("/dev/zero") else {
+        return;
+    };
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_kin"))
+        .arg("fmt")
+        .stdin(zero)
+        .output()
+        .expect("kin runs");
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("more than"));
+}

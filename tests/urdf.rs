@@ -716,3 +716,45 @@ fn damaged_files_never_panic() {
         }
     }
 }
+
+/// A chain longer than any robot's, and a joint offset that is no length, are refused with
+/// what is wrong and where, in moments: not "a bug of kin import" after a minute, nor a
+/// 300-digit number.
+#[test]
+fn chains_and_offsets_beyond_any_robot_are_refused_quickly() {
+    let chain = |n: usize, first_x: &str| {
+        let links: String = (0..=n).map(|i| format!("<link name=\"l{i}\"/>")).collect();
+        let joints: String = (0..n)
+            .map(|i| {
+                let x = if i == 0 { first_x } else { "0" };
+                format!(
+                    "<joint name=\"j{i}\" type=\"revolute\"><parent link=\"l{i}\"/><child link=\"l{}\"/>\
+                     <origin xyz=\"{x} 0 0.1\" rpy=\"0 0 0\"/><axis xyz=\"0 1 0\"/>\
+                     <limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/></joint>",
+                    i + 1
+                )
+            })
+            .collect();
+        format!("<robot name=\"r\">{links}{joints}</robot>")
+    };
+    let started = std::time::Instant::now();
+    let long = urdf::import(
+        &chain(300, "0"),
+        Path::new("long.urdf"),
+        &Options::default(),
+    );
+    let e = long.err().expect("refused").to_string();
+    assert!(
+        e.contains("300 moving joints") && e.contains("at most"),
+        "{e}"
+    );
+    assert!(!e.contains("bug"), "{e}");
+    let huge = urdf::import(
+        &chain(3, "1e308"),
+        Path::new("huge.urdf"),
+        &Options::default(),
+    );
+    let e = huge.err().expect("refused").to_string();
+    assert!(e.contains("1e308 m") && e.contains("huge.urdf:1:"), "{e}");
+    assert!(started.elapsed().as_secs() < 20, "{:?}", started.elapsed());
+}

@@ -44,6 +44,14 @@ impl Default for Options {
     }
 }
 
+/// The most moving joints an imported chain may have: serial robots have 6 or 7, a
+/// positioner a few more; a model of hundreds of axes is a file that is not a robot, whose
+/// default error model would take minutes to prune.
+pub const MAX_JOINTS: usize = 32;
+/// The largest joint offset read, m: no link of a robot is longer (`xyz="1e308 0 0"` is not a
+/// length).
+const MAX_OFFSET: f64 = 1e4;
+
 /// Why a URDF file cannot be imported.
 #[derive(Debug, Error)]
 pub enum UrdfError {
@@ -457,6 +465,17 @@ fn read_joint(r: &Reader<'_, '_>, node: roxmltree::Node<'_, '_>) -> Result<Joint
     let origin = match first_child(node, "origin") {
         Some(o) => {
             let xyz = r.triple(o, "xyz", [0.0; 3])?;
+            if let Some(big) = xyz.iter().find(|v| v.abs() > MAX_OFFSET) {
+                let at = o
+                    .attribute_node("xyz")
+                    .map_or(r.at(o), |a| r.loc(a.range_value().start));
+                return Err(r.invalid(
+                    at,
+                    format!(
+                        "origin `xyz` has {big:e} m: a link of a robot is not longer than {MAX_OFFSET} m (URDF lengths are in metres)"
+                    ),
+                ));
+            }
             let rpy = r.triple(o, "rpy", [0.0; 3])?;
             transform(&rpy_matrix(rpy), &Vector3::from(xyz))
         }
@@ -734,6 +753,12 @@ fn choose_chain(robot: &Robot, path: &Path, options: &Options) -> Result<Chain, 
     if moving(&joints) == 0 {
         return Err(chain_error(format!(
             "no joint moves between the base link `{base}` and the tip link `{tip}`"
+        )));
+    }
+    if moving(&joints) > MAX_JOINTS {
+        return Err(chain_error(format!(
+            "the chain from `{base}` to `{tip}` has {} moving joints; kin imports serial chains of at most {MAX_JOINTS} (choose a shorter chain with --base and --tip)",
+            moving(&joints)
         )));
     }
     Ok(Chain {

@@ -743,7 +743,7 @@ fn chains_and_offsets_beyond_any_robot_are_refused_quickly() {
         Path::new("long.urdf"),
         &Options::default(),
     );
-    let e = long.err().expect("refused").to_string();
+    let e = long.expect_err("refused").to_string();
     assert!(
         e.contains("300 moving joints") && e.contains("at most"),
         "{e}"
@@ -754,7 +754,7 @@ fn chains_and_offsets_beyond_any_robot_are_refused_quickly() {
         Path::new("huge.urdf"),
         &Options::default(),
     );
-    let e = huge.err().expect("refused").to_string();
+    let e = huge.expect_err("refused").to_string();
     assert!(e.contains("1e308 m") && e.contains("huge.urdf:1:"), "{e}");
     assert!(started.elapsed().as_secs() < 20, "{:?}", started.elapsed());
 }

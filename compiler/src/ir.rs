@@ -793,6 +793,10 @@ pub struct Coefficient {
 pub struct Machine {
     pub name: String,
     pub task: Task,
+    /// The unit direction gravity acts in, in the base's axes (`gravity along …`, −z by
+    /// default): what deflects under it (spec/diagnosis.md, gravity rows).
+    #[serde(default = "default_gravity")]
+    pub gravity: [f64; 3],
     pub axes: Vec<Axis>,
     pub inputs: Vec<Input>,
     pub lags: Vec<Lag>,
@@ -807,6 +811,13 @@ pub struct Machine {
     /// Bound values of β in SI, when the source binds them (`params` block); else empty.
     pub beta: Vec<f64>,
     pub units: DisplayUnits,
+}
+
+/// Gravity when a model does not say: −z of the base, a machine standing with z up.
+pub const GRAVITY: [f64; 3] = [0.0, 0.0, -1.0];
+
+fn default_gravity() -> [f64; 3] {
+    GRAVITY
 }
 
 /// The units the user asked for when quantities are printed or read without a unit.

@@ -80,6 +80,7 @@ fn lower(file: &ast::File) -> Output {
     let mut machine = ir::Machine {
         name: st.name,
         task: st.task,
+        gravity: st.gravity,
         axes: st.axes,
         inputs: st.inputs,
         lags: models.lags,

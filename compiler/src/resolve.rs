@@ -30,6 +30,8 @@ impl Sink {
 pub(crate) struct Structure {
     pub name: String,
     pub task: ir::Task,
+    /// The unit direction gravity acts in, base axes (`gravity along …`; −z by default).
+    pub gravity: [f64; 3],
     pub units: ir::DisplayUnits,
     pub axes: Vec<ir::Axis>,
     pub axis_spans: Vec<Span>,
@@ -311,9 +313,11 @@ fn within_machine(value: f64, dim: Dim, span: Span, what: &str, sink: &mut Sink)
 pub(crate) fn resolve(machine: &ast::Machine, sink: &mut Sink) -> Structure {
     let units = resolve_units(machine, sink);
     let task = resolve_task(machine, sink);
+    let gravity = resolve_gravity(machine, sink);
     let mut st = Structure {
         name: machine.name.node.clone(),
         task,
+        gravity,
         units,
         axes: Vec::new(),
         axis_spans: Vec::new(),
@@ -495,12 +499,41 @@ fn resolve_task(machine: &ast::Machine, sink: &mut Sink) -> ir::Task {
     }
 }
 
-fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) -> Option<ir::Axis> {
-    let kind = match a.kind.node {
-        ast::JointKind::Prismatic => ir::JointKind::Prismatic,
-        ast::JointKind::Revolute => ir::JointKind::Revolute,
-    };
-    let direction = match &a.direction.node {
+/// `gravity along …`, at most once; −z of the base when not given (a machine standing on the
+/// floor with z up, as most are).
+fn resolve_gravity(machine: &ast::Machine, sink: &mut Sink) -> [f64; 3] {
+    let mut found: Option<([f64; 3], Span)> = None;
+    for item in &machine.items {
+        let ast::Item::Gravity(g) = item else {
+            continue;
+        };
+        if let Some((_, first)) = found {
+            sink.push(
+                Diagnostic::error("E0102", "gravity is given twice", g.span)
+                    .with_label("second definition")
+                    .with_secondary(first, "first defined here"),
+            );
+            continue;
+        }
+        let zero = |span: Span| {
+            Diagnostic::error("E0405", "gravity has a zero direction", span)
+                .with_label("this vector has no length")
+                .with_help("give the direction gravity acts in, e.g. `gravity along -z` or `gravity along (0, 0.5, -0.866)`")
+        };
+        if let Some(d) = direction(&g.node, zero, sink) {
+            found = Some((d, g.span));
+        }
+    }
+    found.map_or(ir::GRAVITY, |(d, _)| d)
+}
+
+/// A declared direction as a unit vector; `zero` says what a vector without length is.
+fn direction(
+    d: &ast::Direction,
+    zero: impl FnOnce(Span) -> Diagnostic,
+    sink: &mut Sink,
+) -> Option<[f64; 3]> {
+    Some(match d {
         ast::Direction::Coordinate { negative, index } => {
             let mut d = [0.0; 3];
             if let Some(slot) = d.get_mut(*index) {
@@ -523,22 +556,29 @@ fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) ->
             }
             let norm = d.iter().map(|x| x * x).sum::<f64>().sqrt();
             if !(norm > 1e-12) || !norm.is_finite() {
-                sink.push(
-                    Diagnostic::error(
-                        "E0405",
-                        format!("axis `{}` has a zero direction", a.name.node),
-                        v.span,
-                    )
-                    .with_label("this vector has no length")
-                    .with_help(
-                        "give the direction of motion, e.g. `along (0, 0.6, 0.8)` or `along -x`",
-                    ),
-                );
+                sink.push(zero(v.span));
                 return None;
             }
             d.map(|x| x / norm)
         }
+    })
+}
+
+fn resolve_axis(a: &ast::AxisDecl, units: &ir::DisplayUnits, sink: &mut Sink) -> Option<ir::Axis> {
+    let kind = match a.kind.node {
+        ast::JointKind::Prismatic => ir::JointKind::Prismatic,
+        ast::JointKind::Revolute => ir::JointKind::Revolute,
     };
+    let zero = |span: Span| {
+        Diagnostic::error(
+            "E0405",
+            format!("axis `{}` has a zero direction", a.name.node),
+            span,
+        )
+        .with_label("this vector has no length")
+        .with_help("give the direction of motion, e.g. `along (0, 0.6, 0.8)` or `along -x`")
+    };
+    let direction = direction(&a.direction.node, zero, sink)?;
     let (dim, default) = match kind {
         ir::JointKind::Prismatic => (Dim::LENGTH, &units.length),
         ir::JointKind::Revolute => (Dim::ANGLE, &units.angle),

@@ -680,7 +680,7 @@ pub fn symbols(text: &str) -> Vec<DocumentSymbol> {
                     defs,
                 ));
             }
-            ast::Item::Task(_) | ast::Item::Units(_) => {}
+            ast::Item::Task(_) | ast::Item::Units(_) | ast::Item::Gravity(_) => {}
         }
     }
     vec![symbol(

@@ -42,6 +42,8 @@ impl Machine {
 pub enum Item {
     Task(Spanned<TaskKind>),
     Units(UnitsDecl),
+    /// `gravity along …`: the direction gravity acts in (the whole declaration's span).
+    Gravity(Spanned<Direction>),
     Axis(Box<AxisDecl>),
     Input(InputDecl),
     Chain(ChainDecl),

@@ -150,6 +150,7 @@ fn build_machine(pair: P) -> Result<Machine> {
     for p in inner {
         let item = match p.as_rule() {
             Rule::task_decl => Item::Task(build_task(p)?),
+            Rule::gravity_decl => Item::Gravity(build_gravity(p)?),
             Rule::units_decl => Item::Units(build_units(p)?),
             Rule::axis_decl => Item::Axis(Box::new(build_axis(p)?)),
             Rule::input_decl => Item::Input(build_input(p)?),
@@ -162,6 +163,17 @@ fn build_machine(pair: P) -> Result<Machine> {
     Ok(Machine {
         name: machine_name,
         items,
+        span: sp,
+    })
+}
+
+fn build_gravity(pair: P) -> Result<Spanned<Direction>> {
+    let sp = span(&pair);
+    let mut it = pair.into_inner();
+    let _kw = next(&mut it, "gravity")?;
+    let direction = build_direction(next(&mut it, "direction")?)?;
+    Ok(Spanned {
+        node: direction.node,
         span: sp,
     })
 }
@@ -729,6 +741,7 @@ fn describe(rule: Rule) -> Option<&'static str> {
         Rule::kw_params => "`params`",
         Rule::kw_task | Rule::task_decl => "`task`",
         Rule::kw_units | Rule::units_decl => "`units`",
+        Rule::kw_gravity | Rule::gravity_decl => "`gravity`",
         Rule::kw_axis | Rule::axis_decl => "`axis`",
         Rule::kw_input | Rule::input_decl => "`input`",
         Rule::kw_tool | Rule::tool_item => "`tool`",

@@ -642,6 +642,7 @@ pub(crate) mod testing {
         Machine {
             name: "test".into(),
             task: Task::Measure,
+            gravity: kin_compiler::ir::GRAVITY,
             axes: vec![
                 axis("X", JointKind::Prismatic, [1.0, 0.0, 0.0]),
                 axis("Y", JointKind::Prismatic, [0.0, 1.0, 0.0]),

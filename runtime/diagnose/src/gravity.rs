@@ -6,15 +6,12 @@
 //! a head on its trunnion) deflects in proportion to the load it sees in its own frame, so each
 //! of its six parametric errors is `a + b cos q + c sin q`: the constant is a location, the two
 //! others the candidate `sin(A) * const + cos(A) * const`. Where A is vertical, g lies along u
-//! and nothing turns.
+//! and nothing turns. Gravity is the model's (`gravity along …`, −z of the base by default).
 
 use kin_compiler::ir::{Component, FrameKind, FrameRef, JointKind, Machine, Var};
 
 use super::library::{frame_name, has, push, uses, Available, Proposal, Term};
 use super::Family;
-
-/// The direction of gravity in the base frame: −z (the base's z points up).
-const GRAVITY: [f64; 3] = [0.0, 0.0, -1.0];
 
 /// An axis whose direction is within this (the sine of the angle) of gravity's is vertical:
 /// the turning part of gravity is at most this fraction of it, far below any deflection a
@@ -33,7 +30,7 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
             if axis.kind != JointKind::Revolute
                 || !available.sampled.get(e.axis).is_some_and(|s| s.is_some())
                 || m.home_direction(e.axis)
-                    .is_none_or(|u| across(u, GRAVITY) <= VERTICAL)
+                    .is_none_or(|u| across(u, m.gravity) <= VERTICAL)
             {
                 continue;
             }
@@ -130,10 +127,16 @@ mod tests {
     use super::*;
 
     fn machine(b_about: &str) -> Machine {
+        on_wall(b_about, "")
+    }
+
+    /// The trunnion with a `gravity` declaration (`""`: none, gravity −z).
+    fn on_wall(b_about: &str, gravity: &str) -> Machine {
         let src = format!(
             r#"
 machine trunnion {{
     task position
+    {gravity}
     units {{ length mm, angle deg, error um, tilt urad }}
     axis X prismatic along x range 0 mm .. 500 mm
     axis B revolute about {b_about} range -90 deg .. 90 deg
@@ -201,5 +204,21 @@ machine trunnion {{
     #[test]
     fn a_vertical_axis_gets_none() {
         assert!(targets(&machine("z")).iter().all(|t| !t.contains("(B)")));
+    }
+
+    /// Vertical is the model's gravity, not the base's z: on a machine mounted with gravity
+    /// along −x, an axis about z tilts what it carries and one about x does not.
+    #[test]
+    fn vertical_follows_the_declared_gravity() {
+        let m = on_wall("z", "gravity along -x");
+        assert_eq!(m.gravity, [-1.0, 0.0, 0.0]);
+        assert!(
+            targets(&m).iter().any(|t| t.contains("sin(B)")),
+            "{:?}",
+            targets(&m)
+        );
+        let m = on_wall("x", "gravity along (-2, 0, 0)");
+        assert_eq!(m.gravity, [-1.0, 0.0, 0.0]);
+        assert!(targets(&m).iter().all(|t| !t.contains("(B)")));
     }
 }

@@ -708,6 +708,7 @@ pub(crate) mod testing {
         Machine {
             name: "test".into(),
             task,
+            gravity: kin_compiler::ir::GRAVITY,
             axes,
             inputs: vec![],
             lags: vec![],

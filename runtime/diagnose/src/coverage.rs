@@ -266,6 +266,13 @@ pub(super) const ROWS: &[Row] = &[
         form: "sin(B) * const + cos(B) * const",
     },
     Row {
+        key: "arm-compliance",
+        element: Element::Revolute,
+        components: Components::About,
+        family: Family::CrossCoupling,
+        form: "cos(Φ_k) * const + sin(Φ_k) * const for each link k of the joint's parallel group",
+    },
+    Row {
         key: "gravity-carriage",
         element: Element::Prismatic,
         components: Components::All,
@@ -371,7 +378,12 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
     let first = text.contains("harmonics 1)") || text.contains("harmonics 1..");
     let beam = text.contains("beam(");
     let warm = text.contains("warmup(");
-    let gravity = text.contains("sin(");
+    // A joint's compliance under its links' gravity torque: cos/sin pairs, cos first (the
+    // tilting-axis rows write sin first).
+    let arm = text
+        .split_once(" += ")
+        .is_some_and(|(_, terms)| terms.starts_with("cos("));
+    let gravity = text.contains("sin(") && !arm;
     let input = axis.is_some_and(|(_, a)| {
         m.inputs
             .iter()
@@ -395,9 +407,10 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
                 | "once-per-rev-angular"
                 | "once-per-rev-radial"
                 | "once-per-rev-tilt" => first,
-                "coupling-axis" | "rotary-coupling-axis" => !input && !gravity,
-                "coupling-input" | "rotary-coupling-input" => input && !gravity,
+                "coupling-axis" | "rotary-coupling-axis" => !input && !gravity && !arm,
+                "coupling-input" | "rotary-coupling-input" => input && !gravity && !arm,
                 "gravity" | "gravity-carriage" | "gravity-end" => gravity,
+                "arm-compliance" => arm,
                 "thermal-scale" => !beam,
                 "drift" | "drift-scale" => !warm,
                 "warm-up" | "warm-up-scale" => warm,
@@ -521,6 +534,12 @@ machine cover {{
         match compile(src).compiled {
             Some(c) => keys.extend(rows(&c.machine)),
             None => panic!("{src}"),
+        }
+        // A shoulder and an elbow, parallel and horizontal, on a vertical base joint.
+        let arm = "machine arm {\n    task position\n    units { length mm, angle deg, error um, tilt urad }\n    axis J1 revolute about z range -180 deg .. 180 deg\n    axis J2 revolute about y range -90 deg .. 90 deg\n    axis J3 revolute about y range -90 deg .. 90 deg\n    tool chain {\n        J1 moving\n        J2 moving at (0, 0, 400) mm\n        J3 moving at (500, 0, 0) mm\n        tool t at (400, 0, 0) mm\n    }\n}\n";
+        match compile(arm).compiled {
+            Some(c) => keys.extend(rows(&c.machine)),
+            None => panic!("{arm}"),
         }
         let all: BTreeSet<&str> = ROWS.iter().map(|r| r.key).collect();
         let missing: Vec<&&str> = all.difference(&keys).collect();

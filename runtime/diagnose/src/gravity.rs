@@ -63,6 +63,136 @@ pub(super) fn propose(m: &Machine, available: &Available, out: &mut Vec<Proposal
     }
 }
 
+/// Appends, for each revolute joint of a serial arm whose axis is not vertical, its deflection
+/// under the gravity torque of the links it carries (joint compliance; spec/diagnosis.md,
+/// "Joint compliance of an arm"). Joints parallel to it, before and after, form a planar group:
+/// a point mass on link k of the group (anywhere on it) has its lever about the joint's axis
+/// turn with `Φ_k`, the sum of the group's angles up to k (signed by each axis' sense), so the
+/// torque — and a linear compliance's deflection — is `Σ_k a_k cos Φ_k + b_k sin Φ_k`: known
+/// columns of the angles, linear in the unknown mass moments. Joints before the group must be
+/// vertical (turning about gravity changes no lever); the group ends at the first joint that is
+/// not parallel (the masses beyond it are counted with the last link of the group: their
+/// lever also turns with that joint, which the form leaves out) or at a prismatic one.
+pub(super) fn propose_arms(m: &Machine, available: &Available, out: &mut Vec<Proposal>) {
+    let g = m.gravity;
+    for (chain, tool) in [(&m.tool_chain, true), (&m.workpiece_chain, false)] {
+        let dir =
+            |k: usize| -> Option<[f64; 3]> { chain.get(k).and_then(|e| m.home_direction(e.axis)) };
+        let revolute = |k: usize| {
+            chain
+                .get(k)
+                .and_then(|e| m.axes.get(e.axis))
+                .is_some_and(|a| a.kind == JointKind::Revolute)
+        };
+        let sense = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        for (j, e) in chain.iter().enumerate() {
+            let (Some(axis), Some(u)) = (m.axes.get(e.axis), dir(j)) else {
+                continue;
+            };
+            if axis.kind != JointKind::Revolute
+                || across(u, g) <= VERTICAL
+                || !available.sampled.get(e.axis).is_some_and(|s| s.is_some())
+            {
+                continue;
+            }
+            // The joints before: vertical ones turn nothing; parallel ones join the sum.
+            let mut before: Vec<(f64, &str)> = Vec::new();
+            let mut planar = true;
+            for k in 0..j {
+                let (Some(a), Some(d)) = (chain.get(k).and_then(|x| m.axes.get(x.axis)), dir(k))
+                else {
+                    continue;
+                };
+                if a.kind != JointKind::Revolute || across(d, g) <= VERTICAL {
+                    continue;
+                }
+                if across(d, u) <= VERTICAL {
+                    before.push((sense(d, u).signum(), a.name.as_str()));
+                } else {
+                    planar = false;
+                }
+            }
+            if !planar {
+                continue;
+            }
+            // The group after j, up to the first joint that breaks the plane.
+            let mut sums: Vec<String> = Vec::new();
+            let mut angle: Vec<(f64, &str)> = before.clone();
+            angle.push((1.0, axis.name.as_str()));
+            sums.push(signed_sum(&angle));
+            for k in j + 1..chain.len() {
+                let (Some(a), Some(d)) = (chain.get(k).and_then(|x| m.axes.get(x.axis)), dir(k))
+                else {
+                    break;
+                };
+                if !revolute(k) || across(d, u) > VERTICAL {
+                    break;
+                }
+                angle.push((sense(d, u).signum(), a.name.as_str()));
+                sums.push(signed_sum(&angle));
+            }
+            // A joint alone in its group, with nothing before it, tilts only what it carries:
+            // on its own moving frame that is the tilting-axis line `propose` gives already.
+            if sums.len() == 1 && before.is_empty() && e.frame == FrameKind::Moving {
+                continue;
+            }
+            let Some(name) = super::library::frame_name(m, at(tool, j)) else {
+                continue;
+            };
+            let comp = super::library::rotation_about(axis.direction);
+            let target = format!("{name}.{}", comp.name());
+            let terms: Vec<Term> = sums
+                .iter()
+                .flat_map(|phi| {
+                    [
+                        Term::new(format!("cos({phi}) * const")),
+                        Term::new(format!("sin({phi}) * const")),
+                    ]
+                })
+                .collect();
+            let links = sums.len();
+            push(
+                out,
+                Family::CrossCoupling,
+                target.clone(),
+                terms,
+                format!(
+                    "{target}: {} deflects under the gravity torque of the {} it carries (joint compliance): each link's weight has its lever turn with the sum of the parallel joints' angles up to it",
+                    axis.name,
+                    if links == 1 { "link".to_string() } else { format!("{links} links") }
+                ),
+                None,
+            );
+        }
+    }
+}
+
+/// `J2 + J3 - J4`: a sum of signed joint angles, as the language writes it.
+fn signed_sum(angles: &[(f64, &str)]) -> String {
+    let mut s = String::new();
+    for (i, (sign, name)) in angles.iter().enumerate() {
+        match (i, *sign < 0.0) {
+            (0, false) => s.push_str(name),
+            (0, true) => {
+                s.push('-');
+                s.push_str(name);
+            }
+            (_, false) => s.push_str(&format!(" + {name}")),
+            (_, true) => s.push_str(&format!(" - {name}")),
+        }
+    }
+    s
+}
+
+/// The frame of element `k` of the tool chain (`tool`) or the workpiece chain.
+fn at(tool: bool, k: usize) -> FrameRef {
+    if tool {
+        FrameRef::Tool(k)
+    } else {
+        FrameRef::Workpiece(k)
+    }
+}
+
 /// The frames that turn with the joint of element `j` and with no other rotation: its own when
 /// it is `moving` (placed after its joint), the later elements' up to and including the first
 /// later revolute one that is `fixed` (placed before its own joint), and the chain's end when no

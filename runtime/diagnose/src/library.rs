@@ -618,6 +618,7 @@ pub fn propose(
 
     // Deflection under gravity of what a tilting axis carries (gravity.rs).
     super::gravity::propose(m, available, &mut out);
+    super::gravity::propose_arms(m, available, &mut out);
 
     // Thermal drift: a temperature input through a lag, on the tool (growth of the spindle or
     // ram) and on each prismatic axis' scale.

@@ -146,7 +146,8 @@ size_t kin_model_name(const kin_model *model, int what, size_t index, char *buf,
 /* The bound coefficient values (SI; zeros where none was bound), n_beta = coefficients. */
 int kin_model_beta(const kin_model *model, double *beta, size_t n_beta);
 
-/* Replaces the coefficient values (e.g. with a fit's). */
+/* Replaces the coefficient values (e.g. with a fit's); a value that is not finite is
+ * KIN_ERR_VALUE and leaves the model's values as they were. */
 int kin_model_set_beta(kin_model *model, const double *beta, size_t n_beta);
 
 /* The tool-location error at a state for coefficients beta (n_beta = coefficients; beta NULL

@@ -460,6 +460,7 @@ fn model_error(e: Error, source: &str) -> Fail {
         Error::Compile { .. } => Fail(KIN_ERR_COMPILE, located(source, &e)),
         Error::Params { .. } => Fail(KIN_ERR_PARAMS, located(source, &e)),
         Error::Values { .. } => Fail(KIN_ERR_SIZE, e.to_string()),
+        Error::NotFinite { .. } => Fail(KIN_ERR_VALUE, e.to_string()),
         Error::Io { .. } | Error::Format { .. } => Fail(KIN_ERR_IO, e.to_string()),
         Error::Jit(_) => Fail(KIN_ERR_COMPILE, e.to_string()),
     }
@@ -961,8 +962,8 @@ pub unsafe extern "C" fn kin_model_beta(
     })
 }
 
-/// Replaces the model's coefficient values (e.g. with a fit's). Not while other threads use
-/// the model.
+/// Replaces the model's coefficient values (e.g. with a fit's); a value that is not finite is
+/// `KIN_ERR_VALUE` and leaves the values as they were. Not while other threads use the model.
 ///
 /// # Safety
 ///
@@ -1913,6 +1914,13 @@ mod tests {
                 ),
                 KIN_ERR_SIZE
             );
+            // A value that is not finite is refused and leaves the model's values as they were.
+            let mut bad = beta;
+            bad[2] = f64::NAN;
+            assert_eq!(kin_model_set_beta(model, bad.as_ptr(), 5), KIN_ERR_VALUE);
+            bad[2] = f64::INFINITY;
+            assert_eq!(kin_model_set_beta(model, bad.as_ptr(), 5), KIN_ERR_VALUE);
+            assert!((*model).model.beta().iter().all(|b| b.is_finite()));
             assert_eq!(kin_model_set_beta(model, beta.as_ptr(), 5), KIN_OK);
             let dir = std::env::temp_dir().join(format!("kin-capi-{}", std::process::id()));
             std::fs::create_dir_all(&dir).expect("temp dir");

@@ -78,6 +78,14 @@ pub enum Error {
         expected: usize,
         got: usize,
     },
+    /// A value that is not a finite number: every evaluation with it would be NaN, and a
+    /// compensation's solve would fail at every call.
+    #[error("{what} [{index}] is {value}, not a finite number")]
+    NotFinite {
+        what: &'static str,
+        index: usize,
+        value: f64,
+    },
     #[error("`{}`: {source}", path.display())]
     Io {
         path: PathBuf,
@@ -229,6 +237,7 @@ impl Model {
     /// Replaces the coefficient values (e.g. with a fit's).
     pub fn set_beta(&mut self, beta: &[f64]) -> Result<(), Error> {
         check_values("β", self.coefficients(), beta.len())?;
+        check_finite("β", beta)?;
         self.compiled.machine.beta.copy_from_slice(beta);
         Ok(())
     }
@@ -246,6 +255,7 @@ impl Model {
             self.nonlinear.len(),
             values.len(),
         )?;
+        check_finite("the non-linear parameter values", values)?;
         self.nonlinear.copy_from_slice(values);
         for (p, v) in self.compiled.machine.nonlinear.iter_mut().zip(values) {
             p.value = *v;
@@ -602,6 +612,17 @@ impl ServoCompensator {
     }
 }
 
+fn check_finite(what: &'static str, values: &[f64]) -> Result<(), Error> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(Error::NotFinite {
+            what,
+            index,
+            value: values[index],
+        }),
+        None => Ok(()),
+    }
+}
+
 fn check_values(what: &'static str, expected: usize, got: usize) -> Result<(), Error> {
     if expected == got {
         Ok(())
@@ -801,6 +822,16 @@ mod tests {
         );
         assert_eq!(model.params().len(), 2);
         assert!(matches!(model.set_beta(&[1.0]), Err(Error::Values { .. })));
+        let mut nan = model.beta().to_vec();
+        if let Some(b) = nan.first_mut() {
+            *b = f64::NAN;
+            let kept = model.beta().to_vec();
+            assert!(matches!(
+                model.set_beta(&nan),
+                Err(Error::NotFinite { index: 0, .. })
+            ));
+            assert_eq!(model.beta(), &kept[..], "refused values change nothing");
+        }
         assert!(matches!(
             model.set_nonlinear(&[]),
             Err(Error::Values { .. })

@@ -380,6 +380,15 @@ pub enum Problem {
         limit: String,
     },
     #[error(
+        "line {line}, column {column} (`{name}`): `{text}` is below absolute zero (an absolute temperature is at least −273.15 °C)"
+    )]
+    BelowAbsoluteZero {
+        line: usize,
+        column: usize,
+        name: String,
+        text: String,
+    },
+    #[error(
         "line {line}, column {column} (`{name}`): unknown tool `{text}`; declared tools: {}",
         declared.join(", ")
     )]
@@ -431,6 +440,7 @@ impl Problem {
             | WrongDimension { line, column, .. }
             | BadCell { line, column, .. }
             | Implausible { line, column, .. }
+            | BelowAbsoluteZero { line, column, .. }
             | UnknownTool { line, column, .. } => Some((*line, Some(*column))),
             CellCount { line, .. }
             | NothingObserved { line, .. }

@@ -616,6 +616,18 @@ impl<'m> Reader<'m> {
                                 });
                                 f64::NAN
                             }
+                            // An absolute temperature is kelvin here: below 0 it is no
+                            // temperature (a rise written as absolute, a sign lost).
+                            _ if absolute_temperature(machine, role) && v < 0.0 => {
+                                let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                                problems.push(Problem::BelowAbsoluteZero {
+                                    line: line_no,
+                                    column: char_column(raw, cell.origin),
+                                    name: col.name.clone(),
+                                    text: excerpt(text),
+                                });
+                                f64::NAN
+                            }
                             _ => v,
                         },
                         Ok(None) if !required => f64::NAN,
@@ -898,6 +910,16 @@ fn number(line: &str, cell: &Cell, decimal_comma: bool) -> Result<Option<f64>, (
 /// enough that the powers of them a model's columns take (polynomials, products of axes) and
 /// their sums of squares over 10⁸ rows stay far from overflow, so an absurd cell is reported
 /// where it is instead of turning the fit's σ̂ and coefficients into inf or NaN.
+/// Whether the column is an input declared as an absolute temperature (read in kelvin).
+fn absolute_temperature(machine: &Machine, role: Role) -> bool {
+    match role {
+        Role::Input(i) => machine.inputs.get(i).is_some_and(|input| {
+            input.absolute && input.unit.dim == kin_compiler::units::Dim::TEMPERATURE
+        }),
+        _ => false,
+    }
+}
+
 fn plausible(machine: &Machine, role: Role) -> Option<(f64, &'static str)> {
     Some(match role {
         Role::Axis { axis, .. } => match machine.axes.get(axis).map(|a| a.kind) {

@@ -215,6 +215,23 @@ fn temperatures_absolute_and_rise() {
     assert_column(p.rows.inputs[2].as_deref().unwrap_or_default(), &[NAN]);
 }
 
+/// An absolute temperature below absolute zero is refused at its cell; a rise may be negative.
+#[test]
+fn an_absolute_temperature_below_absolute_zero_is_refused() {
+    let found = problems("X,Y,Z,C,T_spindle[degC],T_x[K],load[N],ex\n0,0,0,0,-300,-2.5,,1\n");
+    assert!(
+        matches!(
+            found.as_slice(),
+            [Problem::BelowAbsoluteZero {
+                line: 2,
+                column: 9,
+                ..
+            }]
+        ),
+        "{found:?}"
+    );
+}
+
 #[test]
 fn tool_offsets_and_artifacts() {
     let p = points(

@@ -393,7 +393,18 @@ pub fn observations(
         ),
         started,
     ));
-    let outside = data::ranges::outside(&compiled.machine, &obs);
+    outside_ranges(path, &compiled.machine, &obs)?;
+    Ok(obs)
+}
+
+/// W0801 for every pose of `obs` outside an axis's declared range (an error with `--strict`):
+/// the model was fitted or declared there, and beyond it is extrapolation.
+pub fn outside_ranges(
+    path: &Path,
+    machine: &kin_compiler::ir::Machine,
+    obs: &Observations,
+) -> Result<(), Failed> {
+    let outside = data::ranges::outside(machine, obs);
     if crate::warnings::strict() && !outside.is_empty() {
         for o in &outside {
             let message = format!("{}: {o}", path.display());
@@ -411,7 +422,7 @@ pub fn observations(
             &format!("{}: {o}", path.display()),
         );
     }
-    Ok(obs)
+    Ok(())
 }
 
 /// The axis positions of a file of poses (`--poses`), one vector a row in the model's axis

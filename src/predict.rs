@@ -57,7 +57,10 @@ fn run(a: PredictArgs) -> Result<(), Failed> {
         series: true,
         ..a.data.read(true)
     };
-    let cycle = match data::read_file(&a.cycle, m, &options).map_err(load::read_failed)? {
+    let read = data::read_file(&a.cycle, m, &options).map_err(load::read_failed)?;
+    // A cycle that takes an axis outside its declared range is extrapolation: W0801.
+    load::outside_ranges(&a.cycle, m, &read)?;
+    let cycle = match read {
         Observations::Points(p) => p,
         Observations::Lengths(_) => {
             eprintln!(

@@ -382,6 +382,27 @@ fn predict_refuses_to_overwrite_an_input_and_locates_cycle_errors() {
     ]);
     assert_eq!(out.status.code(), Some(1));
     assert!(text(&out.stderr).contains("time"), "{}", text(&out.stderr));
+    // A cycle that takes X beyond its declared range is extrapolation: W0801, an error with
+    // --strict.
+    std::fs::write(
+        dir.join("far.csv"),
+        "time[min],T_spindle,T_room,X[mm],Y[mm],Z[mm]\n0,0,0,900,0,0\n10,1,0,900,0,0\n",
+    )
+    .expect("cycle");
+    let args = [
+        "predict".to_string(),
+        p(&dir, "m.kin"),
+        "--fit".into(),
+        p(&dir, "fit.json"),
+        p(&dir, "far.csv"),
+    ];
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let out = kin(&args);
+    assert_eq!(out.status.code(), Some(0), "{}", text(&out.stderr));
+    assert!(text(&out.stderr).contains("W0801"), "{}", text(&out.stderr));
+    let mut strict = args.clone();
+    strict.insert(1, "--strict");
+    assert_eq!(kin(&strict).status.code(), Some(1));
 }
 
 /// The lag of a piecewise-linear input by many small RK4 steps of `dx/dt = (u − x)/τ`: an

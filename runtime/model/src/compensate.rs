@@ -110,6 +110,12 @@ pub struct Options {
     pub converged: f64,
 }
 
+/// A column whose weighted norm is below this fraction of the largest column's moves nothing
+/// that is corrected: it is left out of the solve (a revolute axis through the tool point when
+/// only the position is corrected; a real lever of a nanometre per radian against a metre is
+/// still 10⁻⁹).
+const LEVERAGE: f64 = 1e-10;
+
 /// The default [`Options::converged`]: a step that changes the weighted error by less than a
 /// picometre no longer matters. Below it, steps are rounding noise and never a [`Divergence`].
 pub(crate) const PICOMETRE: f64 = 1e-12;
@@ -376,6 +382,9 @@ pub(crate) fn iterate<P: Plant>(
         for (d, x) in dq.iter_mut().zip(step.iter()) {
             *d += x;
         }
+        if dq.iter().any(|d| !d.is_finite()) {
+            return Err(Divergence::Overflows { step: k + 1 }.into());
+        }
         // The step's effect on the weighted error: below `converged` it no longer matters.
         let effect: f64 = jacobian
             .iter()
@@ -429,14 +438,26 @@ pub(crate) fn solve(
     if jacobian.iter().any(|c| c.iter().any(|x| !x.is_finite())) {
         return Err(Unsolvable);
     }
-    // Column j of A is (w ∘ J_j) / s_j, s_j = ‖w ∘ J_j‖; a column the weights do not see is 0.
+    // Column j of A is (w ∘ J_j) / s_j, s_j = ‖w ∘ J_j‖; a column the weights do not see is 0,
+    // and so is one with no leverage on what is corrected: the flange's roll when only the
+    // position is corrected and the tool point lies on its axis has a column of rounding
+    // noise (10⁻¹⁶ of the others), which scaled to unit length would look like a full
+    // direction and be given a correction of 10¹⁸ (and a step of no weighted effect, so the
+    // iteration would call it converged).
+    let largest_column = jacobian
+        .iter()
+        .map(|c| c.component_mul(w).norm())
+        .fold(0.0_f64, f64::max);
+    let floor = LEVERAGE * largest_column;
+    let seen = |wc: &Vector6<f64>| {
+        let s = wc.norm();
+        (s > floor && s > 0.0).then_some(s)
+    };
     let scaled = |c: &Vector6<f64>| {
         let wc = c.component_mul(w);
-        let s = wc.norm();
-        if s > 0.0 {
-            wc / s
-        } else {
-            Vector6::zeros()
+        match seen(&wc) {
+            Some(s) => wc / s,
+            None => Vector6::zeros(),
         }
     };
     let mut g = Matrix6::<f64>::zeros();
@@ -486,7 +507,7 @@ pub(crate) fn solve(
     for (j, (x, c)) in step.iter_mut().zip(jacobian).enumerate() {
         let wc = c.component_mul(w);
         let s2 = wc.norm_squared();
-        if s2 > 0.0 {
+        if seen(&wc).is_some() {
             // Back from the unit-norm column to the axis: δ_j = x_j / s_j.
             *x = if n <= 6 {
                 x6[j] / s2.sqrt()
@@ -801,6 +822,46 @@ machine mill3 {
     }
 }
 "#;
+
+    /// A 6-axis arm whose tool point lies on the flange's roll axis, corrected in position
+    /// only: J6 has no leverage on what is corrected. Over 1 000 random poses every correction
+    /// either converges to micro-sized joint moves with the position error cancelled, or is an
+    /// error — never a success with a correction of 10¹⁸ (which the unit-scaled column of
+    /// rounding noise gave).
+    #[test]
+    fn a_joint_through_the_tool_point_gets_no_correction_of_noise() {
+        let src = include_str!("../../../examples/robot_6axis.kin");
+        let c = compile(src).compiled.expect("compiles");
+        let m = &c.machine;
+        let beta: Vec<f64> = (0..m.coefficients.len())
+            .map(|j| 3e-6 * (((j * 7919) % 13) as f64 / 6.0 - 1.0))
+            .collect();
+        let mut comp = Compensator::new(m, &beta, Options::position(m)).expect("compensator");
+        let states = crate::states::States::sample(m, 1000, 17);
+        let (mut solved, mut refused) = (0, 0);
+        for r in 0..states.len() {
+            match comp.compensate(&states.get(r)) {
+                Ok(c) => {
+                    solved += 1;
+                    // Micrometre errors need joint moves of micro-radians; near the wrist's
+                    // singularity (J4 and J6 aligned) some milliradians — never more than 0.1.
+                    let largest = c.dq.iter().fold(0.0f64, |a, d| a.max(d.abs()));
+                    assert!(largest < 0.1, "pose {r}: {:?}", c.dq);
+                    assert_eq!(
+                        c.dq.last().copied(),
+                        Some(0.0),
+                        "J6 moves nothing corrected"
+                    );
+                    for e in &c.after[..3] {
+                        assert!(e.abs() < 1e-9, "pose {r}: {c:?}");
+                    }
+                }
+                Err(CompensateError::Diverges(_) | CompensateError::Solve) => refused += 1,
+                Err(e) => panic!("pose {r}: {e}"),
+            }
+        }
+        assert!(solved >= 990, "{solved} solved, {refused} refused");
+    }
 
     #[test]
     fn a_three_axis_machine_corrects_position_and_reports_the_tilt() {

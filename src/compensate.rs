@@ -20,7 +20,8 @@ pub enum Correct {
     /// Position and orientation, a rotation of one tilt unit weighing as one error unit: the
     /// machine corrects all its joints can (a 3-axis machine: the position).
     Pose,
-    /// The position only; orientation errors are left alone.
+    /// The position only: rotations weigh 0, so orientation is whatever the moves that cancel
+    /// the position error leave (reported); an axis with no leverage on the position stays.
     Position,
 }
 
@@ -378,6 +379,12 @@ fn unit_of(m: &Machine, axis: usize) -> &kin_compiler::units::Unit {
     }
 }
 
+/// A value back from SI in the unit the user wrote it in, to twelve significant digits: 30°
+/// goes through radians and comes back 29.999999999999996, which no user wrote.
+fn tidy(v: f64) -> f64 {
+    format!("{v:.11e}").parse().unwrap_or(v)
+}
+
 fn describe_reference(m: &Machine, q: &[f64], grid: &Grid) -> String {
     let mut parts: Vec<String> = m
         .axes
@@ -386,7 +393,12 @@ fn describe_reference(m: &Machine, q: &[f64], grid: &Grid) -> String {
         .enumerate()
         .map(|(j, (axis, v))| {
             let u = unit_of(m, j);
-            format!("{}={} {}", axis.name, u.as_difference().from_si(*v), u.name)
+            format!(
+                "{}={} {}",
+                axis.name,
+                tidy(u.as_difference().from_si(*v)),
+                u.name
+            )
         })
         .collect();
     if let Some(t) = m.tools.get(grid.tool) {
@@ -402,7 +414,7 @@ fn describe_reference(m: &Machine, q: &[f64], grid: &Grid) -> String {
             parts.push(format!(
                 "{}={} {}",
                 input.name,
-                u.from_si(*v),
+                tidy(u.from_si(*v)),
                 input.unit.name
             ));
         }

@@ -107,12 +107,14 @@ pub struct Sweep {
 }
 
 /// Compensates `reference` with axis `axis` at each of `nodes` and at their midpoints, in
-/// both directions of that axis.
+/// both directions of that axis, moving only the axes `free` marks (every axis when `None`):
+/// the axes the tables being written can move.
 pub fn sweep(
     comp: &mut Compensator<'_>,
     reference: &State,
     axis: usize,
     nodes: &[f64],
+    free: Option<&[bool]>,
 ) -> Result<Sweep, CompensateError> {
     let mut q = reference.q.to_vec();
     let mut dirs = reference.dirs.to_vec();
@@ -128,7 +130,7 @@ pub fn sweep(
             dirs: &dirs,
             ..*reference
         };
-        Ok(comp.compensate(&state)?.dq)
+        Ok(comp.compensate_with(&state, free)?.dq)
     };
     let mids: Vec<f64> = nodes.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
     let mut run = |points: &[f64], dir: f64| -> Result<Vec<Vec<f64>>, CompensateError> {

@@ -382,7 +382,17 @@ impl<'a> TablePlan<'a> {
     fn sinumerik(&self, comp: &mut Compensator<'_>, origin: &str) -> Result<TableSet, TableError> {
         let mut set = TableSet::default();
         let (m, reference, ranged) = (self.m, &self.reference, &self.ranged);
-        let base = comp.compensate(&reference.state())?.dq;
+        // The solve moves only the axes that get a table: an axis the grid holds at one value
+        // (a rotary axis of a mill compensated in X, Y, Z) is never corrected by these tables,
+        // and corrections of the others that assume it would be leave its share of the error
+        // on the machine.
+        let mut free = vec![false; m.axes.len()];
+        for &j in ranged {
+            if let Some(f) = free.get_mut(j) {
+                *f = true;
+            }
+        }
+        let base = comp.compensate_with(&reference.state(), Some(&free))?.dq;
         let mut sweeps: Vec<Sweep> = Vec::with_capacity(ranged.len());
         for &j in ranged {
             sweeps.push(axis_table::sweep(
@@ -390,6 +400,7 @@ impl<'a> TablePlan<'a> {
                 &reference.state(),
                 j,
                 &self.nodes(j),
+                Some(&free),
             )?);
         }
         let kind = |j: usize| kind_of(m, j);

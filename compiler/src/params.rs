@@ -304,6 +304,19 @@ fn bind_scalar(
     }
 }
 
+/// The term coefficient `k` belongs to.
+fn term_of(machine: &ir::Machine, k: usize) -> Option<&ir::Term> {
+    machine
+        .coefficients
+        .get(k)
+        .and_then(|c| machine.errors.get(c.error))
+        .and_then(|e| {
+            e.terms
+                .iter()
+                .find(|t| t.first <= k && k < t.first + t.coefficients)
+        })
+}
+
 /// The coefficients among `members` that are a constant term of their component (`const`
 /// with a plain-number scale, no factor that varies): where a location or squareness is held.
 fn constant_members(machine: &ir::Machine, members: &[usize]) -> Vec<usize> {
@@ -311,22 +324,13 @@ fn constant_members(machine: &ir::Machine, members: &[usize]) -> Vec<usize> {
         .iter()
         .copied()
         .filter(|&k| {
-            machine
-                .coefficients
-                .get(k)
-                .and_then(|c| machine.errors.get(c.error))
-                .and_then(|e| {
-                    e.terms
+            term_of(machine, k).is_some_and(|t| {
+                t.coefficients == 1
+                    && matches!(t.scale, ir::Scalar::Num(_))
+                    && t.factors
                         .iter()
-                        .find(|t| t.first <= k && k < t.first + t.coefficients)
-                })
-                .is_some_and(|t| {
-                    t.coefficients == 1
-                        && matches!(t.scale, ir::Scalar::Num(_))
-                        && t.factors
-                            .iter()
-                            .all(|f| matches!(f.basis, crate::basis::Basis::Const))
-                })
+                        .all(|f| matches!(f.basis, crate::basis::Basis::Const))
+            })
         })
         .collect()
 }
@@ -376,15 +380,7 @@ fn canonical(
 /// name binds the error's value, `scale × β`, and `EC0Y = const` written where `EC0Y` is
 /// `−X.rz` makes a term of scale −1 whose coefficient is EC0Y itself.
 fn scale_sign(machine: &ir::Machine, k: usize) -> f64 {
-    machine
-        .coefficients
-        .get(k)
-        .and_then(|c| machine.errors.get(c.error))
-        .and_then(|e| {
-            e.terms
-                .iter()
-                .find(|t| t.first <= k && k < t.first + t.coefficients)
-        })
+    term_of(machine, k)
         .map(|t| match t.scale {
             ir::Scalar::Num(v) if v < 0.0 => -1.0,
             _ => 1.0,

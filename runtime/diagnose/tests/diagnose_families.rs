@@ -142,6 +142,31 @@ machine tilt5 {
 }
 "#;
 
+/// A shoulder–elbow arm on a vertical base joint, measured in position only (a tracker): the
+/// model has the joints' zero offsets and the links' lengths.
+const ARM: &str = r#"
+machine arm3 {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis J1 revolute about z range -170 deg .. 170 deg
+    axis J2 revolute about y range -80 deg .. 60 deg
+    axis J3 revolute about y range -120 deg .. 120 deg
+    tool chain {
+        J1 moving
+        J2 moving at (0, 0, 450) mm
+        J3 moving at (600, 0, 0) mm
+        tool flange at (500, 0, 80) mm
+    }
+    errors {
+        J1.rz = const
+        J2.ry = const
+        J3.ry = const
+        J2.tx = const
+        J3.tx = const
+    }
+}
+"#;
+
 /// The length of the [`TIMED`] measurement, whatever the number of rows.
 const TIMED_HOURS: f64 = 6.0;
 
@@ -153,6 +178,7 @@ enum Kind {
     Mill,
     Timed,
     Tilt,
+    Arm,
 }
 
 /// One hidden effect: the line added to the truth (fixed non-linear values), its coefficients in
@@ -377,6 +403,20 @@ const CASES: &[Case] = &[
         form: "sin(B) * const + cos(B) * const",
     },
     Case {
+        name: "arm joint compliance (J2 under two links)",
+        kind: Kind::Arm,
+        family: Family::CrossCoupling,
+        target: "J2.ry",
+        // Point masses of 20 kg at (300, 0, 50) mm on the upper arm, 12 kg at 250 mm on the
+        // forearm and 5 kg at the flange (500, 0, 80) mm, a shoulder compliance of 2 µrad/N·m,
+        // scaled to this sweep's 0.2 µm noise as a tracker's 20 µm is to the real deflection:
+        // the torque's cos/sin of J2 and of J2 + J3, in µrad (spec/diagnosis.md, "Joint
+        // compliance of an arm").
+        hidden: "J2.ry += cos(J2) * const + sin(J2) * const + cos(J2 + J3) * const + sin(J2 + J3) * const",
+        values: &[3.18, 0.196, 1.08, 0.078],
+        form: "cos(J2 + J3) * const",
+    },
+    Case {
         name: "counter-rotating tilt motion (C)",
         kind: Kind::Tilt,
         family: Family::RevoluteHarmonics,
@@ -401,6 +441,7 @@ fn base_source(kind: Kind) -> &'static str {
         Kind::Mill => MILL,
         Kind::Timed => TIMED,
         Kind::Tilt => TILT,
+        Kind::Arm => ARM,
     }
 }
 
@@ -787,7 +828,7 @@ fn every_family_is_found_and_fixes_the_fit() {
 fn complete_models_raise_no_false_alarm() {
     let (seeds, sizes) = plan();
     let (mut alarms, mut runs) = (0, 0);
-    for kind in [Kind::Cmm, Kind::Mill, Kind::Tilt] {
+    for kind in [Kind::Cmm, Kind::Mill, Kind::Tilt, Kind::Arm] {
         for &n in &sizes {
             let mut t = Tally::default();
             for &seed in &seeds {
@@ -800,6 +841,7 @@ fn complete_models_raise_no_false_alarm() {
                         Kind::Cmm => "cmm",
                         Kind::Mill => "mill",
                         Kind::Tilt => "tilt",
+                        Kind::Arm => "arm",
                         Kind::Timed => "timed",
                     }
                 ),

@@ -155,6 +155,10 @@ pub struct Correction {
     pub after: [f64; 6],
     /// How many independent combinations of the weighted components the joints can move.
     pub rank: usize,
+    /// The axes that were free to move but left out of the last step for lack of leverage on
+    /// the corrected components (a roll through the tool point under a position-only
+    /// correction), indexed like `Machine::axes`: they are not moved, and a caller says so.
+    pub idle: Vec<usize>,
 }
 
 /// Compensates poses of one machine with coefficients `beta`; holds the scratch of a pose.
@@ -234,6 +238,7 @@ impl<'m> Compensator<'m> {
             before: outcome.before.into(),
             after: outcome.after.into(),
             rank: outcome.rank,
+            idle: (0..n).filter(|&j| outcome.idle(j)).collect(),
         })
     }
 
@@ -341,6 +346,16 @@ pub(crate) struct Outcome {
     pub rank: usize,
     /// Linear solves done (at most `Options::iterations`).
     pub iterations: usize,
+    /// Bit `j` set: axis `j` was free but had no leverage in the last step (axes beyond 64
+    /// are not recorded; a bit mask keeps the servo path free of allocation).
+    pub idle: u64,
+}
+
+impl Outcome {
+    /// Whether axis `j` was free but left out of the last step for lack of leverage.
+    pub fn idle(&self, j: usize) -> bool {
+        j < 64 && self.idle & (1 << j) != 0
+    }
 }
 
 /// The compensation of §2.3.5: `δq` minimising `‖W (J δq + e)‖` on the joint Jacobian (the
@@ -368,6 +383,7 @@ pub(crate) fn iterate<P: Plant>(
     let mut rank = 0;
     let mut iterations = 0;
     let mut previous = f64::INFINITY;
+    let mut idle = 0u64;
     for k in 0..options.iterations {
         plant.jacobian(jacobian)?;
         if let Some(free) = free {
@@ -379,6 +395,7 @@ pub(crate) fn iterate<P: Plant>(
         }
         rank = solve(jacobian, &w, &residual, options.rank_tolerance, step)?;
         iterations += 1;
+        idle = idle_columns(jacobian, &w, free);
         for (d, x) in dq.iter_mut().zip(step.iter()) {
             *d += x;
         }
@@ -415,7 +432,32 @@ pub(crate) fn iterate<P: Plant>(
         after: residual,
         rank,
         iterations,
+        idle,
     })
+}
+
+/// The leverage below which a weighted column is left out of the solve: [`LEVERAGE`] of the
+/// largest.
+fn leverage_floor(jacobian: &[Vector6<f64>], w: &Vector6<f64>) -> f64 {
+    LEVERAGE
+        * jacobian
+            .iter()
+            .map(|c| c.component_mul(w).norm())
+            .fold(0.0_f64, f64::max)
+}
+
+/// The free axes whose weighted column is at or below the leverage floor (bit `j` for axis
+/// `j < 64`): [`solve`] gives them no step.
+fn idle_columns(jacobian: &[Vector6<f64>], w: &Vector6<f64>, free: Option<&[bool]>) -> u64 {
+    let floor = leverage_floor(jacobian, w);
+    let mut idle = 0u64;
+    for (j, c) in jacobian.iter().enumerate().take(64) {
+        let is_free = free.is_none_or(|f| f.get(j).copied().unwrap_or(false));
+        if is_free && c.component_mul(w).norm() <= floor {
+            idle |= 1 << j;
+        }
+    }
+    idle
 }
 
 /// The least-squares step `min ‖W (J δ + r)‖` into `step`, returning the rank: the singular
@@ -444,11 +486,7 @@ pub(crate) fn solve(
     // noise (10⁻¹⁶ of the others), which scaled to unit length would look like a full
     // direction and be given a correction of 10¹⁸ (and a step of no weighted effect, so the
     // iteration would call it converged).
-    let largest_column = jacobian
-        .iter()
-        .map(|c| c.component_mul(w).norm())
-        .fold(0.0_f64, f64::max);
-    let floor = LEVERAGE * largest_column;
+    let floor = leverage_floor(jacobian, w);
     let seen = |wc: &Vector6<f64>| {
         let s = wc.norm();
         (s > floor && s > 0.0).then_some(s)

@@ -890,6 +890,72 @@ machine mill3 {
                         Some(0.0),
                         "J6 moves nothing corrected"
                     );
+                    assert!(c.idle.contains(&5), "pose {r}: J6 not named: {c:?}");
+                    for e in &c.after[..3] {
+                        assert!(e.abs() < 1e-9, "pose {r}: {c:?}");
+                    }
+                }
+                Err(CompensateError::Diverges(_) | CompensateError::Solve) => refused += 1,
+                Err(e) => panic!("pose {r}: {e}"),
+            }
+        }
+        assert!(solved >= 990, "{solved} solved, {refused} refused");
+    }
+
+    /// A mill whose spindle head carries A and then C, the tool point on C's axis: under a
+    /// position-only correction C has no leverage. Over 1 000 random poses every correction
+    /// converges (position cancelled, C named idle and not moved, no correction beyond an
+    /// axis range) or is an error.
+    #[test]
+    fn a_mill_with_the_tool_on_c_names_c_and_never_blows_up() {
+        let src = r#"
+machine millc {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 400 mm
+    axis Z prismatic along z range -300 mm .. 0 mm
+    axis A revolute about x range -90 deg .. 90 deg
+    axis C revolute about z continuous
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 450) mm
+        A moving at (0, 0, -100) mm
+        C moving at (0, 0, -50) mm
+        tool long at (0, 0, -150) mm
+    }
+    workpiece chain {
+        workpiece
+    }
+    errors {
+        X.tx = linear(X)
+        Y.ty = const
+        A.ty = const
+        A.rz = const
+        C.tx = const
+        C.rz = const
+    }
+}
+"#;
+        let c = compile(src).compiled.expect("compiles");
+        let m = &c.machine;
+        let beta: Vec<f64> = (0..m.coefficients.len())
+            .map(|j| 5e-6 * (((j * 7919) % 13) as f64 / 6.0 - 1.0))
+            .collect();
+        let mut comp = Compensator::new(m, &beta, Options::position(m)).expect("compensator");
+        let states = crate::states::States::sample(m, 1000, 23);
+        let (mut solved, mut refused) = (0, 0);
+        for r in 0..states.len() {
+            match comp.compensate(&states.get(r)) {
+                Ok(c) => {
+                    solved += 1;
+                    for (d, axis) in c.dq.iter().zip(&m.axes) {
+                        let span = axis.range[1] - axis.range[0];
+                        assert!(d.is_finite() && d.abs() < span.min(1e3), "pose {r}: {c:?}");
+                    }
+                    assert_eq!(c.dq[4], 0.0, "C moves nothing corrected");
+                    assert!(c.idle.contains(&4), "pose {r}: C not named: {c:?}");
                     for e in &c.after[..3] {
                         assert!(e.abs() < 1e-9, "pose {r}: {c:?}");
                     }

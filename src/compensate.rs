@@ -68,6 +68,8 @@ pub struct CompensateArgs {
     pub poses: Option<PathBuf>,
     pub grid: Option<String>,
     pub correct: Correct,
+    /// The axes the corrections may move (`--axes`); `None`: the default of `correct`.
+    pub axes: Option<String>,
     pub table: Option<Table>,
     pub output: PathBuf,
     pub ignore: crate::args::DataOptions,
@@ -134,7 +136,28 @@ fn compensate(a: CompensateArgs) -> Result<(), Failed> {
             return Err(Failed::USAGE);
         }
     };
-    let corrections = corrections(m, &mut comp, &points, &source)?;
+    let free = free_axes(m, a.correct, a.axes.as_deref())?;
+    let held: Vec<&str> = m
+        .axes
+        .iter()
+        .zip(&free)
+        .filter(|(_, f)| !**f)
+        .map(|(axis, _)| axis.name.as_str())
+        .collect();
+    if !held.is_empty() {
+        eprintln!(
+            "note: {} held at the commanded positions (not moved by the corrections){}",
+            held.join(", "),
+            if a.axes.is_none() {
+                "; --axes names the axes to move"
+            } else {
+                ""
+            }
+        );
+    }
+    let mut points = points;
+    undirected(m, &mut points);
+    let corrections = corrections(m, &mut comp, &points, &source, &free)?;
     let fit = load::fit_report(&a.fit)?;
     let uncertainty = kin_estimate::simulate::uncertainty(
         m,
@@ -159,14 +182,67 @@ fn corrections(
     comp: &mut Compensator<'_>,
     points: &PointData,
     source: &str,
+    free: &[bool],
 ) -> Result<Vec<Correction>, Failed> {
-    kin_machine::corrections::corrections(m, comp, points).map_err(|e| {
+    kin_machine::corrections::corrections(m, comp, points, Some(free)).map_err(|e| {
         match e {
             CorrectionError::States(e) => eprintln!("error: {e}"),
             CorrectionError::Pose { line, source: e } => eprintln!("error: {source} {line}: {e}"),
         }
         Failed::INPUT
     })
+}
+
+/// The axes the corrections may move: those `--axes` names, else every axis for `pose`, and
+/// for `position` the prismatic axes (every axis of a machine that has none, an arm): a
+/// rotary axis of a machine tool moved to correct position turns the tool and the workpiece,
+/// and changes the orientation error it was not asked about.
+fn free_axes(m: &Machine, correct: Correct, axes: Option<&str>) -> Result<Vec<bool>, Failed> {
+    let Some(list) = axes else {
+        let prismatic: Vec<bool> = m
+            .axes
+            .iter()
+            .map(|a| a.kind == JointKind::Prismatic)
+            .collect();
+        return Ok(match correct {
+            Correct::Position if prismatic.iter().any(|p| *p) => prismatic,
+            _ => vec![true; m.axes.len()],
+        });
+    };
+    let mut free = vec![false; m.axes.len()];
+    for name in list.split(',').map(str::trim) {
+        let Some(j) = m.axes.iter().position(|a| a.name == name) else {
+            let names: Vec<&str> = m.axes.iter().map(|a| a.name.as_str()).collect();
+            eprintln!(
+                "error: --axes: `{name}` is no axis of machine `{}` (its axes: {})",
+                m.name,
+                names.join(", ")
+            );
+            return Err(Failed::USAGE);
+        };
+        free[j] = true;
+    }
+    Ok(free)
+}
+
+/// Every axis whose direction of approach the model uses (backlash) and the poses do not give
+/// is taken as approached moving in its positive direction, as `--grid` does (spec/data.md:
+/// `dir_X` is optional), with a note; the output then has the `dir_` column it assumed.
+fn undirected(m: &Machine, points: &mut PointData) {
+    let used = kin_model::states::used_vars(m);
+    let rows = points.rows.len();
+    for (j, axis) in m.axes.iter().enumerate() {
+        let Some(slot) = points.pose.dir.get_mut(j) else {
+            continue;
+        };
+        if slot.is_none() && used.contains(&kin_compiler::ir::Var::Direction(j)) {
+            *slot = Some(vec![1.0; rows]);
+            eprintln!(
+                "note: the poses have no dir_{0} column: {0} is taken as approached moving in its positive direction (as --grid does)",
+                axis.name
+            );
+        }
+    }
 }
 
 /// Before and after on standard error: what compensation achieves and what stays.
@@ -186,6 +262,22 @@ fn summary(m: &Machine, c: &[Correction], weighted: usize) {
         t.from_si(s.orientation_after),
         t.name,
     );
+    let mut idle: Vec<(usize, usize)> = Vec::new();
+    for j in c.iter().flat_map(|c| &c.idle) {
+        match idle.iter_mut().find(|(k, _)| k == j) {
+            Some((_, n)) => *n += 1,
+            None => idle.push((*j, 1)),
+        }
+    }
+    for (j, n) in idle {
+        if let Some(axis) = m.axes.get(j) {
+            eprintln!(
+                "note: {} has no leverage on the corrected components at {n} of {} poses (it turns about the tool point): it is not moved there",
+                axis.name,
+                c.len()
+            );
+        }
+    }
     if let Some(rank) = s.rank {
         if rank < weighted {
             eprintln!(

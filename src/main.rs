@@ -586,6 +586,12 @@ enum Command {
         /// What the corrections minimise: the whole tool location or its position only.
         #[arg(long, value_enum, default_value_t = compensate::Correct::Pose)]
         correct: compensate::Correct,
+        /// The axes the corrections of --poses or --grid may move, comma-separated (e.g.
+        /// X,Y,Z); the others stay at the commanded positions. Default: every axis for
+        /// `--correct pose`; for `--correct position` the prismatic axes (every axis of a
+        /// machine without one, such as an arm).
+        #[arg(long, value_name = "AXES", conflicts_with = "table")]
+        axes: Option<String>,
         /// Write controller tables instead of the CSV, into the folder -o, for every axis --grid
         /// ranges over (the grid's STEP is the table's spacing), evaluated with the other axes at
         /// the middle of their grid values; kin-compensation.txt and standard error say what the
@@ -1160,6 +1166,7 @@ fn run(command: Command) -> ExitCode {
             poses,
             grid,
             correct,
+            axes,
             table,
             output,
             ignore,
@@ -1172,6 +1179,7 @@ fn run(command: Command) -> ExitCode {
                 poses,
                 grid,
                 correct,
+                axes,
                 table,
                 output,
                 ignore: ignore.options(),

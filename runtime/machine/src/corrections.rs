@@ -23,16 +23,25 @@ pub enum CorrectionError {
     },
 }
 
-/// The correction of every row of `points`, in their order.
+/// The correction of every row of `points`, in their order, moving only the axes `free` marks
+/// (indexed like `Machine::axes`; every axis when `None`). An axis whose `dir_` column the file
+/// lacks is taken as approached in the positive direction, as `--grid` does.
 pub fn corrections(
     m: &Machine,
     comp: &mut Compensator<'_>,
     points: &PointData,
+    free: Option<&[bool]>,
 ) -> Result<Vec<Correction>, CorrectionError> {
-    let states = States::new(m, &points.rows, &points.pose, "")?;
+    let mut pose = points.pose.clone();
+    for slot in pose.dir.iter_mut() {
+        if slot.is_none() {
+            *slot = Some(vec![1.0; points.rows.len()]);
+        }
+    }
+    let states = States::new(m, &points.rows, &pose, "")?;
     (0..states.len())
         .map(|r| {
-            comp.compensate(&states.get(r))
+            comp.compensate_with(&states.get(r), free)
                 .map_err(|source| CorrectionError::Pose {
                     line: states.line.get(r).copied().unwrap_or(0),
                     source,

@@ -85,6 +85,14 @@ pub enum Divergence {
         "the correction diverges: after step {step} the model's error is not finite (the axes moved to where it overflows); the model's errors are too large for a correction linearised on the joint Jacobian"
     )]
     Overflows { step: usize },
+    #[error(
+        "the correction does not converge: after {steps} steps the last still moves the tool by {moved:.3e} (weighted, SI); the pose is too close to where the axes cannot move the tool (a singularity)"
+    )]
+    Unfinished {
+        /// The steps done, and `‖W J δ‖` of the last.
+        steps: usize,
+        moved: f64,
+    },
 }
 
 impl From<Unsolvable> for CompensateError {
@@ -155,6 +163,10 @@ pub struct Correction {
     pub after: [f64; 6],
     /// How many independent combinations of the weighted components the joints can move.
     pub rank: usize,
+    /// The axes that were free to move but left out of the last step for lack of leverage on
+    /// the corrected components (a roll through the tool point under a position-only
+    /// correction), indexed like `Machine::axes`: they are not moved, and a caller says so.
+    pub idle: Vec<usize>,
 }
 
 /// Compensates poses of one machine with coefficients `beta`; holds the scratch of a pose.
@@ -234,6 +246,7 @@ impl<'m> Compensator<'m> {
             before: outcome.before.into(),
             after: outcome.after.into(),
             rank: outcome.rank,
+            idle: (0..n).filter(|&j| outcome.idle(j)).collect(),
         })
     }
 
@@ -341,6 +354,16 @@ pub(crate) struct Outcome {
     pub rank: usize,
     /// Linear solves done (at most `Options::iterations`).
     pub iterations: usize,
+    /// Bit `j` set: axis `j` was free but had no leverage in the last step (axes beyond 64
+    /// are not recorded; a bit mask keeps the servo path free of allocation).
+    pub idle: u64,
+}
+
+impl Outcome {
+    /// Whether axis `j` was free but left out of the last step for lack of leverage.
+    pub fn idle(&self, j: usize) -> bool {
+        j < 64 && self.idle & (1 << j) != 0
+    }
 }
 
 /// The compensation of §2.3.5: `δq` minimising `‖W (J δq + e)‖` on the joint Jacobian (the
@@ -368,6 +391,8 @@ pub(crate) fn iterate<P: Plant>(
     let mut rank = 0;
     let mut iterations = 0;
     let mut previous = f64::INFINITY;
+    let mut idle = 0u64;
+    let mut finished = false;
     for k in 0..options.iterations {
         plant.jacobian(jacobian)?;
         if let Some(free) = free {
@@ -379,6 +404,7 @@ pub(crate) fn iterate<P: Plant>(
         }
         rank = solve(jacobian, &w, &residual, options.rank_tolerance, step)?;
         iterations += 1;
+        idle = idle_columns(jacobian, &w, free);
         for (d, x) in dq.iter_mut().zip(step.iter()) {
             *d += x;
         }
@@ -397,6 +423,7 @@ pub(crate) fn iterate<P: Plant>(
             return Err(Divergence::Overflows { step: k + 1 }.into());
         }
         if effect < options.converged && k > 0 {
+            finished = true;
             break;
         }
         if effect >= previous && effect >= PICOMETRE {
@@ -410,12 +437,48 @@ pub(crate) fn iterate<P: Plant>(
         }
         previous = effect;
     }
+    // Out of steps while the last still moved the tool by more than a nanometre: the
+    // correction is not a solution, and returning it would hand the caller a pose the
+    // iteration was still walking away from. (`converged` 0 asks for every step and no test.)
+    if !finished && options.converged > 0.0 && previous >= 1e3 * options.converged && iterations > 1
+    {
+        return Err(Divergence::Unfinished {
+            steps: iterations,
+            moved: previous,
+        }
+        .into());
+    }
     Ok(Outcome {
         before,
         after: residual,
         rank,
         iterations,
+        idle,
     })
+}
+
+/// The leverage below which a weighted column is left out of the solve: [`LEVERAGE`] of the
+/// largest.
+fn leverage_floor(jacobian: &[Vector6<f64>], w: &Vector6<f64>) -> f64 {
+    LEVERAGE
+        * jacobian
+            .iter()
+            .map(|c| c.component_mul(w).norm())
+            .fold(0.0_f64, f64::max)
+}
+
+/// The free axes whose weighted column is at or below the leverage floor (bit `j` for axis
+/// `j < 64`): [`solve`] gives them no step.
+fn idle_columns(jacobian: &[Vector6<f64>], w: &Vector6<f64>, free: Option<&[bool]>) -> u64 {
+    let floor = leverage_floor(jacobian, w);
+    let mut idle = 0u64;
+    for (j, c) in jacobian.iter().enumerate().take(64) {
+        let is_free = free.is_none_or(|f| f.get(j).copied().unwrap_or(false));
+        if is_free && c.component_mul(w).norm() <= floor {
+            idle |= 1 << j;
+        }
+    }
+    idle
 }
 
 /// The least-squares step `min ‖W (J δ + r)‖` into `step`, returning the rank: the singular
@@ -444,11 +507,7 @@ pub(crate) fn solve(
     // noise (10⁻¹⁶ of the others), which scaled to unit length would look like a full
     // direction and be given a correction of 10¹⁸ (and a step of no weighted effect, so the
     // iteration would call it converged).
-    let largest_column = jacobian
-        .iter()
-        .map(|c| c.component_mul(w).norm())
-        .fold(0.0_f64, f64::max);
-    let floor = LEVERAGE * largest_column;
+    let floor = leverage_floor(jacobian, w);
     let seen = |wc: &Vector6<f64>| {
         let s = wc.norm();
         (s > floor && s > 0.0).then_some(s)
@@ -852,6 +911,7 @@ machine mill3 {
                         Some(0.0),
                         "J6 moves nothing corrected"
                     );
+                    assert!(c.idle.contains(&5), "pose {r}: J6 not named: {c:?}");
                     for e in &c.after[..3] {
                         assert!(e.abs() < 1e-9, "pose {r}: {c:?}");
                     }
@@ -861,6 +921,107 @@ machine mill3 {
             }
         }
         assert!(solved >= 990, "{solved} solved, {refused} refused");
+    }
+
+    /// A mill whose spindle head carries A and then C, the tool point on C's axis: under a
+    /// position-only correction C has no leverage. Over 1 000 random poses every correction
+    /// converges (position cancelled, C named idle and not moved, no correction beyond an
+    /// axis range) or is an error.
+    #[test]
+    fn a_mill_with_the_tool_on_c_names_c_and_never_blows_up() {
+        let src = r#"
+machine millc {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 400 mm
+    axis Z prismatic along z range -300 mm .. 0 mm
+    axis A revolute about x range -90 deg .. 90 deg
+    axis C revolute about z continuous
+    tool chain {
+        X moving
+        Y moving
+        Z moving at (0, 0, 450) mm
+        A moving at (0, 0, -100) mm
+        C moving at (0, 0, -50) mm
+        tool long at (0, 0, -150) mm
+    }
+    workpiece chain {
+        workpiece
+    }
+    errors {
+        X.tx = linear(X)
+        Y.ty = const
+        A.ty = const
+        A.rz = const
+        C.tx = const
+        C.rz = const
+    }
+}
+"#;
+        let c = compile(src).compiled.expect("compiles");
+        let m = &c.machine;
+        let beta: Vec<f64> = (0..m.coefficients.len())
+            .map(|j| 5e-6 * (((j * 7919) % 13) as f64 / 6.0 - 1.0))
+            .collect();
+        let mut comp = Compensator::new(m, &beta, Options::position(m)).expect("compensator");
+        let states = crate::states::States::sample(m, 1000, 23);
+        let (mut solved, mut refused) = (0, 0);
+        for r in 0..states.len() {
+            match comp.compensate(&states.get(r)) {
+                Ok(c) => {
+                    solved += 1;
+                    for (d, axis) in c.dq.iter().zip(&m.axes) {
+                        let span = axis.range[1] - axis.range[0];
+                        assert!(d.is_finite() && d.abs() < span.min(1e3), "pose {r}: {c:?}");
+                    }
+                    assert_eq!(c.dq[4], 0.0, "C moves nothing corrected");
+                    assert!(c.idle.contains(&4), "pose {r}: C not named: {c:?}");
+                    for e in &c.after[..3] {
+                        assert!(e.abs() < 1e-9, "pose {r}: {c:?}");
+                    }
+                }
+                Err(CompensateError::Diverges(_) | CompensateError::Solve) => refused += 1,
+                Err(e) => panic!("pose {r}: {e}"),
+            }
+        }
+        assert!(solved >= 990, "{solved} solved, {refused} refused");
+    }
+
+    /// A correction still moving the tool by more than a nanometre when the steps run out is
+    /// an error, not a success: millimetre errors on the arm need more than two steps.
+    #[test]
+    fn a_correction_out_of_steps_is_an_error() {
+        let src = include_str!("../../../examples/robot_6axis.kin");
+        let c = compile(src).compiled.expect("compiles");
+        let m = &c.machine;
+        let beta: Vec<f64> = (0..m.coefficients.len())
+            .map(|j| 2e-3 * (((j * 7919) % 13) as f64 / 6.0 - 1.0))
+            .collect();
+        let two = Options {
+            iterations: 2,
+            ..Options::position(m)
+        };
+        let mut short = Compensator::new(m, &beta, two).expect("compensator");
+        let states = crate::states::States::sample(m, 50, 3);
+        let mut unfinished = 0;
+        for r in 0..states.len() {
+            match short.compensate(&states.get(r)) {
+                Err(CompensateError::Diverges(Divergence::Unfinished { steps, moved })) => {
+                    assert_eq!(steps, 2);
+                    assert!(moved >= 1e-9);
+                    unfinished += 1;
+                }
+                Ok(c) => {
+                    // Finished within two steps: the position is cancelled.
+                    for e in &c.after[..3] {
+                        assert!(e.abs() < 1e-8, "pose {r}: {c:?}");
+                    }
+                }
+                Err(_) => {}
+            }
+        }
+        assert!(unfinished > 0, "no pose needed a third step");
     }
 
     #[test]

@@ -291,6 +291,7 @@ KIN_TEMPLATE = """// Two-axis part positioner of ros-industrial `industrial_cali
 machine positioner_2axis {
     task position
     units { length mm, angle deg, error um, tilt urad }
+    gravity along -z        // the reference's world frame has z up: J1 tilts the plate
 
     axis J1 revolute about z range -180 deg .. 180 deg   // tilt
     axis J2 revolute about z continuous                 // rotary plate

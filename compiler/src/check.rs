@@ -185,8 +185,8 @@ impl Checker<'_> {
         }
     }
 
-    /// The error model of `(frame, component)`: a new one, or for `+=` the existing one; a
-    /// second `=` is an error.
+    /// The error model of `(frame, component)`: a new one, or the existing one for `+=` and
+    /// for the first `=`; a second `=` is an error.
     #[allow(clippy::too_many_arguments)]
     fn claim(
         &mut self,
@@ -199,6 +199,13 @@ impl Checker<'_> {
         sink: &mut Sink,
     ) -> Option<usize> {
         match self.defined.get(&(frame, component)).copied() {
+            // An `=` after `+=` lines only: the model is the sum of all definitions in any
+            // order, so the `=` is its one defining line (a robot model adds a compliance
+            // term near the joint and defines the offsets in a table further down).
+            Some((index, None)) if !add => {
+                self.defined.insert((frame, component), (index, Some(span)));
+                Some(index)
+            }
             Some((index, first)) => {
                 if !add {
                     let message = match written {
@@ -217,9 +224,7 @@ impl Checker<'_> {
                     let mut d = Diagnostic::error("E0102", message, span)
                         .with_label("second definition")
                         .with_help(help);
-                    if let Some(first) =
-                        first.or_else(|| self.models.error_spans.get(index).copied())
-                    {
+                    if let Some(first) = first {
                         d = d.with_secondary(first, "first defined here");
                     }
                     sink.push(d);
@@ -2481,6 +2486,35 @@ mod tests {
              X.ry += fourier(X, harmonics 1, wavelength fit 20 mm)",
         );
         assert_eq!(apart.nonlinear.len(), 2);
+    }
+
+    #[test]
+    fn an_add_before_the_define_is_the_same_sum() {
+        let after = machine("X.tx = const\n X.tx += linear(X)");
+        let before = machine("X.tx += linear(X)\n X.tx = const");
+        let terms = |m: &Machine| m.errors.iter().map(|e| e.terms.len()).sum::<usize>();
+        assert_eq!(terms(&after), 2);
+        assert_eq!(terms(&before), 2);
+        assert_eq!(before.errors.len(), 1);
+        // A second `=` is still two definitions, labelled at the first `=`, not at the `+=`.
+        let src = "machine m {
+                task position
+                units { length mm, error um }
+                axis X prismatic along x range 0 mm .. 500 mm
+                tool chain { X moving  tool t }
+                errors { X.tx += linear(X)
+                         X.tx = const
+                         X.tx = const }
+            }";
+        let out = crate::compile(src);
+        let d: Vec<_> = out.diagnostics.iter().filter(|d| d.code == "E0102").collect();
+        assert_eq!(d.len(), 1, "{:?}", out.diagnostics);
+        let first = src.find("X.tx = const");
+        assert!(
+            d[0].labels.iter().any(|l| Some(l.span.start) == first),
+            "{:?}",
+            d[0]
+        );
     }
 
     #[test]

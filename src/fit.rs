@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use indicatif::{ProgressBar, ProgressStyle};
 use kin_data::history;
 use kin_estimate::fit::{self, report, DataSet, FitError, Options, Solver};
+use kin_estimate::register;
 
 use crate::load::{self, Failed};
 
@@ -202,12 +203,36 @@ fn streams(a: &FitArgs) -> bool {
     total >= STREAM_FROM_BYTES
 }
 
+/// Whether the header of the file at `path` names a measured position (`px`): such a file is
+/// registered, which needs it whole. Any failure to read says no (the reader reports it).
+fn holds_positions(path: &Path) -> bool {
+    use std::io::BufRead;
+    let Ok(file) = std::fs::File::open(path) else {
+        return false;
+    };
+    // The header is the first line that is not a comment or blank, within the first MiB.
+    let reader = std::io::BufReader::new(std::io::Read::take(file, 1 << 20));
+    for line in reader.lines() {
+        let Ok(line) = line else { return false };
+        let text = line.trim().trim_start_matches('\u{feff}');
+        if text.is_empty() || text.starts_with('#') {
+            continue;
+        }
+        return text.split([',', ';', '\t']).any(|cell| {
+            let name = cell.trim().trim_matches('"');
+            let name = name.split('[').next().unwrap_or(name).trim();
+            kin_data::data::MEASURED.contains(&name)
+        });
+    }
+    false
+}
+
 /// As [`fit_quietly`], reading the data files a block of rows at a time in each pass; falls
 /// back to it for a machine that cannot be streamed (fitted non-linear parameters, lags).
 fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
     let source = load::model_text(&a.machine, a.color)?;
     let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
-    if !fit::stream::streamable(&compiled) {
+    if !fit::stream::streamable(&compiled) || a.data.iter().any(|p| holds_positions(p)) {
         return fit_quietly(a);
     }
     let m = &compiled.machine;
@@ -401,6 +426,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     };
     let mut options = options(a);
     (options.file_noise, options.components) = per_file_noise(a)?;
+    let (files, validate, registration) = registered(a, &compiled, files, validate, &options)?;
     let total = fit::count_rows(&files) as u64;
     let bar = ProgressBar::new(2 * total);
     crate::warnings::hush(&bar);
@@ -435,7 +461,7 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         Ok(r) => r,
         Err(e) => return Err(fit_failed(a, &source, e)),
     };
-    let report = report::build(
+    let mut report = report::build(
         m,
         &source,
         a.engine.name(),
@@ -444,6 +470,9 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         &result,
         &options,
     );
+    if let Some(reg) = &registration {
+        report.registration = register::report(m, reg, &result);
+    }
     Ok(Fitted {
         source,
         compiled,
@@ -452,6 +481,42 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
         result,
         report,
     })
+}
+
+/// The fitted and the validation files, and the registration of those of absolute positions.
+type Registered = (Vec<DataSet>, Vec<DataSet>, Option<register::Registration>);
+
+/// Files of absolute positions registered jointly with the model (spec/data.md, "Absolute
+/// positions"): the files as observed errors at the instrument's placement, the held-out or
+/// validation files likewise, and the registration; other data as they are.
+fn registered(
+    a: &FitArgs,
+    compiled: &kin_compiler::Compiled,
+    files: Vec<DataSet>,
+    validate: Vec<DataSet>,
+    options: &Options,
+) -> Result<Registered, Failed> {
+    if !register::any_absolute(&files) && !register::any_absolute(&validate) {
+        return Ok((files, validate, None));
+    }
+    let mut engine = kin_model::engine::make(&compiled.machine, a.engine).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed::INPUT
+    })?;
+    let spinner = ProgressBar::new_spinner();
+    crate::warnings::hush(&spinner);
+    spinner.set_message("registering the instrument");
+    let failed = |e: register::RegisterError| {
+        eprintln!("error: {e}");
+        Failed::INPUT
+    };
+    let reg = register::register(compiled, engine.as_mut(), &files, options, &mut |_, _| {
+        spinner.tick()
+    })
+    .map_err(failed)?;
+    let validate = register::observe_with(engine.as_mut(), &reg, &validate).map_err(failed)?;
+    spinner.finish_and_clear();
+    Ok((reg.files.clone(), validate, Some(reg)))
 }
 
 /// Appends this fit to the model's history and prints how it compares with the last fit of
@@ -573,6 +638,45 @@ fn write_files(path: &Path, rep: &report::FitReport) -> Result<(), Failed> {
     crate::files::write(&path.with_extension("params"), rep.params.as_bytes())
 }
 
+/// Where each file's instrument and targets were found (files of absolute positions).
+fn registration_lines(r: &report::FitReport) -> String {
+    let mut s = String::new();
+    let three = |v: &[f64; 3], digits: usize| {
+        let v: Vec<String> = v
+            .iter()
+            .map(|x| format!("{:.*}", digits, x + 0.0))
+            .collect();
+        format!("({})", v.join(", "))
+    };
+    for p in &r.registration {
+        let (l, a) = (&p.length_unit, &p.angle_unit);
+        s.push_str(&format!(
+            "\n  instrument of {}: origin at {} {l}, axes turned by {} {a} (rotation vector), in the workpiece frame\n",
+            short(&p.file, 36),
+            three(&p.instrument_position, 4),
+            three(&p.instrument_rotation, 5),
+        ));
+        s.push_str(&format!(
+            "    standard uncertainty: {} {l} shift, {} {a} rotation of the workpiece frame\n",
+            three(&p.shift_u, 4),
+            three(&p.rotation_u, 6),
+        ));
+        for t in &p.targets {
+            let name = if t.label.is_empty() {
+                "target".to_string()
+            } else {
+                format!("target `{}`", t.label)
+            };
+            s.push_str(&format!(
+                "    {name} at {} ± {} {l} on the tool\n",
+                three(&t.offset, 4),
+                three(&t.offset_u, 4),
+            ));
+        }
+    }
+    s
+}
+
 /// The terminal summary: the fit, a table per observation file, a table per error component.
 pub fn summary(r: &report::FitReport) -> String {
     let mut s = String::new();
@@ -614,6 +718,7 @@ pub fn summary(r: &report::FitReport) -> String {
             f.max
         ));
     }
+    s.push_str(&registration_lines(r));
     s.push_str("\n  error component   coefficients (value ± standard error)\n");
     // A component whose terms are not contiguous (`X.tx = spline(X, …)` and, after other
     // lines, `X.tx += backlash(X)`) takes several rows: each then says which terms it holds.
@@ -755,7 +860,10 @@ pub fn summary(r: &report::FitReport) -> String {
             )),
         }
     }
-    for n in &r.nuisance {
+    // A registration's parameters are shown with its placement (above); here they would be
+    // its last step, zero.
+    let registered = |name: &str| name.starts_with("instrument ") || name.starts_with("target ");
+    for n in r.nuisance.iter().filter(|n| !registered(&n.name)) {
         s.push_str(&format!(
             "  {:<40} {:.4} ± {:.4} {}\n",
             n.name, n.value, n.se, n.unit

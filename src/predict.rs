@@ -316,6 +316,7 @@ fn table(
             rows,
             pose,
             observed: out,
+            absolute: None,
         },
         extra,
     )

@@ -139,6 +139,26 @@ fn fit_prints_fit_json_alone_and_every_field_is_documented() {
         );
         seen.push(printed);
     }
+    // Absolute positions: `registration`.
+    let ur10 = dir.path().join("ur10.kin");
+    std::fs::copy("examples/ur10/ur10.kin", &ur10).expect("copy the ur10 model");
+    let (stdout, _) = kin(&[
+        "fit",
+        ur10.to_str().expect("utf-8"),
+        "examples/ur10/tracker.csv",
+        "--format",
+        "json",
+        "-o",
+        out_s,
+    ]);
+    let printed: Value = serde_json::from_str(&stdout).expect("stdout is one JSON document");
+    let missing = undocumented(&printed, "FIT.json", fit_alias);
+    assert!(
+        missing.is_empty(),
+        "registration: fields not in spec/json.md: {missing:?}"
+    );
+    assert!(printed["registration"][0]["targets"][0]["offset"].is_array());
+    seen.push(printed);
     // And no documented field is stale: each was written by one of the runs (but the fields
     // only a deficient design writes, which these data are not).
     let mut written = BTreeSet::new();

@@ -2507,7 +2507,11 @@ mod tests {
                          X.tx = const }
             }";
         let out = crate::compile(src);
-        let d: Vec<_> = out.diagnostics.iter().filter(|d| d.code == "E0102").collect();
+        let d: Vec<_> = out
+            .diagnostics
+            .iter()
+            .filter(|d| d.code == "E0102")
+            .collect();
         assert_eq!(d.len(), 1, "{:?}", out.diagnostics);
         let first = src.find("X.tx = const");
         assert!(

@@ -141,8 +141,8 @@ fn ambiguous_gravity(m: &ir::Machine, spans: &[Span], sink: &mut Sink) {
                     .get(k)
                     .is_some_and(|a| a.kind == ir::JointKind::Revolute)
             };
-            let full_turn = axis.continuous
-                || axis.range[1] - axis.range[0] >= std::f64::consts::TAU - 1e-9;
+            let full_turn =
+                axis.continuous || axis.range[1] - axis.range[0] >= std::f64::consts::TAU - 1e-9;
             // Carried by another rotary axis: its direction in the base changes with that
             // axis, and no single direction of it is "the" vertical.
             let carried = chain.iter().take(j).any(|b| revolute(b.axis));

@@ -28,6 +28,10 @@ pub use write::{measurements_json, write_file, write_lengths, write_points};
 /// Names of the observed columns of a point file, in the order of [`PointData::observed`].
 pub const OBSERVED: [&str; 6] = ["ex", "ey", "ez", "erx", "ery", "erz"];
 
+/// Names of the columns of a target's position measured in an instrument's own frame, in the
+/// order of [`Absolute::position`].
+pub const MEASURED: [&str; 3] = ["px", "py", "pz"];
+
 /// Names of the tool offset columns, in the order of [`Rows::tool_offset`].
 pub(crate) const TOOL_OFFSET: [&str; 3] = ["tool_x", "tool_y", "tool_z"];
 
@@ -101,6 +105,20 @@ pub struct PointData {
     /// `ex ey ez erx ery erz` (see [`OBSERVED`]), m and rad: `Some` when the file has the
     /// column, NaN where a cell is empty (not observed).
     pub observed: [Option<Vec<f64>>; 6],
+    /// Absolute positions in an instrument's frame instead of errors (`px py pz`): the
+    /// registration turns them into `observed` errors before a fit.
+    pub absolute: Option<Absolute>,
+}
+
+/// Positions of targets on the tool (a tracker's reflector, a marker) measured in an
+/// instrument's own frame, whose placement relative to the machine is not known (spec/data.md,
+/// "Absolute positions"): what `kin fit` registers before it fits.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Absolute {
+    /// `px py pz` (see [`MEASURED`]), m, one value per row.
+    pub position: [Vec<f64>; 3],
+    /// Which target each row measures (`target`); one unnamed target without the column.
+    pub target: Groups<u32>,
 }
 
 /// A length file (spec/data.md).
@@ -240,6 +258,16 @@ impl Observations {
                 observed: std::array::from_fn(|k| {
                     p.observed.get(k).cloned().flatten().map(|c| pick(&c, rows))
                 }),
+                absolute: p.absolute.as_ref().map(|a| Absolute {
+                    position: std::array::from_fn(|k| pick(&a.position[k], rows)),
+                    target: Groups {
+                        of_row: rows
+                            .iter()
+                            .map(|&r| a.target.of_row.get(r).copied().unwrap_or(0))
+                            .collect(),
+                        labels: a.target.labels.clone(),
+                    },
+                }),
             }),
             Observations::Lengths(l) => Observations::Lengths(LengthData {
                 rows: l.rows.select(rows),
@@ -343,12 +371,24 @@ pub enum Problem {
     #[error("missing required column{}: {}", plural(names.len()), names.join(", "))]
     MissingColumns { names: Vec<String> },
     #[error(
-        "no observed column: a point file needs at least one of ex, ey, ez, erx, ery, erz \
-         (a length file has dL)"
+        "no observed column: a point file needs at least one of ex, ey, ez, erx, ery, erz, or \
+         the absolute positions px, py, pz (a length file has dL)"
     )]
     NoObservedColumn,
     #[error("tool offset columns come as all of tool_x, tool_y, tool_z; missing: {}", missing.join(", "))]
     IncompleteToolColumns { missing: Vec<String> },
+    #[error("measured position columns come as all of px, py, pz; missing: {}", missing.join(", "))]
+    IncompleteMeasuredColumns { missing: Vec<String> },
+    #[error(
+        "the file holds both errors ({errors}) and absolute positions (px, py, pz): a file is \
+         one or the other"
+    )]
+    ErrorsAndPositions { errors: String },
+    #[error("`{column}` is not read in a file of absolute positions (px, py, pz): {reason}")]
+    NotWithPositions {
+        column: String,
+        reason: &'static str,
+    },
     #[error("line {line}: {found} cell{}, but the header has {expected} column{}", plural(*found), plural(*expected))]
     CellCount {
         line: usize,
@@ -450,7 +490,10 @@ impl Problem {
             | NoRows
             | MissingColumns { .. }
             | NoObservedColumn
-            | IncompleteToolColumns { .. } => None,
+            | IncompleteToolColumns { .. }
+            | IncompleteMeasuredColumns { .. }
+            | ErrorsAndPositions { .. }
+            | NotWithPositions { .. } => None,
         }
     }
 }

@@ -20,6 +20,7 @@ pub mod identify;
 pub mod plan;
 pub mod predict;
 mod rank_update;
+pub mod register;
 pub mod simulate;
 pub mod statistics;
 pub mod uncertainty;

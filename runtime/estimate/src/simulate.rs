@@ -131,6 +131,7 @@ pub fn predict_with(
                 rows: p.rows.clone(),
                 pose: p.pose.clone(),
                 observed,
+                absolute: None,
             }))
         }
         Observations::Lengths(l) => {
@@ -387,6 +388,7 @@ fn run(
                 rows: p.rows.clone(),
                 pose: p.pose.clone(),
                 observed,
+                absolute: None,
             }))
         }
         Observations::Lengths(l) => {
@@ -561,6 +563,7 @@ pub fn sample_points(m: &Machine, n: usize, seed: u64) -> PointData {
         rows,
         pose,
         observed: Default::default(),
+        absolute: None,
     }
 }
 
@@ -613,6 +616,7 @@ pub fn series_points(m: &Machine, series: &Rows, poses: &[Vec<f64>]) -> PointDat
         rows,
         pose,
         observed: Default::default(),
+        absolute: None,
     }
 }
 

@@ -64,6 +64,7 @@ impl Grid {
             rows,
             pose,
             observed: Default::default(),
+            absolute: None,
         }
     }
 }

@@ -17,8 +17,8 @@ pub mod csv;
 use csv::{Dialect, SplitError};
 
 use super::{
-    Groups, LengthData, Observations, PointData, Pose, Problem, ReadError, ReadOptions, Rows,
-    MAX_PROBLEMS, OBSERVED, TOOL_OFFSET,
+    Absolute, Groups, LengthData, Observations, PointData, Pose, Problem, ReadError, ReadOptions,
+    Rows, MAX_PROBLEMS, MEASURED, OBSERVED, TOOL_OFFSET,
 };
 
 /// Reads a point or length file from disk. Any read failure or problem in the file is an error;
@@ -191,8 +191,14 @@ enum Kind {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Role {
-    Axis { end: usize, axis: usize },
-    Dir { end: usize, axis: usize },
+    Axis {
+        end: usize,
+        axis: usize,
+    },
+    Dir {
+        end: usize,
+        axis: usize,
+    },
     Input(usize),
     Time,
     Run,
@@ -200,6 +206,9 @@ enum Role {
     ToolOffset(usize),
     Artifact,
     Observed(usize),
+    /// `px py pz`: a target's position in an instrument's frame.
+    Measured(usize),
+    Target,
     Dl,
 }
 
@@ -282,6 +291,7 @@ pub(super) struct Reader<'m> {
     data_lines: usize,
     runs: Interner,
     artifacts: Interner,
+    targets: Interner,
     /// Per run id, the last accepted time (SI) and its line.
     last_time: Vec<Option<(f64, usize)>>,
     has_run: bool,
@@ -440,7 +450,7 @@ impl<'m> Reader<'m> {
                 }
             };
             let store = match role {
-                Role::Run | Role::Tool | Role::Artifact => Store::Ids(Vec::new()),
+                Role::Run | Role::Tool | Role::Artifact | Role::Target => Store::Ids(Vec::new()),
                 _ => Store::Numbers(Vec::new()),
             };
             let (scale, offset, unit) = match unit {
@@ -484,13 +494,50 @@ impl<'m> Reader<'m> {
         if !missing.is_empty() {
             problems.push(Problem::MissingColumns { names: missing });
         }
+        let offsets: Vec<bool> = (0..3).map(|k| has(Role::ToolOffset(k))).collect();
+        let measured: Vec<bool> = (0..3).map(|k| has(Role::Measured(k))).collect();
+        let absolute = measured.iter().any(|&b| b);
         if kind == Kind::Points
             && !options.poses
+            && !absolute
             && !(0..OBSERVED.len()).any(|k| has(Role::Observed(k)))
         {
             problems.push(Problem::NoObservedColumn);
         }
-        let offsets: Vec<bool> = (0..3).map(|k| has(Role::ToolOffset(k))).collect();
+        if absolute {
+            if !measured.iter().all(|&b| b) {
+                let missing = MEASURED
+                    .iter()
+                    .zip(&measured)
+                    .filter(|(_, &present)| !present)
+                    .map(|(n, _)| n.to_string())
+                    .collect();
+                problems.push(Problem::IncompleteMeasuredColumns { missing });
+            }
+            let errors: Vec<&str> = OBSERVED
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| has(Role::Observed(*k)))
+                .map(|(_, n)| *n)
+                .collect();
+            if !errors.is_empty() {
+                problems.push(Problem::ErrorsAndPositions {
+                    errors: errors.join(", "),
+                });
+            }
+            if has(Role::Artifact) {
+                problems.push(Problem::NotWithPositions {
+                    column: "artifact".into(),
+                    reason: "the instrument's placement is fitted for the whole file",
+                });
+            }
+            if offsets.iter().any(|&b| b) {
+                problems.push(Problem::NotWithPositions {
+                    column: "tool_x".into(),
+                    reason: "each target's offset on the tool is fitted (`target`)",
+                });
+            }
+        }
         if offsets.iter().any(|&b| b) && !offsets.iter().all(|&b| b) {
             let missing = TOOL_OFFSET
                 .iter()
@@ -511,6 +558,7 @@ impl<'m> Reader<'m> {
             data_lines: 0,
             runs: Interner::default(),
             artifacts: Interner::default(),
+            targets: Interner::default(),
             last_time: Vec::new(),
             has_run,
             dialect,
@@ -565,6 +613,7 @@ impl<'m> Reader<'m> {
             problems,
             runs,
             artifacts,
+            targets,
             ..
         } = self;
         let mut observed = false;
@@ -596,7 +645,7 @@ impl<'m> Reader<'m> {
                     let parsed = number(line, cell, decimal_comma)
                         .map(|v| v.map(|v| v * col.scale + col.offset));
                     let required = match role {
-                        Role::Axis { .. } | Role::Time => true,
+                        Role::Axis { .. } | Role::Time | Role::Measured(_) => true,
                         Role::Dl => !poses,
                         _ => false,
                     };
@@ -691,6 +740,15 @@ impl<'m> Reader<'m> {
                         let id = runs.id(text);
                         run = Some(id);
                         ids.push(id);
+                    }
+                }
+                (Store::Ids(ids), Role::Target) => {
+                    let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                    if text.is_empty() {
+                        bad(problems, &col.name, cell, "a target label".into());
+                        ids.push(0);
+                    } else {
+                        ids.push(targets.id(text));
                     }
                 }
                 (Store::Ids(ids), _) => {
@@ -810,6 +868,8 @@ impl<'m> Reader<'m> {
         };
         let mut offsets: [Option<Vec<f64>>; 3] = Default::default();
         let mut observed: [Option<Vec<f64>>; 6] = Default::default();
+        let mut measured: [Option<Vec<f64>>; 3] = Default::default();
+        let mut target: Option<Vec<u32>> = None;
         // A poses-only length file may have no `dL`: nothing observed.
         let mut dl = vec![f64::NAN; n];
         for col in &mut self.columns {
@@ -846,6 +906,12 @@ impl<'m> Reader<'m> {
                         *slot = Some(v);
                     }
                 }
+                (Store::Numbers(v), Role::Measured(k)) => {
+                    if let Some(slot) = measured.get_mut(k) {
+                        *slot = Some(v);
+                    }
+                }
+                (Store::Ids(ids), Role::Target) => target = Some(ids),
                 (Store::Numbers(v), Role::Dl) => dl = v,
                 (Store::Ids(ids), Role::Tool) => {
                     rows.tool = ids.into_iter().map(|i| i as usize).collect();
@@ -871,11 +937,31 @@ impl<'m> Reader<'m> {
         let mut poses = poses.into_iter();
         let first = poses.next().unwrap_or_default();
         match self.kind {
-            Kind::Points => Observations::Points(PointData {
-                rows,
-                pose: first,
-                observed,
-            }),
+            Kind::Points => {
+                // One unnamed target when the file does not say which.
+                let absolute = match measured {
+                    [Some(x), Some(y), Some(z)] => Some(Absolute {
+                        position: [x, y, z],
+                        target: match target {
+                            Some(of_row) => Groups {
+                                of_row,
+                                labels: self.targets.labels.clone(),
+                            },
+                            None => Groups {
+                                of_row: vec![0; n],
+                                labels: vec![String::new()],
+                            },
+                        },
+                    }),
+                    _ => None,
+                };
+                Observations::Points(PointData {
+                    rows,
+                    pose: first,
+                    observed,
+                    absolute,
+                })
+            }
             Kind::Lengths => Observations::Lengths(LengthData {
                 rows,
                 poses: [first, poses.next().unwrap_or_default()],
@@ -927,11 +1013,12 @@ fn plausible(machine: &Machine, role: Role) -> Option<(f64, &'static str)> {
             _ => (MAX_POSITION, "axis position"),
         },
         Role::ToolOffset(_) => (MAX_POSITION, "tool offset"),
+        Role::Measured(_) => (MAX_POSITION, "measured position"),
         Role::Observed(k) if k >= 3 => (MAX_TILT, "rotation error"),
         Role::Observed(_) | Role::Dl => (MAX_ERROR, "error"),
         Role::Time => (MAX_TIME, "time"),
         Role::Input(_) => (MAX_INPUT, "input value"),
-        Role::Dir { .. } | Role::Run | Role::Tool | Role::Artifact => return None,
+        Role::Dir { .. } | Role::Run | Role::Tool | Role::Artifact | Role::Target => return None,
     })
 }
 
@@ -1024,6 +1111,13 @@ fn known_columns(machine: &Machine, kind: Kind) -> HashMap<String, Role> {
                     .enumerate()
                     .map(|(k, n)| (*n, Role::Observed(k))),
             );
+            fixed.extend(
+                MEASURED
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| (*n, Role::Measured(k))),
+            );
+            fixed.push(("target", Role::Target));
         }
         Kind::Lengths => fixed.push(("dL", Role::Dl)),
     }
@@ -1150,7 +1244,7 @@ fn column_unit(
 ) -> Result<Option<Unit>, UnitProblem> {
     let u = &machine.units;
     let (default, expected, absolute) = match role {
-        Role::Run | Role::Tool | Role::Artifact => {
+        Role::Run | Role::Tool | Role::Artifact | Role::Target => {
             return match header {
                 None => Ok(None),
                 Some(_) => Err(UnitProblem::NotAllowed),
@@ -1166,7 +1260,7 @@ fn column_unit(
             None => (Unit::dimensionless(), Dim::DIMENSIONLESS, false),
         },
         Role::Time => (u.time.clone(), Dim::TIME, false),
-        Role::ToolOffset(_) => (u.length.clone(), Dim::LENGTH, false),
+        Role::ToolOffset(_) | Role::Measured(_) => (u.length.clone(), Dim::LENGTH, false),
         Role::Observed(k) if k >= 3 => (u.tilt.clone(), Dim::ANGLE, false),
         Role::Observed(_) | Role::Dl => (u.error.clone(), Dim::LENGTH, false),
     };

@@ -11,9 +11,9 @@ use std::path::PathBuf;
 use kin_compiler::ir::Machine;
 use serde::Serialize;
 
-use kin_data::data::Observations;
+use kin_data::data::{Observations, PointData};
 use kin_model::engine::{Evaluator, Observed};
-use kin_model::interp::EvalError;
+use kin_model::interp::{EvalError, State};
 use kin_model::states::{StateError, States};
 
 /// One measurement file, read.
@@ -32,6 +32,14 @@ pub enum NuisanceKind {
     Rotation(usize),
     /// Error of the artifact's unknown reference length.
     Length,
+    /// Shift of the measuring instrument of a file of absolute positions along wr axis 0..3:
+    /// the first-order change of its registration (spec/data.md, "Absolute positions").
+    InstrumentShift(usize),
+    /// Small rotation of the instrument about wr axis 0..3.
+    InstrumentRotation(usize),
+    /// Shift of a target's offset on the tool along axis 0..3 of the frame the tool is
+    /// attached to.
+    Target(usize),
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -50,6 +58,12 @@ impl Nuisance {
                 format!("artifact `{}` rotation about {}", self.artifact, axis(a))
             }
             NuisanceKind::Length => format!("artifact `{}` length error", self.artifact),
+            NuisanceKind::InstrumentShift(a) => format!("instrument shift {}", axis(a)),
+            NuisanceKind::InstrumentRotation(a) => format!("instrument rotation about {}", axis(a)),
+            NuisanceKind::Target(a) if self.artifact.is_empty() => {
+                format!("target offset {}", axis(a))
+            }
+            NuisanceKind::Target(a) => format!("target `{}` offset {}", self.artifact, axis(a)),
         }
     }
 }
@@ -147,6 +161,9 @@ pub struct Layout {
     pub nuisance: Vec<Nuisance>,
     /// Per file, per artifact id: the column of its first nuisance parameter.
     first: Vec<Vec<usize>>,
+    /// Per file of absolute positions: the column of its instrument's first parameter and,
+    /// per target id, of the target's first.
+    registration: Vec<Option<(usize, Vec<usize>)>>,
     /// What each row is multiplied by: the one place where rows are weighted.
     pub weights: Weights,
     /// Per file, its own weights when files have σs of their own (stated per file, or
@@ -184,10 +201,42 @@ impl Layout {
             }
             first.push(starts);
         }
+        let mut registration = Vec::with_capacity(files.len());
+        for (f, file) in files.iter().enumerate() {
+            let Observations::Points(PointData {
+                absolute: Some(a), ..
+            }) = &file.observations
+            else {
+                registration.push(None);
+                continue;
+            };
+            let instrument = coefficients + nuisance.len();
+            nuisance.extend(
+                (0..3)
+                    .map(NuisanceKind::InstrumentShift)
+                    .chain((0..3).map(NuisanceKind::InstrumentRotation))
+                    .map(|kind| Nuisance {
+                        file: f,
+                        artifact: String::new(),
+                        kind,
+                    }),
+            );
+            let mut targets = Vec::with_capacity(a.target.labels.len());
+            for label in &a.target.labels {
+                targets.push(coefficients + nuisance.len());
+                nuisance.extend((0..3).map(|k| Nuisance {
+                    file: f,
+                    artifact: label.clone(),
+                    kind: NuisanceKind::Target(k),
+                }));
+            }
+            registration.push(Some((instrument, targets)));
+        }
         Layout {
             coefficients,
             nuisance,
             first,
+            registration,
             weights: Weights::unit(m),
             file_weights: Vec::new(),
         }
@@ -230,6 +279,13 @@ impl Layout {
 
     fn first_of(&self, file: usize, artifact: Option<u32>) -> Option<usize> {
         self.first.get(file)?.get(artifact? as usize).copied()
+    }
+
+    /// The first column of file `file`'s instrument and of its target `target`, for a file of
+    /// absolute positions.
+    fn registration_of(&self, file: usize, target: u32) -> Option<(usize, usize)> {
+        let (instrument, targets) = self.registration.get(file)?.as_ref()?;
+        Some((*instrument, *targets.get(target as usize)?))
     }
 }
 
@@ -653,15 +709,41 @@ fn rows_of(
                             source,
                         })?;
                     let artifact = layout.first_of(f, rows.artifact_of(r));
-                    let position = match artifact {
-                        Some(_) => Some(engine.nominal_position(&state).map_err(|source| {
-                            DesignError::Eval {
-                                path: path(),
-                                line,
-                                source,
+                    let registration = p.absolute.as_ref().and_then(|a| {
+                        let target = a.target.of_row.get(r).copied().unwrap_or(0);
+                        layout.registration_of(f, target)
+                    });
+                    let eval = |source| DesignError::Eval {
+                        path: path(),
+                        line,
+                        source,
+                    };
+                    let position = match (artifact, registration) {
+                        (None, None) => None,
+                        _ => Some(engine.nominal_position(&state).map_err(eval)?),
+                    };
+                    // How the tool point moves in wr when the target's offset moves along
+                    // each axis of the frame it is attached to: exact differences, as the
+                    // point is affine in the offset.
+                    let along = match (registration, position) {
+                        (Some(_), Some(p0)) => {
+                            let base = state
+                                .tool_offset
+                                .unwrap_or_else(|| declared_offset(engine.machine(), state.tool));
+                            let mut along = [[0.0; 3]; 3];
+                            for (k, slot) in along.iter_mut().enumerate() {
+                                let mut moved = base;
+                                moved[k] += 1.0;
+                                let shifted = State {
+                                    tool_offset: Some(moved),
+                                    ..state
+                                };
+                                let p1 = engine.nominal_position(&shifted).map_err(eval)?;
+                                *slot = std::array::from_fn(|c| p1[c] - p0[c]);
                             }
-                        })?),
-                        None => None,
+                            Some(along)
+                        }
+                        _ => None,
                     };
                     for (c, column) in p.observed.iter().enumerate() {
                         let (Some(obs), Some(k)) = (
@@ -699,6 +781,21 @@ fn rows_of(
                                 }
                             } else {
                                 set(&mut x, first + c, w);
+                            }
+                        }
+                        if let (Some((instrument, target)), Some(p), Some(along)) =
+                            (registration, position, along)
+                        {
+                            // A change (t, ω) of the instrument's placement and a shift d of
+                            // the target change the observed error by t + ω × p + A·d at the
+                            // point p (A the columns of `along`); positions only.
+                            if c < 3 {
+                                set(&mut x, instrument + c, w);
+                                for (k, a) in along.iter().enumerate() {
+                                    let moved = cross(unit(k), p);
+                                    set(&mut x, instrument + 3 + k, moved[c] * w);
+                                    set(&mut x, target + k, a[c] * w);
+                                }
                             }
                         }
                         let y = (obs - err[k]) * w;
@@ -777,6 +874,9 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+/// What a held-out part's path adds to its file's.
+pub const HELD_OUT: &str = " (held out)";
+
 /// Splits each file into a fitted part and a held-out part: a fraction `holdout` of the
 /// rows, drawn with `seed`. Lag states need whole runs, so a file with lags is split by run.
 pub fn holdout(files: &[DataSet], holdout: f64, seed: u64) -> (Vec<DataSet>, Vec<DataSet>) {
@@ -810,7 +910,7 @@ pub fn holdout(files: &[DataSet], holdout: f64, seed: u64) -> (Vec<DataSet>, Vec
         });
         if !out.is_empty() {
             let mut path = f.path.clone().into_os_string();
-            path.push(" (held out)");
+            path.push(HELD_OUT);
             held.push(DataSet {
                 path: path.into(),
                 observations: f.observations.select(&out),
@@ -834,4 +934,12 @@ pub fn count_rows(files: &[DataSet]) -> usize {
             Observations::Lengths(l) => l.dl.iter().filter(|x| !x.is_nan()).count(),
         })
         .sum()
+}
+
+/// The translation of tool `tool`'s declared offset (what a row without `tool_x` … uses).
+pub(crate) fn declared_offset(m: &Machine, tool: usize) -> [f64; 3] {
+    m.tools
+        .get(tool)
+        .map(|t| t.offset.translation)
+        .unwrap_or_default()
 }

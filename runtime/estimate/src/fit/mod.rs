@@ -26,10 +26,11 @@ use kin_compiler::{Compiled, Diagnostic};
 use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor, Normal};
 use thiserror::Error;
 
+pub(crate) use design::declared_offset;
 use design::kinds_observed;
 pub use design::{
     count_rows, for_each_row, holdout, rotation_weight, states, states_with, DataSet, DesignError,
-    FileStates, Layout, Noise, Nuisance, NuisanceKind, RowMeta, Weights, LENGTH,
+    FileStates, Layout, Noise, Nuisance, NuisanceKind, RowMeta, Weights, HELD_OUT, LENGTH,
 };
 pub use qr::{Reduced, StreamingQr};
 pub use solve::{Solution, Solver};
@@ -161,6 +162,13 @@ pub struct FitResult {
     pub tally: Option<tally::Tally>,
     /// With a σ per file: each file's σs, stated or estimated, and σ̂/σ.
     pub components: Option<components::Components>,
+}
+
+impl FitResult {
+    /// The variance of every column's estimate (coefficients, then nuisance), SI².
+    pub fn variances(&self) -> Vec<f64> {
+        solve::variances(&self.solution.g, self.sigma * self.sigma)
+    }
 }
 
 /// Progress callback: rows done in the current pass, and the pass name (`optimising` for the

@@ -107,6 +107,10 @@ pub struct FitReport {
     /// absent in reports of earlier versions.
     #[serde(default)]
     pub cancelling: Vec<CancellingSet>,
+    /// Files of absolute positions: where their instrument and targets were found
+    /// ([`crate::register`]); absent otherwise.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub registration: Vec<crate::register::PlacementReport>,
 }
 
 /// Coefficients whose effects on the data cancel (see [`super::cancel`]).
@@ -500,7 +504,10 @@ pub fn build(
         .iter()
         .enumerate()
         .map(|(k, nu)| {
-            let unit = if matches!(nu.kind, NuisanceKind::Rotation(_)) {
+            let unit = if matches!(
+                nu.kind,
+                NuisanceKind::Rotation(_) | NuisanceKind::InstrumentRotation(_)
+            ) {
                 &m.units.tilt
             } else {
                 &m.units.error
@@ -607,6 +614,7 @@ pub fn build(
         .collect();
     let mut report = FitReport {
         stations: Vec::new(),
+        registration: Vec::new(),
         cancelling,
         estimability: Some(estimability),
         version: VERSION,

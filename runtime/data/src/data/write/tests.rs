@@ -99,6 +99,7 @@ fn sample_points() -> PointData {
             None,
             Some(vec![1e-6, 2e-6, NAN]),
         ],
+        absolute: None,
     }
 }
 
@@ -442,6 +443,7 @@ proptest! {
             rows: Rows { line: vec![0; n], tool: vec![0; n], inputs: vec![Some(vec![]), None, None], ..Rows::default() },
             pose: Pose { axes: vec![vec![]; 4], dir: vec![] },
             observed: [Some(vec![]), Some(vec![]), Some(vec![]), None, None, None],
+            absolute: None,
         };
         for (axes, errors, t) in &rows {
             for (column, v) in data.pose.axes.iter_mut().zip(axes) {

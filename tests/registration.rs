@@ -1,0 +1,197 @@
+//! `kin fit` of absolute positions (spec/data.md, "Absolute positions"): the bundled UR10-class
+//! example measured by a tracker in its own frame. The data are made here with the exact
+//! simulator and a known truth (a tracker 1.5 m away and turned, a reflector 130 mm off the
+//! flange); `examples/ur10/tracker.csv` is that file, kept equal to what this generator writes.
+
+use std::path::Path;
+use std::process::Command;
+
+use kin_compiler::compile;
+use kin_model::exact;
+use kin_model::interp::{Interpreter, State};
+use kin_model::kinematics::{FrameErrors, Pose};
+use nalgebra::{Rotation3, Vector3};
+
+const MODEL: &str = "examples/ur10/ur10.kin";
+const DATA: &str = "examples/ur10/tracker.csv";
+
+/// J2..J5 zero offsets (rad), J3 and J4 length errors (m): the example's β.
+const BETA: [f64; 6] = [4e-4, -3e-4, 5e-4, -2e-4, 3e-4, -2e-4];
+/// The tracker: wr → tracker rotation vector (rad) and translation (m).
+const TURN: [f64; 3] = [0.02, -0.05, 1.2];
+const SHIFT: [f64; 3] = [-1.2, 0.9, -0.35];
+/// The reflector on the flange, m.
+const TARGET: [f64; 3] = [0.04, 0.06, 0.11];
+const NOISE_MM: f64 = 0.02;
+
+/// A deterministic sequence in [0, 1) (the tests' dependencies have no random generator).
+struct Sequence(u64);
+
+impl Sequence {
+    fn next(&mut self) -> f64 {
+        // SplitMix64.
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// A standard normal deviate (Box–Muller).
+    fn normal(&mut self) -> f64 {
+        let u = self.next().max(1e-300);
+        let v = self.next();
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    }
+}
+
+/// The tracker file: `n` poses, the reflector's actual position (exact transforms) in the
+/// tracker's frame with noise, in mm and degrees.
+fn tracker_csv(n: usize) -> String {
+    let text = std::fs::read_to_string(MODEL).expect("the example model");
+    let out = compile(&text);
+    let c = out.compiled.expect("the example compiles");
+    let m = &c.machine;
+    let mut it = Interpreter::new(m).expect("interpreter");
+    let mut errors = FrameErrors::zeros(m);
+    let rotation = Rotation3::new(Vector3::from(TURN));
+    let mut seq = Sequence(7);
+    let mut csv = String::from(
+        "# A laser tracker's readings of a reflector on the flange, in the tracker's frame\n\
+         # (simulated with known truth by tests/registration.rs)\n\
+         J1[deg],J2[deg],J3[deg],J4[deg],J5[deg],J6[deg],px[mm],py[mm],pz[mm]\n",
+    );
+    let dirs = [f64::NAN; 6];
+    for _ in 0..n {
+        // Whole hundredths of a degree, as a controller reports them.
+        let deg: Vec<f64> = (0..6)
+            .map(|_| ((seq.next() * 2.0 - 1.0) * 14_000.0).round() / 100.0)
+            .collect();
+        let q: Vec<f64> = deg.iter().map(|d| d.to_radians()).collect();
+        let state = State {
+            q: &q,
+            inputs: &[],
+            lags: &[],
+            time: 0.0,
+            dirs: &dirs,
+            tool: 0,
+            tool_offset: Some(TARGET),
+        };
+        it.frame_errors(&state, &BETA, &mut errors).expect("errors");
+        let pose = Pose {
+            q: &q,
+            tool: 0,
+            tool_offset: Some(TARGET),
+        };
+        let t = exact::actual_transform(m, &pose, &errors).expect("transform");
+        let p = Vector3::new(t[(0, 3)], t[(1, 3)], t[(2, 3)]);
+        let y = rotation * p + Vector3::from(SHIFT);
+        let cells: Vec<String> = deg
+            .iter()
+            .map(|d| format!("{d}"))
+            .chain((0..3).map(|c| format!("{:.4}", y[c] * 1e3 + NOISE_MM * seq.normal())))
+            .collect();
+        csv.push_str(&cells.join(","));
+        csv.push('\n');
+    }
+    csv
+}
+
+#[test]
+fn the_example_tracker_file_is_the_generators() {
+    let made = tracker_csv(60);
+    if std::env::var_os("KIN_BLESS").is_some() {
+        std::fs::write(DATA, &made).expect("write the example");
+    }
+    let kept = std::fs::read_to_string(DATA).expect("examples/ur10/tracker.csv");
+    assert!(
+        kept == made,
+        "{DATA} differs from the generator (KIN_BLESS=1 rewrites it)"
+    );
+}
+
+fn kin(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(args)
+        .output()
+        .expect("kin runs")
+}
+
+#[test]
+fn kin_fit_finds_the_tracker_and_the_reflector() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let json = dir.path().join("FIT.json");
+    let json_arg = json.to_str().expect("utf-8 path");
+    // A copy of the model: a fit records its history beside the model.
+    let model = dir.path().join("ur10.kin");
+    std::fs::copy(MODEL, &model).expect("copy the model");
+    let model = model.to_str().expect("utf-8 path");
+    let out = kin(&["fit", model, DATA, "-o", json_arg, "--holdout", "0.25"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("instrument of"), "{stdout}");
+    assert!(stdout.contains("target at"), "{stdout}");
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("FIT.json")).expect("json");
+    let reg = &doc["registration"][0];
+    let v3 = |v: &serde_json::Value| -> [f64; 3] {
+        std::array::from_fn(|k| v[k].as_f64().expect("number"))
+    };
+    // The tracker's origin in wr: −Rᵀt, in mm; within 3 u (its rotation's uncertainty times
+    // the 1.5 m lever, plus the shift's) of the truth.
+    let r = Rotation3::new(Vector3::from(TURN));
+    let origin = -(r.inverse() * Vector3::from(SHIFT)) * 1e3;
+    let found = v3(&reg["instrument_position"]);
+    let shift_u = v3(&reg["shift_u"]);
+    let rotation_u = v3(&reg["rotation_u"]);
+    let lever = origin.norm();
+    for k in 0..3 {
+        let u = shift_u[k] + lever * rotation_u[k].to_radians() * 3.0_f64.sqrt();
+        assert!(
+            (found[k] - origin[k]).abs() <= 3.0 * u,
+            "tracker origin {k}: {} vs {} ± {u}",
+            found[k],
+            origin[k]
+        );
+    }
+    let target = v3(&reg["targets"][0]["offset"]);
+    let target_u = v3(&reg["targets"][0]["offset_u"]);
+    for k in 0..3 {
+        assert!(
+            (target[k] - TARGET[k] * 1e3).abs() <= 3.0 * target_u[k],
+            "reflector {k}: {} ± {}",
+            target[k],
+            target_u[k]
+        );
+    }
+    // The held-out quarter, registered with the fitted placement, at the noise.
+    let rms = doc["validation"][0]["rms"]
+        .as_f64()
+        .expect("validation rms");
+    assert!(
+        rms < 1.3 * NOISE_MM * 1e3 && rms > 0.7 * NOISE_MM * 1e3,
+        "held-out RMS {rms} um"
+    );
+}
+
+#[test]
+fn an_incomplete_position_is_a_located_error() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("half.csv");
+    std::fs::write(&path, "J1,J2,J3,J4,J5,J6,px,py\n0,10,20,30,40,50,1000,20\n").expect("write");
+    let model = dir.path().join("ur10.kin");
+    std::fs::copy(MODEL, &model).expect("copy the model");
+    let out = kin(&[
+        "fit",
+        model.to_str().expect("utf-8"),
+        path.to_str().expect("utf-8"),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("missing: pz"), "{stderr}");
+    assert!(Path::new(MODEL).exists());
+}

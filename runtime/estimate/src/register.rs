@@ -14,9 +14,9 @@
 //! values, `R⊤(y − t) − p` is an ordinary observed error; a change of the placement
 //! `R ← R·exp([a]×)`, `t ← t + R b` and of the offset `o ← o + d` adds `b + a × p + A d` to it
 //! to first order (`A` the attachment frame's axes in wr), which the fit estimates as nuisance
-//! parameters beside β ([`crate::fit::design`]). Each Gauss–Newton step applies the estimated
-//! change exactly and recomputes the observed errors, until the change is a negligible fraction
-//! of its standard error: the converged fit is the exact least-squares solution of the model
+//! parameters beside β (the design rows of [`crate::fit::for_each_row`]). Each Gauss–Newton
+//! step applies the estimated change exactly and recomputes the observed errors, until the
+//! change is a negligible fraction of its standard error: the converged fit is the exact least-squares solution of the model
 //! above, and the last fit's nuisance standard errors are the placement's.
 //!
 //! The start is closed-form: the Kabsch (Horn) rotation between the nominal and the measured

@@ -426,7 +426,8 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     };
     let mut options = options(a);
     (options.file_noise, options.components) = per_file_noise(a)?;
-    let (files, validate, registration) = registered(a, &compiled, files, validate, &options)?;
+    let (files, validate, registration) =
+        registered(a, &source, &compiled, files, validate, &options)?;
     let total = fit::count_rows(&files) as u64;
     let bar = ProgressBar::new(2 * total);
     crate::warnings::hush(&bar);
@@ -491,6 +492,7 @@ type Registered = (Vec<DataSet>, Vec<DataSet>, Option<register::Registration>);
 /// validation files likewise, and the registration; other data as they are.
 fn registered(
     a: &FitArgs,
+    source: &str,
     compiled: &kin_compiler::Compiled,
     files: Vec<DataSet>,
     validate: Vec<DataSet>,
@@ -506,9 +508,13 @@ fn registered(
     let spinner = ProgressBar::new_spinner();
     crate::warnings::hush(&spinner);
     spinner.set_message("registering the instrument");
-    let failed = |e: register::RegisterError| {
-        eprintln!("error: {e}");
-        Failed::INPUT
+    let failed = |e: register::RegisterError| match e {
+        // A fit that fails (a rank-deficient design, say) says why as any fit does.
+        register::RegisterError::Fit(e) => fit_failed(a, source, e),
+        e => {
+            eprintln!("error: {e}");
+            Failed::INPUT
+        }
     };
     let reg = register::register(compiled, engine.as_mut(), &files, options, &mut |_, _| {
         spinner.tick()
@@ -717,6 +723,16 @@ pub fn summary(r: &report::FitReport) -> String {
             f.rms,
             f.max
         ));
+        // Per component, each in its own unit: the file's line mixes µm and µrad where it
+        // holds both.
+        if f.components.len() > 1 {
+            for c in &f.components {
+                s.push_str(&format!(
+                    "    {:<34} {:>6} {:>8.4} {:>8.4}   {}\n",
+                    c.name, c.rows, c.rms, c.max, c.unit
+                ));
+            }
+        }
     }
     s.push_str(&registration_lines(r));
     s.push_str("\n  error component   coefficients (value ± standard error)\n");

@@ -77,3 +77,58 @@ fn import_urdf(args: Urdf<'_>) -> Result<(), Failed> {
     }
     Ok(())
 }
+
+pub struct ExportUrdf<'a> {
+    pub machine: &'a Path,
+    pub params: Option<&'a Path>,
+    pub name: Option<String>,
+    pub output: Option<&'a Path>,
+    pub color: bool,
+}
+
+/// `kin export urdf`: the machine with its constant errors folded into a URDF.
+pub fn export_urdf(args: ExportUrdf<'_>) -> ExitCode {
+    Failed::exit(write_urdf(args))
+}
+
+fn write_urdf(args: ExportUrdf<'_>) -> Result<(), Failed> {
+    if let Some(out) = args.output {
+        let mut inputs = vec![args.machine];
+        inputs.extend(args.params);
+        crate::files::check(out, &inputs)?;
+    }
+    let compiled = crate::load::machine(args.machine, args.params, args.color)?;
+    let m = &compiled.machine;
+    if m.beta.len() != m.coefficients.len() && !m.coefficients.is_empty() {
+        eprintln!(
+            "warning: the model binds no parameter values (a `params` block or --params FILE): \
+             the URDF is the nominal machine"
+        );
+    }
+    let name = args.name.unwrap_or_else(|| m.name.clone());
+    let exported = urdf::export(m, &name).map_err(|e| {
+        eprintln!("error: {e}");
+        Failed::INPUT
+    })?;
+    let mut summary = format!(
+        "exported `{name}`: {} joints, {} constant coefficients folded into their origins",
+        exported.joints, exported.folded
+    );
+    if !exported.left_out.is_empty() {
+        summary.push_str(&format!(
+            "; left out as varying with the pose (a URDF has no place for them): {}",
+            exported.left_out.join(", ")
+        ));
+    }
+    match args.output {
+        Some(out) => {
+            crate::files::write(out, exported.text.as_bytes())?;
+            println!("{summary}\nwrote {}", out.display());
+        }
+        None => {
+            print!("{}", exported.text);
+            eprintln!("{summary}");
+        }
+    }
+    Ok(())
+}

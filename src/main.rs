@@ -347,6 +347,13 @@ enum Command {
   kin import urdf examples/urdf/ur5.urdf -o ur5.kin"
     )]
     Import(ImportCommand),
+    /// Write a machine in another format, with its fitted values.
+    #[command(
+        subcommand,
+        after_help = "Examples:
+  kin export urdf examples/robot_6axis.kin --params FIT.params -o robot.urdf"
+    )]
+    Export(ExportCommand),
     /// ISO 230-2 figures of a bidirectional positioning run along one axis: per target the
     /// mean deviations, standard uncertainties and reversal value; E, M, B, R and A.
     #[command(
@@ -492,7 +499,8 @@ enum Command {
     /// Predicted errors of the first-order model at given poses, as a measurement file.
     #[command(after_help = "Examples:
   kin eval mill.kin poses.csv --params fit.json --uncertainty -o predicted.csv
-  kin eval mill.kin poses.csv --params fit.json --uncertainty --ellipsoid 95 -o predicted.csv")]
+  kin eval mill.kin poses.csv --params fit.json --uncertainty --ellipsoid 95 -o predicted.csv
+  kin eval robot.kin joints.csv --nominal -o poses.csv      # forward kinematics, with the errors")]
     Eval {
         machine: PathBuf,
         /// A point or length file of poses; observed columns are not needed (spec/data.md).
@@ -517,6 +525,11 @@ enum Command {
         /// `ell_u1x … ell_u3z` (point files).
         #[arg(long, requires = "uncertainty", value_parser = args::percent)]
         ellipsoid: Option<f64>,
+        /// Add the nominal tool pose in the workpiece frame (a point file): position `px`, `py`,
+        /// `pz` (length unit) and orientation `prx`, `pry`, `prz` (rotation vector, angle unit),
+        /// the forward kinematics of the nominal machine.
+        #[arg(long)]
+        nominal: bool,
         /// What evaluates the model: the JIT (native code) or the interpreter (the reference).
         #[arg(long, default_value = "jit")]
         engine: kin_model::engine::Engine,
@@ -840,6 +853,32 @@ enum ImportCommand {
     },
 }
 
+/// The formats `kin export` writes.
+#[derive(Subcommand)]
+enum ExportCommand {
+    /// A URDF robot description with every constant error of the model (its `params` or
+    /// `--params`) folded into the joints' origins, for a ROS user to load (spec/urdf.md,
+    /// "Export"). Terms that vary with the pose are left out and listed.
+    #[command(after_help = "Examples:
+  kin export urdf examples/ur10/ur10.kin --params FIT.params -o ur10_calibrated.urdf
+  kin export urdf arm.kin --name arm                 # print the URDF")]
+    Urdf {
+        /// The machine.
+        machine: PathBuf,
+        /// Parameter values (`params { … }`, e.g. the FIT.params `kin fit` writes).
+        #[arg(long, value_name = "FILE")]
+        params: Option<PathBuf>,
+        /// The robot's name in the URDF (default: the machine's).
+        #[arg(long)]
+        name: Option<String>,
+        /// Output `.urdf` file (standard output when absent); replaced atomically.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
+}
+
 /// Whether the command line asks for JSON (`--format json` or `--format=json`), read before
 /// parsing so that a usage error, too, can be answered with a JSON document.
 fn asks_json(args: &[std::ffi::OsString]) -> bool {
@@ -1122,6 +1161,7 @@ fn run(command: Command) -> ExitCode {
             ignore,
             uncertainty,
             ellipsoid,
+            nominal,
             color,
         } => simulate::eval(simulate::EvalArgs {
             machine: &machine,
@@ -1134,6 +1174,7 @@ fn run(command: Command) -> ExitCode {
             ignore: &ignore.options(),
             uncertainty,
             ellipsoid,
+            nominal,
             color: color.enabled(),
         }),
         Command::Report {
@@ -1320,6 +1361,19 @@ fn run(command: Command) -> ExitCode {
             base,
             tip,
             observe,
+        }),
+        Command::Export(ExportCommand::Urdf {
+            machine,
+            params,
+            name,
+            output,
+            color,
+        }) => import::export_urdf(import::ExportUrdf {
+            machine: &machine,
+            params: params.as_deref(),
+            name,
+            output: output.as_deref(),
+            color: color.enabled(),
         }),
         Command::Completions { shell } => {
             manual::completions(help::document(Cli::command()), shell)

@@ -67,6 +67,8 @@ pub struct EvalArgs<'a> {
     pub uncertainty: bool,
     /// With `uncertainty`: the level (0 < L < 1) of each pose's confidence ellipsoid.
     pub ellipsoid: Option<f64>,
+    /// Add the nominal tool pose (`px` … `prz`).
+    pub nominal: bool,
     pub color: bool,
 }
 
@@ -303,6 +305,7 @@ pub fn eval(a: EvalArgs) -> ExitCode {
         ignore,
         uncertainty,
         ellipsoid,
+        nominal,
         color,
     } = a;
     finish((|| {
@@ -371,8 +374,67 @@ pub fn eval(a: EvalArgs) -> ExitCode {
                 ));
             }
         }
+        if nominal {
+            extra.extend(nominal_columns(m, &poses)?);
+            comments.push(
+                "px … pz, prx … prz: the nominal tool pose in the workpiece frame (position, and orientation as a rotation vector), forward kinematics of the nominal machine".into(),
+            );
+        }
         write(&out, m, output, comments, extra, json)
     })())
+}
+
+/// `px`, `py`, `pz` (length unit) and `prx`, `pry`, `prz` (angle unit): the nominal tool pose
+/// in the workpiece frame at every row of a point file (exact forward kinematics).
+fn nominal_columns(
+    m: &kin_compiler::ir::Machine,
+    poses: &Observations,
+) -> Result<Vec<data::ExtraColumn>, Failed> {
+    let Observations::Points(p) = poses else {
+        eprintln!("error: --nominal needs a point file of poses: a length file has two per row");
+        return Err(Failed::USAGE);
+    };
+    let mut values: [Vec<f64>; 6] = Default::default();
+    let mut q = vec![0.0; m.axes.len()];
+    for row in 0..p.rows.len() {
+        for (slot, column) in q.iter_mut().zip(&p.pose.axes) {
+            *slot = column.get(row).copied().unwrap_or(f64::NAN);
+        }
+        let offset = p.rows.tool_offset.as_ref().and_then(|o| {
+            let v: [f64; 3] = std::array::from_fn(|k| o[k].get(row).copied().unwrap_or(f64::NAN));
+            v.iter().all(|x| x.is_finite()).then_some(v)
+        });
+        let pose = kin_model::kinematics::Pose {
+            q: &q,
+            tool: p.rows.tool.get(row).copied().unwrap_or(0),
+            tool_offset: offset,
+        };
+        let t = kin_model::exact::nominal_transform(m, &pose).map_err(|e| {
+            let line = p.rows.line.get(row).copied().unwrap_or(0);
+            eprintln!("error: line {line}: {e}");
+            Failed::INPUT
+        })?;
+        let r = nalgebra::Rotation3::from_matrix_unchecked(t.fixed_view::<3, 3>(0, 0).into_owned())
+            .scaled_axis();
+        for (k, column) in values.iter_mut().enumerate() {
+            column.push(if k < 3 { t[(k, 3)] } else { r[k - 3] });
+        }
+    }
+    let names = ["px", "py", "pz", "prx", "pry", "prz"];
+    Ok(names
+        .iter()
+        .zip(values)
+        .enumerate()
+        .map(|(k, (name, values))| data::ExtraColumn {
+            name: (*name).into(),
+            quantity: if k < 3 {
+                data::ExtraQuantity::Length
+            } else {
+                data::ExtraQuantity::Angle
+            },
+            values,
+        })
+        .collect())
 }
 
 /// `ell_a1 … ell_a3` (error unit) and `ell_u1x … ell_u3z` (direction cosines) for the writer.

@@ -195,3 +195,45 @@ fn an_incomplete_position_is_a_located_error() {
     assert!(stderr.contains("missing: pz"), "{stderr}");
     assert!(Path::new(MODEL).exists());
 }
+
+#[test]
+fn eval_nominal_prints_the_published_ur10_forward_kinematics() {
+    // UR10 standard DH at zero: the tool at (a2 + a3, −(d4 + d6), d1 − d5); upright (J2 = J4 =
+    // −90°): straight up at d1 − a2 − a3 + d5, with d4 + d6 sideways.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let poses = dir.path().join("q.csv");
+    std::fs::write(&poses, "J1,J2,J3,J4,J5,J6\n0,0,0,0,0,0\n0,-90,0,-90,0,0\n").expect("write");
+    let out = kin(&[
+        "eval",
+        MODEL,
+        poses.to_str().expect("utf-8"),
+        "--nominal",
+        "--components",
+        "position",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("J1"))
+        .map(|l| l.split(',').map(|c| c.parse().expect("number")).collect())
+        .collect();
+    let header = text.lines().find(|l| l.starts_with("J1")).expect("header");
+    let at = |name: &str| {
+        header
+            .split(',')
+            .position(|c| c.starts_with(&format!("{name}[")))
+            .expect("column")
+    };
+    let (d1, a2, a3, d4, d5, d6) = (127.3, -612.0, -572.3, 163.941, 115.7, 92.2);
+    let expected = [
+        [a2 + a3, -(d4 + d6), d1 - d5],
+        [0.0, -(d4 + d6), d1 - a2 - a3 + d5],
+    ];
+    for (row, want) in rows.iter().zip(expected) {
+        for (k, name) in ["px", "py", "pz"].iter().enumerate() {
+            let got = row[at(name)];
+            assert!((got - want[k]).abs() < 1e-9, "{name}: {got} vs {}", want[k]);
+        }
+    }
+}

@@ -758,3 +758,145 @@ fn chains_and_offsets_beyond_any_robot_are_refused_quickly() {
     assert!(e.contains("1e308 m") && e.contains("huge.urdf:1:"), "{e}");
     assert!(started.elapsed().as_secs() < 20, "{:?}", started.elapsed());
 }
+
+/// A machine with every kind of step the export folds: moving and fixed elements, a prismatic
+/// and a skew revolute axis, a continuous one, a workpiece chain with its own axis, two tools,
+/// and a constant error on every frame (translations and rotations), bound in `params`.
+const CALIBRATED: &str = "machine calibrated {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis J1 revolute about z range -170 deg .. 170 deg
+    axis J2 revolute about (0, 0.6, 0.8) range -120 deg .. 120 deg
+    axis S prismatic along x range 0 mm .. 400 mm
+    axis J3 revolute about y continuous
+    axis C revolute about z range -180 deg .. 180 deg
+    tool chain {
+        J1 moving
+        J2 fixed at (50, 0, 400) mm rot (-90, 10, 0) deg
+        S moving at (0, 100, 0) mm rot (0, 0, 30) deg
+        J3 moving at (300, 0, 20) mm
+        tool probe at (0, 0, 120) mm rot (0, 90, 0) deg
+        tool star at (40, 10, 100) mm
+    }
+    workpiece chain {
+        C moving at (900, 100, -50) mm rot (2, -1, 0) deg
+        workpiece at (0, 0, 30) mm
+    }
+    errors {
+        J1.tx = const
+        J1.rx = const
+        J2.ty = const
+        J2.rz = const
+        S.tz = const
+        S.ry = const
+        J3.tx = const
+        J3.rx = const
+        probe.tz = const
+        probe.ry = const
+        C.ty = const
+        C.rx = const
+        workpiece.tx = const
+        workpiece.rz = const
+    }
+}
+params {
+    J1.tx[0] = 120 um
+    J1.rx[0] = -300 urad
+    J2.ty[0] = -80 um
+    J2.rz[0] = 450 urad
+    S.tz[0] = 60 um
+    S.ry[0] = 200 urad
+    J3.tx[0] = -150 um
+    J3.rx[0] = 700 urad
+    probe.tz[0] = 250 um
+    probe.ry[0] = -500 urad
+    C.ty[0] = 90 um
+    C.rx[0] = -120 urad
+    workpiece.tx[0] = -70 um
+    workpiece.rz[0] = 330 urad
+}";
+
+fn rigid_inverse(t: &M4) -> M4 {
+    let mut r = identity();
+    for i in 0..3 {
+        for j in 0..3 {
+            r[i][j] = t[j][i];
+        }
+    }
+    for i in 0..3 {
+        r[i][3] = -(0..3).map(|k| t[k][i] * t[k][3]).sum::<f64>();
+    }
+    r
+}
+
+#[test]
+fn an_exported_urdf_is_the_calibrated_model_to_1e_9() {
+    let compiled = kin_compiler::compile(CALIBRATED);
+    let machine = compiled
+        .compiled
+        .unwrap_or_else(|| panic!("{:#?}", compiled.diagnostics))
+        .machine;
+    let exported = kin_standards::urdf::export(&machine, "calibrated").unwrap();
+    assert_eq!(exported.folded, 14);
+    assert!(exported.left_out.is_empty(), "{:?}", exported.left_out);
+    let urdf = read_urdf(&exported.text);
+    let mut it = kin_model::interp::Interpreter::new(&machine).unwrap();
+    let mut errors = kin_model::kinematics::FrameErrors::zeros(&machine);
+    let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+    let (mut dp, mut dr, mut moved) = (0.0f64, 0.0f64, 0.0f64);
+    for n in 0..1000 {
+        let tool = n % 2;
+        let tool_link = machine.tools[tool].name.clone();
+        let qk: Vec<f64> = machine
+            .axes
+            .iter()
+            .map(|a| {
+                if a.continuous {
+                    rng.uniform(-4.0 * std::f64::consts::PI, 4.0 * std::f64::consts::PI)
+                } else {
+                    rng.uniform(a.range[0], a.range[1])
+                }
+            })
+            .collect();
+        let dirs = vec![1.0; qk.len()];
+        let state = kin_model::interp::State {
+            q: &qk,
+            inputs: &[],
+            lags: &[],
+            time: 0.0,
+            dirs: &dirs,
+            tool,
+            tool_offset: None,
+        };
+        it.frame_errors(&state, &machine.beta, &mut errors).unwrap();
+        let pose = Pose {
+            q: &qk,
+            tool,
+            tool_offset: None,
+        };
+        let t = kin_model::exact::actual_transform(&machine, &pose, &errors).unwrap();
+        let nominal = kin_model::exact::nominal_transform(&machine, &pose).unwrap();
+        let q: HashMap<String, f64> = machine
+            .axes
+            .iter()
+            .zip(&qk)
+            .map(|(a, v)| (a.name.clone(), *v))
+            .collect();
+        let tu = mul(
+            &rigid_inverse(&urdf.fk("base", "workpiece", &q)),
+            &urdf.fk("base", &tool_link, &q),
+        );
+        for i in 0..3 {
+            dp = dp.max((t[(i, 3)] - tu[i][3]).abs());
+            moved = moved.max((t[(i, 3)] - nominal[(i, 3)]).abs());
+            for j in 0..3 {
+                dr = dr.max((t[(i, j)] - tu[i][j]).abs());
+            }
+        }
+    }
+    println!("export: position {dp:.2e} m, rotation {dr:.2e}, errors move the tool {moved:.2e} m");
+    // The constant errors move the tool by far more than the tolerance: the comparison sees them.
+    assert!(moved > 1e-4, "{moved}");
+    assert!(dp < 1e-9, "position differs by {dp} m");
+    assert!(dr < 1e-9, "rotation differs by {dr}");
+}

@@ -601,6 +601,8 @@ pub enum ExtraQuantity {
     Length,
     /// A plain number (unit `1`), e.g. a direction cosine.
     Ratio,
+    /// An angle (the angle unit), e.g. a nominal orientation.
+    Angle,
 }
 
 #[derive(Debug, Error)]

@@ -56,6 +56,13 @@ pub enum Column {
     Nuisance(String),
 }
 
+/// Whether a dependency's first partner is a registration's parameter (the instrument's
+/// placement or a target's offset of a file of absolute positions).
+fn registration(d: &Dependency) -> bool {
+    matches!(d.combination.first(), Some((Column::Nuisance(name), _))
+        if name.starts_with("instrument ") || name.starts_with("target "))
+}
+
 /// One invisible direction: `column` is (numerically) the combination `Σ w·c` of earlier ones.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Dependency {
@@ -1042,7 +1049,9 @@ pub fn diagnostics(
                 parts.join(" "),
                 if more > 0 { format!(" and {more} more") } else { String::new() }
             ))
-            .with_help(if matches!(d.combination.first(), Some((Column::Alignment { .. } | Column::Nuisance(_), _))) {
+            .with_help(if let Some((Column::Nuisance(name), _)) = d.combination.first().filter(|_| registration(d)) {
+                format!("the unknown placement of the instrument or target ({name}, spec/robots.md) absorbs it: remove the term")
+            } else if matches!(d.combination.first(), Some((Column::Alignment { .. } | Column::Nuisance(_), _))) {
                 "the artifact's alignment absorbs it: remove the term or fix the placement".to_string()
             } else {
                 "remove one of them, or use a family without this component (straightness, no_once_per_rev)".to_string()

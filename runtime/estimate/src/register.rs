@@ -251,6 +251,8 @@ pub fn register(
 /// Files of absolute positions (`held`, e.g. held out of a fit) as observed errors at the
 /// placements a registration found for the files of the same path, or whose rows they were
 /// held out of (a file it did not fit is an error: its instrument's placement is unknown).
+/// The placements stay fixed: a fit validated on the result predicts these rows, it does not
+/// place their instrument again.
 pub fn observe_with(
     engine: &mut dyn Evaluator,
     registration: &Registration,
@@ -281,7 +283,15 @@ pub fn observe_with(
             }
         }
     }
-    observed(engine, &kept, &placements)
+    // Their placement is the fitted one, not theirs to refit: without their absolute
+    // positions a fit has no nuisance columns for them, and their residuals are predictions.
+    let mut out = observed(engine, &kept, &placements)?;
+    for f in &mut out {
+        if let Observations::Points(p) = &mut f.observations {
+            p.absolute = None;
+        }
+    }
+    Ok(out)
 }
 
 /// A step of one placement: the shift b and rotation a of the instrument, and per target the

@@ -241,6 +241,36 @@ fn check(targets: Vec<[f64; 3]>, seed: u64) {
     // Position rows weigh 1 without a stated noise: residuals in m.
     let rms_m = rms;
     println!("held-out RMS {rms_m:.3e} m over {n} values (noise {NOISE:e})");
+    // Held-out rows are predicted with the fitted placement, not placed again: readings of a
+    // tracker that moved by 1 mm since do not fit.
+    let mut moved = measure(&c, &truth, 20, seed + 2000);
+    moved.path = data.path.clone();
+    if let Observations::Points(PointData {
+        absolute: Some(a), ..
+    }) = &mut moved.observations
+    {
+        a.position[0].iter_mut().for_each(|x| *x += 1e-3);
+    }
+    let moved =
+        register::observe_with(engine.as_mut(), &reg, &[moved]).unwrap_or_else(|e| panic!("{e}"));
+    let off = fit::fit(
+        &c,
+        engine.as_mut(),
+        &reg.files,
+        &moved,
+        &options(),
+        &mut |_, _| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let worst = off
+        .validation
+        .iter()
+        .map(|r| r.residual.abs())
+        .fold(0.0, f64::max);
+    assert!(
+        worst > 5e-4,
+        "a moved tracker was placed again: {worst:e} m"
+    );
     assert!(
         rms_m < 1.25 * NOISE && rms_m > 0.75 * NOISE,
         "held-out RMS {rms_m:e} m against noise {NOISE:e}"

@@ -211,7 +211,7 @@ fn error_transform(e: &[f64; 6]) -> Matrix4<f64> {
 
 /// `Trans(t)·Rot_x(r_x)·Rot_y(r_y)·Rot_z(r_z)` as a product of elementary transforms: the
 /// form of both a shape transform (spec/kinematics.md) and an error transform (eq. 2.8).
-fn shape_or_error(t: [f64; 3], r: [f64; 3]) -> Matrix4<f64> {
+pub fn shape_or_error(t: [f64; 3], r: [f64; 3]) -> Matrix4<f64> {
     let mut translation = Matrix4::identity();
     translation[(0, 3)] = t[0];
     translation[(1, 3)] = t[1];

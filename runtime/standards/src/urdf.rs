@@ -13,6 +13,9 @@
 //! [`import`] does the work on a text; [`import_file`] reads the file first.
 
 mod emit;
+mod export;
+
+pub use export::{export, ExportError, Exported};
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

@@ -93,10 +93,11 @@ fn extra_columns<'a>(
     units: &DisplayUnits,
     options: &'a WriteOptions,
 ) -> impl Iterator<Item = Column<'a>> + 'a {
-    let (error, tilt, length) = (
+    let (error, tilt, length, angle) = (
         units.error.clone(),
         units.tilt.clone(),
         units.length.clone(),
+        units.angle.clone(),
     );
     let ratio = Unit::dimensionless();
     options.extra.iter().map(move |c| {
@@ -105,6 +106,7 @@ fn extra_columns<'a>(
             ExtraQuantity::Tilt => &tilt,
             ExtraQuantity::Length => &length,
             ExtraQuantity::Ratio => &ratio,
+            ExtraQuantity::Angle => &angle,
         };
         Column::number(&c.name, unit, &c.values, false)
     })

@@ -955,6 +955,40 @@ pub fn summary(r: &report::FitReport) -> String {
             c.joint
         ));
     }
+    // A set that cancels is said above; a weak one that does not is said here.
+    for w in r
+        .weak
+        .iter()
+        .filter(|w| !r.cancelling.iter().any(|c| c.members == w.members))
+    {
+        let members: Vec<String> = w
+            .members
+            .iter()
+            .zip(&w.inflation)
+            .filter_map(|(name, vif)| {
+                let e = r.coefficients.iter().find(|e| &e.name == name)?;
+                Some(format!(
+                    "{} = {:.4} ± {:.4} {} (standard error {:.0}× its own)",
+                    e.name,
+                    e.value,
+                    e.se,
+                    e.unit,
+                    vif.sqrt()
+                ))
+            })
+            .collect();
+        s.push_str(&format!(
+            "\n  warning: the data barely determine {}: {} — each alone is poorly known, only \
+             a combination well; `kin check MODEL --plan DATA --detail` shows which, and poses \
+             that move them apart would fix it\n",
+            if members.len() == 1 {
+                "this coefficient"
+            } else {
+                "these coefficients"
+            },
+            members.join(", ")
+        ));
+    }
     s
 }
 

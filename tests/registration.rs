@@ -48,6 +48,11 @@ impl Sequence {
 /// The tracker file: `n` poses, the reflector's actual position (exact transforms) in the
 /// tracker's frame with noise, in mm and degrees.
 fn tracker_csv(n: usize) -> String {
+    tracker_csv_with(n, 140.0)
+}
+
+/// As [`tracker_csv`], with the elbow J3 within ±`elbow` degrees (the others within ±140°).
+fn tracker_csv_with(n: usize, elbow: f64) -> String {
     let text = std::fs::read_to_string(MODEL).expect("the example model");
     let out = compile(&text);
     let c = out.compiled.expect("the example compiles");
@@ -65,7 +70,10 @@ fn tracker_csv(n: usize) -> String {
     for _ in 0..n {
         // Whole hundredths of a degree, as a controller reports them.
         let deg: Vec<f64> = (0..6)
-            .map(|_| ((seq.next() * 2.0 - 1.0) * 14_000.0).round() / 100.0)
+            .map(|a| {
+                let span = if a == 2 { elbow } else { 140.0 };
+                ((seq.next() * 2.0 - 1.0) * span * 100.0).round() / 100.0
+            })
             .collect();
         let q: Vec<f64> = deg.iter().map(|d| d.to_radians()).collect();
         let state = State {
@@ -236,4 +244,47 @@ fn eval_nominal_prints_the_published_ur10_forward_kinematics() {
             assert!((got - want[k]).abs() < 1e-9, "{name}: {got} vs {}", want[k]);
         }
     }
+}
+
+#[test]
+fn a_straight_elbow_leaves_the_zero_offsets_weakly_determined_and_kin_fit_says_so() {
+    // With J3 within ±2°, the upper arm and the forearm stay on one line: turning the shoulder
+    // or the elbow by a zero offset then moves the reflector nearly alike, and the plan
+    // determines those two offsets well only together (their standard errors a hundred times
+    // what each would have alone), while the full example's plan separates them.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let data = dir.path().join("straight.csv");
+    std::fs::write(&data, tracker_csv_with(60, 2.0)).expect("write");
+    let model = dir.path().join("ur10.kin");
+    std::fs::copy(MODEL, &model).expect("copy the model");
+    let json = dir.path().join("FIT.json");
+    let out = kin(&[
+        "fit",
+        model.to_str().expect("utf-8"),
+        data.to_str().expect("utf-8"),
+        "-o",
+        json.to_str().expect("utf-8"),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    assert!(
+        stdout.contains("warning: the data barely determine"),
+        "{stdout}"
+    );
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("FIT.json")).expect("json");
+    let weak = doc["weak"].as_array().expect("weak");
+    let named: Vec<&str> = weak
+        .iter()
+        .flat_map(|w| w["members"].as_array().into_iter().flatten())
+        .filter_map(|m| m.as_str())
+        .collect();
+    assert!(
+        named.contains(&"J2.rz[0]") && named.contains(&"J3.rz[0]"),
+        "{named:?}"
+    );
+    // The full plan (the example) has none.
+    let full = kin(&["fit", model.to_str().expect("utf-8"), DATA]);
+    let stdout = String::from_utf8_lossy(&full.stdout);
+    assert!(!stdout.contains("barely"), "{stdout}");
 }

@@ -769,6 +769,28 @@ pub struct Term {
     pub coefficients: usize,
 }
 
+impl Term {
+    /// Whether the term is the same at every pose: no variable in its scale and only `const`
+    /// factors (a location, an offset, a length — what a URDF can hold).
+    pub fn is_constant(&self) -> bool {
+        fn plain(s: &Scalar) -> bool {
+            match s {
+                Scalar::Num(_) => true,
+                Scalar::Var(_) => false,
+                Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => plain(a),
+                Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
+                    plain(a) && plain(b)
+                }
+            }
+        }
+        plain(&self.scale)
+            && self
+                .factors
+                .iter()
+                .all(|f| matches!(f.basis, crate::basis::Basis::Const))
+    }
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ErrorModel {
     pub frame: FrameRef,

@@ -54,12 +54,26 @@ pub struct Cancelling {
     pub joint: f64,
 }
 
-/// The sets of `beta` (SI) that cancel under the covariance `covariance` (row-major `n × n`,
-/// SI); coefficients with a non-finite or zero variance (undetermined, removed) take no part.
-pub fn cancelling(beta: &[f64], covariance: &[f64]) -> Vec<Cancelling> {
+/// The determined coefficients' covariance scaled to unit diagonal, and its inverse.
+struct Scaled {
+    /// Indices of the coefficients with a finite, positive variance.
+    determined: Vec<usize>,
+    /// Their standard errors.
+    s: Vec<f64>,
+    /// Their correlation matrix.
+    r: DMatrix<f64>,
+    /// `M̃ = R⁻¹`: M in the scaled coordinates (`M = S⁻¹ M̃ S⁻¹`); its diagonal is each
+    /// coefficient's variance inflation, its off-diagonal the cosines of the columns (scaled).
+    m: DMatrix<f64>,
+}
+
+/// [`Scaled`] of `covariance` (row-major `n × n`, SI), over the coefficients with a finite,
+/// positive variance and a finite estimate; `None` for fewer than two or more than
+/// [`MAX_COEFFICIENTS`] of them, or a covariance that is not positive definite.
+fn scaled(beta: &[f64], covariance: &[f64]) -> Option<Scaled> {
     let n = beta.len();
     if covariance.len() != n * n {
-        return Vec::new();
+        return None;
     }
     let var = |k: usize| covariance.get(k * n + k).copied().unwrap_or(f64::NAN);
     let determined: Vec<usize> = (0..n)
@@ -67,7 +81,7 @@ pub fn cancelling(beta: &[f64], covariance: &[f64]) -> Vec<Cancelling> {
         .collect();
     let d = determined.len();
     if !(2..=MAX_COEFFICIENTS).contains(&d) {
-        return Vec::new();
+        return None;
     }
     let c = DMatrix::from_fn(d, d, |a, b| {
         covariance
@@ -78,12 +92,99 @@ pub fn cancelling(beta: &[f64], covariance: &[f64]) -> Vec<Cancelling> {
     // Scaled to unit diagonal first: the coefficients' units span many decades.
     let s: Vec<f64> = (0..d).map(|a| c[(a, a)].sqrt()).collect();
     let r = DMatrix::from_fn(d, d, |a, b| c[(a, b)] / (s[a] * s[b]));
-    let Some(chol) = r.clone().cholesky() else {
+    let m = r.clone().cholesky()?.inverse();
+    Some(Scaled {
+        determined,
+        s,
+        r,
+        m,
+    })
+}
+
+/// A member's variance inflation at least this makes it weakly determined: its standard error
+/// some thirty times what its column alone would give, whatever its estimate. (A hundred,
+/// tenfold, is common for a squareness beside detrended splines known to 0.2 µrad; a plan that
+/// leaves a link length at millimetres inflates it by tens of thousands.)
+const WEAK: f64 = 1000.0;
+
+/// Coefficients the data barely determine (see [`weak`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Weak {
+    /// Indices of the coefficients, in declaration order.
+    pub members: Vec<usize>,
+    /// Each member's variance inflation: its variance over what its column alone would give.
+    pub inflation: Vec<f64>,
+}
+
+/// The sets of weakly determined coefficients: each member's variance in `covariance`
+/// (row-major `n × n`, SI) at least [`WEAK`] times `alone` — the variance it would have were
+/// its column the only one (`σ̂²/‖x‖²`; `None`: not asked about) — grouped with those whose
+/// columns are alike. Whatever a coefficient trades off against, other coefficients or the
+/// fit's nuisance parameters (an instrument's placement), shows in that ratio. The fit asks
+/// about constants only (locations, offsets, lengths): the functions of a spline or a
+/// polynomial are alike by construction, and what their values leave uncertain is the curve's
+/// uncertainty along its axis (the station tables), not a plan that fails to separate them.
+pub fn weak(beta: &[f64], covariance: &[f64], alone: &[Option<f64>]) -> Vec<Weak> {
+    let Some(Scaled {
+        determined, s, m, ..
+    }) = scaled(beta, covariance)
+    else {
         return Vec::new();
     };
-    // M in the scaled coordinates: M̃ = R⁻¹, M = S⁻¹ M̃ S⁻¹, and with z = β/se the effects are
-    // |z_k|·√M̃_kk alone and √(z_Sᵀ M̃_SS z_S) together.
-    let m = chol.inverse();
+    let d = determined.len();
+    let inflation: Vec<f64> = (0..d)
+        .map(|a| match alone.get(determined[a]).copied().flatten() {
+            Some(v) if v > 0.0 => s[a] * s[a] / v,
+            _ => 0.0,
+        })
+        .collect();
+    let inflated: Vec<bool> = inflation.iter().map(|&v| v >= WEAK).collect();
+    let mut parent: Vec<usize> = (0..d).collect();
+    for a in 0..d {
+        for b in a + 1..d {
+            if inflated[a] && inflated[b] {
+                let cosine = m[(a, b)] / (m[(a, a)] * m[(b, b)]).sqrt();
+                if cosine.abs() >= ALIKE {
+                    let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+                    parent[ra] = rb;
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    let mut seen = vec![false; d];
+    for a in 0..d {
+        if !inflated[a] || seen[a] {
+            continue;
+        }
+        let ra = root(&mut parent, a);
+        let set: Vec<usize> = (0..d)
+            .filter(|&b| inflated[b] && root(&mut parent, b) == ra)
+            .collect();
+        for &b in &set {
+            seen[b] = true;
+        }
+        out.push(Weak {
+            members: set.iter().map(|&i| determined[i]).collect(),
+            inflation: set.iter().map(|&i| inflation[i]).collect(),
+        });
+    }
+    out
+}
+
+/// The sets of `beta` (SI) that cancel under the covariance `covariance` (row-major `n × n`,
+/// SI); coefficients with a non-finite or zero variance (undetermined, removed) take no part.
+pub fn cancelling(beta: &[f64], covariance: &[f64]) -> Vec<Cancelling> {
+    let Some(Scaled {
+        determined,
+        s,
+        r,
+        m,
+    }) = scaled(beta, covariance)
+    else {
+        return Vec::new();
+    };
+    let d = determined.len();
     let z: Vec<f64> = (0..d).map(|a| beta[determined[a]] / s[a]).collect();
     let effect = |a: usize| z[a].abs() * m[(a, a)].max(0.0).sqrt();
     let candidate: Vec<bool> = (0..d)
@@ -194,6 +295,33 @@ mod tests {
             .collect();
         let (beta, cov) = fit(&x, &y, noise);
         assert!(cancelling(&beta, &cov).is_empty(), "{beta:?}");
+    }
+
+    #[test]
+    fn nearly_alike_constants_are_weak_and_independent_ones_are_not() {
+        let rows = 100;
+        let t: Vec<f64> = (0..rows).map(|i| i as f64 / rows as f64).collect();
+        // Columns 0 and 1 differ by a hundredth of a slope: alike; column 2 is orthogonal-ish.
+        let x = DMatrix::from_fn(rows, 3, |i, j| match j {
+            0 => 1.0,
+            1 => 1.0 + 0.01 * (t[i] - 0.5),
+            _ => (6.0 * t[i]).sin(),
+        });
+        let y: Vec<f64> = (0..rows).map(|i| 1e-6 * (3.0 * t[i]).cos()).collect();
+        let sigma = 1e-7;
+        let (beta, cov) = fit(&x, &y, sigma);
+        let alone: Vec<Option<f64>> = (0..3)
+            .map(|j| {
+                let norm2: f64 = (0..rows).map(|i| x[(i, j)] * x[(i, j)]).sum();
+                Some(sigma * sigma / norm2)
+            })
+            .collect();
+        let found = weak(&beta, &cov, &alone);
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert_eq!(found[0].members, vec![0, 1]);
+        assert!(found[0].inflation.iter().all(|&v| v >= WEAK), "{found:?}");
+        // Not asked about: nothing.
+        assert!(weak(&beta, &cov, &[None, None, None]).is_empty());
     }
 
     /// A tilting axis over ±30°: its cosine is nearly a constant, so beside a constant the two

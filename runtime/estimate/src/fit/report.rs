@@ -107,6 +107,10 @@ pub struct FitReport {
     /// absent in reports of earlier versions.
     #[serde(default)]
     pub cancelling: Vec<CancellingSet>,
+    /// Coefficients the data barely separate ([`super::cancel::weak`]); absent in reports of
+    /// earlier versions.
+    #[serde(default)]
+    pub weak: Vec<WeakSet>,
     /// Files of absolute positions: where their instrument and targets were found
     /// ([`crate::register`]); absent otherwise.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -124,6 +128,15 @@ pub struct CancellingSet {
     pub largest: f64,
     #[serde(deserialize_with = "nan_if_null")]
     pub joint: f64,
+}
+
+/// Coefficients the data barely separate (see [`super::cancel::weak`]).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct WeakSet {
+    /// The coefficients' names, in declaration order.
+    pub members: Vec<String>,
+    /// Each one's variance inflation: its variance over what its column alone would give.
+    pub inflation: Vec<f64>,
 }
 
 /// The weights of a fit by a stated noise (`kin fit --noise`).
@@ -612,9 +625,33 @@ pub fn build(
             joint: c.joint,
         })
         .collect();
+    // What each constant's variance would be were its column alone: σ̂²/‖x‖².
+    let mut alone = vec![None; n];
+    for term in m.errors.iter().flat_map(|e| &e.terms) {
+        if term.is_constant() {
+            for j in term.first..term.first + term.coefficients {
+                let scale = sol.scale.get(j).copied().unwrap_or(0.0);
+                if let Some(slot) = alone.get_mut(j) {
+                    *slot = (scale > 0.0).then_some(sigma2 * scale * scale);
+                }
+            }
+        }
+    }
+    let weak = super::cancel::weak(sol.beta.get(..n).unwrap_or(&[]), &covariance, &alone)
+        .into_iter()
+        .map(|w| WeakSet {
+            members: w
+                .members
+                .iter()
+                .filter_map(|&j| coefficients.get(j).map(|e| e.name.clone()))
+                .collect(),
+            inflation: w.inflation,
+        })
+        .collect();
     let mut report = FitReport {
         stations: Vec::new(),
         registration: Vec::new(),
+        weak,
         cancelling,
         estimability: Some(estimability),
         version: VERSION,

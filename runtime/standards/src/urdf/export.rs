@@ -39,25 +39,6 @@ pub enum ExportError {
     NotFinite(String),
 }
 
-/// Whether a term is the same at every pose: no variable in its scale, only `const` factors.
-fn constant(term: &kin_compiler::ir::Term) -> bool {
-    fn plain(s: &Scalar) -> bool {
-        match s {
-            Scalar::Num(_) => true,
-            Scalar::Var(_) => false,
-            Scalar::Neg(a) | Scalar::Sin(a) | Scalar::Cos(a) => plain(a),
-            Scalar::Add(a, b) | Scalar::Sub(a, b) | Scalar::Mul(a, b) | Scalar::Div(a, b) => {
-                plain(a) && plain(b)
-            }
-        }
-    }
-    plain(&term.scale)
-        && term
-            .factors
-            .iter()
-            .all(|f| matches!(f.basis, kin_compiler::basis::Basis::Const))
-}
-
 /// A term's scale as text (`cos(J2)`, `payload / 100`), or `None` when it is 1.
 fn scale_text(m: &Machine, s: &Scalar) -> Option<String> {
     fn text(m: &Machine, s: &Scalar) -> String {
@@ -107,7 +88,7 @@ pub fn export(m: &Machine, name: &str) -> Result<Exported, ExportError> {
     for model in &mut constant_part.errors {
         let mut kept = Vec::new();
         for term in std::mem::take(&mut model.terms) {
-            if constant(&term) {
+            if term.is_constant() {
                 folded += term.coefficients;
                 kept.push(term);
             } else {

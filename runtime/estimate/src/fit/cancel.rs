@@ -117,7 +117,7 @@ pub struct Weak {
 }
 
 /// The sets of weakly determined coefficients: each member's variance in `covariance`
-/// (row-major `n × n`, SI) at least [`WEAK`] times `alone` — the variance it would have were
+/// (row-major `n × n`, SI) at least 1 000 times `alone` — the variance it would have were
 /// its column the only one (`σ̂²/‖x‖²`; `None`: not asked about) — grouped with those whose
 /// columns are alike. Whatever a coefficient trades off against, other coefficients or the
 /// fit's nuisance parameters (an instrument's placement), shows in that ratio. The fit asks

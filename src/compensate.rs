@@ -373,9 +373,12 @@ fn tables(
 ) -> Result<(), Failed> {
     // What each format cannot state at all is refused before any work.
     let plan = TablePlan::new(m, grid, format.format()).map_err(table_error)?;
-    if let Err(e) = std::fs::create_dir_all(&a.output) {
-        eprintln!("error: cannot create `{}`: {e}", a.output.display());
-        return Err(Failed::USAGE);
+    // The folder itself is made with the set (crate::folder); the folders above it here.
+    if let Some(parent) = a.output.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if let Err(e) = std::fs::create_dir_all(parent) {
+            eprintln!("error: cannot create `{}`: {e}", parent.display());
+            return Err(Failed::USAGE);
+        }
     }
     let origin = format!(
         "written by kin from `{}` with the fit `{}`",
@@ -408,18 +411,37 @@ fn tables(
     );
     let note_path = a.output.join("kin-compensation.txt");
     let paths: Vec<PathBuf> = set.files.iter().map(|f| a.output.join(&f.name)).collect();
-    for p in paths.iter().chain([&note_path]) {
-        crate::files::check(p, inputs)?;
+    // A folder not made yet holds no input.
+    if a.output.is_dir() {
+        for p in paths.iter().chain([&note_path]) {
+            crate::files::check(p, inputs)?;
+        }
     }
-    // The tables and their note are one result: all are replaced or none (a full disk halfway
-    // must not leave one axis's new table beside another's old one).
-    let mut files: Vec<(&Path, &[u8])> = paths
+    // The tables and their note are one result: the folder is replaced as one, so a reader
+    // sees the old set or the new one, and no table of an earlier set stays beside the new
+    // (crate::folder).
+    let names: Vec<String> = set
+        .files
         .iter()
-        .zip(&set.files)
-        .map(|(p, f)| (p.as_path(), f.text.as_bytes()))
+        .map(|f| f.name.clone())
+        .chain(["kin-compensation.txt".to_string()])
         .collect();
-    files.push((note_path.as_path(), note.as_bytes()));
-    kin_data::output::replace_all(&files).map_err(|e| {
+    let _ = writeln!(note, "Files of this set: {}.", names.join(", "));
+    let mut files: Vec<(String, &[u8])> = set
+        .files
+        .iter()
+        .map(|f| (f.name.clone(), f.text.as_bytes()))
+        .collect();
+    files.push(("kin-compensation.txt".to_string(), note.as_bytes()));
+    // An earlier set's files: those its note lists, and any whose comments name kin as their
+    // origin (a LinuxCNC table has no comments; a note of an older kin lists nothing).
+    let listed = earlier_set(&a.output.join("kin-compensation.txt"));
+    let replaced = crate::folder::replace_folder(&a.output, &files, |p| {
+        p.file_name()
+            .is_some_and(|n| listed.iter().any(|l| n.to_string_lossy() == l.as_str()))
+            || crate::folder::written_by(p, "written by kin from")
+    })
+    .map_err(|e| {
         eprintln!(
             "error: cannot write the tables into `{}`: {e}",
             a.output.display()
@@ -427,7 +449,36 @@ fn tables(
         Failed::USAGE
     })?;
     eprint!("{note}");
+    if !replaced.stale.is_empty() {
+        eprintln!(
+            "Removed with the earlier set, which this one replaces: {} (a controller must not keep loading them).",
+            replaced.stale.join(", ")
+        );
+    }
+    if !replaced.kept.is_empty() {
+        eprintln!(
+            "Kept in `{}`, as files kin did not write: {}.",
+            a.output.display(),
+            replaced.kept.join(", ")
+        );
+    }
     Ok(())
+}
+
+/// The files an earlier set's note lists (`Files of this set: X.comp, …`); none without one.
+fn earlier_set(note: &Path) -> Vec<String> {
+    let Ok(text) = std::fs::read_to_string(note) else {
+        return Vec::new();
+    };
+    text.lines()
+        .find_map(|l| l.strip_prefix("Files of this set: "))
+        .map(|list| {
+            list.trim_end_matches('.')
+                .split(", ")
+                .map(str::to_string)
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// The message of a table the grid or the model cannot give, in the terms of `--grid` and

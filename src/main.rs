@@ -12,6 +12,7 @@ mod errors;
 mod files;
 mod fit;
 mod fmt;
+mod folder;
 mod grid;
 mod help;
 mod import;

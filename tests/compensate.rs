@@ -240,6 +240,38 @@ fn linuxcnc_tables_hold_the_axis_error_and_say_what_they_cannot() {
     assert!(note.contains("cannot"), "{note}");
     assert!(note.contains("interpolation"), "{note}");
     assert!(text(&o.stderr).contains("with these tables"));
+    // The set is replaced as one: a new set over X alone removes the earlier Y.comp (a
+    // controller would keep loading it) and keeps the controller's own files.
+    std::fs::write(tables.join("mill.ini"), "[JOINT_0]\nCOMP_FILE = X.comp\n").expect("ini");
+    let o = kin(&[
+        "compensate",
+        machine.to_str().unwrap(),
+        "--fit",
+        fit.to_str().unwrap(),
+        "--grid",
+        "X=0:500:50,Y=200,Z=-100",
+        "--table",
+        "linuxcnc",
+        "-o",
+        tables.to_str().unwrap(),
+    ]);
+    ok(&o);
+    assert!(!tables.join("Y.comp").exists(), "a stale Y.comp stays");
+    assert!(
+        text(&o.stderr).contains("Removed with the earlier set"),
+        "{}",
+        text(&o.stderr)
+    );
+    assert_eq!(
+        std::fs::read_to_string(tables.join("mill.ini")).expect("ini kept"),
+        "[JOINT_0]\nCOMP_FILE = X.comp\n"
+    );
+    assert_eq!(read_linuxcnc(&tables.join("X.comp")).len(), 11);
+    let note = std::fs::read_to_string(tables.join("kin-compensation.txt")).expect("note");
+    assert!(
+        note.contains("Files of this set: X.comp, kin-compensation.txt."),
+        "{note}"
+    );
 }
 
 #[test]

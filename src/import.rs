@@ -78,6 +78,76 @@ fn import_urdf(args: Urdf<'_>) -> Result<(), Failed> {
     Ok(())
 }
 
+/// `kin import dh --convention`.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum DhConvention {
+    Standard,
+    Modified,
+}
+
+pub struct Dh<'a> {
+    pub file: &'a Path,
+    pub output: Option<&'a Path>,
+    pub convention: DhConvention,
+    pub observe: ObserveArg,
+}
+
+/// `kin import dh`: a Denavit–Hartenberg table as a `.kin` machine.
+pub fn dh(args: Dh<'_>) -> ExitCode {
+    Failed::exit(import_dh(args))
+}
+
+fn import_dh(args: Dh<'_>) -> Result<(), Failed> {
+    if let Some(out) = args.output {
+        crate::files::check(out, &[args.file])?;
+    }
+    let options = Options {
+        base: None,
+        tip: None,
+        observe: args.observe.into(),
+    };
+    let convention = match args.convention {
+        DhConvention::Standard => kin_standards::dh::Convention::Standard,
+        DhConvention::Modified => kin_standards::dh::Convention::Modified,
+    };
+    let imported =
+        kin_standards::dh::import_file(args.file, convention, &options).map_err(|e| {
+            eprintln!("error: {e}");
+            if e.is_usage() {
+                Failed::USAGE
+            } else {
+                eprintln!("note: what kin reads from a DH table is described in spec/urdf.md");
+                Failed::INPUT
+            }
+        })?;
+    let summary = format!(
+        "imported `{}`: {} joints, {} coefficients in the default error model{}",
+        imported.robot,
+        imported.joints.len(),
+        imported.coefficients,
+        if imported.redundant.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " ({} redundant terms left out: {})",
+                imported.redundant.len(),
+                imported.redundant.join(", ")
+            )
+        }
+    );
+    match args.output {
+        Some(out) => {
+            crate::files::write(out, imported.source.as_bytes())?;
+            println!("{summary}\nwrote {}", out.display());
+        }
+        None => {
+            print!("{}", imported.source);
+            eprintln!("{summary}");
+        }
+    }
+    Ok(())
+}
+
 pub struct ExportUrdf<'a> {
     pub machine: &'a Path,
     pub params: Option<&'a Path>,

@@ -852,6 +852,26 @@ enum ImportCommand {
         #[arg(long, value_enum, default_value_t = check::ObserveArg::Pose)]
         observe: check::ObserveArg,
     },
+    /// A Denavit–Hartenberg table (CSV: a, alpha, d, theta per joint, optional joint, type,
+    /// lower, upper; units in brackets, default mm and deg), standard or modified, as a `.kin`
+    /// machine with the same default error model as a URDF import (spec/urdf.md).
+    #[command(after_help = "Examples:
+  kin import dh ur10.csv -o ur10.kin
+  kin import dh puma.csv --convention modified --observe position -o puma.kin")]
+    Dh {
+        /// The table.
+        file: PathBuf,
+        /// Output `.kin` file (standard output when absent); never the input, replaced atomically.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// `standard` (Rz(θ) Tz(d) Tx(a) Rx(α) per joint) or `modified` (Craig: Rx(α) Tx(a)
+        /// Rz(θ) Tz(d), the row of joint i holding a and α of the link before it).
+        #[arg(long, value_enum, default_value_t = import::DhConvention::Standard)]
+        convention: import::DhConvention,
+        /// What the default error model is made identifiable for (as for `import urdf`).
+        #[arg(long, value_enum, default_value_t = check::ObserveArg::Pose)]
+        observe: check::ObserveArg,
+    },
 }
 
 /// The formats `kin export` writes.
@@ -1375,6 +1395,17 @@ fn run(command: Command) -> ExitCode {
             name,
             output: output.as_deref(),
             color: color.enabled(),
+        }),
+        Command::Import(ImportCommand::Dh {
+            file,
+            output,
+            convention,
+            observe,
+        }) => import::dh(import::Dh {
+            file: &file,
+            output: output.as_deref(),
+            convention,
+            observe,
         }),
         Command::Completions { shell } => {
             manual::completions(help::document(Cli::command()), shell)

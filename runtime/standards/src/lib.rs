@@ -5,6 +5,7 @@
 // as a non-positive number.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod dh;
 pub mod iso230_2;
 pub mod iso230_3;
 pub mod iso230_4;

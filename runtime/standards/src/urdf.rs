@@ -15,6 +15,7 @@
 mod emit;
 mod export;
 
+pub(crate) use export::origin_text;
 pub use export::{export, ExportError, Exported};
 
 use std::collections::HashMap;

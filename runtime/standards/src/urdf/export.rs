@@ -260,19 +260,24 @@ fn fixed(
     Ok(())
 }
 
+/// `<origin xyz rpy>` of a rigid transform, or the error naming `what` when it is not finite.
+fn origin_xml(t: &Matrix4<f64>, what: &str) -> Result<String, ExportError> {
+    origin_text(t).ok_or_else(|| ExportError::NotFinite(what.to_string()))
+}
+
 /// `<origin xyz rpy>` of a rigid transform: URDF's fixed-axis roll, pitch, yaw
 /// (`R = Rz(yaw)·Ry(pitch)·Rx(roll)`), each number in the shortest text that reads back to the
-/// same double.
-fn origin_xml(t: &Matrix4<f64>, what: &str) -> Result<String, ExportError> {
+/// same double; `None` when a number is not finite.
+pub(crate) fn origin_text(t: &Matrix4<f64>) -> Option<String> {
     let r = Rotation3::from_matrix_unchecked(t.fixed_view::<3, 3>(0, 0).into_owned());
     let (roll, pitch, yaw) = r.euler_angles();
     let values = [t[(0, 3)], t[(1, 3)], t[(2, 3)], roll, pitch, yaw];
     if values.iter().any(|v| !v.is_finite()) {
-        return Err(ExportError::NotFinite(what.to_string()));
+        return None;
     }
     // `+ 0.0` writes a negative zero as 0.
     let v = values.map(|v| v + 0.0);
-    Ok(format!(
+    Some(format!(
         "    <origin xyz=\"{} {} {}\" rpy=\"{} {} {}\"/>\n",
         v[0], v[1], v[2], v[3], v[4], v[5]
     ))

@@ -787,9 +787,11 @@ pub fn summary(r: &report::FitReport) -> String {
                 // A minimum-norm fit's undetermined coefficient: no value ± error is printed.
                 parts.push("undetermined".to_string());
             } else if c.kept {
-                let location = match c.iso.as_deref() {
-                    Some(n) if is_location(n) => format!(" ({n})"),
-                    _ => String::new(),
+                let location = match (c.iso.as_deref().filter(|n| is_location(n)), &c.robot) {
+                    (Some(n), Some(r)) => format!(" ({n}, {r})"),
+                    (Some(n), None) => format!(" ({n})"),
+                    (None, Some(r)) => format!(" ({r})"),
+                    (None, None) => String::new(),
                 };
                 parts.push(format!("{:.3}±{:.3}{own}{location}", c.value, c.se));
             } else {

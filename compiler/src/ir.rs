@@ -276,6 +276,64 @@ impl Machine {
         }
     }
 
+    /// The robot engineer's name of each constant coefficient, as printed beside kin's: on a
+    /// machine whose every joint moves about or along its own frame's z (a chain from a
+    /// Denavit–Hartenberg table or a URDF import), a constant error of a moving joint's frame
+    /// (applied after the joint's motion, so in the axes of the link it moves) is a
+    /// Denavit–Hartenberg parameter's error — `rz` the joint offset (δθ, δd for a prismatic
+    /// joint), `tz` the link offset (δd), `tx` the link length (δa), `rx` the link twist (δα),
+    /// `ry` Hayati's tilt (δβ) — and the tool's and the base's are the tool and base frames.
+    /// `None` elsewhere (a Cartesian machine reads its ISO names).
+    pub fn robot_names(&self) -> Vec<Option<String>> {
+        let mut out = vec![None; self.coefficients.len()];
+        let along_z = |d: [f64; 3]| d[0].abs() < 1e-12 && d[1].abs() < 1e-12;
+        if self.axes.is_empty() || !self.axes.iter().all(|a| along_z(a.direction)) {
+            return out;
+        }
+        let axes = ["x", "y", "z"];
+        for model in &self.errors {
+            let c = model.component.index();
+            let name = match model.frame {
+                FrameRef::Tool(k) | FrameRef::Workpiece(k) => {
+                    let chain = match model.frame {
+                        FrameRef::Tool(_) => &self.tool_chain,
+                        _ => &self.workpiece_chain,
+                    };
+                    let Some(e) = chain.get(k) else { continue };
+                    let Some(axis) = self.axes.get(e.axis) else {
+                        continue;
+                    };
+                    if e.frame != FrameKind::Moving {
+                        continue;
+                    }
+                    let prismatic = axis.kind == JointKind::Prismatic;
+                    match (c, prismatic) {
+                        (5, false) | (2, true) => "joint offset",
+                        (5, true) => "link angle δθ",
+                        (2, false) => "link offset δd",
+                        (0, _) => "link length δa",
+                        (3, _) => "link twist δα",
+                        (4, _) => "Hayati tilt δβ",
+                        _ => "link offset along y",
+                    }
+                    .to_string()
+                }
+                FrameRef::ToolEnd(_) if c < 3 => format!("tool {} offset", axes[c]),
+                FrameRef::ToolEnd(_) => format!("tool rotation about {}", axes[c - 3]),
+                FrameRef::WorkpieceEnd if c < 3 => format!("base {} offset", axes[c]),
+                FrameRef::WorkpieceEnd => format!("base rotation about {}", axes[c - 3]),
+            };
+            for term in model.terms.iter().filter(|t| t.is_constant()) {
+                for j in term.first..term.first + term.coefficients {
+                    if let Some(slot) = out.get_mut(j) {
+                        *slot = Some(name.clone());
+                    }
+                }
+            }
+        }
+        out
+    }
+
     /// The ISO 230-1 name of each coefficient, as printed beside kin's: a `const` term of a
     /// component that carries a location or squareness error is that error, with the sign
     /// relating the two (`-EC0Y`: the coefficient is −EC0Y); any other coefficient of an axis'
@@ -857,6 +915,60 @@ pub struct DisplayUnits {
 #[cfg(test)]
 mod tests {
     use super::{alias, AliasError, Aliased, Component, Machine};
+
+    #[test]
+    fn a_dh_chain_names_its_constants_as_a_robot_engineer_does_and_a_cmm_does_not() {
+        let arm = crate::compile(
+            "machine arm {
+                task position
+                axis J1 revolute about z range -180 deg .. 180 deg
+                axis J2 revolute about z range -180 deg .. 180 deg
+                axis S prismatic along z range 0 mm .. 100 mm
+                tool chain { J1 moving  J2 moving at (0, 0, 100) mm rot (90, 0, 0) deg
+                             S moving  tool t at (0, 0, 50) mm }
+                errors { J2.rz = const  J2.tx = const + cos(J1) * const  J2.rx = const
+                         S.tz = const  t.tz = const  workpiece.rz = const }
+            }",
+        );
+        let m = &arm
+            .compiled
+            .unwrap_or_else(|| panic!("{:?}", arm.diagnostics))
+            .machine;
+        let names = m.robot_names();
+        let named: Vec<(&str, Option<&str>)> = m
+            .coefficients
+            .iter()
+            .zip(&names)
+            .map(|(c, n)| (c.name.as_str(), n.as_deref()))
+            .collect();
+        assert_eq!(
+            named,
+            [
+                ("J2.rz[0]", Some("joint offset")),
+                ("J2.tx[0]", Some("link length δa")),
+                // A term that varies with the pose is no DH parameter.
+                ("J2.tx[1]", None),
+                ("J2.rx[0]", Some("link twist δα")),
+                ("S.tz[0]", Some("joint offset")),
+                ("t.tz[0]", Some("tool z offset")),
+                ("workpiece.rz[0]", Some("base rotation about z")),
+            ]
+        );
+        let cmm = crate::compile(
+            "machine cmm {
+                task measure
+                axis X prismatic along x range 0 mm .. 600 mm
+                axis Z prismatic along z range -450 mm .. 0 mm
+                tool chain { X moving  Z moving  tool probe }
+                errors { X.tx = const  Z.tz = const }
+            }",
+        );
+        let m = &cmm
+            .compiled
+            .unwrap_or_else(|| panic!("{:?}", cmm.diagnostics))
+            .machine;
+        assert!(m.robot_names().iter().all(Option::is_none));
+    }
 
     /// A bridge CMM: Y carries X carries Z, every frame moving (examples/bridge_cmm.kin).
     const BRIDGE: &str = "machine bridge {

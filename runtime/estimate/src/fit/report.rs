@@ -261,6 +261,10 @@ pub struct Estimate {
     /// squareness), when its frame is an axis'; absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub iso: Option<String>,
+    /// The robot engineer's name of a constant (`joint offset`, `link length δa`, …) on a
+    /// chain of joints about their own z ([`Machine::robot_names`]); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robot: Option<String>,
 }
 
 fn yes() -> bool {
@@ -467,6 +471,7 @@ pub fn build(
                 kept: true,
                 note,
                 iso: None,
+                robot: None,
             }
         })
         .collect();
@@ -482,6 +487,7 @@ pub fn build(
     let undetermined =
         |j: usize| (0..sol.null.ncols()).any(|k| sol.null[(j, k)].abs() > UNDETERMINED);
     let iso = m.iso_names();
+    let robot = m.robot_names();
     let coefficients: Vec<Estimate> = m
         .coefficients
         .iter()
@@ -508,6 +514,7 @@ pub fn build(
                         .to_string()
                 }),
                 iso: iso.get(j).cloned().flatten(),
+                robot: robot.get(j).cloned().flatten(),
             }
         })
         .collect();
@@ -538,6 +545,7 @@ pub fn build(
                 kept: true,
                 note: None,
                 iso: None,
+                robot: None,
             }
         })
         .collect();

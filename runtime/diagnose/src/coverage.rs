@@ -273,6 +273,13 @@ pub(super) const ROWS: &[Row] = &[
         form: "cos(Φ_k) * const + sin(Φ_k) * const for each link k of the joint's parallel group",
     },
     Row {
+        key: "arm-payload",
+        element: Element::Revolute,
+        components: Components::About,
+        family: Family::CrossCoupling,
+        form: "each arm-compliance column scaled by a payload's weight (a force input)",
+    },
+    Row {
         key: "gravity-carriage",
         element: Element::Prismatic,
         components: Components::All,
@@ -383,6 +390,13 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
     let arm = text
         .split_once(" += ")
         .is_some_and(|(_, terms)| terms.starts_with("cos("));
+    // The same columns scaled by a payload's weight: `payload / 1 N * cos(…) * const …`.
+    let payload = text.split_once(" += ").is_some_and(|(_, terms)| {
+        m.inputs
+            .iter()
+            .any(|i| terms.starts_with(&format!("{} / 1 ", i.name)) && terms.contains("* cos("))
+    });
+    let arm = arm || payload;
     let gravity = text.contains("sin(") && !arm;
     let input = axis.is_some_and(|(_, a)| {
         m.inputs
@@ -410,7 +424,8 @@ pub(super) fn classify(m: &Machine, p: &Proposal) -> Option<&'static Row> {
                 "coupling-axis" | "rotary-coupling-axis" => !input && !gravity && !arm,
                 "coupling-input" | "rotary-coupling-input" => input && !gravity && !arm,
                 "gravity" | "gravity-carriage" | "gravity-end" => gravity,
-                "arm-compliance" => arm,
+                "arm-compliance" => arm && !payload,
+                "arm-payload" => payload,
                 "thermal-scale" => !beam,
                 "drift" | "drift-scale" => !warm,
                 "warm-up" | "warm-up-scale" => warm,
@@ -535,8 +550,9 @@ machine cover {{
             Some(c) => keys.extend(rows(&c.machine)),
             None => panic!("{src}"),
         }
-        // A shoulder and an elbow, parallel and horizontal, on a vertical base joint.
-        let arm = "machine arm {\n    task position\n    units { length mm, angle deg, error um, tilt urad }\n    axis J1 revolute about z range -180 deg .. 180 deg\n    axis J2 revolute about y range -90 deg .. 90 deg\n    axis J3 revolute about y range -90 deg .. 90 deg\n    tool chain {\n        J1 moving\n        J2 moving at (0, 0, 400) mm\n        J3 moving at (500, 0, 0) mm\n        tool t at (400, 0, 0) mm\n    }\n}\n";
+        // A shoulder and an elbow, parallel and horizontal, on a vertical base joint, carrying
+        // a payload whose weight the data give.
+        let arm = "machine arm {\n    task position\n    units { length mm, angle deg, error um, tilt urad, force N }\n    input payload : force range 0 N .. 100 N\n    axis J1 revolute about z range -180 deg .. 180 deg\n    axis J2 revolute about y range -90 deg .. 90 deg\n    axis J3 revolute about y range -90 deg .. 90 deg\n    tool chain {\n        J1 moving\n        J2 moving at (0, 0, 400) mm\n        J3 moving at (500, 0, 0) mm\n        tool t at (400, 0, 0) mm\n    }\n}\n";
         match compile(arm).compiled {
             Some(c) => keys.extend(rows(&c.machine)),
             None => panic!("{arm}"),

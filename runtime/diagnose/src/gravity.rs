@@ -141,21 +141,22 @@ pub(super) fn propose_arms(m: &Machine, available: &Available, out: &mut Vec<Pro
             };
             let comp = super::library::rotation_about(axis.direction);
             let target = format!("{name}.{}", comp.name());
-            let terms: Vec<Term> = sums
-                .iter()
-                .flat_map(|phi| {
-                    [
-                        Term::new(format!("cos({phi}) * const")),
-                        Term::new(format!("sin({phi}) * const")),
-                    ]
-                })
-                .collect();
+            let terms = |scale: &str| -> Vec<Term> {
+                sums.iter()
+                    .flat_map(|phi| {
+                        [
+                            Term::new(format!("{scale}cos({phi}) * const")),
+                            Term::new(format!("{scale}sin({phi}) * const")),
+                        ]
+                    })
+                    .collect()
+            };
             let links = sums.len();
             push(
                 out,
                 Family::CrossCoupling,
                 target.clone(),
-                terms,
+                terms(""),
                 format!(
                     "{target}: {} deflects under the gravity torque of the {} it carries (joint compliance): each link's weight has its lever turn with the sum of the parallel joints' angles up to it",
                     axis.name,
@@ -163,6 +164,29 @@ pub(super) fn propose_arms(m: &Machine, available: &Available, out: &mut Vec<Pro
                 ),
                 None,
             );
+            // A payload whose weight the data give (a force input): its torque about the joint
+            // is that weight times a lever from the same angle sums (the payload sits beyond
+            // the group's last link), so the same columns scaled by it — the deflection that
+            // changes with what the robot carries.
+            for (i, input) in m.inputs.iter().enumerate() {
+                if input.unit.dim != kin_compiler::units::Dim::FORCE
+                    || !available.inputs.get(i).copied().unwrap_or(false)
+                {
+                    continue;
+                }
+                let scale = format!("{} / 1 {} * ", input.name, input.unit.name);
+                push(
+                    out,
+                    Family::CrossCoupling,
+                    target.clone(),
+                    terms(&scale),
+                    format!(
+                        "{target}: {} deflects under the torque of the payload `{}` (joint compliance): its weight times a lever that turns with the sum of the parallel joints' angles",
+                        axis.name, input.name
+                    ),
+                    None,
+                );
+            }
         }
     }
 }
@@ -258,6 +282,57 @@ mod tests {
 
     fn machine(b_about: &str) -> Machine {
         on_wall(b_about, "")
+    }
+
+    /// A shoulder–elbow arm carrying a payload whose weight the data give: the compliance of
+    /// each parallel joint is proposed alone and scaled by the payload.
+    #[test]
+    fn an_arm_with_a_payload_gets_its_compliance_scaled_by_the_weight() {
+        let src = "machine arm {
+            task position
+            units { length mm, angle deg, error um, tilt urad, force N }
+            axis J1 revolute about z range -170 deg .. 170 deg
+            axis J2 revolute about z range -90 deg .. 90 deg
+            axis J3 revolute about z range -120 deg .. 120 deg
+            input payload : force range 0 N .. 100 N
+            tool chain { J1 moving
+                         J2 moving at (0, 0, 400) mm rot (90, 0, 0) deg
+                         J3 moving at (600, 0, 0) mm
+                         tool t at (500, 0, 0) mm }
+            errors { J2.rz = const  J3.rz = const  J1.tx = payload / 100 N * const }
+        }";
+        let m = match compile(src).compiled {
+            Some(c) => c.machine,
+            None => panic!("{src}"),
+        };
+        let sampled = m
+            .axes
+            .iter()
+            .map(|a| {
+                Sampling::of([a.range[0], 0.5 * (a.range[0] + a.range[1]), a.range[1]].into_iter())
+            })
+            .collect();
+        let mut with = Available {
+            sampled,
+            inputs: vec![true],
+            ..Available::default()
+        };
+        let mut out = Vec::new();
+        propose_arms(&m, &with, &mut out);
+        let t: Vec<String> = out.iter().map(|p| p.candidate.text.clone()).collect();
+        assert!(
+            t.contains(&"J2.rz += payload / 1 N * cos(J2) * const + payload / 1 N * sin(J2) * const + payload / 1 N * cos(J2 + J3) * const + payload / 1 N * sin(J2 + J3) * const".to_string()),
+            "{t:?}"
+        );
+        assert!(
+            t.contains(&"J2.rz += cos(J2) * const + sin(J2) * const + cos(J2 + J3) * const + sin(J2 + J3) * const".to_string()),
+            "{t:?}"
+        );
+        // Data without the payload's column: no scaled line.
+        with.inputs = vec![false];
+        let mut out = Vec::new();
+        propose_arms(&m, &with, &mut out);
+        assert!(out.iter().all(|p| !p.candidate.text.contains("payload")));
     }
 
     /// The trunnion with a `gravity` declaration (`""`: none, gravity −z).

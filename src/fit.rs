@@ -678,6 +678,13 @@ fn registration_lines(r: &report::FitReport) -> String {
                 three(&t.offset, 4),
                 three(&t.offset_u, 4),
             ));
+            if let (Some(turn), Some(u)) = (&t.turn, &t.turn_u) {
+                s.push_str(&format!(
+                    "      turned by {} {a} (rotation vector) ± {} {a} from the tool frame\n",
+                    three(turn, 5),
+                    three(u, 6),
+                ));
+            }
         }
     }
     s

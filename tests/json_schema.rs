@@ -63,7 +63,7 @@ fn paths(v: &Value, prefix: &str, out: &mut BTreeSet<String>) {
 }
 
 /// Fields FIT.json holds only for what the data do not determine.
-const DEFICIENT_ONLY: [&str; 9] = [
+const DEFICIENT_ONLY: [&str; 11] = [
     "nonlinear[].note",
     "coefficients[].note",
     "estimability.groups[].members",
@@ -75,6 +75,10 @@ const DEFICIENT_ONLY: [&str; 9] = [
     // Written by a fit whose plan barely determines some constants (tests/registration.rs).
     "weak[].members",
     "weak[].inflation",
+    // Written by a fit of orientations measured in an instrument's frame
+    // (runtime/estimate/tests/registration.rs).
+    "registration[].targets[].turn",
+    "registration[].targets[].turn_u",
 ];
 
 /// FIT.json's arrays of one kind share their fields, documented once (spec/json.md says which).

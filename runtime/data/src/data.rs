@@ -32,6 +32,10 @@ pub const OBSERVED: [&str; 6] = ["ex", "ey", "ez", "erx", "ery", "erz"];
 /// order of [`Absolute::position`].
 pub const MEASURED: [&str; 3] = ["px", "py", "pz"];
 
+/// Names of the columns of a target frame's orientation measured in an instrument's own frame
+/// (a rotation vector), in the order of [`Absolute::rotation`].
+pub const MEASURED_ROTATION: [&str; 3] = ["prx", "pry", "prz"];
+
 /// Names of the tool offset columns, in the order of [`Rows::tool_offset`].
 pub(crate) const TOOL_OFFSET: [&str; 3] = ["tool_x", "tool_y", "tool_z"];
 
@@ -54,6 +58,9 @@ pub struct ReadOptions {
     pub series: bool,
 }
 
+// One per data file: the size difference (a point file's absolute positions) costs nothing
+// worth a box.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Observations {
     Points(PointData),
@@ -117,6 +124,9 @@ pub struct PointData {
 pub struct Absolute {
     /// `px py pz` (see [`MEASURED`]), m, one value per row.
     pub position: [Vec<f64>; 3],
+    /// `prx pry prz` (see [`MEASURED_ROTATION`]), rad: the target frame's orientation as a
+    /// rotation vector, when the instrument measures it (a 6-DoF probe, a marker cluster).
+    pub rotation: Option<[Vec<f64>; 3]>,
     /// Which target each row measures (`target`); one unnamed target without the column.
     pub target: Groups<u32>,
 }
@@ -260,6 +270,10 @@ impl Observations {
                 }),
                 absolute: p.absolute.as_ref().map(|a| Absolute {
                     position: std::array::from_fn(|k| pick(&a.position[k], rows)),
+                    rotation: a
+                        .rotation
+                        .as_ref()
+                        .map(|r| std::array::from_fn(|k| pick(&r[k], rows))),
                     target: Groups {
                         of_row: rows
                             .iter()
@@ -379,6 +393,8 @@ pub enum Problem {
     IncompleteToolColumns { missing: Vec<String> },
     #[error("measured position columns come as all of px, py, pz; missing: {}", missing.join(", "))]
     IncompleteMeasuredColumns { missing: Vec<String> },
+    #[error("measured orientation columns come as all of prx, pry, prz, with px, py, pz; missing: {}", missing.join(", "))]
+    IncompleteOrientationColumns { missing: Vec<String> },
     #[error(
         "the file holds both errors ({errors}) and absolute positions (px, py, pz): a file is \
          one or the other"
@@ -492,6 +508,7 @@ impl Problem {
             | NoObservedColumn
             | IncompleteToolColumns { .. }
             | IncompleteMeasuredColumns { .. }
+            | IncompleteOrientationColumns { .. }
             | ErrorsAndPositions { .. }
             | NotWithPositions { .. } => None,
         }

@@ -55,6 +55,9 @@ pub struct Placement {
     /// Per target label (as the file names them, `""` for a file without `target`): its
     /// offset in the frame the tool is attached to, m.
     pub targets: Vec<(String, [f64; 3])>,
+    /// Per target (as `targets`), its frame's orientation relative to the tool frame (rows),
+    /// fitted when the file measures orientations; the identity otherwise.
+    pub turns: Vec<[[f64; 3]; 3]>,
 }
 
 impl Placement {
@@ -134,6 +137,13 @@ pub struct TargetReport {
     pub label: String,
     pub offset: [f64; 3],
     pub offset_u: [f64; 3],
+    /// Where orientations are measured: the target frame's turn relative to the tool frame,
+    /// a rotation vector (angle unit), and its standard uncertainties about the tool frame's
+    /// axes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub turn: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub turn_u: Option<[f64; 3]>,
 }
 
 /// The placements with the standard uncertainties of `result` (the fit at the converged
@@ -184,12 +194,22 @@ pub fn report(
                 targets: p
                     .targets
                     .iter()
-                    .map(|(label, o)| TargetReport {
-                        label: label.clone(),
-                        offset: o.map(|v| length.from_si(v)),
-                        offset_u: std::array::from_fn(|k| {
-                            u(file, NuisanceKind::Target(k), label) / length.scale
-                        }),
+                    .zip(&p.turns)
+                    .map(|((label, o), turn)| {
+                        let turn_u: [f64; 3] = std::array::from_fn(|k| {
+                            u(file, NuisanceKind::TargetRotation(k), label) / angle.scale
+                        });
+                        let fitted = turn_u.iter().all(|v| v.is_finite());
+                        let v = Rotation3::from_matrix_unchecked(matrix(turn)).scaled_axis();
+                        TargetReport {
+                            label: label.clone(),
+                            offset: o.map(|v| length.from_si(v)),
+                            offset_u: std::array::from_fn(|k| {
+                                u(file, NuisanceKind::Target(k), label) / length.scale
+                            }),
+                            turn: fitted.then(|| [v.x, v.y, v.z].map(|x| angle.from_si(x))),
+                            turn_u: fitted.then_some(turn_u),
+                        }
                     })
                     .collect(),
             }
@@ -295,8 +315,8 @@ pub fn observe_with(
 }
 
 /// A step of one placement: the shift b and rotation a of the instrument, and per target the
-/// shift d of its offset.
-type Change = ([f64; 3], [f64; 3], Vec<[f64; 3]>);
+/// shift d of its offset and the turn ρ of its frame.
+type Change = ([f64; 3], [f64; 3], Vec<[f64; 3]>, Vec<[f64; 3]>);
 
 /// The change the fit estimated for each placement, applied exactly; returns the largest
 /// change over its standard error.
@@ -309,26 +329,36 @@ fn apply(result: &FitResult, placements: &mut [Option<Placement>], sign: f64) ->
         .iter()
         .map(|p| {
             let targets = p.as_ref().map_or(0, |p| p.targets.len());
-            ([0.0; 3], [0.0; 3], vec![[0.0; 3]; targets])
+            (
+                [0.0; 3],
+                [0.0; 3],
+                vec![[0.0; 3]; targets],
+                vec![[0.0; 3]; targets],
+            )
         })
         .collect();
     for (k, nu) in result.layout.nuisance.iter().enumerate() {
         let j = n + k;
         let value = sign * beta.get(j).copied().unwrap_or(0.0);
         let se = var.get(j).copied().unwrap_or(0.0).max(0.0).sqrt();
-        let Some((b, a, d)) = changes.get_mut(nu.file) else {
+        let Some((b, a, d, rho)) = changes.get_mut(nu.file) else {
             continue;
+        };
+        let target = || {
+            placements
+                .get(nu.file)
+                .and_then(Option::as_ref)
+                .and_then(|p| p.targets.iter().position(|(l, _)| *l == nu.artifact))
         };
         let slot = match nu.kind {
             NuisanceKind::InstrumentShift(i) => b.get_mut(i),
             NuisanceKind::InstrumentRotation(i) => a.get_mut(i),
-            NuisanceKind::Target(i) => {
-                let t = placements
-                    .get(nu.file)
-                    .and_then(Option::as_ref)
-                    .and_then(|p| p.targets.iter().position(|(l, _)| *l == nu.artifact));
-                t.and_then(|t| d.get_mut(t)).and_then(|d| d.get_mut(i))
-            }
+            NuisanceKind::Target(i) => target()
+                .and_then(|t| d.get_mut(t))
+                .and_then(|d| d.get_mut(i)),
+            NuisanceKind::TargetRotation(i) => target()
+                .and_then(|t| rho.get_mut(t))
+                .and_then(|r| r.get_mut(i)),
             _ => None,
         };
         if let Some(slot) = slot {
@@ -343,7 +373,7 @@ fn apply(result: &FitResult, placements: &mut [Option<Placement>], sign: f64) ->
             worst = worst.max(ratio);
         }
     }
-    for (p, (b, a, d)) in placements.iter_mut().zip(changes) {
+    for (p, (b, a, d, rho)) in placements.iter_mut().zip(changes) {
         let Some(p) = p else { continue };
         let r = p.r();
         let t = Vector3::from(p.translation) + r * Vector3::from(b);
@@ -355,8 +385,57 @@ fn apply(result: &FitResult, placements: &mut [Option<Placement>], sign: f64) ->
                 *o += d;
             }
         }
+        // ρ turns the target frame about the tool frame's axes: R_o ← exp([ρ]×)·R_o.
+        for (turn, rho) in p.turns.iter_mut().zip(rho) {
+            let m = Rotation3::new(Vector3::from(rho)).into_inner() * matrix(turn);
+            *turn = to_rows(&m);
+        }
     }
     worst
+}
+
+fn matrix(r: &[[f64; 3]; 3]) -> Matrix3<f64> {
+    Matrix3::from_fn(|i, j| r[i][j])
+}
+
+fn to_rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
+    std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]))
+}
+
+/// The nominal orientation of the tool frame in wr at every row of `p` (its tool offsets
+/// included; the offset moves the point, not the frame's axes).
+fn nominal_turns(
+    engine: &mut dyn Evaluator,
+    f: &DataSet,
+    p: &PointData,
+) -> Result<Vec<Matrix3<f64>>, RegisterError> {
+    let m = engine.machine();
+    let mut out = Vec::with_capacity(p.rows.len());
+    let mut q = vec![0.0; m.axes.len()];
+    for row in 0..p.rows.len() {
+        for (slot, column) in q.iter_mut().zip(&p.pose.axes) {
+            *slot = column.get(row).copied().unwrap_or(f64::NAN);
+        }
+        let pose = kin_model::kinematics::Pose {
+            q: &q,
+            tool: p.rows.tool.get(row).copied().unwrap_or(0),
+            tool_offset: None,
+        };
+        let t = kin_model::exact::nominal_transform(m, &pose).map_err(|e| {
+            RegisterError::Degenerate {
+                path: f.path.display().to_string(),
+                reason: format!("line {}: {e}", p.rows.line.get(row).copied().unwrap_or(0)),
+            }
+        })?;
+        out.push(t.fixed_view::<3, 3>(0, 0).into_owned());
+    }
+    Ok(out)
+}
+
+fn measured_turn(a: &Absolute, row: usize) -> Option<Matrix3<f64>> {
+    let r = a.rotation.as_ref()?;
+    let v = Vector3::from_fn(|c, _| r[c].get(row).copied().unwrap_or(f64::NAN));
+    Some(Rotation3::new(v).into_inner())
 }
 
 /// The files with absolute positions turned into observed errors `±(R⊤(y − t) − p)` at their
@@ -389,8 +468,43 @@ fn observed(
             }
         }
         let [x, y, z] = columns;
+        // Orientations, where measured: the tool frame's actual orientation is
+        // R⊤·R_y·R_o⊤, its error the rotation vector of that times the nominal's transpose.
+        let turned = match a.rotation {
+            Some(_) => {
+                let nominal = nominal_turns(engine, f, &with)?;
+                let mut turned: [Vec<f64>; 3] = Default::default();
+                for (row, r_nom) in nominal.iter().enumerate() {
+                    let target = a.target.of_row.get(row).copied().unwrap_or(0) as usize;
+                    let label = a
+                        .target
+                        .labels
+                        .get(target)
+                        .map(String::as_str)
+                        .unwrap_or("");
+                    let r_o = placement
+                        .targets
+                        .iter()
+                        .position(|(l, _)| l == label)
+                        .and_then(|t| placement.turns.get(t))
+                        .map_or_else(Matrix3::identity, matrix);
+                    let e = measured_turn(a, row).map_or(Vector3::repeat(f64::NAN), |r_y| {
+                        let act = r.transpose() * r_y * r_o.transpose();
+                        Rotation3::from_matrix_unchecked(act * r_nom.transpose()).scaled_axis()
+                    });
+                    for (c, column) in turned.iter_mut().enumerate() {
+                        column.push(sign * e[c]);
+                    }
+                }
+                Some(turned)
+            }
+            None => None,
+        };
         let mut data = with;
-        data.observed = [Some(x), Some(y), Some(z), None, None, None];
+        data.observed = match turned {
+            Some([rx, ry, rz]) => [Some(x), Some(y), Some(z), Some(rx), Some(ry), Some(rz)],
+            None => [Some(x), Some(y), Some(z), None, None, None],
+        };
         out.push(DataSet {
             path: f.path.clone(),
             observations: Observations::Points(data),
@@ -478,11 +592,14 @@ fn start(
         let tool = first.and_then(|r| p.rows.tool.get(r)).copied().unwrap_or(0);
         targets.push((label.clone(), declared_offset(&m, tool)));
     }
+    let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let turns = vec![identity; targets.len()];
     let mut placement = Placement {
         path: f.path.clone(),
-        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        rotation: identity,
         translation: [0.0; 3],
         targets,
+        turns,
     };
     let rows = p.rows.len();
     let nominal = nominal_points(engine, f, &offsets(p, a, &placement))?;
@@ -556,6 +673,28 @@ fn start(
         }
         if step.amax() < 1e-12 {
             break;
+        }
+    }
+    // Where orientations are measured, each target frame's turn on the tool: the rotation
+    // nearest the mean of R_nom⊤·R⊤·R_y over its rows (the chordal mean, projected on SO(3)).
+    if a.rotation.is_some() {
+        let nominal = nominal_turns(engine, f, &offsets(p, a, &placement))?;
+        let r = placement.r();
+        for (t, turn) in placement.turns.iter_mut().enumerate() {
+            let mut sum = Matrix3::zeros();
+            for (row, r_nom) in nominal.iter().enumerate() {
+                if a.target.of_row.get(row).copied().unwrap_or(0) as usize != t {
+                    continue;
+                }
+                if let Some(r_y) = measured_turn(a, row) {
+                    sum += r_nom.transpose() * r.transpose() * r_y;
+                }
+            }
+            let svd = sum.svd(true, true);
+            if let (Some(u), Some(v_t)) = (svd.u, svd.v_t) {
+                let d = (u * v_t).determinant().signum();
+                *turn = to_rows(&(u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * v_t));
+            }
         }
     }
     Ok(placement)

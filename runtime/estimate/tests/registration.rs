@@ -20,12 +20,16 @@ use rand_distr::StandardNormal;
 const ARM: &str = include_str!("../../../examples/ur10/ur10.kin");
 
 const NOISE: f64 = 50e-6;
+/// Orientation noise of a 6-DoF reading, rad.
+const TURN_NOISE: f64 = 100e-6;
 
 struct Truth {
     beta: Vec<f64>,
     rotation: Matrix3<f64>,
     translation: Vector3<f64>,
     targets: Vec<[f64; 3]>,
+    /// Per target, its frame's turn on the tool when the instrument reads orientations.
+    turns: Option<Vec<Matrix3<f64>>>,
 }
 
 fn truth(targets: Vec<[f64; 3]>) -> Truth {
@@ -35,6 +39,7 @@ fn truth(targets: Vec<[f64; 3]>) -> Truth {
         rotation: Rotation3::new(Vector3::new(0.02, -0.05, 0.04)).into_inner(),
         translation: Vector3::new(0.08, -0.05, 0.04),
         targets,
+        turns: None,
     }
 }
 
@@ -53,6 +58,7 @@ fn measure(c: &Compiled, truth: &Truth, n: usize, seed: u64) -> DataSet {
     let mut errors = FrameErrors::zeros(m);
     let mut axes = vec![Vec::new(); 6];
     let mut position: [Vec<f64>; 3] = Default::default();
+    let mut turned: [Vec<f64>; 3] = Default::default();
     let mut of_row = Vec::new();
     for _ in 0..n {
         let q: Vec<f64> = (0..6).map(|_| rng.random_range(-2.5..2.5)).collect();
@@ -82,6 +88,16 @@ fn measure(c: &Compiled, truth: &Truth, n: usize, seed: u64) -> DataSet {
                 let e: f64 = rng.sample(StandardNormal);
                 column.push(y[c] + NOISE * e);
             }
+            if let Some(turns) = &truth.turns {
+                let r_act = actual.fixed_view::<3, 3>(0, 0).into_owned();
+                let noise =
+                    Vector3::from_fn(|_, _| TURN_NOISE * rng.sample::<f64, _>(StandardNormal));
+                let r_y = Rotation3::new(noise).into_inner() * truth.rotation * r_act * turns[t];
+                let v = Rotation3::from_matrix_unchecked(r_y).scaled_axis();
+                for (c, column) in turned.iter_mut().enumerate() {
+                    column.push(v[c]);
+                }
+            }
             for (a, column) in axes.iter_mut().enumerate() {
                 column.push(q[a]);
             }
@@ -104,6 +120,7 @@ fn measure(c: &Compiled, truth: &Truth, n: usize, seed: u64) -> DataSet {
             observed: Default::default(),
             absolute: Some(Absolute {
                 position,
+                rotation: truth.turns.as_ref().map(|_| turned),
                 target: Groups {
                     of_row,
                     labels: (0..truth.targets.len()).map(|t| format!("T{t}")).collect(),
@@ -275,6 +292,48 @@ fn check(targets: Vec<[f64; 3]>, seed: u64) {
         rms_m < 1.25 * NOISE && rms_m > 0.75 * NOISE,
         "held-out RMS {rms_m:e} m against noise {NOISE:e}"
     );
+}
+
+#[test]
+fn a_six_dof_probe_registers_its_frame_and_orientation_too() {
+    let c = compiled();
+    let mut truth = truth(vec![[0.04, 0.06, 0.11]]);
+    let turn = Rotation3::new(Vector3::new(0.3, -0.5, 2.0)).into_inner();
+    truth.turns = Some(vec![turn]);
+    let data = measure(&c, &truth, 50, 3);
+    let (reg, result) = fit_registered(&c, &data);
+    let var = result.variances();
+    assert!(reg.steps <= 10, "{} steps", reg.steps);
+    for (j, (b, t)) in result.solution.beta.iter().zip(&truth.beta).enumerate() {
+        let se = var[j].sqrt();
+        assert!(
+            (b - t).abs() <= 3.0 * se,
+            "{}: {b:e} vs {t:e} ± {se:e}",
+            c.machine.coefficients[j].name
+        );
+    }
+    // The target frame's turn on the tool: the estimate's error log(R_o_est⊤·R_o_true),
+    // about the tool frame's axes (the fit's turn ρ acts as exp([ρ]×)·R_o).
+    let p = &reg.placements[0];
+    let est = Matrix3::from_fn(|i, j| p.turns[0][i][j]);
+    let err = Rotation3::from_matrix_unchecked(turn * est.transpose()).scaled_axis();
+    for k in 0..3 {
+        let se = se_of(&result, NuisanceKind::TargetRotation(k), "T0");
+        assert!(err[k].abs() <= 3.0 * se, "turn {k}: {} ± {se}", err[k]);
+        assert!(se < 1e-4, "turn {k} ± {se}");
+    }
+    // The orientation residuals are at the orientation noise (a tilt unit weighs as an error
+    // unit, µrad as µm: rows in rad).
+    let rot: Vec<f64> = result
+        .residuals
+        .iter()
+        .filter(|r| r.meta.component >= 3)
+        .map(|r| r.residual)
+        .collect();
+    assert_eq!(rot.len(), 150);
+    let rms = (rot.iter().map(|r| r * r).sum::<f64>() / rot.len() as f64).sqrt();
+    println!("orientation residual RMS {rms:.3e} rad (noise {TURN_NOISE:e})");
+    assert!(rms > 0.7 * TURN_NOISE && rms < 1.2 * TURN_NOISE, "{rms}");
 }
 
 #[test]

@@ -18,7 +18,7 @@ use csv::{Dialect, SplitError};
 
 use super::{
     Absolute, Groups, LengthData, Observations, PointData, Pose, Problem, ReadError, ReadOptions,
-    Rows, MAX_PROBLEMS, MEASURED, OBSERVED, TOOL_OFFSET,
+    Rows, MAX_PROBLEMS, MEASURED, MEASURED_ROTATION, OBSERVED, TOOL_OFFSET,
 };
 
 /// Reads a point or length file from disk. Any read failure or problem in the file is an error;
@@ -208,6 +208,8 @@ enum Role {
     Observed(usize),
     /// `px py pz`: a target's position in an instrument's frame.
     Measured(usize),
+    /// `prx pry prz`: its orientation there.
+    MeasuredRotation(usize),
     Target,
     Dl,
 }
@@ -496,6 +498,18 @@ impl<'m> Reader<'m> {
         }
         let offsets: Vec<bool> = (0..3).map(|k| has(Role::ToolOffset(k))).collect();
         let measured: Vec<bool> = (0..3).map(|k| has(Role::Measured(k))).collect();
+        let turned: Vec<bool> = (0..3).map(|k| has(Role::MeasuredRotation(k))).collect();
+        if turned.iter().any(|&b| b) && !(turned.iter().all(|&b| b) && measured.iter().all(|&b| b))
+        {
+            let missing = MEASURED
+                .iter()
+                .zip(&measured)
+                .chain(MEASURED_ROTATION.iter().zip(&turned))
+                .filter(|(_, &present)| !present)
+                .map(|(n, _)| n.to_string())
+                .collect();
+            problems.push(Problem::IncompleteOrientationColumns { missing });
+        }
         let absolute = measured.iter().any(|&b| b);
         if kind == Kind::Points
             && !options.poses
@@ -645,7 +659,10 @@ impl<'m> Reader<'m> {
                     let parsed = number(line, cell, decimal_comma)
                         .map(|v| v.map(|v| v * col.scale + col.offset));
                     let required = match role {
-                        Role::Axis { .. } | Role::Time | Role::Measured(_) => true,
+                        Role::Axis { .. }
+                        | Role::Time
+                        | Role::Measured(_)
+                        | Role::MeasuredRotation(_) => true,
                         Role::Dl => !poses,
                         _ => false,
                     };
@@ -869,6 +886,7 @@ impl<'m> Reader<'m> {
         let mut offsets: [Option<Vec<f64>>; 3] = Default::default();
         let mut observed: [Option<Vec<f64>>; 6] = Default::default();
         let mut measured: [Option<Vec<f64>>; 3] = Default::default();
+        let mut turned: [Option<Vec<f64>>; 3] = Default::default();
         let mut target: Option<Vec<u32>> = None;
         // A poses-only length file may have no `dL`: nothing observed.
         let mut dl = vec![f64::NAN; n];
@@ -911,6 +929,11 @@ impl<'m> Reader<'m> {
                         *slot = Some(v);
                     }
                 }
+                (Store::Numbers(v), Role::MeasuredRotation(k)) => {
+                    if let Some(slot) = turned.get_mut(k) {
+                        *slot = Some(v);
+                    }
+                }
                 (Store::Ids(ids), Role::Target) => target = Some(ids),
                 (Store::Numbers(v), Role::Dl) => dl = v,
                 (Store::Ids(ids), Role::Tool) => {
@@ -942,6 +965,10 @@ impl<'m> Reader<'m> {
                 let absolute = match measured {
                     [Some(x), Some(y), Some(z)] => Some(Absolute {
                         position: [x, y, z],
+                        rotation: match turned {
+                            [Some(a), Some(b), Some(c)] => Some([a, b, c]),
+                            _ => None,
+                        },
                         target: match target {
                             Some(of_row) => Groups {
                                 of_row,
@@ -1014,6 +1041,7 @@ fn plausible(machine: &Machine, role: Role) -> Option<(f64, &'static str)> {
         },
         Role::ToolOffset(_) => (MAX_POSITION, "tool offset"),
         Role::Measured(_) => (MAX_POSITION, "measured position"),
+        Role::MeasuredRotation(_) => (MAX_ANGLE, "measured orientation"),
         Role::Observed(k) if k >= 3 => (MAX_TILT, "rotation error"),
         Role::Observed(_) | Role::Dl => (MAX_ERROR, "error"),
         Role::Time => (MAX_TIME, "time"),
@@ -1116,6 +1144,12 @@ fn known_columns(machine: &Machine, kind: Kind) -> HashMap<String, Role> {
                     .iter()
                     .enumerate()
                     .map(|(k, n)| (*n, Role::Measured(k))),
+            );
+            fixed.extend(
+                MEASURED_ROTATION
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| (*n, Role::MeasuredRotation(k))),
             );
             fixed.push(("target", Role::Target));
         }
@@ -1261,6 +1295,7 @@ fn column_unit(
         },
         Role::Time => (u.time.clone(), Dim::TIME, false),
         Role::ToolOffset(_) | Role::Measured(_) => (u.length.clone(), Dim::LENGTH, false),
+        Role::MeasuredRotation(_) => (u.angle.clone(), Dim::ANGLE, false),
         Role::Observed(k) if k >= 3 => (u.tilt.clone(), Dim::ANGLE, false),
         Role::Observed(_) | Role::Dl => (u.error.clone(), Dim::LENGTH, false),
     };

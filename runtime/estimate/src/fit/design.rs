@@ -40,6 +40,9 @@ pub enum NuisanceKind {
     /// Shift of a target's offset on the tool along axis 0..3 of the frame the tool is
     /// attached to.
     Target(usize),
+    /// Small rotation of a target's frame about axis 0..3 of the tool frame (files that
+    /// measure orientations).
+    TargetRotation(usize),
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -64,6 +67,12 @@ impl Nuisance {
                 format!("target offset {}", axis(a))
             }
             NuisanceKind::Target(a) => format!("target `{}` offset {}", self.artifact, axis(a)),
+            NuisanceKind::TargetRotation(a) if self.artifact.is_empty() => {
+                format!("target rotation about {}", axis(a))
+            }
+            NuisanceKind::TargetRotation(a) => {
+                format!("target `{}` rotation about {}", self.artifact, axis(a))
+            }
         }
     }
 }
@@ -222,12 +231,16 @@ impl Layout {
                     }),
             );
             let mut targets = Vec::with_capacity(a.target.labels.len());
+            let turned = a.rotation.is_some();
             for label in &a.target.labels {
                 targets.push(coefficients + nuisance.len());
-                nuisance.extend((0..3).map(|k| Nuisance {
+                let kinds = (0..3)
+                    .map(NuisanceKind::Target)
+                    .chain((0..3).filter(|_| turned).map(NuisanceKind::TargetRotation));
+                nuisance.extend(kinds.map(|kind| Nuisance {
                     file: f,
                     artifact: label.clone(),
-                    kind: NuisanceKind::Target(k),
+                    kind,
                 }));
             }
             registration.push(Some((instrument, targets)));
@@ -788,13 +801,25 @@ fn rows_of(
                         {
                             // A change (t, ω) of the instrument's placement and a shift d of
                             // the target change the observed error by t + ω × p + A·d at the
-                            // point p (A the columns of `along`); positions only.
+                            // point p (A the columns of `along`: the attachment frame's axes in
+                            // wr); a turn ρ of the target frame about the tool frame's axes
+                            // changes the orientation error by ω + R·ρ (R = A·R_tool, the tool
+                            // frame's axes), and ρ moves no point (spec/robots.md).
                             if c < 3 {
                                 set(&mut x, instrument + c, w);
                                 for (k, a) in along.iter().enumerate() {
                                     let moved = cross(unit(k), p);
                                     set(&mut x, instrument + 3 + k, moved[c] * w);
                                     set(&mut x, target + k, a[c] * w);
+                                }
+                            } else {
+                                let r = c - 3;
+                                set(&mut x, instrument + c, w);
+                                let turn = declared_rotation(engine.machine(), state.tool);
+                                for k in 0..3 {
+                                    let axis: f64 =
+                                        along.iter().zip(&turn).map(|(a, t)| a[r] * t[k]).sum();
+                                    set(&mut x, target + 3 + k, axis * w);
                                 }
                             }
                         }
@@ -934,6 +959,17 @@ pub fn count_rows(files: &[DataSet]) -> usize {
             Observations::Lengths(l) => l.dl.iter().filter(|x| !x.is_nan()).count(),
         })
         .sum()
+}
+
+/// The rotation of tool `tool`'s declared offset (`Rx·Ry·Rz` of its `rot`), rows.
+pub(crate) fn declared_rotation(m: &Machine, tool: usize) -> [[f64; 3]; 3] {
+    let r = m
+        .tools
+        .get(tool)
+        .map(|t| t.offset.rotation)
+        .unwrap_or_default();
+    let t = kin_model::exact::shape_or_error([0.0; 3], r);
+    std::array::from_fn(|i| std::array::from_fn(|j| t[(i, j)]))
 }
 
 /// The translation of tool `tool`'s declared offset (what a row without `tool_x` … uses).

@@ -516,13 +516,15 @@ fn registered(
             Failed::INPUT
         }
     };
-    let reg = register::register(compiled, engine.as_mut(), &files, options, &mut |_, _| {
+    let mut reg = register::register(compiled, engine.as_mut(), &files, options, &mut |_, _| {
         spinner.tick()
     })
     .map_err(failed)?;
     let validate = register::observe_with(engine.as_mut(), &reg, &validate).map_err(failed)?;
     spinner.finish_and_clear();
-    Ok((reg.files.clone(), validate, Some(reg)))
+    // The registration keeps its placements; the files it turned into errors go to the fit.
+    let files = std::mem::take(&mut reg.files);
+    Ok((files, validate, Some(reg)))
 }
 
 /// Appends this fit to the model's history and prints how it compares with the last fit of

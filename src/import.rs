@@ -55,27 +55,9 @@ fn import_urdf(args: Urdf<'_>) -> Result<(), Failed> {
             String::new()
         },
         imported.coefficients,
-        if imported.redundant.is_empty() {
-            String::new()
-        } else {
-            format!(
-                " ({} redundant terms left out: {})",
-                imported.redundant.len(),
-                imported.redundant.join(", ")
-            )
-        }
+        left_out(&imported)
     );
-    match args.output {
-        Some(out) => {
-            crate::files::write(out, imported.source.as_bytes())?;
-            println!("{summary}\nwrote {}", out.display());
-        }
-        None => {
-            print!("{}", imported.source);
-            eprintln!("{summary}");
-        }
-    }
-    Ok(())
+    emit(&imported, args.output, &summary)
 }
 
 /// `kin import dh --convention`.
@@ -125,27 +107,9 @@ fn import_dh(args: Dh<'_>) -> Result<(), Failed> {
         imported.robot,
         imported.joints.len(),
         imported.coefficients,
-        if imported.redundant.is_empty() {
-            String::new()
-        } else {
-            format!(
-                " ({} redundant terms left out: {})",
-                imported.redundant.len(),
-                imported.redundant.join(", ")
-            )
-        }
+        left_out(&imported)
     );
-    match args.output {
-        Some(out) => {
-            crate::files::write(out, imported.source.as_bytes())?;
-            println!("{summary}\nwrote {}", out.display());
-        }
-        None => {
-            print!("{}", imported.source);
-            eprintln!("{summary}");
-        }
-    }
-    Ok(())
+    emit(&imported, args.output, &summary)
 }
 
 pub struct ExportUrdf<'a> {
@@ -197,6 +161,35 @@ fn write_urdf(args: ExportUrdf<'_>) -> Result<(), Failed> {
         }
         None => {
             print!("{}", exported.text);
+            eprintln!("{summary}");
+        }
+    }
+    Ok(())
+}
+
+/// ` (N redundant terms left out: …)` of an import's summary, or nothing.
+fn left_out(imported: &urdf::Imported) -> String {
+    if imported.redundant.is_empty() {
+        String::new()
+    } else {
+        format!(
+            " ({} redundant terms left out: {})",
+            imported.redundant.len(),
+            imported.redundant.join(", ")
+        )
+    }
+}
+
+/// An imported model to `output` (the summary to standard output) or to standard output (the
+/// summary to standard error).
+fn emit(imported: &urdf::Imported, output: Option<&Path>, summary: &str) -> Result<(), Failed> {
+    match output {
+        Some(out) => {
+            crate::files::write(out, imported.source.as_bytes())?;
+            println!("{summary}\nwrote {}", out.display());
+        }
+        None => {
+            print!("{}", imported.source);
             eprintln!("{summary}");
         }
     }

@@ -475,17 +475,7 @@ fn observed(
                 let nominal = nominal_turns(engine, f, &with)?;
                 let mut turned: [Vec<f64>; 3] = Default::default();
                 for (row, r_nom) in nominal.iter().enumerate() {
-                    let target = a.target.of_row.get(row).copied().unwrap_or(0) as usize;
-                    let label = a
-                        .target
-                        .labels
-                        .get(target)
-                        .map(String::as_str)
-                        .unwrap_or("");
-                    let r_o = placement
-                        .targets
-                        .iter()
-                        .position(|(l, _)| l == label)
+                    let r_o = target_of(a, placement, row)
                         .and_then(|t| placement.turns.get(t))
                         .map_or_else(Matrix3::identity, matrix);
                     let e = measured_turn(a, row).map_or(Vector3::repeat(f64::NAN), |r_y| {
@@ -513,6 +503,13 @@ fn observed(
     Ok(out)
 }
 
+/// Which of `placement`'s targets row `row` measures (by the file's label).
+fn target_of(a: &Absolute, placement: &Placement, row: usize) -> Option<usize> {
+    let target = a.target.of_row.get(row).copied().unwrap_or(0) as usize;
+    let label = a.target.labels.get(target)?;
+    placement.targets.iter().position(|(l, _)| l == label)
+}
+
 fn measured(a: &Absolute, row: usize) -> Vector3<f64> {
     Vector3::from_fn(|c, _| a.position[c].get(row).copied().unwrap_or(f64::NAN))
 }
@@ -522,17 +519,8 @@ fn offsets(p: &PointData, a: &Absolute, placement: &Placement) -> PointData {
     let mut data = p.clone();
     let mut columns: [Vec<f64>; 3] = Default::default();
     for row in 0..p.rows.len() {
-        let target = a.target.of_row.get(row).copied().unwrap_or(0) as usize;
-        let label = a
-            .target
-            .labels
-            .get(target)
-            .map(String::as_str)
-            .unwrap_or("");
-        let o = placement
-            .targets
-            .iter()
-            .find(|(l, _)| l == label)
+        let o = target_of(a, placement, row)
+            .and_then(|t| placement.targets.get(t))
             .map_or([f64::NAN; 3], |(_, o)| *o);
         for (c, column) in columns.iter_mut().enumerate() {
             column.push(o[c]);

@@ -49,30 +49,13 @@ struct Row {
     limits: Option<(f64, f64)>,
 }
 
-/// Reads the DH table at `path` (at most 64 MiB) and imports it.
+/// Reads the DH table at `path` (at most 64 MiB of UTF-8) and imports it.
 pub fn import_file(
     path: &Path,
     convention: Convention,
     options: &Options,
 ) -> Result<Imported, UrdfError> {
-    use kin_data::bounded_read::{read, BoundedReadError, MAX_TEXT_BYTES};
-    let io = |source| UrdfError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let bytes = read(path, MAX_TEXT_BYTES).map_err(|e| match e {
-        BoundedReadError::Io(source) => io(source),
-        BoundedReadError::TooLarge { limit } => io(std::io::Error::other(format!(
-            "larger than {} MiB, far more than a table of joints",
-            limit >> 20
-        ))),
-    })?;
-    let text = String::from_utf8(bytes).map_err(|_| UrdfError::Invalid {
-        path: path.to_path_buf(),
-        line: 1,
-        column: 1,
-        message: "not valid UTF-8".into(),
-    })?;
+    let text = urdf::read_text(path)?;
     import(&text, path, convention, options)
 }
 

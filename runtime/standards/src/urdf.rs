@@ -109,6 +109,12 @@ pub struct Imported {
 
 /// Reads `path` (at most 64 MiB) and imports it.
 pub fn import_file(path: &Path, options: &Options) -> Result<Imported, UrdfError> {
+    import(&read_text(path)?, path, options)
+}
+
+/// The text of a robot description at `path`: at most 64 MiB of UTF-8, a bad byte reported at
+/// its line and column.
+pub(crate) fn read_text(path: &Path) -> Result<String, UrdfError> {
     use kin_data::bounded_read::{read, BoundedReadError, MAX_TEXT_BYTES};
     let io = |source| UrdfError::Io {
         path: path.to_path_buf(),
@@ -121,21 +127,23 @@ pub fn import_file(path: &Path, options: &Options) -> Result<Imported, UrdfError
             limit >> 20
         ))),
     })?;
-    let text = match std::str::from_utf8(&bytes) {
-        Ok(text) => text,
+    match String::from_utf8(bytes) {
+        Ok(text) => Ok(text),
         Err(e) => {
-            let valid = bytes.get(..e.valid_up_to()).unwrap_or_default();
+            let bytes = e.as_bytes();
+            let valid = bytes
+                .get(..e.utf8_error().valid_up_to())
+                .unwrap_or_default();
             let line = 1 + valid.iter().filter(|&&b| b == b'\n').count();
             let column = 1 + valid.iter().rev().take_while(|&&b| b != b'\n').count();
-            return Err(UrdfError::Invalid {
+            Err(UrdfError::Invalid {
                 path: path.to_path_buf(),
                 line: u32::try_from(line).unwrap_or(u32::MAX),
                 column: u32::try_from(column).unwrap_or(u32::MAX),
                 message: "not valid UTF-8".into(),
-            });
+            })
         }
-    };
-    import(text, path, options)
+    }
 }
 
 /// Imports the URDF `text`; `path` names it in messages and in the model's header comment.

@@ -619,17 +619,28 @@ fn start(
         let t = Vector3::from(placement.translation);
         let mut jac = DMatrix::<f64>::zeros(3 * rows, unknowns);
         let mut res = DVector::<f64>::zeros(3 * rows);
-        for row in 0..rows {
-            let local = r.transpose() * (measured_points[row] - t) - p0[row];
+        // Every list here has one entry per row (built from the same rows): zipped, a row
+        // that lacks one is left out rather than indexed past the end.
+        let [a0, a1, a2] = &along;
+        let rows_of = measured_points
+            .iter()
+            .zip(&p0)
+            .zip(a0.iter().zip(a1).zip(a2));
+        for (row, ((y, p), ((c0, c1), c2))) in rows_of.enumerate() {
             let target = a.target.of_row.get(row).copied().unwrap_or(0) as usize;
+            if target >= labels {
+                continue;
+            }
+            let local = r.transpose() * (y - t) - p;
+            let axes = [c0, c1, c2];
             for c in 0..3 {
                 let i = 3 * row + c;
                 res[i] = local[c];
                 jac[(i, c)] = 1.0;
-                for k in 0..3 {
+                for (k, axis) in axes.iter().enumerate() {
                     let e = Vector3::from_fn(|x, _| if x == k { 1.0 } else { 0.0 });
-                    jac[(i, 3 + k)] = e.cross(&p0[row])[c];
-                    jac[(i, 6 + 3 * target + k)] = along[k][row][c];
+                    jac[(i, 3 + k)] = e.cross(p)[c];
+                    jac[(i, 6 + 3 * target + k)] = axis[c];
                 }
             }
         }

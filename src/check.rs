@@ -56,6 +56,18 @@ pub(crate) fn identify(
         Ok(report) => {
             kin_estimate::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)
         }
+        Err(kin_estimate::identify::IdentifyError::Factor {
+            column: Some(column),
+        }) => {
+            let span = kin_estimate::identify::column_span(&c.map, &column).unwrap_or_default();
+            vec![kin_compiler::Diagnostic::error(
+                "E0601",
+                "identifiability could not be analysed: this term's values overflow a number",
+                span,
+            )
+            .with_label("beyond ±1.8e308 at some pose")
+            .with_help("check the term's scale and units: a factor like `1e308` is a typo")]
+        }
         Err(e) => vec![kin_compiler::Diagnostic::error(
             "E0601",
             format!("identifiability could not be analysed: {e}"),

@@ -1039,8 +1039,8 @@ pub fn mixed_units(r: &report::FitReport) -> Option<String> {
 /// estimated) and its σ̂.
 fn per_file_lines(r: &report::FitReport, per: &report::NoisePerFile) -> String {
     let mut out = format!(
-        "  σ̂/σ = {:.4}   RMS {:.4} σ   max {:.4} σ   R² = {:.6}   (every row divided by its own file's σ)\n",
-        r.sigma, r.rms, r.max, r.r2
+        "  σ̂/σ = {:.4}   RMS {:.4} σ   max {:.4} σ   {}   (every row divided by its own file's σ)\n",
+        r.sigma, r.rms, r.max, r2_text(r.r2)
     );
     let how = if per.converged {
         format!("{} weighted fits", per.iterations)
@@ -1104,12 +1104,12 @@ fn sigma_line(r: &report::FitReport) -> String {
             "consistent with the stated noise"
         };
         return format!(
-            "  σ̂/σ = {:.4}   RMS {:.4} σ   max {:.4} σ   R² = {:.6}   (every row divided by the stated noise: {})\n  \
+            "  σ̂/σ = {:.4}   RMS {:.4} σ   max {:.4} σ   {}   (every row divided by the stated noise: {})\n  \
              χ² = {:.1} on {} degrees of freedom, p = {:.3}: {verdict}\n",
             r.sigma,
             r.rms,
             r.max,
-            r.r2,
+            r2_text(r.r2),
             stated.join(", "),
             w.chi2,
             w.dof,
@@ -1118,14 +1118,30 @@ fn sigma_line(r: &report::FitReport) -> String {
     }
     if let Some(note) = mixed_units(r) {
         return format!(
-            "  σ̂ = {:.4}   residual RMS {:.4}   max {:.4}   R² = {:.6}   ({note})\n",
-            r.sigma, r.rms, r.max, r.r2
+            "  σ̂ = {:.4}   residual RMS {:.4}   max {:.4}   {}   ({note})\n",
+            r.sigma,
+            r.rms,
+            r.max,
+            r2_text(r.r2)
         );
     }
     format!(
-        "  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   R² = {:.6}\n",
-        r.sigma, r.rms, r.max, r.r2
+        "  σ̂ = {:.4} {u}   residual RMS {:.4} {u}   max {:.4} {u}   {}\n",
+        r.sigma,
+        r.rms,
+        r.max,
+        r2_text(r.r2)
     )
+}
+
+/// `R² = 0.997…`, or why there is none: data that do not vary (all zero, a perfect machine
+/// simulated without noise) explain nothing, and 0/0 is not a number to print.
+fn r2_text(r2: f64) -> String {
+    if r2.is_finite() {
+        format!("R² = {r2:.6}")
+    } else {
+        "R² undefined (the observations do not vary)".into()
+    }
 }
 
 fn short(p: &str, n: usize) -> String {

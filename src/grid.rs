@@ -11,9 +11,17 @@ pub(crate) use kin_machine::grid::Grid;
 /// At most this many grid points in all (every pose is held in memory and compensated).
 pub const MAX_POINTS: usize = 10_000_000;
 
+/// The largest magnitude of a grid value in its unit: a thousand kilometres in mm, some 2.8
+/// million turns in degrees. Beyond any machine, it keeps absurd values (printed as 300
+/// digits, or turning a continuous axis through rounding noise) out of the poses.
+const MAX_VALUE: f64 = 1e9;
+
 fn number(text: &str, what: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
+        Ok(v) if v.abs() <= MAX_VALUE => Ok(v),
+        Ok(v) if v.is_finite() => Err(format!(
+            "`{text}` in `{what}` is beyond ±1e9, larger than any axis or input of a machine"
+        )),
         _ => Err(format!("`{text}` in `{what}` is not a finite number")),
     }
 }
@@ -190,5 +198,16 @@ mod tests {
         assert!(range("0:10:0", "X").is_err());
         assert!(range("0:1e300:1e-300", "X").is_err());
         assert!(range("0:nan:1", "X").is_err());
+    }
+
+    /// A value beyond any machine is refused with the bound, in the user's words (it used to
+    /// be echoed back as a 309-digit number).
+    #[test]
+    fn absurd_values_are_refused_with_the_bound() {
+        let e = range("1e308", "X=1e308").unwrap_err();
+        assert!(e.contains("±1e9") && e.len() < 120, "{e}");
+        let e = range("0:2e9:1e8", "X=0:2e9:1e8").unwrap_err();
+        assert!(e.contains("±1e9"), "{e}");
+        assert_eq!(range("-1e9", "C").unwrap(), vec![-1e9]);
     }
 }

@@ -602,3 +602,50 @@ fn a_full_standard_output_is_an_error_not_a_panic() {
     assert!(err.starts_with("error: failed printing to stdout"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// A term whose scale overflows a number (`1e308 * const`) was reported at line 1:1; the error
+/// points at the term now.
+#[test]
+fn an_overflowing_term_is_blamed_on_the_term() {
+    let model = tmp("overflow.kin");
+    let source = "machine m {
+    task position
+    axis X prismatic along x range 0 mm .. 500 mm
+    tool chain { X moving tool t }
+    errors { X.tx = 1e308 * const  X.ry = const }
+}
+";
+    std::fs::write(&model, source).expect("write");
+    let out = kin(&["check", path(&model), "--color", "never"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(code(&out), 1, "{stderr}");
+    assert!(
+        stderr.contains("E0601") && stderr.contains("overflow.kin:5:21"),
+        "{stderr}"
+    );
+}
+
+/// Observations that do not vary (a perfect machine simulated without noise) have no R²: the
+/// fit says so instead of printing `R² = NaN`.
+#[test]
+fn a_fit_of_data_that_do_not_vary_has_no_r2_to_print() {
+    let model = tmp("still.kin");
+    std::fs::write(&model, MODEL).expect("model");
+    let data = tmp("still.csv");
+    let out = kin(&[
+        "simulate",
+        path(&model),
+        "--sample",
+        "20",
+        "-o",
+        path(&data),
+    ]);
+    assert_eq!(code(&out), 0, "{}", text(&out.stderr));
+    let out = kin(&["fit", path(&model), path(&data)]);
+    let stdout = text(&out.stdout);
+    assert_eq!(code(&out), 0, "{}", text(&out.stderr));
+    assert!(
+        stdout.contains("R² undefined") && !stdout.contains("NaN"),
+        "{stdout}"
+    );
+}

@@ -1230,13 +1230,7 @@ impl Checker<'_> {
         let time_unit = self.st.units.time.clone();
         let (tau, tau_span, fitted) = opts.required_quantity("tau", Dim::TIME, &time_unit, sink)?;
         opts.finish(sink)?;
-        if !(tau > 0.0) {
-            sink.push(
-                Diagnostic::error("E0105", "the time constant must be positive", tau_span)
-                    .with_label("not positive"),
-            );
-            return None;
-        }
+        time_constant(tau, tau_span, sink)?;
         let index = self.nonlinear("tau", tau, time_unit, tau_span);
         if let Some(p) = self.models.nonlinear.get_mut(index) {
             p.fitted = fitted;
@@ -1316,13 +1310,7 @@ impl Checker<'_> {
             chain.from_span = Some(o.name.span);
         }
         opts.finish(sink)?;
-        if !(tau > 0.0) {
-            sink.push(
-                Diagnostic::error("E0105", "the time constant must be positive", tau_span)
-                    .with_label("not positive"),
-            );
-            return None;
-        }
+        time_constant(tau, tau_span, sink)?;
         let index = self.nonlinear("tau", tau, time_unit, tau_span);
         if let Some(p) = self.models.nonlinear.get_mut(index) {
             p.fitted = fitted;
@@ -2365,6 +2353,28 @@ fn example_value(name: &str) -> &'static str {
         "wavelength" => "25.4 mm",
         _ => "1",
     }
+}
+
+/// The largest time constant: 10¹⁰ s, some 300 years. A machine's thermal lags are minutes to
+/// hours; beyond this the lag is a constant, and a start value like `1e300 min` only printed as
+/// 300 digits.
+const MAX_TAU: f64 = 1e10;
+
+/// A time constant `tau` (SI) is positive and within [`MAX_TAU`], else an E0105 at `span`.
+fn time_constant(tau: f64, span: Span, sink: &mut Sink) -> Option<()> {
+    if tau > 0.0 && tau <= MAX_TAU {
+        return Some(());
+    }
+    let (message, label) = if tau > 0.0 {
+        (
+            "the time constant is beyond 10¹⁰ s (some 300 years)",
+            "too long",
+        )
+    } else {
+        ("the time constant must be positive", "not positive")
+    };
+    sink.push(Diagnostic::error("E0105", message, span).with_label(label));
+    None
 }
 
 fn absolute_temperature(span: Span) -> Diagnostic {

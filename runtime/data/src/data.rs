@@ -436,6 +436,18 @@ pub enum Problem {
         limit: String,
     },
     #[error(
+        "line {line}, column {column} (`{name}`): `{text}` is not zero but below the smallest \
+         meaningful error, ±{limit} (its square underflows a number)"
+    )]
+    Negligible {
+        line: usize,
+        column: usize,
+        name: String,
+        text: String,
+        /// The bound in the column's unit.
+        limit: String,
+    },
+    #[error(
         "line {line}, column {column} (`{name}`): `{text}` is below absolute zero (an absolute temperature is at least −273.15 °C)"
     )]
     BelowAbsoluteZero {
@@ -496,6 +508,7 @@ impl Problem {
             | WrongDimension { line, column, .. }
             | BadCell { line, column, .. }
             | Implausible { line, column, .. }
+            | Negligible { line, column, .. }
             | BelowAbsoluteZero { line, column, .. }
             | UnknownTool { line, column, .. } => Some((*line, Some(*column))),
             CellCount { line, .. }

@@ -24,8 +24,13 @@ pub enum IdentifyError {
     Eval(#[from] EvalError),
     #[error(transparent)]
     Engine(#[from] kin_model::engine::EngineError),
+    /// A column whose values (or whose products with another column) overflow: a term scaled
+    /// beyond what a double holds (`1e308 * const`).
     #[error("the design holds values that are not finite numbers")]
-    Factor,
+    Factor {
+        /// The column that overflows, when one alone does.
+        column: Option<Column>,
+    },
     #[error("no observations to analyse")]
     Empty,
 }
@@ -603,6 +608,12 @@ fn analyse_gram(
     if rows == 0 || n == 0 {
         return Err(IdentifyError::Empty);
     }
+    // A column that overflows is named, so the error can point at its term.
+    if let Some(j) = (0..n).find(|&j| !g[(j, j)].is_finite()) {
+        return Err(IdentifyError::Factor {
+            column: columns.get(j).cloned(),
+        });
+    }
     let norms: Vec<f64> = (0..n).map(|j| g[(j, j)].max(0.0).sqrt()).collect();
     let biggest = norms.iter().copied().fold(0.0, f64::max);
     // A column far below the others has no effect worth the name: scale it to zero rather than
@@ -623,7 +634,7 @@ fn analyse_gram(
         }
     }
     if (0..n).any(|j| !(j..n).all(|i| g[(i, j)].is_finite())) {
-        return Err(IdentifyError::Factor);
+        return Err(IdentifyError::Factor { column: None });
     }
     let independent = factor_in_order(&mut g, &scale);
     let l = g;
@@ -983,7 +994,8 @@ fn column_name(m: &Machine, c: &Column) -> String {
     }
 }
 
-fn column_span(map: &SourceMap, c: &Column) -> Option<Span> {
+/// Where a column's coefficient is written; none for nuisance columns.
+pub fn column_span(map: &SourceMap, c: &Column) -> Option<Span> {
     match c {
         Column::Coefficient(j) => map.coefficients.get(*j).copied(),
         Column::Alignment { .. } | Column::Nuisance(_) => None,

@@ -152,6 +152,13 @@ pub fn read_file(path: &Path) -> Result<ThermalRun, Iso2303Error> {
     table::read_file(path, read)
 }
 
+/// Times within ±10¹⁰ s (a Unix time stamp fits).
+const MAX_TIME: f64 = 1e10;
+/// Displacements within ±1 m.
+const MAX_DISPLACEMENT: f64 = 1.0;
+/// Temperatures within ±10 000 K (in kelvin, so any Celsius reading of a machine fits).
+const MAX_TEMPERATURE: f64 = 1e4;
+
 /// Reads a run file from memory; `path` only names it in errors.
 pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
     let mut file = Table::new(bytes).map_err(|p| Iso2303Error::invalid(path, vec![p]))?;
@@ -165,13 +172,17 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
         if !k.eq_ignore_ascii_case("separation") {
             continue;
         }
+        // Between a micrometre and ten metres: a tilt is a difference divided by it, and a
+        // separation outside any spindle's length would only turn rounding into radians.
         match quantity(v, Dim::LENGTH) {
-            Some(x) if x > 0.0 => run.separation = Some(x),
+            Some(x) if (1e-6..=10.0).contains(&x) => run.separation = Some(x),
             _ => push(
                 &mut problems,
                 RunProblem::Line {
                     line,
-                    what: format!("`{v}`: expected a positive length, e.g. `separation: 100 mm`"),
+                    what: format!(
+                        "`{v}`: expected a positive length from 1 um to 10 m, e.g. `separation: 100 mm`"
+                    ),
                 },
             ),
         }
@@ -257,17 +268,25 @@ pub fn read(bytes: &[u8], path: &Path) -> Result<ThermalRun, Iso2303Error> {
             let unit = match c.role {
                 Role::Time(u) | Role::Displacement(u) | Role::Temperature(u) => u,
             };
-            let Some(v) = table::number(c.text, dialect) else {
-                push(
-                    problems,
-                    c.at(format!(
-                        "`{}`: expected a number in {} (`{}`)",
-                        c.text, unit.name, c.name
-                    )),
-                );
-                continue;
+            // The bounds only keep absurd cells out of the ranges and tilts (a displacement of
+            // 1e300 um printed as 300 digits, a tilt of `inf`): a thermal test's displacements
+            // are micrometres, its times hours, its temperatures tens of degrees.
+            let (limit, within) = match c.role {
+                Role::Time(_) => (MAX_TIME, "a time within ±1e10 s"),
+                Role::Displacement(_) => (MAX_DISPLACEMENT, "a displacement within ±1 m"),
+                Role::Temperature(_) => (MAX_TEMPERATURE, "a temperature within ±10 000 K"),
             };
-            let si = unit.to_si(v);
+            let si = match table::bounded(c.text, dialect, unit, |v| unit.to_si(v), limit, within)
+            {
+                Ok(si) => si,
+                Err(expected) => {
+                    push(
+                        problems,
+                        c.at(format!("`{}`: expected {expected} (`{}`)", c.text, c.name)),
+                    );
+                    continue;
+                }
+            };
             if let Role::Time(_) = c.role {
                 if let Some((prev, prev_line)) = last_time {
                     if si < prev {

@@ -682,6 +682,22 @@ impl<'m> Reader<'m> {
                                 });
                                 f64::NAN
                             }
+                            // An error far below any instrument's resolution whose square
+                            // underflows: σ̂ would be 0 and every statistic of the fit NaN.
+                            _ if matches!(role, Role::Observed(_) | Role::Dl)
+                                && v != 0.0
+                                && v.abs() < MIN_ERROR * (1.0 - 1e-12) =>
+                            {
+                                let text = line.get(cell.start..cell.end).unwrap_or("").trim();
+                                problems.push(Problem::Negligible {
+                                    line: line_no,
+                                    column: char_column(raw, cell.origin),
+                                    name: col.name.clone(),
+                                    text: excerpt(text),
+                                    limit: limit_text(MIN_ERROR, col.scale, &col.unit),
+                                });
+                                f64::NAN
+                            }
                             // An absolute temperature is kelvin here: below 0 it is no
                             // temperature (a rise written as absolute, a sign lost).
                             _ if absolute_temperature(machine, role) && v < 0.0 => {
@@ -1058,6 +1074,9 @@ pub(crate) const MAX_ANGLE: f64 = 1e6;
 pub(crate) const MAX_ERROR: f64 = 1.0;
 /// Observed rotation errors: 1 rad.
 pub(crate) const MAX_TILT: f64 = 1.0;
+/// The smallest non-zero observed error, in SI: 10⁻¹⁰⁰ (no instrument resolves it; squares
+/// of smaller values underflow and leave the fit's σ̂ at 0).
+pub(crate) const MIN_ERROR: f64 = 1e-100;
 /// Time: 10¹⁰ s, about 300 years (a Unix time stamp fits).
 pub(crate) const MAX_TIME: f64 = 1e10;
 /// Inputs (temperatures, forces, …), in their SI unit: 10⁹.

@@ -120,3 +120,36 @@ fn bad_files_are_refused_with_line_and_column() {
     let e = err("time[deg],X\n0,1\n");
     assert!(e.contains("time unit"), "{e}");
 }
+
+/// Absurd magnitudes are refused at their cell with the bound named, never printed as 300
+/// digits or turned into a tilt of `inf` (both happened before the bounds).
+#[test]
+fn absurd_magnitudes_are_refused_with_the_bound() {
+    let err = |s: &str| match read(s.as_bytes(), Path::new("t.csv")) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("accepted {s:?}"),
+    };
+    let e = err("time,X,Y\n0,0,0\n60,-1e308,1\n");
+    assert!(
+        e.contains("line 3, column 4") && e.contains("within ±1 m"),
+        "{e}"
+    );
+    let e = err("time,X\n0,0\n1e300,1\n");
+    assert!(
+        e.contains("line 3, column 1") && e.contains("±1e10 s"),
+        "{e}"
+    );
+    let e = err("time,X,T_room\n0,0,1e300\n");
+    assert!(
+        e.contains("line 2, column 5") && e.contains("10 000 K"),
+        "{e}"
+    );
+    let e = err("# separation: 1e-300 mm\ntime,X1,X2\n0,0,0\n1,1,2\n");
+    assert!(e.contains("line 1") && e.contains("1 um to 10 m"), "{e}");
+    // The bounds leave a real test alone: a 1 mm drift over a day at 100 mm separation.
+    let run = read(
+        b"# separation: 100 mm\ntime[h],X1,X2,T_room\n0,0,0,20\n24,1000,1200,25\n",
+        Path::new("t.csv"),
+    );
+    assert!(run.is_ok(), "{run:?}");
+}

@@ -746,6 +746,15 @@ fn absurd_magnitudes_are_rejected_at_the_cell() {
     ));
     let p = points("X,Y,Z,C,ex\n1e7,0,0,0,1e6\n");
     assert_column(&p.pose.axes[0], &[MAX_POSITION]);
+    // An error whose square underflows (data scaled by 1e-300 gave σ̂ = 0 and R² = NaN) is
+    // refused; zero and the smallest meaningful error read.
+    let found = problems("X,Y,Z,C,ex\n0,0,0,0,1e-300\n");
+    assert!(
+        matches!(&found[..], [Problem::Negligible { line: 2, column: 9, limit, .. }] if limit == "1e-94 um"),
+        "{found:?}"
+    );
+    let p = points("X,Y,Z,C,ex,ey\n0,0,0,0,0,1e-94\n");
+    assert_eq!(p.len(), 1);
     // An empty observed cell still means "not observed".
     let p = points("X,Y,Z,C,ex,ey\n0,0,0,0,,1\n");
     assert!(p.observed[0].as_ref().is_some_and(|v| v[0].is_nan()));

@@ -41,9 +41,11 @@ pub fn level(text: &str) -> Result<f64, String> {
     })
 }
 
-/// A finite number above zero (`--tolerance`).
-pub fn positive(text: &str) -> Result<f64, String> {
-    number(text, "a finite number > 0", |v| v > 0.0)
+/// The rank decision's relative tolerance (`--tolerance`): above zero and below one, since a
+/// direction is unseen when its singular value is below T times the largest (at 1 or more no
+/// direction could be seen).
+pub fn tolerance(text: &str) -> Result<f64, String> {
+    number(text, "a tolerance with 0 < T < 1", |v| v > 0.0 && v < 1.0)
 }
 
 /// Seconds per figure of `kin bench`: finite, above zero, at most a day.
@@ -341,11 +343,12 @@ mod tests {
     #[test]
     fn tolerances_and_seconds_are_finite_and_positive() {
         for bad in ["NaN", "inf", "0", "-1e-10"] {
-            assert!(positive(bad).is_err(), "{bad}");
+            assert!(tolerance(bad).is_err(), "{bad}");
             assert!(seconds(bad).is_err(), "{bad}");
         }
         assert!(seconds("1e300").is_err());
-        assert_eq!(positive("1e-10"), Ok(1e-10));
+        assert_eq!(tolerance("1e-10"), Ok(1e-10));
+        assert!(tolerance("1").is_err());
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! `kin fit`: least squares from measurement files, with the statistics a metrologist needs.
 
+use kin_data::output::same_file;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -230,6 +231,7 @@ fn holds_positions(path: &Path) -> bool {
 /// As [`fit_quietly`], reading the data files a block of rows at a time in each pass; falls
 /// back to it for a machine that cannot be streamed (fitted non-linear parameters, lags).
 fn fit_streamed(a: &FitArgs) -> Result<Fitted, Failed> {
+    given_once(a)?;
     let source = load::model_text(&a.machine, a.color)?;
     let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
     if !fit::stream::streamable(&compiled) || a.data.iter().any(|p| holds_positions(p)) {
@@ -352,13 +354,34 @@ fn per_file_noise(a: &FitArgs) -> Result<(Vec<fit::Noise>, bool), Failed> {
     Ok((out, true))
 }
 
-/// Whether two paths name one file (as given, or after resolving both).
-fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
-    a == b
-        || matches!(
-            (std::fs::canonicalize(a), std::fs::canonicalize(b)),
-            (Ok(x), Ok(y)) if x == y
-        )
+/// Refuses a data file given twice (fitted and validated, or fitted twice under two
+/// spellings): its rows would count twice, every standard error shrink by √2, and a validation
+/// on fitted rows would look better than any new measurement.
+fn given_once(a: &FitArgs) -> Result<(), Failed> {
+    let all: Vec<&PathBuf> = a.data.iter().chain(&a.validate).collect();
+    let fitted = a.data.len();
+    for (i, p) in all.iter().enumerate() {
+        let Some(j) = all[..i].iter().position(|q| same_file(q, p)) else {
+            continue;
+        };
+        let first = all[j];
+        let also = if first == *p {
+            String::new()
+        } else {
+            format!(" (also as `{}`)", first.display())
+        };
+        let why = if j < fitted && i >= fitted {
+            "a validation on fitted rows says nothing of new measurements"
+        } else {
+            "its rows would count twice and every standard error shrink by √2"
+        };
+        eprintln!(
+            "error: `{}` is given twice{also}: {why}; give each file once",
+            p.display()
+        );
+        return Err(Failed::USAGE);
+    }
+    Ok(())
 }
 
 /// Prints why a fit failed: a rank-deficient design with the invisible combinations located
@@ -397,9 +420,18 @@ fn fit_failed(a: &FitArgs, source: &str, e: FitError) -> Failed {
                     a.machine.display()
                 );
             }
-            eprintln!(
-                "Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
-            );
+            if diagnostics.is_empty() {
+                // The rank decision and the analysis that names combinations differ in their
+                // threshold only when the user moved it.
+                eprintln!(
+                    "At --tolerance {} a direction whose singular value is below that fraction of the largest counts as not determined; the analysis names no combination at its own threshold: a smaller --tolerance (default 1e-10) keeps them, or --min-norm fits the visible part.",
+                    a.tolerance
+                );
+            } else {
+                eprintln!(
+                    "Remove or constrain those terms, add observations that separate them, or fit the visible part with --min-norm."
+                );
+            }
             Failed::INPUT
         }
         e => {
@@ -411,6 +443,7 @@ fn fit_failed(a: &FitArgs, source: &str, e: FitError) -> Failed {
 
 /// The fit alone: diagnostics of the inputs are printed, results are returned.
 pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
+    given_once(a)?;
     let source = load::model_text(&a.machine, a.color)?;
     let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
     let m = &compiled.machine;

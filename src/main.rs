@@ -208,8 +208,9 @@ enum Command {
         output: Option<PathBuf>,
         #[arg(long, value_enum, default_value_t = fit::SolverArg::Qr)]
         solver: fit::SolverArg,
-        /// Relative tolerance of the rank decision on the unit-scaled design (finite, > 0).
-        #[arg(long, default_value_t = 1e-10, value_parser = args::positive, allow_hyphen_values = true)]
+        /// Relative tolerance of the rank decision on the unit-scaled design (0 < T < 1): a
+        /// direction whose singular value is below T times the largest is not determined.
+        #[arg(long, default_value_t = 1e-10, value_parser = args::tolerance, allow_hyphen_values = true)]
         tolerance: f64,
         /// Fit only what the data can see (minimum norm) when the design is rank-deficient.
         #[arg(long)]

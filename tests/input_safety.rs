@@ -649,3 +649,27 @@ fn a_fit_of_data_that_do_not_vary_has_no_r2_to_print() {
         "{stdout}"
     );
 }
+
+/// The same data file twice (under two spellings, or fitted and validated) was fitted twice
+/// without a word, its standard errors shrunk by √2; it is refused before anything is read.
+#[test]
+fn a_data_file_given_twice_is_refused() {
+    let (model, data) = setup("twice");
+    let dir = data.parent().expect("folder");
+    let name = data.file_name().expect("name").to_str().expect("utf-8");
+    let other = format!("./{name}");
+    for args in [
+        vec!["fit", path(&model), name, &other],
+        vec!["fit", path(&model), name, "--validate", &other],
+        vec!["diagnose", path(&model), name, name],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_kin"))
+            .args(&args)
+            .current_dir(dir)
+            .output()
+            .expect("kin runs");
+        let stderr = text(&out.stderr);
+        assert_eq!(code(&out), 2, "{args:?}: {stderr}");
+        assert!(stderr.contains("is given twice"), "{stderr}");
+    }
+}

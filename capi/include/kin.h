@@ -181,8 +181,8 @@ typedef struct kin_compensator kin_compensator;
  * weights (n_weights = 6; NULL and 0 for every component, a rotation weighed as the fit weighs
  * it) weigh ex, ey, ez, erx, ery, erz in SI, 0 leaving a component out; iterations bounds the
  * linear solves per call (0: the default, 4). KIN_ERR_MACHINE for a measuring machine or more
- * than KIN_COMPENSATOR_MAX_AXES axes, KIN_ERR_VALUE for weights that are negative, not finite
- * or all 0. Free with kin_compensator_free. */
+ * than KIN_COMPENSATOR_MAX_AXES axes, KIN_ERR_VALUE for a weight that is neither 0 nor from
+ * 1e-9 to 1e9, or weights all 0. Free with kin_compensator_free. */
 int kin_compensator_new(const kin_model *model, const double *weights, size_t n_weights,
                         size_t iterations, kin_compensator **out);
 

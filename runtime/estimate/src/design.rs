@@ -26,6 +26,12 @@ pub enum DesignError {
     #[error("a design of {0} units was asked for; at least one is needed")]
     Size(usize),
     #[error(
+        "a design of {asked} units was asked for from {candidates} candidates: at most as many \
+         as there are candidates are chosen (a plan measured twice repeats its units; more \
+         candidates give the choice room)"
+    )]
+    MoreThanCandidates { asked: usize, candidates: usize },
+    #[error(
         "no subset of the candidates determines any coefficient: every candidate row is zero \
          after its artifact's placement is taken out"
     )]
@@ -555,6 +561,15 @@ pub fn select(
     if n == 0 {
         return Err(DesignError::Size(n));
     }
+    // Each exchange pass weighs every chosen unit against every candidate: beyond the
+    // candidates' count the work grows with nothing left to choose between (5 000 of 2 000
+    // candidates ran for minutes).
+    if n > units.len() {
+        return Err(DesignError::MoreThanCandidates {
+            asked: n,
+            candidates: units.len(),
+        });
+    }
     if units.iter().any(|u| u.rows.iter().any(|v| !v.is_finite())) {
         return Err(DesignError::NotFinite);
     }
@@ -1003,6 +1018,22 @@ mod tests {
         let u = Unit::eliminated(&[1.0, 0.0, 1.0, 3.0, 0.0, 1.0], 2, 1);
         assert!((u.rows[0] + 1.0).abs() < 1e-12 && (u.rows[2] - 1.0).abs() < 1e-12);
         assert!(u.rows[1].abs() < 1e-12 && u.rows[3].abs() < 1e-12);
+    }
+
+    #[test]
+    fn no_more_units_are_chosen_than_there_are_candidates() {
+        let units: Vec<Unit> = (0..4).map(|k| bar(15.0 * k as f64)).collect();
+        assert!(matches!(
+            select(&units, 5, 3, || {}),
+            Err(DesignError::MoreThanCandidates {
+                asked: 5,
+                candidates: 4
+            })
+        ));
+        assert_eq!(
+            select(&units, 4, 3, || {}).expect("selects").chosen.len(),
+            4
+        );
     }
 
     #[test]

@@ -40,7 +40,10 @@ pub enum CompensateError {
         hi: f64,
         unit: String,
     },
-    #[error("the weights of the components must be finite and non-negative, and one positive")]
+    #[error(
+        "the weights of the components must each be 0 or from 1e-9 to 1e9 (SI), one of them \
+         positive, and the rank tolerance from 0 to below 1"
+    )]
     Weights,
     #[error(transparent)]
     Eval(#[from] EvalError),
@@ -120,7 +123,27 @@ const LEVERAGE: f64 = 1e-10;
 /// picometre no longer matters. Below it, steps are rounding noise and never a [`Divergence`].
 pub(crate) const PICOMETRE: f64 = 1e-12;
 
+/// The smallest and largest non-zero weight of a component (SI): beyond them the squares of the
+/// weighted Jacobian under- or overflow, and a solve of rank 0 would return no correction as a
+/// success. Only the weights' ratios shape the correction; their size sets what
+/// [`Options::converged`] measures.
+const WEIGHT_BOUNDS: [f64; 2] = [1e-9, 1e9];
+
 impl Options {
+    /// Refuses weights that are not 0 or within [`WEIGHT_BOUNDS`], all zero, and a rank
+    /// tolerance outside `[0, 1)`.
+    pub fn check(&self) -> Result<(), CompensateError> {
+        let [lo, hi] = WEIGHT_BOUNDS;
+        let w = self.weights;
+        if w.iter().any(|x| !(*x == 0.0 || (lo..=hi).contains(x)))
+            || w.iter().all(|x| *x == 0.0)
+            || !(self.rank_tolerance >= 0.0 && self.rank_tolerance < 1.0)
+        {
+            return Err(CompensateError::Weights);
+        }
+        Ok(())
+    }
+
     /// Every component, a rotation weighed as in the fit (one tilt unit as one error unit):
     /// the machine then corrects all it can, and nothing else changes the solution (a 3-axis
     /// machine's corrections are those of position alone).
@@ -177,10 +200,7 @@ impl<'m> Compensator<'m> {
         if m.task.sign() < 0.0 {
             return Err(CompensateError::Measuring(m.name.clone()));
         }
-        let w = options.weights;
-        if w.iter().any(|x| !(x.is_finite() && *x >= 0.0)) || w.iter().all(|x| *x == 0.0) {
-            return Err(CompensateError::Weights);
-        }
+        options.check()?;
         Ok(Compensator {
             m,
             beta,
@@ -227,6 +247,7 @@ impl<'m> Compensator<'m> {
             &mut plant,
             &options,
             free,
+            state.q,
             &mut dq,
             &mut jacobian,
             &mut step,
@@ -372,6 +393,7 @@ pub(crate) fn iterate<P: Plant>(
     plant: &mut P,
     options: &Options,
     free: Option<&[bool]>,
+    q: &[f64],
     dq: &mut [f64],
     jacobian: &mut [Vector6<f64>],
     step: &mut [f64],
@@ -413,10 +435,13 @@ pub(crate) fn iterate<P: Plant>(
         if residual.iter().any(|x| !x.is_finite()) {
             return Err(Divergence::Overflows { step: k + 1 }.into());
         }
-        if effect < options.converged && k > 0 {
+        // Below the rounding of the kinematics at this pose a step is noise: it ends the
+        // iteration and is never a divergence.
+        let noise = rounding(jacobian, &w, q, dq);
+        if effect < options.converged.max(noise) && options.converged > 0.0 && k > 0 {
             break;
         }
-        if effect >= previous && effect >= PICOMETRE {
+        if effect >= previous && effect >= PICOMETRE.max(noise) {
             return Err(Divergence::Grows {
                 step: k + 1,
                 previous_step: k,
@@ -434,6 +459,21 @@ pub(crate) fn iterate<P: Plant>(
         iterations,
         idle,
     })
+}
+
+/// Rounding of the evaluated error at the pose `q + dq`, weighted: an axis at `x` (m or rad)
+/// is known to `ε·|x|`, which moves the tool by that times its weighted column. A continuous
+/// axis far from 0 (a million degrees, 17 000 rad) carries tenths of a nanometre of it, more
+/// than the default [`PICOMETRE`]; the factor covers the few roundings of each transform.
+fn rounding(jacobian: &[Vector6<f64>], w: &Vector6<f64>, q: &[f64], dq: &[f64]) -> f64 {
+    const ROUNDINGS: f64 = 16.0;
+    ROUNDINGS
+        * f64::EPSILON
+        * jacobian
+            .iter()
+            .zip(q.iter().zip(dq))
+            .map(|(c, (x, d))| (x + d).abs() * c.component_mul(w).norm())
+            .sum::<f64>()
 }
 
 /// The leverage below which a weighted column is left out of the solve: [`LEVERAGE`] of the
@@ -819,6 +859,7 @@ pub fn servo<E: FirstOrderEngine>(
         &mut plant,
         options,
         None,
+        state.q,
         dq,
         &mut jacobian[..n],
         &mut step[..n],
@@ -1066,6 +1107,83 @@ machine millc {
         for (x, y) in a.iter().zip(&b) {
             assert!((x - y).abs() < 1e-15, "{a:?} {b:?}");
         }
+    }
+
+    /// A table-table mill whose C axis has turned a million degrees (a continuous axis far from
+    /// 0): the kinematics at C carry a rounding of about `ε·|C|` radians, tenths of a nanometre
+    /// at the tool. Errors of nanometres are corrected, not called a divergence on that noise.
+    #[test]
+    fn a_continuous_axis_far_from_zero_converges_on_its_rounding() {
+        let src = r#"
+machine tt {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 400 mm
+    axis Z prismatic along z range -300 mm .. 0 mm
+    axis A revolute about x range -90 deg .. 90 deg
+    axis C revolute about z continuous
+    tool chain { Z moving at (0, 0, 450) mm  tool t at (0, 0, -100) mm }
+    workpiece chain { Y fixed  X fixed  A fixed  C fixed at (0, 0, 100) mm  workpiece }
+    errors {
+        X.tx = linear(X)
+        A.ty = const
+        C.rz = const
+        C.tx = const
+    }
+}
+"#;
+        let c = compile(src).compiled.expect("compiles");
+        let m = &c.machine;
+        let beta = vec![2e-9, 3e-9, 4e-9, 1e-9];
+        let mut comp = Compensator::new(m, &beta, Options::pose(m)).expect("compensator");
+        let mut worst = 0.0f64;
+        for (k, c_deg) in [1e6_f64, -1e6, 3.6e5 + 12.5, 1e6 + 77.0]
+            .into_iter()
+            .enumerate()
+        {
+            let q = [0.3, 0.2, -0.1, 0.4, c_deg.to_radians()];
+            let state = State {
+                q: &q,
+                inputs: &[],
+                lags: &[],
+                time: 0.0,
+                dirs: &[1.0; 5],
+                tool: 0,
+                tool_offset: None,
+            };
+            let c = comp
+                .compensate(&state)
+                .unwrap_or_else(|e| panic!("C = {c_deg} deg (pose {k}): {e}"));
+            worst = c.after[..3].iter().fold(worst, |a, e| a.max(e.abs()));
+        }
+        // What is left is the rounding, far below a nanometre.
+        assert!(worst < 1e-9, "{worst}");
+    }
+
+    /// Weights whose squares under- or overflow (1e-300, 1e300) left a solve of rank 0 that
+    /// returned no correction and success; they are refused with the bound named.
+    #[test]
+    fn weights_beyond_their_bounds_are_refused() {
+        let c = compile(MILL3).compiled.expect("compiles");
+        let m = &c.machine;
+        let beta = vec![50e-6, 20e-6, 30e-6, 10e-6];
+        for w in [1e-300, 1e300] {
+            let options = Options {
+                weights: [w, w, w, 0.0, 0.0, 0.0],
+                ..Options::pose(m)
+            };
+            match Compensator::new(m, &beta, options) {
+                Err(e @ CompensateError::Weights) => assert!(e.to_string().contains("1e-9")),
+                Err(e) => panic!("{e}"),
+                Ok(_) => panic!("weights {w} accepted"),
+            }
+        }
+        let options = Options {
+            weights: [1e-9, 1e9, 1.0, 0.0, 0.0, 0.0],
+            ..Options::pose(m)
+        };
+        assert!(Compensator::new(m, &beta, options).is_ok());
     }
 
     #[test]

@@ -354,20 +354,13 @@ impl Model {
 
     /// The compensation function of a positioning machine (thesis §2.3.5) with this model's
     /// bound values, for a controller to call every servo cycle: see [`ServoCompensator`].
-    /// Refused for a measuring machine, weights that are not finite and non-negative with one
-    /// positive, and more than [`compensate::MAX_SERVO_AXES`] axes.
+    /// Refused for a measuring machine, weights that [`Options::check`] refuses, and more than [`compensate::MAX_SERVO_AXES`] axes.
     pub fn compensator(&self, options: Options) -> Result<ServoCompensator, CompensateError> {
         let m = self.machine();
         if m.task.sign() < 0.0 {
             return Err(CompensateError::Measuring(m.name.clone()));
         }
-        let w = options.weights;
-        if w.iter().any(|x| !(x.is_finite() && *x >= 0.0)) || w.iter().all(|x| *x == 0.0) {
-            return Err(CompensateError::Weights);
-        }
-        if !(options.rank_tolerance >= 0.0 && options.rank_tolerance < 1.0) {
-            return Err(CompensateError::Weights);
-        }
+        options.check()?;
         if m.axes.len() > compensate::MAX_SERVO_AXES {
             return Err(CompensateError::TooManyAxes(m.axes.len()));
         }

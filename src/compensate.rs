@@ -7,8 +7,9 @@ use std::process::ExitCode;
 
 use kin_compiler::ir::{JointKind, Machine};
 use kin_data::data::{self, ExtraColumn, ExtraQuantity, Observations, PointData, WriteOptions};
+use kin_machine::controller_tables::fixed;
 use kin_machine::corrections::{CorrectionError, Summary};
-use kin_machine::table_set::{Format, TableError, TablePlan};
+use kin_machine::table_set::{Format, GridSummary, TableError, TablePlan};
 use kin_model::compensate::{Compensator, Correction, Options};
 
 use crate::grid::{self, Grid};
@@ -409,6 +410,11 @@ fn tables(
         e.from_si(summary.full),
         u = e.name
     );
+    let _ = writeln!(
+        note,
+        "{LEFTOVER} holds the three at every grid pose: where the tables fall short of the full compensation."
+    );
+    let leftover = leftover_csv(m, grid, &summary, &origin);
     let note_path = a.output.join("kin-compensation.txt");
     let paths: Vec<PathBuf> = set.files.iter().map(|f| a.output.join(&f.name)).collect();
     // A folder not made yet holds no input.
@@ -424,7 +430,7 @@ fn tables(
         .files
         .iter()
         .map(|f| f.name.clone())
-        .chain(["kin-compensation.txt".to_string()])
+        .chain([LEFTOVER.to_string(), "kin-compensation.txt".to_string()])
         .collect();
     let _ = writeln!(note, "Files of this set: {}.", names.join(", "));
     let mut files: Vec<(String, &[u8])> = set
@@ -432,6 +438,7 @@ fn tables(
         .iter()
         .map(|f| (f.name.clone(), f.text.as_bytes()))
         .collect();
+    files.push((LEFTOVER.to_string(), leftover.as_bytes()));
     files.push(("kin-compensation.txt".to_string(), note.as_bytes()));
     // An earlier set's files: those its note lists, and any whose comments name kin as their
     // origin (a LinuxCNC table has no comments; a note of an older kin lists nothing).
@@ -463,6 +470,51 @@ fn tables(
         );
     }
     Ok(())
+}
+
+/// The file of a table set that holds the predicted position error at every grid pose.
+const LEFTOVER: &str = "kin-leftover.csv";
+
+/// `kin-leftover.csv`: every grid pose (the axes in the model's units) with the predicted
+/// position error's length without compensation, with the tables and with the full
+/// compensation, in the error unit; a measurement-style CSV with `#` comments.
+fn leftover_csv(m: &Machine, grid: &Grid, summary: &GridSummary, origin: &str) -> String {
+    let e = m.units.error.as_difference();
+    let units: Vec<_> = m
+        .axes
+        .iter()
+        .map(|axis| match axis.kind {
+            JointKind::Prismatic => m.units.length.as_difference(),
+            JointKind::Revolute => m.units.angle.as_difference(),
+        })
+        .collect();
+    let mut out = format!(
+        "# position error left at each grid pose, {origin}\n\
+         # before: no compensation; tables: with these tables as the controller applies them; full: `kin compensate --grid` (every axis the model may move)\n"
+    );
+    let header: Vec<String> = m
+        .axes
+        .iter()
+        .zip(&units)
+        .map(|(axis, u)| format!("{}[{}]", axis.name, u.name))
+        .chain(["before", "tables", "full"].map(|c| format!("{c}[{}]", e.name)))
+        .collect();
+    out.push_str(&header.join(","));
+    out.push('\n');
+    let points = grid.points(m);
+    for (r, left) in summary.left.iter().enumerate() {
+        let cells: Vec<String> = points
+            .pose
+            .axes
+            .iter()
+            .zip(&units)
+            .map(|(col, u)| fixed(u.from_si(col.get(r).copied().unwrap_or(f64::NAN)), 9))
+            .chain(left.iter().map(|v| fixed(e.from_si(*v), 6)))
+            .collect();
+        out.push_str(&cells.join(","));
+        out.push('\n');
+    }
+    out
 }
 
 /// The files an earlier set's note lists (`Files of this set: X.comp, …`); none without one.

@@ -171,6 +171,65 @@ fn corrections_cancel_the_position_error_and_leave_the_pitch() {
 
 /// A LinuxCNC compensation file as its documentation defines it: each line three numbers
 /// separated by white space (nominal, forward, reverse); nominals ascending; ≤ 256 lines.
+/// `kin-leftover.csv` of a table set: a row per grid pose (`poses` of them); `before` is the
+/// fitted model's predicted position error there (evaluated here by the embedding API), `full`
+/// never exceeds `tables`, and the largest `tables` is the note's figure.
+fn leftover_agrees_with_the_model(
+    tables: &Path,
+    machine: &Path,
+    fit: &Path,
+    note: &str,
+    poses: usize,
+) {
+    let text = std::fs::read_to_string(tables.join("kin-leftover.csv")).expect("leftover");
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|c| c.parse().expect("number")).collect())
+        .collect();
+    assert_eq!(rows.len(), poses, "{text}");
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| h.starts_with(&format!("{name}[")))
+            .unwrap_or_else(|| panic!("no {name} in {header:?}"))
+    };
+    let (before, tables_col, full) = (col("before"), col("tables"), col("full"));
+    let source = std::fs::read_to_string(machine).expect("machine");
+    let params = std::fs::read_to_string(fit.with_extension("params")).expect("FIT.params");
+    let model = kin_model::Model::compile(&source)
+        .expect("compiles")
+        .with_params(&params)
+        .expect("binds");
+    let m = model.machine();
+    let mut worst_tables = 0.0f64;
+    for row in &rows {
+        let mut s = model.state();
+        for (a, axis) in m.axes.iter().enumerate() {
+            let scale = match axis.kind {
+                kin_compiler::ir::JointKind::Prismatic => 1e-3,
+                kin_compiler::ir::JointKind::Revolute => 1f64.to_radians(),
+            };
+            s.q[a] = row[col(&axis.name)] * scale;
+            s.dirs[a] = 1.0;
+        }
+        let mut e = [0.0; 6];
+        model.eval(&s.get(), model.beta(), &mut e).expect("eval");
+        let predicted = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt() * 1e6;
+        assert!(
+            (row[before] - predicted).abs() < 1e-4,
+            "{row:?}: before {} um, the model predicts {predicted} um",
+            row[before]
+        );
+        assert!(row[full] <= row[tables_col] + 1e-6, "{row:?}");
+        worst_tables = worst_tables.max(row[tables_col]);
+    }
+    assert!(
+        note.contains(&format!("{worst_tables:.4} um with these tables")),
+        "largest {worst_tables:.4}: {note}"
+    );
+}
+
 fn read_linuxcnc(path: &Path) -> Vec<[f64; 3]> {
     let s = std::fs::read_to_string(path).expect("comp file");
     let rows: Vec<[f64; 3]> = s
@@ -240,6 +299,7 @@ fn linuxcnc_tables_hold_the_axis_error_and_say_what_they_cannot() {
     assert!(note.contains("cannot"), "{note}");
     assert!(note.contains("interpolation"), "{note}");
     assert!(text(&o.stderr).contains("with these tables"));
+    leftover_agrees_with_the_model(&tables, &machine, &fit, &note, 11 * 5);
     // The set is replaced as one: a new set over X alone removes the earlier Y.comp (a
     // controller would keep loading it) and keeps the controller's own files.
     std::fs::write(tables.join("mill.ini"), "[JOINT_0]\nCOMP_FILE = X.comp\n").expect("ini");
@@ -269,7 +329,7 @@ fn linuxcnc_tables_hold_the_axis_error_and_say_what_they_cannot() {
     assert_eq!(read_linuxcnc(&tables.join("X.comp")).len(), 11);
     let note = std::fs::read_to_string(tables.join("kin-compensation.txt")).expect("note");
     assert!(
-        note.contains("Files of this set: X.comp, kin-compensation.txt."),
+        note.contains("Files of this set: X.comp, kin-leftover.csv, kin-compensation.txt."),
         "{note}"
     );
 }

@@ -75,13 +75,16 @@ pub enum TableError {
 }
 
 /// The largest predicted position error over the grid without compensation, with the tables,
-/// and with the full compensation (SI).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+/// and with the full compensation (SI); and the three at every grid pose, in the order of
+/// [`Grid::points`](crate::grid::Grid::points).
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct GridSummary {
     pub poses: usize,
     pub before: f64,
     pub with_tables: f64,
     pub full: f64,
+    /// Per grid pose: `[before, with_tables, full]`.
+    pub left: Vec<[f64; 3]>,
 }
 
 /// One file of a set: its name in the set's folder and its text.
@@ -290,15 +293,18 @@ impl<'a> TablePlan<'a> {
         let states = States::new(self.m, &points.rows, &points.pose, "")?;
         let mut summary = GridSummary {
             poses: states.len(),
+            left: Vec::with_capacity(states.len()),
             ..GridSummary::default()
         };
         for r in 0..states.len() {
             let s = states.get(r);
             let c = comp.compensate(&s)?;
             let left = with_tables(comp, &s)?;
-            summary.before = summary.before.max(norm3(&c.before, 0));
-            summary.full = summary.full.max(norm3(&c.after, 0));
+            let (before, full) = (norm3(&c.before, 0), norm3(&c.after, 0));
+            summary.before = summary.before.max(before);
+            summary.full = summary.full.max(full);
             summary.with_tables = summary.with_tables.max(left);
+            summary.left.push([before, left, full]);
         }
         Ok(summary)
     }

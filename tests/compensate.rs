@@ -682,6 +682,25 @@ fn sinumerik_cross_tables_hold_a_squareness_with_the_leadscrew_tables() {
         .filter(|(v, _, value)| v == "$AN_CEC_INPUT_AXIS" && value == "(Y)")
         .count();
     assert!(crossing >= 1, "no table along Y: {cec:?}");
+    // The sign, which Siemens' manual states for leadscrew tables only, is made explicit with a
+    // check on the machine at the largest value: the output axis must move against it.
+    let largest_cec = cec
+        .iter()
+        .filter(|(v, _, _)| v == "$AN_CEC")
+        .map(|(_, _, value)| number(value))
+        .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+        .expect("CEC values");
+    let program = std::fs::read_to_string(tables.join("NC_CEC.INI")).expect("NC_CEC.INI");
+    let check = program
+        .lines()
+        .find(|l| l.starts_with("; Sign check"))
+        .unwrap_or_else(|| panic!("no sign check in\n{program}"));
+    let shown = |v: f64| format!("{}", (v * 1e6).round() / 1e6);
+    assert!(
+        check.contains(&format!("must change by {} mm", shown(-largest_cec)))
+            && check.contains(&format!("If it changes by {} mm", shown(largest_cec))),
+        "{check} (largest value {largest_cec})"
+    );
     // The full compensation of every grid pose, by the CSV path.
     let csv = d.join("full.csv");
     ok(&kin(&[

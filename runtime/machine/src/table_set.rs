@@ -544,6 +544,11 @@ impl<'a> TablePlan<'a> {
                 ));
             }
             comments.push("Cross tables whose corrections all stay below 1 nm (1 nrad) are left out. Not in these tables: terms of the inputs (temperatures, load) and orientation errors (kin-compensation.txt).".to_string());
+            if let Some(check) = cec_sign_check(m, &cec) {
+                comments.push(check.clone());
+                set.note.push_str(&check);
+                set.note.push('\n');
+            }
             set.add(
                 "NC_CEC.INI",
                 controller_tables::sinumerik_cec(&cec, &comments),
@@ -632,6 +637,40 @@ impl<'a> TablePlan<'a> {
         })?;
         Ok(set)
     }
+}
+
+/// The one-line check of the CEC tables' sign a user runs on the machine. Siemens' manual (K3)
+/// states the sign for leadscrew tables only ("a positive value moves the axis the negative
+/// way"); kin gives cross tables the same sign. The check names the table and point with the
+/// largest value, where a wrong sign is easiest to see: the output axis must move against the
+/// value, and a move with it means every `$AN_CEC` value is to be negated.
+fn cec_sign_check(m: &Machine, cec: &[SinumerikCec<'_>]) -> Option<String> {
+    let (t, n, v) = cec
+        .iter()
+        .enumerate()
+        .flat_map(|(t, c)| c.values.iter().enumerate().map(move |(n, v)| (t, n, *v)))
+        .max_by(|a, b| a.2.abs().total_cmp(&b.2.abs()))?;
+    let table = cec.get(t)?;
+    let unit = |name: &str| match m.axes.iter().find(|a| a.name == name).map(|a| a.kind) {
+        Some(JointKind::Revolute) => "deg",
+        _ => "mm",
+    };
+    let at = table.min + table.step * n as f64;
+    let direction = match table.direction {
+        1 => " moving in +",
+        -1 => " moving in −",
+        _ => "",
+    };
+    Some(format!(
+        "Sign check (the manual states the sign for leadscrew tables only; these are signed alike): with table {t} alone enabled, move {input} to {at} {iu}{direction}; {output}'s actual position, measured on the machine, must change by {neg} {ou} against the same move with the table disabled. If it changes by {pos} {ou}, the controller reads CEC values the other way: negate every $AN_CEC value.",
+        input = table.input,
+        output = table.output,
+        at = fixed(at, 6),
+        iu = unit(table.input),
+        ou = unit(table.output),
+        neg = fixed(-v, 6),
+        pos = fixed(v, 6),
+    ))
 }
 
 #[cfg(test)]

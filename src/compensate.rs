@@ -10,7 +10,7 @@ use kin_data::data::{self, ExtraColumn, ExtraQuantity, Observations, PointData, 
 use kin_machine::controller_tables::fixed;
 use kin_machine::corrections::{CorrectionError, Summary};
 use kin_machine::table_set::{Format, GridSummary, TableError, TablePlan};
-use kin_model::compensate::{Compensator, Correction, Options};
+use kin_model::compensate::{Compensator, Correction, Movable, Options};
 
 use crate::grid::{self, Grid};
 use crate::load::{self, Failed};
@@ -101,6 +101,11 @@ fn compensate(a: CompensateArgs) -> Result<(), Failed> {
     let options = match a.correct {
         Correct::Pose => Options::pose(m),
         Correct::Position => Options::position(m),
+    };
+    // The axes are chosen per row below (--axes), and per table by the format.
+    let options = Options {
+        movable: Movable::ALL,
+        ..options
     };
     let mut comp = Compensator::new(m, &m.beta, options).map_err(|e| {
         eprintln!("error: {e}");
@@ -200,15 +205,11 @@ fn corrections(
 /// and changes the orientation error it was not asked about.
 fn free_axes(m: &Machine, correct: Correct, axes: Option<&str>) -> Result<Vec<bool>, Failed> {
     let Some(list) = axes else {
-        let prismatic: Vec<bool> = m
-            .axes
-            .iter()
-            .map(|a| a.kind == JointKind::Prismatic)
-            .collect();
-        return Ok(match correct {
-            Correct::Position if prismatic.iter().any(|p| *p) => prismatic,
-            _ => vec![true; m.axes.len()],
-        });
+        let movable = match correct {
+            Correct::Position => Movable::prismatic_or_all(m),
+            Correct::Pose => Movable::ALL,
+        };
+        return Ok((0..m.axes.len()).map(|j| movable.contains(j)).collect());
     };
     let mut free = vec![false; m.axes.len()];
     for name in list.split(',').map(str::trim) {

@@ -186,6 +186,16 @@ typedef struct kin_compensator kin_compensator;
 int kin_compensator_new(const kin_model *model, const double *weights, size_t n_weights,
                         size_t iterations, kin_compensator **out);
 
+/* As kin_compensator_new, with the axes the corrections may move: movable (n_movable = axes)
+ * holds 1 for an axis that may move, 0 for one held at its commanded position; NULL and 0 give
+ * kin_compensator_new's default, which moves every axis except under position weights alone
+ * (erx, ery, erz weighed 0), where only the prismatic axes move (all of an arm's), as
+ * `kin compensate --correct position` does. KIN_ERR_SIZE for a length other than the axes,
+ * KIN_ERR_VALUE for a flag other than 0 or 1. */
+int kin_compensator_new_axes(const kin_model *model, const double *weights, size_t n_weights,
+                             size_t iterations, const unsigned char *movable, size_t n_movable,
+                             kin_compensator **out);
+
 /* Frees a compensator; NULL is ignored. Not while another thread uses it. */
 void kin_compensator_free(kin_compensator *comp);
 

@@ -1240,7 +1240,10 @@ pub unsafe extern "C" fn kin_eval_batch(
 /// compensator keeps its own copy of the model (later changes to `model` do not reach it).
 /// `weights` (`n_weights` = 6, or NULL and 0 for every component with a rotation weighed as the
 /// fit weighs it) weigh `(ex, ey, ez, erx, ery, erz)` in SI; 0 leaves a component out.
-/// `iterations` bounds the linear solves per call (0: the default, 4).
+/// `iterations` bounds the linear solves per call (0: the default, 4). The corrections move
+/// every axis, except with position weights alone (`erx`, `ery`, `erz` weighed 0), where only
+/// the prismatic axes move (every axis of a machine with none), as `kin compensate --correct
+/// position` does; [`kin_compensator_new_axes`] chooses them.
 ///
 /// # Safety
 ///
@@ -1251,6 +1254,37 @@ pub unsafe extern "C" fn kin_compensator_new(
     weights: *const f64,
     n_weights: usize,
     iterations: usize,
+    out: *mut *mut kin_compensator,
+) -> c_int {
+    // SAFETY: the caller's contract, with no axes given.
+    unsafe {
+        kin_compensator_new_axes(
+            model,
+            weights,
+            n_weights,
+            iterations,
+            std::ptr::null(),
+            0,
+            out,
+        )
+    }
+}
+
+/// As [`kin_compensator_new`], with the axes the corrections may move: `movable` (`n_movable` =
+/// axes) holds 1 for an axis that may move and 0 for one held at its commanded position, or is
+/// NULL and 0 for the default of [`kin_compensator_new`].
+///
+/// # Safety
+///
+/// As [`kin_compensator_new`]; `movable` valid for `n_movable` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn kin_compensator_new_axes(
+    model: *const kin_model,
+    weights: *const f64,
+    n_weights: usize,
+    iterations: usize,
+    movable: *const u8,
+    n_movable: usize,
     out: *mut *mut kin_compensator,
 ) -> c_int {
     guard(|| {
@@ -1268,6 +1302,27 @@ pub unsafe extern "C" fn kin_compensator_new(
             let w = unsafe { slice(weights, n_weights, "weights")? };
             check("weights", 6, w.len())?;
             options.weights.copy_from_slice(w);
+            if options.weights[3..].iter().all(|w| *w == 0.0) {
+                options.movable = ::kin_model::compensate::Movable::prismatic_or_all(m.machine());
+            }
+        }
+        if !(movable.is_null() && n_movable == 0) {
+            // SAFETY: caller's contract.
+            let flags = unsafe { slice(movable, n_movable, "movable")? };
+            check("movable", m.axes(), flags.len())?;
+            if let Some(bad) = flags.iter().find(|f| **f > 1) {
+                return Err(Fail(
+                    KIN_ERR_VALUE,
+                    format!("`movable` holds {bad}: 1 (may move) or 0 (held)"),
+                ));
+            }
+            options.movable = ::kin_model::compensate::Movable::only(
+                flags
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, f)| **f == 1)
+                    .map(|(j, _)| j),
+            );
         }
         if iterations > 0 {
             options.iterations = iterations;
@@ -1962,6 +2017,79 @@ mod tests {
             let _ = std::fs::remove_dir_all(&dir);
             kin_model_free(model);
         }
+    }
+
+    /// The C ABI chooses the axes as `kin compensate --axes` does: position weights alone move
+    /// the prismatic axes by default (A and C held), 1/0 flags choose any set, and the servo
+    /// correction then moves exactly those.
+    #[test]
+    fn a_compensator_moves_the_axes_it_is_given() {
+        let src = "machine mill5 {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along x range 0 mm .. 500 mm
+    axis Y prismatic along y range 0 mm .. 400 mm
+    axis Z prismatic along z range -300 mm .. 0 mm
+    axis A revolute about x range -90 deg .. 90 deg
+    axis C revolute about z continuous
+    tool chain { Z moving at (0, 0, 450) mm  tool t at (0, 0, -100) mm }
+    workpiece chain { Y fixed  X fixed  A fixed  C fixed at (0, 0, 80) mm  workpiece }
+    errors { X.tx = linear(X)  A.ty = const  A.rz = const  C.tx = const  C.ry = const }
+}
+params { X.tx = [20] um  A.ty = [15] um  A.rz = [30] urad  C.tx = [12] um  C.ry = [25] urad }";
+        let model = compile(src).expect("compiles");
+        let position = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+        let q = [0.2, 0.1, -0.1, 0.5, 0.8];
+        let dirs = [1.0; 5];
+        let state = kin_state {
+            q: q.as_ptr(),
+            n_q: 5,
+            inputs: null(),
+            n_inputs: 0,
+            lags: null(),
+            n_lags: 0,
+            dirs: dirs.as_ptr(),
+            n_dirs: 5,
+            time: f64::NAN,
+            tool: 0,
+        };
+        // SAFETY: valid pointers and lengths throughout.
+        let run = |movable: Option<&[u8]>| unsafe {
+            let mut comp = null_mut();
+            let (p, n) = movable.map_or((null(), 0), |m| (m.as_ptr(), m.len()));
+            let status = kin_compensator_new_axes(model, position.as_ptr(), 6, 0, p, n, &mut comp);
+            if status != KIN_OK {
+                return Err(status);
+            }
+            let mut dq = [0.0; 5];
+            let mut after = [0.0; 6];
+            let done = kin_compensate(
+                comp,
+                &state,
+                dq.as_mut_ptr(),
+                5,
+                null_mut(),
+                0,
+                after.as_mut_ptr(),
+                6,
+                null_mut(),
+            );
+            kin_compensator_free(comp);
+            assert_eq!(done, KIN_OK, "{}", last_error());
+            Ok((dq, after))
+        };
+        let (dq, after) = run(None).expect("default");
+        assert_eq!(&dq[3..], &[0.0, 0.0], "A and C held by default: {dq:?}");
+        assert!(dq[..3].iter().any(|d| d.abs() > 1e-6), "{dq:?}");
+        assert!(after[..3].iter().all(|e| e.abs() < 1e-9), "{after:?}");
+        let (dq, _) = run(Some(&[1, 1, 1, 1, 1])).expect("all");
+        assert!(dq[3].abs() > 0.0 || dq[4].abs() > 0.0, "{dq:?}");
+        let (dq, _) = run(Some(&[1, 0, 1, 0, 0])).expect("X and Z");
+        assert_eq!((dq[1], dq[3], dq[4]), (0.0, 0.0, 0.0), "{dq:?}");
+        assert_eq!(run(Some(&[1, 1, 1])), Err(KIN_ERR_SIZE));
+        assert_eq!(run(Some(&[1, 1, 1, 2, 0])), Err(KIN_ERR_VALUE));
+        // SAFETY: a model of this test, freed once.
+        unsafe { kin_model_free(model) };
     }
 
     #[test]

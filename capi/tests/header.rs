@@ -32,6 +32,7 @@ const RUST_TO_C: &[(&str, &str)] = &[
     ("*const f64", "const double *"),
     ("*mut f64", "double *"),
     ("*mut usize", "size_t *"),
+    ("*const u8", "const unsigned char *"),
     ("*const kin_model", "const kin_model *"),
     ("*mut kin_model", "kin_model *"),
     ("*mut *mut kin_model", "kin_model **"),

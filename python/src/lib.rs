@@ -707,8 +707,11 @@ impl PyModel {
     /// The joint corrections that cancel the model's predicted error at each commanded state
     /// (thesis §2.3.5, the servo compensator of spec/compensation.md): an (N, axes) array to
     /// add to the commanded joints, `out` when given. `position_only` leaves the tool's
-    /// orientation errors as they are. A measuring machine has no compensation (KinError).
-    #[pyo3(signature = (states, *, inputs=None, time=None, tool=0, position_only=false, out=None))]
+    /// orientation errors as they are, and then moves only the prismatic axes (every axis of an
+    /// arm), as `kin compensate --correct position` does; `axes` (names) chooses the axes that
+    /// move, the others held at their commanded positions. A measuring machine has no
+    /// compensation (KinError).
+    #[pyo3(signature = (states, *, inputs=None, time=None, tool=0, position_only=false, axes=None, out=None))]
     #[allow(clippy::too_many_arguments)]
     fn compensate<'py>(
         &self,
@@ -718,14 +721,29 @@ impl PyModel {
         time: Option<Floats1<'py>>,
         tool: usize,
         position_only: bool,
+        axes: Option<Vec<String>>,
         out: Option<Bound<'py, PyArray2<f64>>>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let m = self.model.machine();
-        let options = if position_only {
+        let mut options = if position_only {
             kin_model::compensate::Options::position(m)
         } else {
             kin_model::compensate::Options::pose(m)
         };
+        if let Some(names) = axes {
+            let mut chosen = Vec::with_capacity(names.len());
+            for name in &names {
+                let Some(j) = m.axes.iter().position(|a| &a.name == name) else {
+                    let known: Vec<&str> = m.axes.iter().map(|a| a.name.as_str()).collect();
+                    return Err(kin_error(
+                        py,
+                        format!("`{name}` is no axis of `{}` (its axes: {})", m.name, known.join(", ")),
+                    ));
+                };
+                chosen.push(j);
+            }
+            options.movable = kin_model::compensate::Movable::only(chosen);
+        }
         let comp = self
             .model
             .compensator(options)

@@ -217,6 +217,30 @@ def test_compensation_cancels_the_error_of_a_positioning_machine():
         kin.Model.compile(CMM).compensate(np.zeros((1, 3)))
 
 
+def test_compensation_moves_the_axes_it_is_given():
+    # A rotary table under a position-only correction is held (as `kin compensate --correct
+    # position` holds it) unless `axes` names it; an unknown name is an error.
+    m = kin.Model.compile("""machine xc {
+        task position
+        axis X prismatic along x range 0 mm .. 500 mm
+        axis Y prismatic along y range 0 mm .. 500 mm
+        axis C revolute about z continuous
+        tool chain { X moving Y moving tool t }
+        workpiece chain { C fixed at (0, 0, 50) mm  workpiece }
+        errors { X.tx = linear(X)  C.tx = const  C.rz = const }
+    }""")
+    m = m.with_beta(np.array([20e-6, 10e-6, 30e-6]))
+    q = np.array([[0.1, 0.2, 0.3], [0.4, 0.3, 1.0]])
+    held = m.compensate(q, position_only=True)
+    assert np.all(held[:, 2] == 0.0) and np.abs(held[:, :2]).max() > 1e-6
+    free = m.compensate(q, position_only=True, axes=["X", "Y", "C"])
+    assert np.abs(free[:, 2]).max() > 0.0
+    only_x = m.compensate(q, position_only=True, axes=["X"])
+    assert np.all(only_x[:, 1:] == 0.0)
+    with pytest.raises(kin.KinError):
+        m.compensate(q, axes=["W"])
+
+
 def test_models_pickle_and_save_bit_for_bit(tmp_path):
     m = kin.Model.compile(SLIDE)
     q = states_of(m, 20)

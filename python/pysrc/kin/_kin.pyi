@@ -88,6 +88,7 @@ class Model:
         time: Optional[ArrayIn] = None,
         tool: int = 0,
         position_only: bool = False,
+        axes: Optional[Sequence[str]] = None,
         out: Optional[F64] = None,
     ) -> F64: ...
     def to_json(self) -> str: ...

@@ -111,6 +111,49 @@ pub struct Options {
     /// iteration: `PICOMETRE` by default. 0 runs all `iterations` solves at every call, the
     /// slowest path, which `kin bench` times apart.
     pub converged: f64,
+    /// The axes the correction may move; the others stay at their commanded positions.
+    pub movable: Movable,
+}
+
+/// A set of axes, by index into `Machine::axes` (the first 64; a servo compensator has at most
+/// [`MAX_SERVO_AXES`]): the axes a correction may move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Movable(u64);
+
+impl Movable {
+    /// Every axis.
+    pub const ALL: Movable = Movable(u64::MAX);
+
+    /// Only the axes listed (indices beyond 63 are ignored).
+    pub fn only(axes: impl IntoIterator<Item = usize>) -> Movable {
+        Movable(
+            axes.into_iter()
+                .filter(|j| *j < 64)
+                .fold(0, |bits, j| bits | (1 << j)),
+        )
+    }
+
+    /// The default of a position-only correction: the prismatic axes, or every axis of a
+    /// machine that has none (an arm). A rotary axis of a machine tool moved to correct the
+    /// position turns the tool or the workpiece, and changes the orientation error it was not
+    /// asked about.
+    pub fn prismatic_or_all(m: &Machine) -> Movable {
+        let prismatic = m
+            .axes
+            .iter()
+            .enumerate()
+            .filter(|(_, a)| a.kind == JointKind::Prismatic)
+            .map(|(j, _)| j);
+        match Movable::only(prismatic) {
+            Movable(0) => Movable::ALL,
+            some => some,
+        }
+    }
+
+    /// Whether axis `j` may move.
+    pub fn contains(self, j: usize) -> bool {
+        j < 64 && self.0 & (1 << j) != 0
+    }
 }
 
 /// A column whose weighted norm is below this fraction of the largest column's moves nothing
@@ -154,13 +197,16 @@ impl Options {
             iterations: 4,
             rank_tolerance: 1e-9,
             converged: PICOMETRE,
+            movable: Movable::ALL,
         }
     }
 
-    /// The tool position only; orientation errors are left as they are.
+    /// The tool position only, by the prismatic axes ([`Movable::prismatic_or_all`]): the
+    /// orientation errors are not corrected (and the rotary axes, held, do not change them).
     pub fn position(m: &Machine) -> Options {
         Options {
             weights: [1.0, 1.0, 1.0, 0.0, 0.0, 0.0],
+            movable: Movable::prismatic_or_all(m),
             ..Options::pose(m)
         }
     }
@@ -225,7 +271,8 @@ impl<'m> Compensator<'m> {
     }
 
     /// As [`Compensator::compensate`], moving only the axes `free` marks (indexed like
-    /// `Machine::axes`; all of them when `None`): what a per-axis controller table can do.
+    /// `Machine::axes`; all of them when `None`) among the options' [`Movable`] ones: what a
+    /// per-axis controller table can do.
     pub fn compensate_with(
         &mut self,
         state: &State,
@@ -406,18 +453,19 @@ pub(crate) fn iterate<P: Plant>(
     let mut iterations = 0;
     let mut previous = f64::INFINITY;
     let mut idle = 0u64;
+    let is_free = |j: usize| {
+        options.movable.contains(j) && free.is_none_or(|f| f.get(j).copied().unwrap_or(false))
+    };
     for k in 0..options.iterations {
         plant.jacobian(jacobian)?;
-        if let Some(free) = free {
-            for (j, column) in jacobian.iter_mut().enumerate() {
-                if !free.get(j).copied().unwrap_or(false) {
-                    *column = Vector6::zeros();
-                }
+        for (j, column) in jacobian.iter_mut().enumerate() {
+            if !is_free(j) {
+                *column = Vector6::zeros();
             }
         }
         rank = solve(jacobian, &w, &residual, options.rank_tolerance, step)?;
         iterations += 1;
-        idle = idle_columns(jacobian, &w, free);
+        idle = idle_columns(jacobian, &w, is_free);
         for (d, x) in dq.iter_mut().zip(step.iter()) {
             *d += x;
         }
@@ -488,12 +536,15 @@ fn leverage_floor(jacobian: &[Vector6<f64>], w: &Vector6<f64>) -> f64 {
 
 /// The free axes whose weighted column is at or below the leverage floor (bit `j` for axis
 /// `j < 64`): [`solve`] gives them no step.
-fn idle_columns(jacobian: &[Vector6<f64>], w: &Vector6<f64>, free: Option<&[bool]>) -> u64 {
+fn idle_columns(
+    jacobian: &[Vector6<f64>],
+    w: &Vector6<f64>,
+    is_free: impl Fn(usize) -> bool,
+) -> u64 {
     let floor = leverage_floor(jacobian, w);
     let mut idle = 0u64;
     for (j, c) in jacobian.iter().enumerate().take(64) {
-        let is_free = free.is_none_or(|f| f.get(j).copied().unwrap_or(false));
-        if is_free && c.component_mul(w).norm() <= floor {
+        if is_free(j) && c.component_mul(w).norm() <= floor {
             idle |= 1 << j;
         }
     }
@@ -984,7 +1035,21 @@ machine millc {
         let beta: Vec<f64> = (0..m.coefficients.len())
             .map(|j| 5e-6 * (((j * 7919) % 13) as f64 / 6.0 - 1.0))
             .collect();
-        let mut comp = Compensator::new(m, &beta, Options::position(m)).expect("compensator");
+        // By default a position-only correction holds the rotary axes: nothing to name.
+        let mut held = Compensator::new(m, &beta, Options::position(m)).expect("compensator");
+        let state = crate::states::States::sample(m, 1, 5);
+        let c = held.compensate(&state.get(0)).expect("compensates");
+        assert_eq!((c.dq[3], c.dq[4]), (0.0, 0.0), "{c:?}");
+        assert!(
+            c.idle.is_empty() && c.after[..3].iter().all(|e| e.abs() < 1e-9),
+            "{c:?}"
+        );
+        // Every axis free: C has no leverage on the position and is named.
+        let options = Options {
+            movable: Movable::ALL,
+            ..Options::position(m)
+        };
+        let mut comp = Compensator::new(m, &beta, options).expect("compensator");
         let states = crate::states::States::sample(m, 1000, 23);
         let (mut solved, mut refused) = (0, 0);
         for r in 0..states.len() {

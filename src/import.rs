@@ -112,20 +112,28 @@ fn import_dh(args: Dh<'_>) -> Result<(), Failed> {
     emit(&imported, args.output, &summary)
 }
 
-pub struct ExportUrdf<'a> {
+pub struct Export<'a> {
     pub machine: &'a Path,
     pub params: Option<&'a Path>,
+    /// The robot's name in a URDF (default: the machine's); unused by a DH table.
     pub name: Option<String>,
     pub output: Option<&'a Path>,
     pub color: bool,
 }
 
-/// `kin export urdf`: the machine with its constant errors folded into a URDF.
-pub fn export_urdf(args: ExportUrdf<'_>) -> ExitCode {
-    Failed::exit(write_urdf(args))
+/// What `kin export` writes.
+#[derive(Debug, Clone, Copy)]
+pub enum ExportFormat {
+    Urdf,
+    Dh,
 }
 
-fn write_urdf(args: ExportUrdf<'_>) -> Result<(), Failed> {
+/// `kin export urdf|dh`: the machine with its constant errors folded into a URDF or a DH table.
+pub fn export(args: Export<'_>, format: ExportFormat) -> ExitCode {
+    Failed::exit(write_export(args, format))
+}
+
+fn write_export(args: Export<'_>, format: ExportFormat) -> Result<(), Failed> {
     if let Some(out) = args.output {
         let mut inputs = vec![args.machine];
         inputs.extend(args.params);
@@ -136,31 +144,54 @@ fn write_urdf(args: ExportUrdf<'_>) -> Result<(), Failed> {
     if m.beta.len() != m.coefficients.len() && !m.coefficients.is_empty() {
         eprintln!(
             "warning: the model binds no parameter values (a `params` block or --params FILE): \
-             the URDF is the nominal machine"
+             the export is the nominal machine"
         );
     }
-    let name = args.name.unwrap_or_else(|| m.name.clone());
-    let exported = urdf::export(m, &name).map_err(|e| {
+    let failed = |e: &dyn std::fmt::Display| {
         eprintln!("error: {e}");
         Failed::INPUT
-    })?;
-    let mut summary = format!(
-        "exported `{name}`: {} joints, {} constant coefficients folded into their origins",
-        exported.joints, exported.folded
-    );
-    if !exported.left_out.is_empty() {
+    };
+    let (text, mut summary, left_out) = match format {
+        ExportFormat::Urdf => {
+            let name = args.name.unwrap_or_else(|| m.name.clone());
+            let e = urdf::export(m, &name).map_err(|e| failed(&e))?;
+            let summary = format!(
+                "exported `{name}`: {} joints, {} constant coefficients folded into their origins",
+                e.joints, e.folded
+            );
+            (e.text, summary, e.left_out)
+        }
+        ExportFormat::Dh => {
+            let table = kin_standards::dh::export(m).map_err(|e| failed(&e))?;
+            let hayati = table.rows.iter().filter(|r| r.beta != 0.0).count();
+            let summary = format!(
+                "exported `{}` as a standard DH table: {} joints ({hayati} with Hayati's beta between nearly parallel axes), {} constant coefficients folded, base and {} tool frame{}",
+                m.name,
+                table.rows.len(),
+                table.folded,
+                table.tools.len(),
+                if table.tools.len() == 1 { "" } else { "s" }
+            );
+            (
+                kin_standards::dh::text(&table, &m.name),
+                summary,
+                table.left_out,
+            )
+        }
+    };
+    if !left_out.is_empty() {
         summary.push_str(&format!(
-            "; left out as varying with the pose (a URDF has no place for them): {}",
-            exported.left_out.join(", ")
+            "; left out as varying with the pose (the format has no place for them): {}",
+            left_out.join(", ")
         ));
     }
     match args.output {
         Some(out) => {
-            crate::files::write(out, exported.text.as_bytes())?;
+            crate::files::write(out, text.as_bytes())?;
             println!("{summary}\nwrote {}", out.display());
         }
         None => {
-            print!("{}", exported.text);
+            print!("{text}");
             eprintln!("{summary}");
         }
     }

@@ -899,6 +899,24 @@ enum ExportCommand {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// The calibrated robot as a standard Denavit–Hartenberg table (with Hayati's beta between
+    /// nearly parallel joints) and its base and tool frames, every constant error of the model
+    /// folded in; `kin import dh` reads it back (spec/urdf.md, "Export").
+    #[command(after_help = "Examples:
+  kin export dh examples/ur10/ur10.kin --params FIT.params -o ur10_calibrated_dh.csv
+  kin export dh arm.kin                              # print the table")]
+    Dh {
+        /// The machine: one serial chain (the tool chain; the workpiece chain fixed).
+        machine: PathBuf,
+        /// Parameter values (`params { … }`, e.g. the FIT.params `kin fit` writes).
+        #[arg(long, value_name = "FILE")]
+        params: Option<PathBuf>,
+        /// Output `.csv` file (standard output when absent); replaced atomically.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
 }
 
 /// Whether the command line asks for JSON (`--format json` or `--format=json`), read before
@@ -1390,13 +1408,31 @@ fn run(command: Command) -> ExitCode {
             name,
             output,
             color,
-        }) => import::export_urdf(import::ExportUrdf {
-            machine: &machine,
-            params: params.as_deref(),
-            name,
-            output: output.as_deref(),
-            color: color.enabled(),
-        }),
+        }) => import::export(
+            import::Export {
+                machine: &machine,
+                params: params.as_deref(),
+                name,
+                output: output.as_deref(),
+                color: color.enabled(),
+            },
+            import::ExportFormat::Urdf,
+        ),
+        Command::Export(ExportCommand::Dh {
+            machine,
+            params,
+            output,
+            color,
+        }) => import::export(
+            import::Export {
+                machine: &machine,
+                params: params.as_deref(),
+                name: None,
+                output: output.as_deref(),
+                color: color.enabled(),
+            },
+            import::ExportFormat::Dh,
+        ),
         Command::Import(ImportCommand::Dh {
             file,
             output,

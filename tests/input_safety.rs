@@ -199,12 +199,19 @@ fn bad_option_values_are_usage_errors_naming_the_option() {
         (
             vec!["fit", m, d, "--tolerance", "-1e-10"],
             "--tolerance",
-            "> 0",
+            "0 < T < 1",
         ),
         (
             vec!["fit", m, d, "--tolerance", "nan"],
             "--tolerance",
-            "> 0",
+            "0 < T < 1",
+        ),
+        // At 1 no direction could be determined (it referred to combinations "above" that
+        // were never printed).
+        (
+            vec!["fit", m, d, "--tolerance", "1"],
+            "--tolerance",
+            "0 < T < 1",
         ),
         (
             vec!["diagnose", m, d, "--alpha", "NaN"],

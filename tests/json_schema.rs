@@ -122,11 +122,15 @@ fn fit_prints_fit_json_alone_and_every_field_is_documented() {
     let model = model.to_str().expect("utf-8");
     let out = dir.path().join("fit.json");
     let out_s = out.to_str().expect("utf-8");
+    // Validation data: a copy of the fitted file (the same file twice is refused).
+    let again = dir.path().join("again.csv");
+    std::fs::copy(DATA, &again).expect("copy");
+    let again = again.to_str().expect("utf-8");
     let mut seen = Vec::new();
     for extra in [
         vec!["--noise", "0.2um"],
         vec!["--stepwise", "1e-4"],
-        vec!["--validate", DATA],
+        vec!["--validate", again],
         // A σ per file: `noise_per_file`.
         vec!["--noise-per-file"],
     ] {

@@ -18,6 +18,9 @@
 
 use std::path::Path;
 
+mod export;
+pub use export::{export, link, text, DhExportError, Row as ExportedRow, Table, PARALLEL};
+
 use kin_compiler::units::{Dim, Unit};
 use nalgebra::{Matrix4, Rotation3, Vector3};
 
@@ -46,6 +49,8 @@ struct Row {
     alpha: f64,
     d: f64,
     theta: f64,
+    /// Hayati's tilt about y at the end of a standard link (0 when not given).
+    beta: f64,
     limits: Option<(f64, f64)>,
 }
 
@@ -67,11 +72,25 @@ pub fn import(
     options: &Options,
 ) -> Result<Imported, UrdfError> {
     let rows = read_rows(text, path)?;
+    if convention == Convention::Modified {
+        if let Some(r) = rows.iter().find(|r| r.beta != 0.0) {
+            return Err(invalid(
+                path,
+                1,
+                1,
+                format!(
+                    "joint `{}` has a `beta` (Hayati's tilt), which kin reads in the standard convention only (--convention standard)",
+                    r.name
+                ),
+            ));
+        }
+    }
+    let frames = read_frames(text, path)?;
     let name = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "robot".into());
-    let urdf_text = as_urdf(&rows, convention, &name);
+    let urdf_text = as_urdf(&rows, convention, &name, &frames);
     let mut imported = urdf::import(&urdf_text, path, options)?;
     imported.source = with_header(&imported.source, path, convention, rows.len());
     Ok(imported)
@@ -109,13 +128,14 @@ fn invalid(path: &Path, line: u32, column: u32, message: impl Into<String>) -> U
 }
 
 /// The columns a table may hold: name, the unit dimension of its numbers, its default unit.
-const COLUMNS: [(&str, Option<Dim>); 8] = [
+const COLUMNS: [(&str, Option<Dim>); 9] = [
     ("joint", None),
     ("type", None),
     ("a", Some(Dim::LENGTH)),
     ("alpha", Some(Dim::ANGLE)),
     ("d", Some(Dim::LENGTH)),
     ("theta", Some(Dim::ANGLE)),
+    ("beta", Some(Dim::ANGLE)),
     ("lower", None),
     ("upper", None),
 ];
@@ -169,7 +189,7 @@ fn read_rows(text: &str, path: &Path) -> Result<Vec<Row>, UrdfError> {
                 path,
                 header_line,
                 column,
-                format!("unknown column `{cell}`: a DH table has joint, type, a, alpha, d, theta, lower, upper"),
+                format!("unknown column `{cell}`: a DH table has joint, type, a, alpha, d, theta, beta, lower, upper"),
             ));
         };
         if fields.iter().flatten().any(|(j, _)| *j == k) {
@@ -247,6 +267,7 @@ fn read_rows(text: &str, path: &Path) -> Result<Vec<Row>, UrdfError> {
             alpha: 0.0,
             d: 0.0,
             theta: 0.0,
+            beta: 0.0,
             limits: None,
         };
         let mut lower = None;
@@ -302,6 +323,7 @@ fn read_rows(text: &str, path: &Path) -> Result<Vec<Row>, UrdfError> {
                         "alpha" => row.alpha = of(&deg),
                         "d" => row.d = of(&mm),
                         "theta" => row.theta = of(&deg),
+                        "beta" => row.beta = of(&deg),
                         "lower" => lower = Some((v, unit.clone(), *column)),
                         _ => upper = Some((v, unit.clone(), *column)),
                     }
@@ -404,22 +426,105 @@ fn rx(t: f64) -> Matrix4<f64> {
     Rotation3::from_axis_angle(&Vector3::x_axis(), t).to_homogeneous()
 }
 
+fn ry(t: f64) -> Matrix4<f64> {
+    Rotation3::from_axis_angle(&Vector3::y_axis(), t).to_homogeneous()
+}
+
+/// The frames a table's comment lines may state (what `kin export dh` writes): `# base [mm,
+/// deg]: x y z roll pitch yaw`, the base → frame 0, and `# tool NAME [mm, deg]: …`, frame n →
+/// tool, in mm and degrees (URDF's fixed-axis roll, pitch, yaw).
+struct Frames {
+    base: Matrix4<f64>,
+    tools: Vec<(String, Matrix4<f64>)>,
+}
+
+fn read_frames(text: &str, path: &Path) -> Result<Frames, UrdfError> {
+    let mut frames = Frames {
+        base: Matrix4::identity(),
+        tools: Vec::new(),
+    };
+    for (i, l) in text.lines().enumerate() {
+        let line = u32::try_from(i + 1).unwrap_or(u32::MAX);
+        let Some(comment) = l.trim().strip_prefix('#') else {
+            continue;
+        };
+        let Some((key, values)) = comment.split_once(':') else {
+            continue;
+        };
+        let key = key.trim();
+        let Some(key) = key.strip_suffix("[mm, deg]").map(str::trim) else {
+            continue;
+        };
+        let tool = match key.split_once(char::is_whitespace) {
+            Some(("tool", name)) => Some(name.trim()),
+            None if key == "base" => None,
+            _ => continue,
+        };
+        let numbers: Vec<f64> = values
+            .split_whitespace()
+            .map(|v| v.parse::<f64>().ok().filter(|v| v.is_finite()))
+            .collect::<Option<_>>()
+            .filter(|v: &Vec<f64>| v.len() == 6)
+            .ok_or_else(|| {
+                invalid(
+                    path,
+                    line,
+                    1,
+                    "a frame is six finite numbers: x y z in mm, roll pitch yaw in deg",
+                )
+            })?;
+        if numbers[..3].iter().any(|v| v.abs() > 1e7) {
+            return Err(invalid(
+                path,
+                line,
+                1,
+                "a frame's offset is beyond any robot (10 km)",
+            ));
+        }
+        let t = trans(numbers[0] * 1e-3, numbers[1] * 1e-3, numbers[2] * 1e-3)
+            * Rotation3::from_euler_angles(
+                numbers[3].to_radians(),
+                numbers[4].to_radians(),
+                numbers[5].to_radians(),
+            )
+            .to_homogeneous();
+        match tool {
+            None => frames.base = t,
+            Some(name) => {
+                let ok = name.chars().next().is_some_and(|c| c.is_ascii_alphabetic())
+                    && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+                if !ok || frames.tools.iter().any(|(n, _)| n == name) {
+                    return Err(invalid(
+                        path,
+                        line,
+                        1,
+                        format!("tool `{name}`: a new name of letters, digits and `_`"),
+                    ));
+                }
+                frames.tools.push((name.to_string(), t));
+            }
+        }
+    }
+    Ok(frames)
+}
+
 fn trans(x: f64, y: f64, z: f64) -> Matrix4<f64> {
     Matrix4::new_translation(&Vector3::new(x, y, z))
 }
 
 /// The table as a URDF chain: joint i's origin is every fixed transform since joint i−1's
 /// motion, its axis z; the fixed remainder after the last joint is a fixed joint to `flange`.
-fn as_urdf(rows: &[Row], convention: Convention, name: &str) -> String {
+fn as_urdf(rows: &[Row], convention: Convention, name: &str, frames: &Frames) -> String {
     let mut xml = format!("<robot name=\"{name}\">\n  <link name=\"base\"/>\n");
-    let mut pending = Matrix4::<f64>::identity();
+    let mut pending = frames.base;
     let mut parent = "base".to_string();
     for row in rows {
         match convention {
             // Rz(θ + q) Tz(d) Tx(a) Rx(α): the motion right after Rz(θ), the rest after it.
             Convention::Standard => {
                 let origin = pending * rz(row.theta);
-                let after = trans(0.0, 0.0, row.d) * trans(row.a, 0.0, 0.0) * rx(row.alpha);
+                let after =
+                    trans(0.0, 0.0, row.d) * trans(row.a, 0.0, 0.0) * rx(row.alpha) * ry(row.beta);
                 if row.kind == Kind::Fixed {
                     pending = origin * after;
                     break;
@@ -445,11 +550,20 @@ fn as_urdf(rows: &[Row], convention: Convention, name: &str) -> String {
             }
         }
     }
-    xml.push_str("  <link name=\"flange\"/>\n");
-    xml.push_str(&format!(
-        "  <joint name=\"flange_joint\" type=\"fixed\">\n    <parent link=\"{parent}\"/>\n    <child link=\"flange\"/>\n{}  </joint>\n</robot>\n",
-        origin_text(&pending).unwrap_or_default()
-    ));
+    let flange = [("flange".to_string(), Matrix4::identity())];
+    let tools = if frames.tools.is_empty() {
+        &flange[..]
+    } else {
+        &frames.tools[..]
+    };
+    for (tool, t) in tools {
+        xml.push_str(&format!("  <link name=\"{tool}\"/>\n"));
+        xml.push_str(&format!(
+            "  <joint name=\"{tool}_joint\" type=\"fixed\">\n    <parent link=\"{parent}\"/>\n    <child link=\"{tool}\"/>\n{}  </joint>\n",
+            origin_text(&(pending * t)).unwrap_or_default()
+        ));
+    }
+    xml.push_str("</robot>\n");
     xml
 }
 

@@ -16,7 +16,7 @@ mod emit;
 mod export;
 
 pub(crate) use export::origin_text;
-pub use export::{export, ExportError, Exported};
+pub use export::{calibrated, export, Calibrated, CalibratedJoint, ExportError, Exported};
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

@@ -78,10 +78,39 @@ fn frame_name(m: &Machine, frame: FrameRef) -> String {
     }
 }
 
-/// The machine `m` (its bound β) as a URDF robot named `name`: a `base` link, a link per axis
-/// (`<axis>_link`) joined by a joint named as the axis, a fixed joint to a link per tool and to
-/// a `workpiece` link.
-pub fn export(m: &Machine, name: &str) -> Result<Exported, ExportError> {
+/// One moving joint of a calibrated chain: the rigid transform from the previous joint's frame
+/// (after its motion) to this joint's frame, and the motion about or along `axis` there.
+#[derive(Debug, Clone)]
+pub struct CalibratedJoint {
+    pub name: String,
+    pub kind: JointKind,
+    pub continuous: bool,
+    /// The joint's range, SI (meaningless for a continuous joint).
+    pub range: [f64; 2],
+    /// From the frame after the previous joint's motion (the base for the first).
+    pub origin: Matrix4<f64>,
+    /// The direction of the motion in the joint's frame, unit length.
+    pub axis: [f64; 3],
+}
+
+/// A machine's chains with every constant error folded into rigid transforms: what a URDF or a
+/// DH table of the calibrated machine is written from.
+#[derive(Debug, Clone)]
+pub struct Calibrated {
+    pub tool_chain: Vec<CalibratedJoint>,
+    /// Each tool: its name and the transform from the frame after the tool chain's last motion.
+    pub tools: Vec<(String, Matrix4<f64>)>,
+    pub workpiece_chain: Vec<CalibratedJoint>,
+    /// From the frame after the workpiece chain's last motion to the workpiece.
+    pub workpiece: Matrix4<f64>,
+    /// Coefficients whose values were folded.
+    pub folded: usize,
+    /// Terms that vary with the pose, left out (as [`Exported::left_out`]).
+    pub left_out: Vec<String>,
+}
+
+/// The machine `m` (its bound β) with its constant errors folded into its chains' transforms.
+pub fn calibrated(m: &Machine) -> Result<Calibrated, ExportError> {
     let mut constant_part = m.clone();
     let mut left_out = Vec::new();
     let mut folded = 0;
@@ -137,42 +166,62 @@ pub fn export(m: &Machine, name: &str) -> Result<Exported, ExportError> {
         Ok(e)
     };
     let errors = errors_of(&mut it, 0)?;
+    let (tool_chain, after_tool) = chain(m, &m.tool_chain, &errors.tool_chain);
+    let mut tools = Vec::with_capacity(m.tools.len());
+    for (t, tool) in m.tools.iter().enumerate() {
+        let e = errors_of(&mut it, t)?;
+        tools.push((
+            tool.name.clone(),
+            after_tool * shape(&tool.offset) * error(&e.tool_end),
+        ));
+    }
+    let (workpiece_chain, after_workpiece) = chain(m, &m.workpiece_chain, &errors.workpiece_chain);
+    let workpiece = after_workpiece * shape(&m.workpiece) * error(&errors.workpiece_end);
+    Ok(Calibrated {
+        tool_chain,
+        tools,
+        workpiece_chain,
+        workpiece,
+        folded,
+        left_out,
+    })
+}
+
+/// The machine `m` (its bound β) as a URDF robot named `name`: a `base` link, a link per axis
+/// (`<axis>_link`) joined by a joint named as the axis, a fixed joint to a link per tool and to
+/// a `workpiece` link.
+pub fn export(m: &Machine, name: &str) -> Result<Exported, ExportError> {
+    let c = calibrated(m)?;
     let mut xml = String::new();
     xml.push_str("<?xml version=\"1.0\"?>\n");
     xml.push_str(&format!(
         "<!-- Written by kin export urdf from machine `{}`: every constant error folded into the \
-         joints' origins ({folded} coefficients); {} --> \n",
+         joints' origins ({} coefficients); {} --> \n",
         m.name,
-        if left_out.is_empty() {
+        c.folded,
+        if c.left_out.is_empty() {
             "no term varies with the pose".to_string()
         } else {
-            format!("left out as varying with the pose: {}", left_out.join(", "))
+            format!(
+                "left out as varying with the pose: {}",
+                c.left_out.join(", ")
+            )
         }
     ));
     xml.push_str(&format!("<robot name=\"{}\">\n", escape(name)));
     xml.push_str("  <link name=\"base\"/>\n");
-    let mut joints = 0;
-    let tool_link = chain(m, &m.tool_chain, &errors.tool_chain, &mut xml, &mut joints)?;
-    for (t, tool) in m.tools.iter().enumerate() {
-        let e = errors_of(&mut it, t)?;
-        let end = tool_link.1 * shape(&tool.offset) * error(&e.tool_end);
-        fixed(&mut xml, &tool.name, &tool_link.0, &tool.name, &end)?;
+    let tool_link = joints_xml(&c.tool_chain, &mut xml)?;
+    for (tool, end) in &c.tools {
+        fixed(&mut xml, tool, &tool_link, tool, end)?;
     }
-    let wp_link = chain(
-        m,
-        &m.workpiece_chain,
-        &errors.workpiece_chain,
-        &mut xml,
-        &mut joints,
-    )?;
-    let end = wp_link.1 * shape(&m.workpiece) * error(&errors.workpiece_end);
-    fixed(&mut xml, "workpiece", &wp_link.0, "workpiece", &end)?;
+    let wp_link = joints_xml(&c.workpiece_chain, &mut xml)?;
+    fixed(&mut xml, "workpiece", &wp_link, "workpiece", &c.workpiece)?;
     xml.push_str("</robot>\n");
     Ok(Exported {
         text: xml,
-        joints,
-        folded,
-        left_out,
+        joints: c.tool_chain.len() + c.workpiece_chain.len(),
+        folded: c.folded,
+        left_out: c.left_out,
     })
 }
 
@@ -184,16 +233,14 @@ fn error(e: &[f64; 6]) -> Matrix4<f64> {
     shape_or_error([e[0], e[1], e[2]], [e[3], e[4], e[5]])
 }
 
-/// Writes the joints of one chain from `base`; returns the last link and the fixed transform
-/// still pending after its last joint's motion (what the chain's end is placed by).
+/// The joints of one chain from the base, and the fixed transform still pending after its last
+/// joint's motion (what the chain's end is placed by).
 fn chain(
     m: &Machine,
     elements: &[kin_compiler::ir::Element],
     errors: &[[f64; 6]],
-    xml: &mut String,
-    joints: &mut usize,
-) -> Result<(String, Matrix4<f64>), ExportError> {
-    let mut parent = "base".to_string();
+) -> (Vec<CalibratedJoint>, Matrix4<f64>) {
+    let mut joints = Vec::with_capacity(elements.len());
     let mut pending = Matrix4::<f64>::identity();
     for (k, element) in elements.iter().enumerate() {
         let Some(axis) = m.axes.get(element.axis) else {
@@ -204,8 +251,30 @@ fn chain(
             FrameKind::Moving => pending * shape(&element.shape),
             FrameKind::Fixed => pending * shape(&element.shape) * error(&e),
         };
-        let link = format!("{}_link", axis.name);
-        let kind = match (axis.kind, axis.continuous) {
+        joints.push(CalibratedJoint {
+            name: axis.name.clone(),
+            kind: axis.kind,
+            continuous: axis.continuous,
+            range: axis.range,
+            origin,
+            axis: axis.direction,
+        });
+        // What follows this joint's motion before the next one: a moving element's error (the
+        // motion comes before it), nothing for a fixed one (its error came before the motion).
+        pending = match element.frame {
+            FrameKind::Moving => error(&e),
+            FrameKind::Fixed => Matrix4::identity(),
+        };
+    }
+    (joints, pending)
+}
+
+/// Writes the joints of one chain from `base`; returns the last link.
+fn joints_xml(joints: &[CalibratedJoint], xml: &mut String) -> Result<String, ExportError> {
+    let mut parent = "base".to_string();
+    for j in joints {
+        let link = format!("{}_link", j.name);
+        let kind = match (j.kind, j.continuous) {
             (JointKind::Revolute, true) => "continuous",
             (JointKind::Revolute, false) => "revolute",
             (JointKind::Prismatic, _) => "prismatic",
@@ -213,32 +282,25 @@ fn chain(
         xml.push_str(&format!("  <link name=\"{}\"/>\n", escape(&link)));
         xml.push_str(&format!(
             "  <joint name=\"{}\" type=\"{kind}\">\n    <parent link=\"{}\"/>\n    <child link=\"{}\"/>\n",
-            escape(&axis.name),
+            escape(&j.name),
             escape(&parent),
             escape(&link)
         ));
-        xml.push_str(&origin_xml(&origin, &axis.name)?);
-        let d = axis.direction;
+        xml.push_str(&origin_xml(&j.origin, &j.name)?);
+        let d = j.axis;
         xml.push_str(&format!("    <axis xyz=\"{} {} {}\"/>\n", d[0], d[1], d[2]));
-        if !axis.continuous {
+        if !j.continuous {
             // kin knows the range, not the drive: effort and velocity (required by the format)
             // are 0 here and belong to the original description.
             xml.push_str(&format!(
                 "    <limit lower=\"{}\" upper=\"{}\" effort=\"0\" velocity=\"0\"/>\n",
-                axis.range[0], axis.range[1]
+                j.range[0], j.range[1]
             ));
         }
         xml.push_str("  </joint>\n");
-        // What follows this joint's motion before the next one: a moving element's error (the
-        // motion comes before it), nothing for a fixed one (its error came before the motion).
-        pending = match element.frame {
-            FrameKind::Moving => error(&e),
-            FrameKind::Fixed => Matrix4::identity(),
-        };
         parent = link;
-        *joints += 1;
     }
-    Ok((parent, pending))
+    Ok(parent)
 }
 
 fn fixed(

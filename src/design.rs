@@ -547,7 +547,10 @@ fn summary(out: &mut String, r: &Report, detail: bool) {
         }
     }
     if !frames.is_empty() {
-        let _ = writeln!(out, "  not seen at all (coefficients):");
+        let _ = writeln!(
+            out,
+            "  not seen at all, or only through a placement fitted with them (coefficients):"
+        );
         for (_, items) in &frames {
             let mut line = String::from("   ");
             for item in items {

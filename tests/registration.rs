@@ -288,3 +288,60 @@ fn a_straight_elbow_leaves_the_zero_offsets_weakly_determined_and_kin_fit_says_s
     let stdout = String::from_utf8_lossy(&full.stdout);
     assert!(!stdout.contains("barely"), "{stdout}");
 }
+
+/// `kin check --plan` of a file of absolute positions counts the registration's unknowns: with
+/// two reflectors on the flange, a constant offset of the flange is taken up by both targets'
+/// fitted offsets, as the fit finds (it used to call it determined: the named targets' offsets
+/// were not eliminated with the instrument's placement).
+#[test]
+fn a_plan_of_absolute_positions_counts_the_registration() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let source = std::fs::read_to_string("examples/ur10/ur10.kin").expect("example");
+    let model = dir.path().join("ur10.kin");
+    std::fs::write(
+        &model,
+        source.replacen(
+            "    errors {\n",
+            "    errors {\n        flange.ty = const\n",
+            1,
+        ),
+    )
+    .expect("write");
+    // Every pose of the example measured at two reflectors, 50 mm apart.
+    let text = std::fs::read_to_string("examples/ur10/tracker.csv").expect("example");
+    let mut two = String::new();
+    for line in text.lines() {
+        if line.starts_with('#') {
+            two.push_str(line);
+        } else if line.starts_with("J1") {
+            two.push_str(&format!("{line},target"));
+        } else {
+            let mut cells: Vec<String> = line.split(',').map(str::to_string).collect();
+            two.push_str(&format!("{line},A\n"));
+            let px: f64 = cells[6].parse().expect("px");
+            cells[6] = format!("{}", px + 50.0);
+            two.push_str(&format!("{},B", cells.join(",")));
+        }
+        two.push('\n');
+    }
+    let data = dir.path().join("two.csv");
+    std::fs::write(&data, two).expect("write");
+    let (m, d) = (
+        model.to_str().expect("utf-8"),
+        data.to_str().expect("utf-8"),
+    );
+    let out = kin(&["check", m, "--plan", d]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("determines 6 of 7") && stdout.contains("flange.ty"),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The fit agrees: one direction short, flange.ty against a target's offset.
+    let out = kin(&["fit", m, d]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("flange.ty") && stderr.contains("target"),
+        "{stderr}"
+    );
+}

@@ -70,6 +70,7 @@ pub fn units(
     #[derive(PartialEq, Eq, PartialOrd, Ord, Clone, Copy)]
     enum Key {
         Artifact(usize, usize),
+        Registered(usize),
         Pose(usize, usize),
     }
     let mut order: Vec<Key> = Vec::new();
@@ -80,7 +81,13 @@ pub fn units(
             .get(p..)
             .and_then(|n| n.iter().position(|v| *v != 0.0))
             .map(|k| p + k);
+        let registered = first
+            .and_then(|c| layout.nuisance.get(c - p))
+            .is_some_and(|n| n.kind.registers());
         let key = match first {
+            // The instrument's placement and every target's offset are fitted from all the
+            // file's rows: the file is one unit, all its registration eliminated inside it.
+            Some(_) if registered => Key::Registered(meta.file as usize),
             Some(c) => {
                 // The artifact's first nuisance column: its block starts where the label does.
                 let start = (p..=c)
@@ -145,6 +152,21 @@ pub fn units(
                     own.extend_from_slice(row.get(start..start + q).unwrap_or(&[]));
                 }
                 (file, Unit::eliminated(&own, p, q), label)
+            }
+            Key::Registered(file) => {
+                let columns: Vec<usize> = layout
+                    .nuisance
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, n)| n.file == file && n.kind.registers())
+                    .map(|(j, _)| p + j)
+                    .collect();
+                let mut own = Vec::with_capacity(x.len() / width.max(1) * (p + columns.len()));
+                for row in x.chunks_exact(width.max(1)) {
+                    own.extend_from_slice(row.get(..p).unwrap_or(&[]));
+                    own.extend(columns.iter().map(|&j| row.get(j).copied().unwrap_or(0.0)));
+                }
+                (file, Unit::eliminated(&own, p, columns.len()), None)
             }
         };
         plan.units.push(unit);

@@ -52,6 +52,20 @@ pub struct Nuisance {
     pub kind: NuisanceKind,
 }
 
+impl NuisanceKind {
+    /// Whether the parameter belongs to the registration of a file of absolute positions (its
+    /// instrument's placement or a target's offset): fitted from all the file's rows together.
+    pub fn registers(self) -> bool {
+        matches!(
+            self,
+            NuisanceKind::InstrumentShift(_)
+                | NuisanceKind::InstrumentRotation(_)
+                | NuisanceKind::Target(_)
+                | NuisanceKind::TargetRotation(_)
+        )
+    }
+}
+
 impl Nuisance {
     pub fn name(&self) -> String {
         let axis = |a: usize| ["x", "y", "z"].get(a).copied().unwrap_or("?");

@@ -154,11 +154,18 @@ pub fn units(
                 (file, Unit::eliminated(&own, p, q), label)
             }
             Key::Registered(file) => {
+                // The file's instrument and the targets its rows measure (a named target shared
+                // with another file is eliminated in each: conservative, never more determined
+                // than the joint fit).
                 let columns: Vec<usize> = layout
                     .nuisance
                     .iter()
                     .enumerate()
-                    .filter(|(_, n)| n.file == file && n.kind.registers())
+                    .filter(|(j, n)| {
+                        n.kind.registers()
+                            && x.chunks_exact(width.max(1))
+                                .any(|row| row.get(p + j).is_some_and(|v| *v != 0.0))
+                    })
                     .map(|(j, _)| p + j)
                     .collect();
                 let mut own = Vec::with_capacity(x.len() / width.max(1) * (p + columns.len()));

@@ -173,6 +173,24 @@ pub fn report(
             .and_then(|k| var.get(n + k))
             .map_or(f64::NAN, |v| v.max(0.0).sqrt())
     };
+    // A target's columns by its place in the file (a named target shared with an earlier file
+    // has that file's columns): the first, then three offsets and, where fitted, three turns.
+    let target_u = |file: usize, target: usize, k: usize| -> f64 {
+        result
+            .layout
+            .target_columns(file)
+            .get(target)
+            .and_then(|first| var.get(first + k))
+            .map_or(f64::NAN, |v| v.max(0.0).sqrt())
+    };
+    let turned = |file: usize, target: usize| -> bool {
+        result
+            .layout
+            .target_columns(file)
+            .get(target)
+            .and_then(|first| result.layout.nuisance.get(first + 3 - n))
+            .is_some_and(|nu| nu.kind == NuisanceKind::TargetRotation(0))
+    };
     registration
         .placements
         .iter()
@@ -195,18 +213,16 @@ pub fn report(
                     .targets
                     .iter()
                     .zip(&p.turns)
-                    .map(|((label, o), turn)| {
-                        let turn_u: [f64; 3] = std::array::from_fn(|k| {
-                            u(file, NuisanceKind::TargetRotation(k), label) / angle.scale
-                        });
-                        let fitted = turn_u.iter().all(|v| v.is_finite());
+                    .enumerate()
+                    .map(|(t, ((label, o), turn))| {
+                        let fitted = turned(file, t);
+                        let turn_u: [f64; 3] =
+                            std::array::from_fn(|k| target_u(file, t, 3 + k) / angle.scale);
                         let v = Rotation3::from_matrix_unchecked(matrix(turn)).scaled_axis();
                         TargetReport {
                             label: label.clone(),
                             offset: o.map(|v| length.from_si(v)),
-                            offset_u: std::array::from_fn(|k| {
-                                u(file, NuisanceKind::Target(k), label) / length.scale
-                            }),
+                            offset_u: std::array::from_fn(|k| target_u(file, t, k) / length.scale),
                             turn: fitted.then(|| [v.x, v.y, v.z].map(|x| angle.from_si(x))),
                             turn_u: fitted.then_some(turn_u),
                         }
@@ -247,6 +263,7 @@ pub fn register(
         };
         placements.push(Some(start(engine, f, p, a)?));
     }
+    share_targets(&mut placements);
     let sign = match m.task {
         Task::Position => 1.0,
         Task::Measure => -1.0,
@@ -314,6 +331,26 @@ pub fn observe_with(
     Ok(out)
 }
 
+/// A named target measured in several files is one target: every file starts from the first
+/// file's estimate of it (each file's closed-form start found its own).
+fn share_targets(placements: &mut [Option<Placement>]) {
+    let mut first: Vec<(String, [f64; 3], [[f64; 3]; 3])> = Vec::new();
+    for p in placements.iter_mut().flatten() {
+        for ((label, o), turn) in p.targets.iter_mut().zip(p.turns.iter_mut()) {
+            if label.is_empty() {
+                continue;
+            }
+            match first.iter().find(|(l, _, _)| l == label) {
+                Some((_, o0, t0)) => {
+                    *o = *o0;
+                    *turn = *t0;
+                }
+                None => first.push((label.clone(), *o, *turn)),
+            }
+        }
+    }
+}
+
 /// A step of one placement: the shift b and rotation a of the instrument, and per target the
 /// shift d of its offset and the turn ρ of its frame.
 type Change = ([f64; 3], [f64; 3], Vec<[f64; 3]>, Vec<[f64; 3]>);
@@ -341,6 +378,39 @@ fn apply(result: &FitResult, placements: &mut [Option<Placement>], sign: f64) ->
         let j = n + k;
         let value = sign * beta.get(j).copied().unwrap_or(0.0);
         let se = var.get(j).copied().unwrap_or(0.0).max(0.0).sqrt();
+        // A named target shared by several files takes its change in each (one set of
+        // columns, those of the first file naming it).
+        if !nu.artifact.is_empty()
+            && matches!(
+                nu.kind,
+                NuisanceKind::Target(_) | NuisanceKind::TargetRotation(_)
+            )
+        {
+            for (f, p) in placements.iter().enumerate().skip(nu.file + 1) {
+                let Some(t) = p
+                    .as_ref()
+                    .and_then(|p| p.targets.iter().position(|(l, _)| *l == nu.artifact))
+                else {
+                    continue;
+                };
+                let shared = result
+                    .layout
+                    .target_columns(f)
+                    .get(t)
+                    .is_some_and(|first| (*first..*first + 6).contains(&j));
+                let Some((_, _, d, rho)) = changes.get_mut(f) else {
+                    continue;
+                };
+                let slot = match nu.kind {
+                    NuisanceKind::Target(i) => d.get_mut(t).and_then(|d| d.get_mut(i)),
+                    NuisanceKind::TargetRotation(i) => rho.get_mut(t).and_then(|r| r.get_mut(i)),
+                    _ => None,
+                };
+                if let (true, Some(slot)) = (shared, slot) {
+                    *slot = value;
+                }
+            }
+        }
         let Some((b, a, d, rho)) = changes.get_mut(nu.file) else {
             continue;
         };

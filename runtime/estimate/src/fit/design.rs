@@ -177,6 +177,13 @@ pub(crate) fn kinds_observed(files: &[DataSet]) -> (bool, bool) {
     kinds
 }
 
+/// Whether target `label` of file `file` has rotation columns (its file measures orientations).
+fn registration_turned(nuisance: &[Nuisance], file: usize, label: &str) -> bool {
+    nuisance
+        .iter()
+        .any(|n| n.file == file && n.artifact == label && n.kind == NuisanceKind::TargetRotation(0))
+}
+
 /// The columns: the model's coefficients first, then the nuisance parameters.
 #[derive(Debug, Clone)]
 pub struct Layout {
@@ -247,6 +254,19 @@ impl Layout {
             let mut targets = Vec::with_capacity(a.target.labels.len());
             let turned = a.rotation.is_some();
             for label in &a.target.labels {
+                // A named target is one physical target across the files (a reflector on the
+                // flange seen from two tracker stations): its offset is one set of columns,
+                // those of the first file naming it.
+                let shared = nuisance.iter().position(|n| {
+                    !label.is_empty()
+                        && n.artifact == *label
+                        && n.kind == NuisanceKind::Target(0)
+                        && registration_turned(&nuisance, n.file, label) == turned
+                });
+                if let Some(k) = shared {
+                    targets.push(coefficients + k);
+                    continue;
+                }
                 targets.push(coefficients + nuisance.len());
                 let kinds = (0..3)
                     .map(NuisanceKind::Target)
@@ -306,6 +326,15 @@ impl Layout {
 
     fn first_of(&self, file: usize, artifact: Option<u32>) -> Option<usize> {
         self.first.get(file)?.get(artifact? as usize).copied()
+    }
+
+    /// The first column of each target of file `file` (in the order of its `target` labels),
+    /// for a file of absolute positions; a named target measured in several files has one.
+    pub fn target_columns(&self, file: usize) -> &[usize] {
+        self.registration
+            .get(file)
+            .and_then(Option::as_ref)
+            .map_or(&[], |(_, targets)| targets.as_slice())
     }
 
     /// The first column of file `file`'s instrument and of its target `target`, for a file of

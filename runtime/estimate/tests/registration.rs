@@ -382,15 +382,10 @@ fn named_targets_seen_from_two_stations_are_one_target_each() {
         let (x, y) = (&report[0].targets[t], &report[1].targets[t]);
         assert_eq!(x.offset, y.offset, "one offset for {}", x.label);
         assert_eq!(x.offset_u, y.offset_u);
-        for k in 0..3 {
+        for ((o, u), t) in x.offset.iter().zip(&x.offset_u).zip(truth) {
             // Display unit mm.
-            let miss = (x.offset[k] - truth[k] * 1e3).abs();
-            assert!(
-                miss <= 3.0 * x.offset_u[k],
-                "{}: {miss} mm ± {}",
-                x.label,
-                x.offset_u[k]
-            );
+            let miss = (o - t * 1e3).abs();
+            assert!(miss <= 3.0 * u, "{}: {miss} mm ± {u}", x.label);
         }
     }
     for (p, truth) in reg.placements.iter().zip([&first, &second]) {

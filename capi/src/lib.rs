@@ -263,6 +263,13 @@ fn state_regions(state: *const kin_state, s: &kin_state) -> [Region; 5] {
     ]
 }
 
+/// A state's regions and β's: the inputs of an evaluation, on the stack (a call allocates
+/// nothing on success).
+fn with_beta(state: [Region; 5], beta: *const f64, n_beta: usize) -> [Region; 6] {
+    let [a, b, c, d, e] = state;
+    [a, b, c, d, e, region(beta, n_beta, "beta")]
+}
+
 /// Outputs must not share a byte with each other or with an input: written while inputs are
 /// still read, they would give wrong results (an `err` inside `jac` is overwritten by the
 /// Jacobian).
@@ -270,16 +277,26 @@ fn disjoint(outputs: &[Region], inputs: &[Region]) -> Result<(), Fail> {
     let meet = |a: &Region, b: &Region| {
         a.start < a.end && b.start < b.end && a.start < b.end && b.start < a.end
     };
+    let overlap = |a: &Region, b: &Region| {
+        Fail(
+            KIN_ERR_OVERLAP,
+            format!(
+                "`{}` and `{}` overlap: an output may share memory with no other buffer",
+                a.what, b.what
+            ),
+        )
+    };
+    // Plain loops: a chained iterator here cost as much as the rest of the checks.
     for (i, out) in outputs.iter().enumerate() {
-        let others = outputs.iter().skip(i + 1).chain(inputs);
-        if let Some(other) = others.into_iter().find(|o| meet(out, o)) {
-            return Err(Fail(
-                KIN_ERR_OVERLAP,
-                format!(
-                    "`{}` and `{}` overlap: an output may share memory with no other buffer",
-                    out.what, other.what
-                ),
-            ));
+        for other in &outputs[i + 1..] {
+            if meet(out, other) {
+                return Err(overlap(out, other));
+            }
+        }
+        for other in inputs {
+            if meet(out, other) {
+                return Err(overlap(out, other));
+            }
         }
     }
     Ok(())
@@ -309,8 +326,10 @@ fn check_values(
         )
     };
     let [wq, wi, wl, wd] = widths;
-    if let Some((k, &v)) = q.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-        return Err(bad("q", k, wq, v, "joint positions must be finite"));
+    if !all_finite(q) {
+        if let Some((k, &v)) = q.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(bad("q", k, wq, v, "joint positions must be finite"));
+        }
     }
     if let Some((k, &v)) = inputs.iter().enumerate().find(|(_, v)| v.is_infinite()) {
         return Err(bad(
@@ -347,6 +366,17 @@ fn check_values(
 }
 
 fn check_state(s: &State) -> Result<(), Fail> {
+    // The common case in one branch-light pass; the messages only when something is wrong.
+    let fine = all_finite(s.q)
+        && all_finite(s.lags)
+        && !s.time.is_infinite()
+        && s.inputs.iter().all(|v| !v.is_infinite())
+        && s.dirs
+            .iter()
+            .all(|d| d.is_nan() || *d == 1.0 || *d == -1.0 || *d == 0.0);
+    if fine {
+        return Ok(());
+    }
     check_values(
         s.q,
         s.inputs,
@@ -357,7 +387,33 @@ fn check_state(s: &State) -> Result<(), Fail> {
     )
 }
 
+/// Whether every value is finite, in one pass the compiler vectorises: a double is not finite
+/// exactly when its exponent field is all ones, and adding one to a full exponent field carries
+/// into the sign bit — so OR-ing `(bits & EXPONENT) + ONE` over the values, in eight
+/// independent lanes, leaves the sign bit set iff some value is infinite or NaN. Integer AND,
+/// ADD and OR, no floating-point latency chain: several times faster than a search that stops at
+/// the first bad value, which the callers run only when this finds one.
+fn all_finite(values: &[f64]) -> bool {
+    const EXPONENT: u64 = 0x7ff0_0000_0000_0000;
+    const ONE: u64 = 0x0010_0000_0000_0000;
+    let mut lanes = [0u64; 8];
+    let chunks = values.chunks_exact(8);
+    let rest = chunks.remainder();
+    for chunk in chunks {
+        for (lane, v) in lanes.iter_mut().zip(chunk) {
+            *lane |= (v.to_bits() & EXPONENT) + ONE;
+        }
+    }
+    let tail = rest
+        .iter()
+        .fold(0u64, |a, v| a | ((v.to_bits() & EXPONENT) + ONE));
+    (lanes.iter().fold(tail, |a, l| a | l) >> 63) == 0
+}
+
 fn check_beta(b: &[f64]) -> Result<(), Fail> {
+    if all_finite(b) {
+        return Ok(());
+    }
     match b.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         Some((k, v)) => Err(Fail(
             KIN_ERR_VALUE,
@@ -369,6 +425,9 @@ fn check_beta(b: &[f64]) -> Result<(), Fail> {
 
 /// A result that overflowed is not handed out as if it were one.
 fn check_results(what: &str, values: &[f64]) -> Result<(), Fail> {
+    if all_finite(values) {
+        return Ok(());
+    }
     match values.iter().position(|v| !v.is_finite()) {
         Some(k) => Err(Fail(
             KIN_ERR_VALUE,
@@ -1006,8 +1065,7 @@ pub unsafe extern "C" fn kin_eval(
     guard(|| {
         // SAFETY: caller's contract.
         let st = unsafe { read_state(state)? };
-        let mut inputs = state_regions(state, &st).to_vec();
-        inputs.push(region(beta, n_beta, "beta"));
+        let inputs = with_beta(state_regions(state, &st), beta, n_beta);
         disjoint(&[region(err.cast_const(), n_err, "err")], &inputs)?;
         // SAFETY: caller's contract; `err` overlaps no input (checked above).
         let (m, s, out) = unsafe {
@@ -1026,7 +1084,10 @@ pub unsafe extern "C" fn kin_eval(
             )
         })?;
         check_state(&s)?;
-        check_beta(b)?;
+        // The model's own β was checked when it was set.
+        if !beta.is_null() {
+            check_beta(b)?;
+        }
         m.eval(&s, b, out).map_err(eval_error)?;
         check_results("err", out)
     })
@@ -1052,8 +1113,7 @@ pub unsafe extern "C" fn kin_eval_jacobian(
     guard(|| {
         // SAFETY: caller's contract.
         let st = unsafe { read_state(state)? };
-        let mut inputs = state_regions(state, &st).to_vec();
-        inputs.push(region(beta, n_beta, "beta"));
+        let inputs = with_beta(state_regions(state, &st), beta, n_beta);
         disjoint(
             &[
                 region(err.cast_const(), n_err, "err"),
@@ -1080,7 +1140,10 @@ pub unsafe extern "C" fn kin_eval_jacobian(
         })?;
         check("jac", 6 * m.coefficients(), jac.len())?;
         check_state(&s)?;
-        check_beta(b)?;
+        // The model's own β was checked when it was set.
+        if !beta.is_null() {
+            check_beta(b)?;
+        }
         m.eval_jacobian(&s, b, out, jac).map_err(eval_error)?;
         check_results("err", out)?;
         check_results("jac", jac)
@@ -1223,7 +1286,10 @@ pub unsafe extern "C" fn kin_eval_batch(
             state_rows.time,
             [m.axes(), m.inputs(), m.lags(), m.axes()],
         )?;
-        check_beta(b)?;
+        // The model's own β was checked when it was set.
+        if !beta.is_null() {
+            check_beta(b)?;
+        }
         if jac.is_empty() && m.coefficients() > 0 && r.n_rows > 0 {
             m.eval_rows(&state_rows, b, out).map_err(batch_error)?;
         } else {
@@ -1428,6 +1494,38 @@ pub unsafe extern "C" fn kin_compensate(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The exponent test agrees with `is_finite` on the edge values and at every position of a
+    /// chunk and of the tail.
+    #[test]
+    fn all_finite_is_exact() {
+        let edges = [
+            0.0,
+            -0.0,
+            f64::MIN_POSITIVE,
+            5e-324,
+            f64::MAX,
+            f64::MIN,
+            1.0,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -f64::NAN,
+        ];
+        for len in [0, 1, 7, 8, 9, 17, 64] {
+            for at in 0..len {
+                for bad in edges {
+                    let mut v = vec![1.5; len];
+                    v[at] = bad;
+                    assert_eq!(
+                        all_finite(&v),
+                        v.iter().all(|x| x.is_finite()),
+                        "{len} {at} {bad}"
+                    );
+                }
+            }
+        }
+    }
     use std::ptr::{null, null_mut};
 
     const SRC: &str = "machine m {

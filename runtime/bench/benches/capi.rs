@@ -1,0 +1,265 @@
+//! The C ABI against the code it calls (issue 36): one pose per call of `kin_eval_jacobian` and
+//! `kin_eval` on the 5-axis example, against `Model::eval_jacobian` and `Model::eval` (the
+//! generated code behind a length check) and the hand-written Rust evaluator of the same
+//! machine, all in this run. The ratios say what the ABI's checks cost an embedder.
+//!
+//! `cargo bench -p kin-bench --bench capi` prints the summary first, then criterion's report.
+
+use std::hint::black_box;
+use std::ptr::null_mut;
+use std::time::{Duration, Instant};
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use kin_bench::baseline_5axis::{self, Trig};
+use kin_capi::{
+    kin_eval, kin_eval_jacobian, kin_model as CModel, kin_model_compile, kin_state, KIN_OK,
+};
+use kin_model::states::States;
+use kin_model::Model;
+
+const POSES: usize = 1000;
+
+struct Setup {
+    source: String,
+    model: Model,
+    states: States,
+    beta: Vec<f64>,
+}
+
+fn setup() -> Setup {
+    let path = format!(
+        "{}/../../examples/milling_5axis.kin",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let source = std::fs::read_to_string(path).expect("example");
+    let model = Model::compile(&source).expect("compiles");
+    let n = model.coefficients();
+    let states = States::sample(model.machine(), POSES, 1);
+    let beta = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
+    Setup {
+        source,
+        model,
+        states,
+        beta,
+    }
+}
+
+fn c_model(source: &str) -> *mut CModel {
+    let mut out = null_mut();
+    // SAFETY: a valid source and out pointer; no error buffer.
+    let code = unsafe {
+        kin_model_compile(
+            source.as_ptr().cast(),
+            source.len(),
+            &mut out,
+            null_mut(),
+            0,
+        )
+    };
+    assert_eq!(code, KIN_OK);
+    out
+}
+
+/// The `kin_state` of a state (its slices outlive the call).
+fn c_state(s: &kin_model::interp::State) -> kin_state {
+    kin_state {
+        q: s.q.as_ptr(),
+        n_q: s.q.len(),
+        inputs: s.inputs.as_ptr(),
+        n_inputs: s.inputs.len(),
+        lags: s.lags.as_ptr(),
+        n_lags: s.lags.len(),
+        dirs: s.dirs.as_ptr(),
+        n_dirs: s.dirs.len(),
+        time: s.time,
+        tool: s.tool,
+    }
+}
+
+/// Poses per second of `f` over all poses, best of 5 rounds of about `budget / 5`.
+fn rate(budget: Duration, mut f: impl FnMut()) -> f64 {
+    f();
+    let mut best: f64 = 0.0;
+    for _ in 0..5 {
+        let start = Instant::now();
+        let mut rounds = 0u32;
+        while start.elapsed() < budget / 5 {
+            f();
+            rounds += 1;
+        }
+        best = best.max(f64::from(rounds) * POSES as f64 / start.elapsed().as_secs_f64());
+    }
+    best
+}
+
+fn summary() {
+    let s = setup();
+    let n = s.model.coefficients();
+    let cm = c_model(&s.source);
+    let states: Vec<kin_state> = (0..POSES).map(|r| c_state(&s.states.get(r))).collect();
+    let budget = Duration::from_millis(1500);
+    let mut err = [0.0; 6];
+    let mut jac = vec![0.0; 6 * n];
+    // Interleaved rounds, so that a change of the machine's load affects every figure alike.
+    let (mut abi, mut abi_own, mut rust, mut hand) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let (mut abi_err, mut rust_err) = (0.0f64, 0.0f64);
+    // The same model with β bound once (kin_model_set_beta): calls pass NULL and 0.
+    let cm_bound = c_model(&s.source);
+    // SAFETY: a live model and β of its length.
+    let bound = unsafe { kin_capi::kin_model_set_beta(cm_bound, s.beta.as_ptr(), n) };
+    assert_eq!(bound, KIN_OK);
+    let mut baseline =
+        baseline_5axis::Baseline::new(s.model.machine(), Trig::Exact).expect("the 5-axis example");
+    let nonlinear: Vec<f64> = s
+        .model
+        .machine()
+        .nonlinear
+        .iter()
+        .map(|p| p.value)
+        .collect();
+    for _ in 0..3 {
+        abi = abi.max(rate(budget, || {
+            for st in &states {
+                // SAFETY: live model, valid state and buffers of the stated lengths.
+                let code = unsafe {
+                    kin_eval_jacobian(
+                        cm,
+                        st,
+                        s.beta.as_ptr(),
+                        n,
+                        err.as_mut_ptr(),
+                        6,
+                        jac.as_mut_ptr(),
+                        6 * n,
+                    )
+                };
+                debug_assert_eq!(code, KIN_OK);
+            }
+            black_box(&jac);
+        }));
+        abi_own = abi_own.max(rate(budget, || {
+            for st in &states {
+                // SAFETY: live model (its bound β), valid state and buffers.
+                let code = unsafe {
+                    kin_eval_jacobian(
+                        cm_bound,
+                        st,
+                        std::ptr::null(),
+                        0,
+                        err.as_mut_ptr(),
+                        6,
+                        jac.as_mut_ptr(),
+                        6 * n,
+                    )
+                };
+                debug_assert_eq!(code, KIN_OK);
+            }
+            black_box(&jac);
+        }));
+        rust = rust.max(rate(budget, || {
+            for r in 0..POSES {
+                s.model
+                    .eval_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac)
+                    .expect("eval");
+            }
+            black_box(&jac);
+        }));
+        hand = hand.max(rate(budget, || {
+            for r in 0..POSES {
+                baseline.error_and_jacobian(
+                    &s.states.get(r),
+                    &s.beta,
+                    &nonlinear,
+                    &mut err,
+                    &mut jac,
+                );
+            }
+            black_box(&jac);
+        }));
+        abi_err = abi_err.max(rate(budget, || {
+            for st in &states {
+                // SAFETY: as above.
+                let code = unsafe { kin_eval(cm, st, s.beta.as_ptr(), n, err.as_mut_ptr(), 6) };
+                debug_assert_eq!(code, KIN_OK);
+            }
+            black_box(&err);
+        }));
+        rust_err = rust_err.max(rate(budget, || {
+            for r in 0..POSES {
+                s.model
+                    .eval(&s.states.get(r), &s.beta, &mut err)
+                    .expect("eval");
+            }
+            black_box(&err);
+        }));
+    }
+    eprintln!("\nC ABI on milling_5axis ({n} coefficients), one pose per call (poses/s, best of 3 × 5 rounds):");
+    eprintln!("  error + β-Jacobian: C ABI {abi:.0} (β bound once: {abi_own:.0}), Model {rust:.0}, hand-written {hand:.0}");
+    eprintln!(
+        "    ABI ÷ Model {:.2} (β bound: {:.2}), ABI ÷ hand {:.2} (β bound: {:.2})",
+        abi / rust,
+        abi_own / rust,
+        abi / hand,
+        abi_own / hand
+    );
+    eprintln!(
+        "  error only:         C ABI {abi_err:.0}, Model {rust_err:.0}: ABI ÷ Model {:.2}",
+        abi_err / rust_err
+    );
+    // SAFETY: compiled above, freed once.
+    unsafe {
+        kin_capi::kin_model_free(cm);
+        kin_capi::kin_model_free(cm_bound);
+    };
+}
+
+fn bench(c: &mut Criterion) {
+    summary();
+    let s = setup();
+    let n = s.model.coefficients();
+    let cm = c_model(&s.source);
+    let states: Vec<kin_state> = (0..POSES).map(|r| c_state(&s.states.get(r))).collect();
+    let mut err = [0.0; 6];
+    let mut jac = vec![0.0; 6 * n];
+    let mut g = c.benchmark_group("capi_1000_poses");
+    g.bench_function("kin_eval_jacobian", |b| {
+        b.iter(|| {
+            for st in &states {
+                // SAFETY: as in `summary`.
+                unsafe {
+                    kin_eval_jacobian(
+                        cm,
+                        st,
+                        s.beta.as_ptr(),
+                        n,
+                        err.as_mut_ptr(),
+                        6,
+                        jac.as_mut_ptr(),
+                        6 * n,
+                    )
+                };
+            }
+            black_box(&jac);
+        })
+    });
+    g.bench_function("Model::eval_jacobian", |b| {
+        b.iter(|| {
+            for r in 0..POSES {
+                s.model
+                    .eval_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac)
+                    .expect("eval");
+            }
+            black_box(&jac);
+        })
+    });
+    g.finish();
+    // SAFETY: compiled above, freed once.
+    unsafe { kin_capi::kin_model_free(cm) };
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(10).measurement_time(Duration::from_secs(3));
+    targets = bench
+}
+criterion_main!(benches);

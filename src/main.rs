@@ -16,6 +16,7 @@ mod folder;
 mod grid;
 mod help;
 mod import;
+mod init;
 mod iso;
 mod iso_html;
 mod load;
@@ -90,6 +91,24 @@ pub enum Format {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Start a new machine from a template: a commented `.kin` model that checks clean, written
+    /// as DIR/machine.kin (never over an existing file). Without a template, the list.
+    #[command(after_help = "Examples:
+  kin init --list                   # the templates, one line each
+  kin init mill-3axis mill          # writes mill/machine.kin; then: kin check mill/machine.kin
+  kin init bridge-cmm               # writes machine.kin in the current folder")]
+    Init {
+        /// The machine to start from.
+        #[arg(value_enum)]
+        template: Option<init::Template>,
+        /// The folder to write machine.kin into, created if it does not exist (default: the
+        /// current folder).
+        #[arg(value_name = "DIR")]
+        dir: Option<PathBuf>,
+        /// List the templates, one line each (what `kin init` alone does too).
+        #[arg(long, conflicts_with_all = ["template", "dir"])]
+        list: bool,
+    },
     /// Type-check a machine: report every problem, or print a summary of the model.
     #[command(after_help = "Examples:
   kin check examples/bridge_cmm.kin
@@ -999,6 +1018,12 @@ fn main() -> ExitCode {
 
 fn run(command: Command) -> ExitCode {
     match command {
+        // `--list` asks for what no template gives (clap refuses it beside a template or DIR).
+        Command::Init {
+            template,
+            dir,
+            list: _,
+        } => init::run(template, dir),
         Command::Check {
             file,
             format,

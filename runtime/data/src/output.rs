@@ -2,7 +2,8 @@
 //! or a concurrent writer leaves either the old complete file or the new complete file.
 //!
 //! [`replace`] writes a temporary file in the target's directory and renames it over the target
-//! (a rename within one file system is atomic); [`check_target`] refuses, before any work is
+//! (a rename within one file system is atomic); [`create_new`] does the same for a file that must
+//! not exist yet, and never replaces one; [`check_target`] refuses, before any work is
 //! done, an output that is one of the command's inputs or whose directory does not exist;
 //! [`lock_beside`] takes an advisory lock on a small lock file next to a file that several
 //! processes may rewrite.
@@ -101,6 +102,27 @@ pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
         return write_stream(path, contents);
     }
     stage(path, contents)?.commit()
+}
+
+/// Creates `path` with `contents`, atomically, and never over an existing file: the bytes go to
+/// a temporary file next to it, flushed to disk, which is then moved to `path` only if nothing
+/// is there (a rename that refuses to replace, or a hard link, decided by the file system at
+/// that moment, so a file that appears meanwhile is not lost either). A `path` that exists —
+/// a file, a folder, a symbolic link even dangling — is an error of kind
+/// [`io::ErrorKind::AlreadyExists`], and nothing is written.
+pub fn create_new(path: &Path, contents: &[u8]) -> io::Result<()> {
+    if std::fs::symlink_metadata(path).is_ok() {
+        return Err(io::Error::new(
+            io::ErrorKind::AlreadyExists,
+            "the file exists already",
+        ));
+    }
+    let staged = stage(path, contents)?;
+    staged
+        .temp
+        .persist_noclobber(&staged.target)
+        .map_err(|e| e.error)?;
+    sync_directory(&staged.dir)
 }
 
 /// Whether `path` names something that is not a file to replace: a device (`/dev/null`,
@@ -284,6 +306,23 @@ mod tests {
         assert_eq!(reader.join().unwrap(), b"streamed");
         assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
         assert_eq!(std::fs::read(&regular).unwrap(), b"kept");
+    }
+
+    #[test]
+    fn create_new_writes_a_new_file_and_never_an_existing_one() {
+        let d = dir();
+        let p = d.path().join("machine.kin");
+        create_new(&p, b"first").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"first");
+        let again = create_new(&p, b"second").unwrap_err();
+        assert_eq!(again.kind(), io::ErrorKind::AlreadyExists);
+        assert_eq!(std::fs::read(&p).unwrap(), b"first");
+        // A folder of that name is not replaced either, and no temporary file is left.
+        let folder = d.path().join("folder");
+        std::fs::create_dir(&folder).unwrap();
+        assert!(create_new(&folder, b"x").is_err());
+        let names: Vec<_> = std::fs::read_dir(d.path()).unwrap().collect();
+        assert_eq!(names.len(), 2, "{names:?}");
     }
 
     #[test]

@@ -1012,7 +1012,7 @@ pub fn summary(r: &report::FitReport) -> String {
             .filter_map(|(name, vif)| {
                 let e = r.coefficients.iter().find(|e| &e.name == name)?;
                 Some(format!(
-                    "{} = {:.4} ± {:.4} {} (standard error {:.0}× its own)",
+                    "{} = {:.4} ± {:.4} {} (standard error {:.0}× what the data would give it alone)",
                     e.name,
                     e.value,
                     e.se,
@@ -1125,11 +1125,17 @@ fn sigma_line(r: &report::FitReport) -> String {
     }
     if let Some(w) = &r.weights {
         let mut stated = Vec::new();
+        // To 12 significant digits: a stated 1 mm read back in µm is 1000.0000000000001.
+        let shown = |v: f64| format!("{}", format!("{v:.11e}").parse::<f64>().unwrap_or(v));
         if let Some(p) = w.position {
-            stated.push(format!("{p} {} on positions and lengths", w.error_unit));
+            stated.push(format!(
+                "{} {} on positions and lengths",
+                shown(p),
+                w.error_unit
+            ));
         }
         if let Some(t) = w.rotation {
-            stated.push(format!("{t} {} on rotations", w.tilt_unit));
+            stated.push(format!("{} {} on rotations", shown(t), w.tilt_unit));
         }
         let verdict = if w.p < 0.01 {
             "the residuals exceed the stated noise"

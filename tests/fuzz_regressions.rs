@@ -56,6 +56,11 @@ fn measurement_csv_inputs_do_not_panic() {
 }
 
 #[test]
+fn robot_description_inputs_do_not_panic() {
+    replay("robot_description", harness::robot_description);
+}
+
+#[test]
 fn fit_json_inputs_do_not_panic() {
     replay("fit_json", harness::fit_json);
 }

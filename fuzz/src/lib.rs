@@ -222,3 +222,46 @@ pub fn fit_json(data: &[u8]) {
         }
     }
 }
+
+/// Robot descriptions `kin import` reads: every input as a URDF and as a DH table in both
+/// conventions. What is imported must compile clean (kin wrote it), and a compiled import must
+/// export again as URDF and, when it is one serial chain, as a DH table (`kin export`), whose
+/// re-import compiles too.
+pub fn robot_description(data: &[u8]) {
+    use kin_standards::{dh, urdf};
+    let Ok(text) = std::str::from_utf8(data) else {
+        // `kin import` reads UTF-8 text and refuses anything else before parsing.
+        return;
+    };
+    let options = urdf::Options::default();
+    let mut imported = Vec::new();
+    imported.extend(urdf::import(text, Path::new("robot.urdf"), &options).ok());
+    for convention in [dh::Convention::Standard, dh::Convention::Modified] {
+        imported.extend(dh::import(text, Path::new("robot.csv"), convention, &options).ok());
+    }
+    for i in imported {
+        let out = compile(&i.source);
+        let Some(c) = out.compiled else {
+            panic!(
+                "an imported model does not compile: {:?}\n{}",
+                out.diagnostics, i.source
+            );
+        };
+        if let Err(e) = urdf::export(&c.machine, "robot") {
+            panic!("an imported model does not export as URDF: {e}");
+        }
+        if let Ok(table) = dh::export(&c.machine) {
+            let text = dh::text(&table, &c.machine.name);
+            let back = dh::import(
+                &text,
+                Path::new("back.csv"),
+                dh::Convention::Standard,
+                &options,
+            )
+            .unwrap_or_else(|e| panic!("an exported DH table does not import: {e}\n{text}"));
+            if compile(&back.source).compiled.is_none() {
+                panic!("a re-imported DH table does not compile:\n{}", back.source);
+            }
+        }
+    }
+}

@@ -680,3 +680,53 @@ fn a_data_file_given_twice_is_refused() {
         assert!(stderr.contains("is given twice"), "{stderr}");
     }
 }
+
+/// A 10 MB token (an identifier of ten million letters) came back as 70 MB of standard error
+/// in 93 s: the message quotes its start and says its length, and the line is not drawn.
+#[test]
+fn a_huge_token_gives_a_short_error() {
+    let model = tmp("token.kin");
+    let name = "a".repeat(10_000_000);
+    std::fs::write(
+        &model,
+        format!("machine m {{\n task position\n axis X prismatic along x range 0 mm .. 500 mm\n tool chain {{ X moving tool t }}\n errors {{ X.tx = {name} }}\n}}\n"),
+    )
+    .expect("write");
+    let out = kin(&["check", path(&model), "--color", "never"]);
+    assert_eq!(code(&out), 1);
+    let stderr = text(&out.stderr);
+    assert!(stderr.len() < 2000, "{} bytes", stderr.len());
+    assert!(
+        stderr.contains("token.kin:5:18: error[E0101]") && stderr.contains("(10000000 characters)"),
+        "{stderr}"
+    );
+    let out = kin(&["check", path(&model), "--format", "json"]);
+    assert!(
+        out.stdout.len() < 4000,
+        "{} bytes of JSON",
+        out.stdout.len()
+    );
+}
+
+/// 10⁵ errors printed 26 MB: the first fifty are drawn and the rest counted.
+#[test]
+fn many_errors_are_counted_not_all_drawn() {
+    let model = tmp("many.kin");
+    let mut source = String::from(
+        "machine m {\n task position\n axis X prismatic along x range 0 mm .. 500 mm\n tool chain { X moving tool t }\n errors {\n",
+    );
+    for i in 0..20_000 {
+        source.push_str(&format!("  X.tx += u{i}\n"));
+    }
+    source.push_str(" }\n}\n");
+    std::fs::write(&model, source).expect("write");
+    let out = kin(&["check", path(&model), "--color", "never"]);
+    assert_eq!(code(&out), 1);
+    let stderr = text(&out.stderr);
+    assert!(stderr.len() < 50_000, "{} bytes", stderr.len());
+    assert!(
+        stderr.contains("… and 19950 more (19950 errors, 0 warnings) not shown"),
+        "{}",
+        &stderr[stderr.len().saturating_sub(500)..]
+    );
+}

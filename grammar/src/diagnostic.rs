@@ -60,7 +60,7 @@ impl Diagnostic {
         Diagnostic {
             severity,
             code,
-            message: message.into(),
+            message: bounded(message.into()),
             labels: vec![Label {
                 span,
                 message: String::new(),
@@ -73,7 +73,7 @@ impl Diagnostic {
     /// Text for the primary label.
     pub fn with_label(mut self, message: impl Into<String>) -> Self {
         if let Some(first) = self.labels.first_mut() {
-            first.message = message.into();
+            first.message = bounded(message.into());
         }
         self
     }
@@ -82,18 +82,18 @@ impl Diagnostic {
     pub fn with_secondary(mut self, span: Span, message: impl Into<String>) -> Self {
         self.labels.push(Label {
             span,
-            message: message.into(),
+            message: bounded(message.into()),
         });
         self
     }
 
     pub fn with_note(mut self, note: impl Into<String>) -> Self {
-        self.notes.push(note.into());
+        self.notes.push(bounded(note.into()));
         self
     }
 
     pub fn with_help(mut self, help: impl Into<String>) -> Self {
-        self.help = Some(help.into());
+        self.help = Some(bounded(help.into()));
         self
     }
 
@@ -104,6 +104,52 @@ impl Diagnostic {
     pub fn is_error(&self) -> bool {
         self.severity == Severity::Error
     }
+}
+
+/// Quoted user text longer than this (in characters) is shortened in a message.
+const QUOTED: usize = 80;
+/// A message, label, note or help longer than this (in bytes) is cut.
+const TEXT: usize = 2000;
+
+/// A diagnostic's text as it is shown: a `quoted` stretch of the user's text beyond
+/// [`QUOTED`] characters keeps its start and says how long it is, and the whole stays within
+/// [`TEXT`] bytes. A 10 MB identifier once came back as 70 MB of messages.
+fn bounded(text: String) -> String {
+    if text.len() <= QUOTED {
+        return text;
+    }
+    let mut out = String::with_capacity(text.len().min(TEXT + 64));
+    // The length of the quoted text just shortened, said after its closing backtick.
+    let mut said: Option<usize> = None;
+    for (i, piece) in text.split('`').enumerate() {
+        if i > 0 {
+            out.push('`');
+        }
+        if let Some(chars) = said.take() {
+            out.push_str(&format!(" ({chars} characters)"));
+        }
+        // Odd pieces lie between backticks: quoted text.
+        let chars = piece.chars().count();
+        if i % 2 == 1 && chars > QUOTED {
+            out.extend(piece.chars().take(QUOTED / 2));
+            out.push('…');
+            said = Some(chars);
+        } else {
+            out.push_str(piece);
+        }
+        if out.len() > TEXT {
+            break;
+        }
+    }
+    if out.len() > TEXT {
+        let mut cut = TEXT;
+        while !out.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        out.truncate(cut);
+        out.push('…');
+    }
+    out
 }
 
 /// The closest candidate by edit distance, if it is close enough to be a plausible typo.
@@ -134,6 +180,28 @@ fn edit_distance(a: &str, b: &str) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn long_quoted_text_is_shortened_and_its_length_said() {
+        let name = "a".repeat(10_000_000);
+        let d = Diagnostic::error("E0101", format!("unknown name `{name}`"), Span::new(0, 1))
+            .with_help(format!("did you mean `{}`?", "b".repeat(5000)));
+        assert_eq!(
+            d.message,
+            format!("unknown name `{}…` (10000000 characters)", "a".repeat(40))
+        );
+        assert!(
+            d.help.as_deref().is_some_and(|h| h.len() < 200),
+            "{:?}",
+            d.help
+        );
+        // Ordinary text is left alone.
+        let d = Diagnostic::error("E0101", "unknown name `Xx`", Span::new(0, 1));
+        assert_eq!(d.message, "unknown name `Xx`");
+        // Unquoted text beyond the bound is cut on a character boundary.
+        let d = Diagnostic::error("E0001", "é".repeat(3000), Span::new(0, 1));
+        assert!(d.message.len() <= TEXT + 3 && d.message.ends_with('…'));
+    }
 
     #[test]
     fn suggests_close_names_only() {

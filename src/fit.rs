@@ -157,6 +157,13 @@ pub fn inputs(a: &FitArgs) -> Vec<PathBuf> {
 fn check_outputs(out: &Path, a: &FitArgs) -> Result<(), Failed> {
     let inputs = inputs(a);
     let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+    if out == Path::new("-") {
+        eprintln!(
+            "error: -o names the FIT.json file, with FIT.params written beside it; for FIT.json \
+             on standard output use --format json"
+        );
+        return Err(Failed::USAGE);
+    }
     let params = out.with_extension("params");
     if params == out {
         eprintln!(

@@ -730,3 +730,31 @@ fn many_errors_are_counted_not_all_drawn() {
         &stderr[stderr.len().saturating_sub(500)..]
     );
 }
+
+/// `-o -` wrote a file named `-`; it is standard output now (and refused by `fit`, whose `-o`
+/// names FIT.json with FIT.params beside it).
+#[test]
+fn dash_is_standard_output() {
+    let (model, data) = setup("dash");
+    let dir = data.parent().expect("folder");
+    let out = Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(["eval", path(&model), path(&data), "-o", "-"])
+        .current_dir(dir)
+        .output()
+        .expect("kin runs");
+    assert_eq!(code(&out), 0, "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).contains("ex[um]"),
+        "{}",
+        text(&out.stdout)
+    );
+    assert!(!dir.join("-").exists(), "a file named `-` was written");
+    let out = Command::new(env!("CARGO_BIN_EXE_kin"))
+        .args(["fit", path(&model), path(&data), "-o", "-"])
+        .current_dir(dir)
+        .output()
+        .expect("kin runs");
+    assert_eq!(code(&out), 2);
+    assert!(text(&out.stderr).contains("--format json"));
+    assert!(!dir.join("-.params").exists());
+}

@@ -97,11 +97,42 @@ fn directory_of(path: &Path) -> PathBuf {
 /// `path`). A replaced file keeps its permissions (and its owner, where the system allows); one
 /// the user may not write is refused as an in-place write would be; a symbolic link is
 /// followed, so the file it points to is replaced and the link stays.
+///
+/// `-` is standard output, as for most command-line tools.
 pub fn replace(path: &Path, contents: &[u8]) -> io::Result<()> {
+    if path == Path::new("-") {
+        let mut out = io::stdout().lock();
+        out.write_all(contents)?;
+        return out.flush();
+    }
     if is_stream(path) {
         return write_stream(path, contents);
     }
     stage(path, contents)?.commit()
+}
+
+/// Where a symbolic link finally points, even when nothing is there yet (a dangling link names
+/// the file to create): each link's target read and, when relative, taken from the link's
+/// folder; at most 40 links, as the system's own resolution allows.
+fn resolve_link(path: &Path) -> io::Result<PathBuf> {
+    let mut at = path.to_path_buf();
+    for _ in 0..40 {
+        match std::fs::symlink_metadata(&at) {
+            Ok(m) if m.file_type().is_symlink() => {
+                let to = std::fs::read_link(&at)?;
+                at = if to.is_absolute() {
+                    to
+                } else {
+                    directory_of(&at).join(to)
+                };
+            }
+            _ => return Ok(at),
+        }
+    }
+    Err(io::Error::other(format!(
+        "`{}`: too many levels of symbolic links",
+        path.display()
+    )))
 }
 
 /// Creates `path` with `contents`, atomically, and never over an existing file: the bytes go to
@@ -173,10 +204,7 @@ impl Staged {
 
 /// The first half of [`replace`]: the temporary file written and flushed.
 fn stage(path: &Path, contents: &[u8]) -> io::Result<Staged> {
-    let target = match std::fs::symlink_metadata(path) {
-        Ok(m) if m.file_type().is_symlink() => path.canonicalize()?,
-        _ => path.to_path_buf(),
-    };
+    let target = resolve_link(path)?;
     let dir = directory_of(&target);
     let name = target
         .file_name()
@@ -354,6 +382,30 @@ mod tests {
             .is_symlink());
         let mode = std::fs::metadata(&p).unwrap().permissions().mode() & 0o777;
         assert_eq!(mode, 0o640);
+    }
+
+    /// A dangling link names the file to create (it failed with "No such file"); a chain of
+    /// links is followed to its end, relative targets from each link's folder.
+    #[cfg(unix)]
+    #[test]
+    fn a_dangling_link_is_followed_to_the_file_it_names() {
+        let d = dir();
+        std::fs::create_dir(d.path().join("sub")).unwrap();
+        let link = d.path().join("out.csv");
+        std::os::unix::fs::symlink("sub/chain.csv", &link).unwrap();
+        std::os::unix::fs::symlink("real.csv", d.path().join("sub/chain.csv")).unwrap();
+        replace(&link, b"new").unwrap();
+        assert_eq!(
+            std::fs::read_to_string(d.path().join("sub/real.csv")).unwrap(),
+            "new"
+        );
+        assert!(std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink());
+        let looped = d.path().join("loop.csv");
+        std::os::unix::fs::symlink("loop.csv", &looped).unwrap();
+        assert!(replace(&looped, b"x").is_err());
     }
 
     #[test]

@@ -1763,6 +1763,9 @@ fn an_arm_corrected_in_position_converges_or_fails_on_every_pose() {
     eprintln!("{refused} of {total} poses refused with exit 1, the rest corrected");
 }
 
+/// A controller's correction of an axis (mm) at the positions of X and Y (mm).
+type Correction = Box<dyn Fn(&str, f64, f64) -> f64>;
+
 /// A 5-axis mill with a leadscrew (spline) error, straightness, a squareness and backlash, the
 /// tables of LinuxCNC, ISG and SINUMERIK read by the parsers above (written from their
 /// documentation) and applied as each controller does, on the **true** machine (exact
@@ -1873,7 +1876,7 @@ machine mill5 {
             .collect();
         assert_eq!(stated.len(), 30, "{leftover}");
         // Each controller's correction of an axis at its position (mm), as it documents it.
-        let correction: Box<dyn Fn(&str, f64, f64) -> f64> = match format {
+        let correction: Correction = match format {
             "linuxcnc" => {
                 let x = read_linuxcnc(&tables.join("X.comp"));
                 let y = read_linuxcnc(&tables.join("Y.comp"));

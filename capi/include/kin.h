@@ -161,6 +161,15 @@ int kin_eval(const kin_model *model, const kin_state *state, const double *beta,
 int kin_eval_jacobian(const kin_model *model, const kin_state *state, const double *beta,
                       size_t n_beta, double *err, size_t n_err, double *jac, size_t n_jac);
 
+/* kin_eval_jacobian of some components only: bit c of observed (1 .. 63) selects error component
+ * c (bits 0-2 the position ex, ey, ez: observed = 7 for a tracker's positions; 63 the full
+ * pose). err (n_err = the number of bits set) receives the selected components in order, jac
+ * (n_jac = that times the coefficients) their Jacobian rows, row-major; code for those rows alone
+ * does the work. KIN_ERR_VALUE for observed 0 or above 63, KIN_ERR_SIZE for other lengths. */
+int kin_eval_jacobian_observed(const kin_model *model, const kin_state *state, const double *beta,
+                               size_t n_beta, unsigned int observed, double *err, size_t n_err,
+                               double *jac, size_t n_jac);
+
 /* The nominal tool location in the workpiece frame: location (n_location = 12) receives the
  * position (3) and the rotation R(wr->tl) row-major (9); jac (n_jac = 6 * axes) the joint
  * Jacobian, entries 6j .. 6j+5 being (dp/dq_j, omega_j). */

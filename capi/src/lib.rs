@@ -1150,6 +1150,73 @@ pub unsafe extern "C" fn kin_eval_jacobian(
     })
 }
 
+/// [`kin_eval_jacobian`] of some components only: bit c of `observed` (1 … 63) selects error
+/// component c (bits 0–2 the position ex, ey, ez: `observed` = 7 for a tracker's positions, 63
+/// for the full pose). `err` (`n_err` = the number of bits set) receives the selected
+/// components in order and `jac` (`n_jac` = that times the coefficients) their rows of the
+/// Jacobian, row-major; code for those rows alone does the work (half of it for positions).
+///
+/// # Safety
+///
+/// As [`kin_eval_jacobian`].
+#[no_mangle]
+#[allow(clippy::too_many_arguments)]
+pub unsafe extern "C" fn kin_eval_jacobian_observed(
+    model: *const kin_model,
+    state: *const kin_state,
+    beta: *const f64,
+    n_beta: usize,
+    observed: u32,
+    err: *mut f64,
+    n_err: usize,
+    jac: *mut f64,
+    n_jac: usize,
+) -> c_int {
+    guard(|| {
+        if observed == 0 || observed > 63 {
+            return Err(Fail(
+                KIN_ERR_VALUE,
+                format!("`observed` is {observed}: one bit per component, from 1 to 63"),
+            ));
+        }
+        let flags: [bool; 6] = std::array::from_fn(|c| observed & (1 << c) != 0);
+        let selected = ::kin_model::engine::Observed::from_flags(flags);
+        let rows = selected.rows();
+        // SAFETY: caller's contract.
+        let st = unsafe { read_state(state)? };
+        let inputs = with_beta(state_regions(state, &st), beta, n_beta);
+        disjoint(
+            &[
+                region(err.cast_const(), n_err, "err"),
+                region(jac.cast_const(), n_jac, "jac"),
+            ],
+            &inputs,
+        )?;
+        // SAFETY: caller's contract; the outputs overlap nothing (checked above).
+        let (m, s, out, jac) = unsafe {
+            (
+                self::model(model)?,
+                self::state(state)?,
+                slice_mut(err, n_err, "err")?,
+                slice_mut(jac, n_jac, "jac")?,
+            )
+        };
+        // SAFETY: caller's contract.
+        let b = unsafe { self::beta(m, beta, n_beta)? };
+        check("err", rows, out.len())?;
+        check("jac", rows * m.coefficients(), jac.len())?;
+        check_state(&s)?;
+        // The model's own β was checked when it was set.
+        if !beta.is_null() {
+            check_beta(b)?;
+        }
+        m.eval_jacobian_observed(&s, b, selected, out, jac)
+            .map_err(eval_error)?;
+        check_results("err", out)?;
+        check_results("jac", jac)
+    })
+}
+
 /// The nominal tool location in the workpiece frame — `location` (`n_location` = 12) receives
 /// the position (3) and then the rotation matrix R(wr→tl) row-major (9) — and its Jacobian with
 /// respect to the joint positions: `jac` (`n_jac` = 6 × axes), entries `6j .. 6j+6` are
@@ -2113,6 +2180,93 @@ mod tests {
                 assert!(loaded.is_null());
             }
             let _ = std::fs::remove_dir_all(&dir);
+            kin_model_free(model);
+        }
+    }
+
+    /// Position rows alone (observed = 7), and any other subset, are the full Jacobian's rows
+    /// to the bit; wrong lengths and masks are refused.
+    #[test]
+    fn observed_rows_are_the_full_jacobians_rows() {
+        let src = include_str!("../../examples/milling_5axis.kin");
+        let model = compile(src).expect("compiles");
+        // SAFETY: a live model.
+        let n = unsafe { kin_model_coefficients(model) };
+        let beta: Vec<f64> = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
+        let q = [0.1, 0.2, -0.1, 0.3, 1.0];
+        let inputs = [1.5, 293.0, 100.0];
+        let dirs = [1.0, -1.0, 1.0, 1.0, -1.0];
+        // SAFETY: a live model.
+        let (n_inputs, n_lags) = unsafe { (kin_model_inputs(model), kin_model_lags(model)) };
+        let lags = vec![1.0; n_lags];
+        let state = kin_state {
+            q: q.as_ptr(),
+            n_q: 5,
+            inputs: inputs.as_ptr(),
+            n_inputs,
+            lags: lags.as_ptr(),
+            n_lags,
+            dirs: dirs.as_ptr(),
+            n_dirs: 5,
+            time: 60.0,
+            tool: 0,
+        };
+        let (mut err, mut jac) = ([0.0; 6], vec![0.0; 6 * n]);
+        // SAFETY: valid pointers and lengths throughout.
+        unsafe {
+            let full = kin_eval_jacobian(
+                model,
+                &state,
+                beta.as_ptr(),
+                n,
+                err.as_mut_ptr(),
+                6,
+                jac.as_mut_ptr(),
+                6 * n,
+            );
+            assert_eq!(full, KIN_OK, "{}", last_error());
+            for observed in [7u32, 0b101_000, 1, 63] {
+                let rows = observed.count_ones() as usize;
+                let (mut e, mut j) = (vec![0.0; rows], vec![0.0; rows * n]);
+                let code = kin_eval_jacobian_observed(
+                    model,
+                    &state,
+                    beta.as_ptr(),
+                    n,
+                    observed,
+                    e.as_mut_ptr(),
+                    rows,
+                    j.as_mut_ptr(),
+                    rows * n,
+                );
+                assert_eq!(code, KIN_OK, "{}", last_error());
+                let components: Vec<usize> = (0..6).filter(|c| observed & (1 << c) != 0).collect();
+                for (k, &c) in components.iter().enumerate() {
+                    assert_eq!(e[k].to_bits(), err[c].to_bits(), "{observed}: err {c}");
+                    assert_eq!(
+                        &j[k * n..(k + 1) * n],
+                        &jac[c * n..(c + 1) * n],
+                        "{observed}: row {c}"
+                    );
+                }
+            }
+            let (mut e, mut j) = (vec![0.0; 3], vec![0.0; 3 * n]);
+            let mut call = |observed: u32, n_err: usize| {
+                kin_eval_jacobian_observed(
+                    model,
+                    &state,
+                    beta.as_ptr(),
+                    n,
+                    observed,
+                    e.as_mut_ptr(),
+                    n_err,
+                    j.as_mut_ptr(),
+                    3 * n,
+                )
+            };
+            assert_eq!(call(0, 3), KIN_ERR_VALUE);
+            assert_eq!(call(64, 3), KIN_ERR_VALUE);
+            assert_eq!(call(7, 2), KIN_ERR_SIZE);
             kin_model_free(model);
         }
     }

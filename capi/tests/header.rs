@@ -26,6 +26,7 @@ const RUST_TO_C: &[(&str, &str)] = &[
     ("()", "void"),
     ("c_int", "int"),
     ("usize", "size_t"),
+    ("u32", "unsigned int"),
     ("f64", "double"),
     ("*const c_char", "const char *"),
     ("*mut c_char", "char *"),
@@ -1156,12 +1157,12 @@ fn an_unknown_or_generic_rust_type_is_reported() {
     let unknown = replace_once(
         LIB_RS,
         "fn kin_last_error(buf: *mut c_char, len: usize)",
-        "fn kin_last_error(buf: *mut c_char, len: u32)",
+        "fn kin_last_error(buf: *mut c_char, len: u16)",
     );
     let exports = rust_exports(&unknown).expect("the altered lib.rs scans");
     let problems = mismatches(&exports, &declared).join("\n");
     assert!(
-        problems.contains("`kin_last_error`, parameter 2: the Rust type `u32` is not in RUST_TO_C"),
+        problems.contains("`kin_last_error`, parameter 2: the Rust type `u16` is not in RUST_TO_C"),
         "{problems}"
     );
     let generic = replace_once(LIB_RS, "fn kin_model_axes(", "fn kin_model_axes<T>(");

@@ -624,10 +624,12 @@ impl PyModel {
         Ok(out)
     }
 
-    /// The errors and their β-Jacobians: `(err, jac)` with `err` (N, 6) and `jac` (N, 6,
+    /// The errors and their β-Jacobians: `(err, jac)` with `err` (N, k) and `jac` (N, k,
     /// len(coefficients)), `jac[i, c, j]` = ∂ error component c / ∂ βⱼ at state i (so `err =
-    /// fixed + jac @ beta`). Written into `out` and `jac_out` when given.
-    #[pyo3(signature = (states, *, inputs=None, time=None, dirs=None, tool=0, out=None, jac_out=None))]
+    /// fixed + jac @ beta`), k = 6 for `observe="pose"` (the default) and 3 for
+    /// `observe="position"` (ex, ey, ez alone: half the work, for a tracker's positions).
+    /// Written into `out` and `jac_out` when given.
+    #[pyo3(signature = (states, *, inputs=None, time=None, dirs=None, tool=0, observe="pose", out=None, jac_out=None))]
     #[allow(clippy::too_many_arguments)]
     fn eval_jacobian<'py>(
         &self,
@@ -637,17 +639,30 @@ impl PyModel {
         time: Option<Floats1<'py>>,
         dirs: Option<Floats2<'py>>,
         tool: usize,
+        observe: &str,
         out: Option<Bound<'py, PyArray2<f64>>>,
         jac_out: Option<Bound<'py, PyArray3<f64>>>,
     ) -> PyResult<ErrorsAndJacobians<'py>> {
+        use kin_model::engine::Observed;
+        let observed = match observe {
+            "pose" => Observed::FULL,
+            "position" => Observed::POSITION,
+            other => {
+                return Err(kin_error(
+                    py,
+                    format!("observe={other:?}: \"pose\" (six rows) or \"position\" (three)"),
+                ))
+            }
+        };
+        let k = observed.rows();
         let batch = self.batch(py, &states, &inputs, &time, &dirs, tool)?;
         let n = batch.rows;
         let p = self.model.coefficients();
-        let out = output(py, "out", out, &[n, 6], || {
-            PyArray2::zeros(py, [n, 6], false)
+        let out = output(py, "out", out, &[n, k], || {
+            PyArray2::zeros(py, [n, k], false)
         })?;
-        let jac_out = output(py, "jac_out", jac_out, &[n, 6, p], || {
-            PyArray3::zeros(py, [n, 6, p], false)
+        let jac_out = output(py, "jac_out", jac_out, &[n, k, p], || {
+            PyArray3::zeros(py, [n, k, p], false)
         })?;
         let mut w = out.try_readwrite()?;
         let mut wj = jac_out.try_readwrite()?;
@@ -656,15 +671,11 @@ impl PyModel {
         let model = &self.model;
         py.detach(|| {
             batch.each(model, |r, s| {
-                let mut e = [0.0; 6];
-                let j = jdst.get_mut(r * 6 * p..(r + 1) * 6 * p).unwrap_or(&mut []);
+                let j = jdst.get_mut(r * k * p..(r + 1) * k * p).unwrap_or(&mut []);
+                let e = dst.get_mut(k * r..k * r + k).unwrap_or(&mut []);
                 model
-                    .eval_jacobian(s, model.beta(), &mut e, j)
-                    .map_err(|e| e.to_string())?;
-                if let Some(d) = dst.get_mut(6 * r..6 * r + 6) {
-                    d.copy_from_slice(&e);
-                }
-                Ok(())
+                    .eval_jacobian_observed(s, model.beta(), observed, e, j)
+                    .map_err(|e| e.to_string())
             })
         })
         .map_err(|e| eval_error(py, e))?;

@@ -77,6 +77,18 @@ def test_the_error_is_linear_in_beta_with_the_jacobian():
     assert np.allclose(pred, e2, rtol=0, atol=1e-12 * np.abs(e2).max())
 
 
+def test_position_rows_are_the_full_jacobians_first_three():
+    m = kin.Model.compile(CMM)
+    q = states_of(m, 20)
+    t = np.full((20, len(m.inputs)), 2.0)
+    e, j = m.eval_jacobian(q, inputs=t)
+    ep, jp = m.eval_jacobian(q, inputs=t, observe="position")
+    assert ep.shape == (20, 3) and jp.shape == (20, 3, len(m.coefficients))
+    assert np.array_equal(ep, e[:, :3]) and np.array_equal(jp, j[:, :3, :])
+    with pytest.raises(kin.KinError):
+        m.eval_jacobian(q, inputs=t, observe="orientation")
+
+
 # A measuring machine with a rotary table, an input and several term families, its β bound
 # by its own params block: the reference for comparing with the command line.
 CMM = """machine probe_cmm {

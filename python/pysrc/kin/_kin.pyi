@@ -76,6 +76,7 @@ class Model:
         time: Optional[ArrayIn] = None,
         dirs: Optional[ArrayIn] = None,
         tool: int = 0,
+        observe: str = "pose",
         out: Optional[F64] = None,
         jac_out: Optional[F64] = None,
     ) -> Tuple[F64, F64]: ...

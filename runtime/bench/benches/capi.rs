@@ -12,7 +12,8 @@ use std::time::{Duration, Instant};
 use criterion::{criterion_group, criterion_main, Criterion};
 use kin_bench::baseline_5axis::{self, Trig};
 use kin_capi::{
-    kin_eval, kin_eval_jacobian, kin_model as CModel, kin_model_compile, kin_state, KIN_OK,
+    kin_eval, kin_eval_jacobian, kin_eval_jacobian_observed, kin_model as CModel,
+    kin_model_compile, kin_state, KIN_OK,
 };
 use kin_model::states::States;
 use kin_model::Model;
@@ -102,7 +103,7 @@ fn summary() {
     let mut jac = vec![0.0; 6 * n];
     // Interleaved rounds, so that a change of the machine's load affects every figure alike.
     let (mut abi, mut abi_own, mut rust, mut hand) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-    let (mut abi_err, mut rust_err) = (0.0f64, 0.0f64);
+    let (mut abi_err, mut rust_err, mut abi_position) = (0.0f64, 0.0f64, 0.0f64);
     // The same model with β bound once (kin_model_set_beta): calls pass NULL and 0.
     let cm_bound = c_model(&s.source);
     // SAFETY: a live model and β of its length.
@@ -156,6 +157,26 @@ fn summary() {
             }
             black_box(&jac);
         }));
+        abi_position = abi_position.max(rate(budget, || {
+            for st in &states {
+                // SAFETY: live model (its bound β), valid state and buffers of 3 rows.
+                let code = unsafe {
+                    kin_eval_jacobian_observed(
+                        cm_bound,
+                        st,
+                        std::ptr::null(),
+                        0,
+                        7,
+                        err.as_mut_ptr(),
+                        3,
+                        jac.as_mut_ptr(),
+                        3 * n,
+                    )
+                };
+                debug_assert_eq!(code, KIN_OK);
+            }
+            black_box(&jac);
+        }));
         rust = rust.max(rate(budget, || {
             for r in 0..POSES {
                 s.model
@@ -201,6 +222,11 @@ fn summary() {
         abi_own / rust,
         abi / hand,
         abi_own / hand
+    );
+    eprintln!(
+        "  position rows only (observed = 7, β bound): C ABI {abi_position:.0}: ÷ its six rows {:.2}, ÷ Model's six rows {:.2}",
+        abi_position / abi_own,
+        abi_position / rust
     );
     eprintln!(
         "  error only:         C ABI {abi_err:.0}, Model {rust_err:.0}: ABI ÷ Model {:.2}",

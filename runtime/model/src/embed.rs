@@ -56,7 +56,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::compensate::{self, CompensateError, Compensated, Options, ServoError};
-use crate::engine::{Engine, EngineError, Evaluator};
+use crate::engine::{Engine, EngineError, Evaluator, Observed};
 use crate::interp::{EvalError, Interpreter, State};
 use crate::jit::{self, BatchError, JitError, JitModel, StateRows};
 use crate::kinematics::ToolLocation;
@@ -296,6 +296,21 @@ impl Model {
     ) -> Result<(), EvalError> {
         self.jit
             .error_and_jacobian(state, beta, &self.nonlinear, err, jac)
+    }
+
+    /// [`Model::eval_jacobian`] of the `observed` components only (position rows alone, say):
+    /// `err` holds `observed.rows()` values and `jac` `observed.rows() × n`, row k that of the
+    /// k-th observed component, computed by code for those rows (no work on the others).
+    pub fn eval_jacobian_observed(
+        &self,
+        state: &State,
+        beta: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.jit
+            .observed_error_and_jacobian(state, beta, &self.nonlinear, observed, err, jac)
     }
 
     /// The nominal tool location in the workpiece frame and its Jacobian with respect to the

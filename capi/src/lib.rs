@@ -1110,44 +1110,8 @@ pub unsafe extern "C" fn kin_eval_jacobian(
     jac: *mut f64,
     n_jac: usize,
 ) -> c_int {
-    guard(|| {
-        // SAFETY: caller's contract.
-        let st = unsafe { read_state(state)? };
-        let inputs = with_beta(state_regions(state, &st), beta, n_beta);
-        disjoint(
-            &[
-                region(err.cast_const(), n_err, "err"),
-                region(jac.cast_const(), n_jac, "jac"),
-            ],
-            &inputs,
-        )?;
-        // SAFETY: caller's contract; the outputs overlap nothing (checked above).
-        let (m, s, out, jac) = unsafe {
-            (
-                self::model(model)?,
-                self::state(state)?,
-                slice_mut(err, n_err, "err")?,
-                slice_mut(jac, n_jac, "jac")?,
-            )
-        };
-        // SAFETY: caller's contract.
-        let b = unsafe { self::beta(m, beta, n_beta)? };
-        let out: &mut [f64; 6] = out.try_into().map_err(|_| {
-            Fail(
-                KIN_ERR_SIZE,
-                format!("`err` has length {n_err}, 6 are needed"),
-            )
-        })?;
-        check("jac", 6 * m.coefficients(), jac.len())?;
-        check_state(&s)?;
-        // The model's own β was checked when it was set.
-        if !beta.is_null() {
-            check_beta(b)?;
-        }
-        m.eval_jacobian(&s, b, out, jac).map_err(eval_error)?;
-        check_results("err", out)?;
-        check_results("jac", jac)
-    })
+    // SAFETY: the caller's contract, every component observed (the same code and results).
+    unsafe { kin_eval_jacobian_observed(model, state, beta, n_beta, 63, err, n_err, jac, n_jac) }
 }
 
 /// [`kin_eval_jacobian`] of some components only: bit c of `observed` (1 … 63) selects error

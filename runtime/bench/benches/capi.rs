@@ -15,6 +15,40 @@ use kin_capi::{
     kin_eval, kin_eval_jacobian, kin_eval_jacobian_observed, kin_model as CModel,
     kin_model_compile, kin_state, KIN_OK,
 };
+
+/// `kin_eval_jacobian_observed` over `states` into reused buffers: with `beta` given per call,
+/// or the model's bound β (NULL); `observed` one bit per component.
+fn abi_jacobian(
+    model: *mut CModel,
+    states: &[kin_state],
+    beta: Option<&[f64]>,
+    observed: u32,
+    err: &mut [f64; 6],
+    jac: &mut [f64],
+) {
+    let rows = observed.count_ones() as usize;
+    let n = jac.len() / 6;
+    let (b, n_beta) = beta.map_or((std::ptr::null(), 0), |b| (b.as_ptr(), b.len()));
+    for st in states {
+        // SAFETY: a live model, a valid state, β of its length or NULL, and buffers of the
+        // lengths stated.
+        let code = unsafe {
+            kin_eval_jacobian_observed(
+                model,
+                st,
+                b,
+                n_beta,
+                observed,
+                err.as_mut_ptr(),
+                rows,
+                jac.as_mut_ptr(),
+                rows * n,
+            )
+        };
+        debug_assert_eq!(code, KIN_OK);
+    }
+    black_box(&jac);
+}
 use kin_model::states::States;
 use kin_model::Model;
 
@@ -120,62 +154,13 @@ fn summary() {
         .collect();
     for _ in 0..3 {
         abi = abi.max(rate(budget, || {
-            for st in &states {
-                // SAFETY: live model, valid state and buffers of the stated lengths.
-                let code = unsafe {
-                    kin_eval_jacobian(
-                        cm,
-                        st,
-                        s.beta.as_ptr(),
-                        n,
-                        err.as_mut_ptr(),
-                        6,
-                        jac.as_mut_ptr(),
-                        6 * n,
-                    )
-                };
-                debug_assert_eq!(code, KIN_OK);
-            }
-            black_box(&jac);
+            abi_jacobian(cm, &states, Some(&s.beta), 63, &mut err, &mut jac)
         }));
         abi_own = abi_own.max(rate(budget, || {
-            for st in &states {
-                // SAFETY: live model (its bound β), valid state and buffers.
-                let code = unsafe {
-                    kin_eval_jacobian(
-                        cm_bound,
-                        st,
-                        std::ptr::null(),
-                        0,
-                        err.as_mut_ptr(),
-                        6,
-                        jac.as_mut_ptr(),
-                        6 * n,
-                    )
-                };
-                debug_assert_eq!(code, KIN_OK);
-            }
-            black_box(&jac);
+            abi_jacobian(cm_bound, &states, None, 63, &mut err, &mut jac)
         }));
         abi_position = abi_position.max(rate(budget, || {
-            for st in &states {
-                // SAFETY: live model (its bound β), valid state and buffers of 3 rows.
-                let code = unsafe {
-                    kin_eval_jacobian_observed(
-                        cm_bound,
-                        st,
-                        std::ptr::null(),
-                        0,
-                        7,
-                        err.as_mut_ptr(),
-                        3,
-                        jac.as_mut_ptr(),
-                        3 * n,
-                    )
-                };
-                debug_assert_eq!(code, KIN_OK);
-            }
-            black_box(&jac);
+            abi_jacobian(cm_bound, &states, None, 7, &mut err, &mut jac)
         }));
         rust = rust.max(rate(budget, || {
             for r in 0..POSES {

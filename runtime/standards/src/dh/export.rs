@@ -166,16 +166,7 @@ pub fn export(m: &Machine) -> Result<Table, DhExportError> {
         let row = match lines.get(i + 1) {
             Some(next) => to_next_line(joint, &x_prev, &z_prev, &o_prev, next),
             // The last frame: the joint's motion alone (the tools' frames carry the rest).
-            None => Row {
-                name: joint.name.clone(),
-                kind: joint.kind,
-                theta: 0.0,
-                d: 0.0,
-                a: 0.0,
-                alpha: 0.0,
-                beta: 0.0,
-                limits: limits(joint),
-            },
+            None => Row::motion(joint),
         };
         frames.push(prev * link(&row, 0.0));
         rows.push(row);
@@ -209,8 +200,20 @@ pub fn export(m: &Machine) -> Result<Table, DhExportError> {
     })
 }
 
-fn limits(j: &CalibratedJoint) -> Option<[f64; 2]> {
-    (!j.continuous).then_some(j.range)
+impl Row {
+    /// The joint's motion alone (every parameter 0), with its name, kind and limits.
+    fn motion(j: &CalibratedJoint) -> Row {
+        Row {
+            name: j.name.clone(),
+            kind: j.kind,
+            theta: 0.0,
+            d: 0.0,
+            a: 0.0,
+            alpha: 0.0,
+            beta: 0.0,
+            limits: (!j.continuous).then_some(j.range),
+        }
+    }
 }
 
 /// The row of joint i: from frame i−1 (x_prev, z_prev on joint i's line, origin o_prev) to
@@ -225,16 +228,7 @@ fn to_next_line(
     let z = next.dir;
     let normal = z_prev.cross(&z);
     let sin = normal.norm();
-    let mut row = Row {
-        name: joint.name.clone(),
-        kind: joint.kind,
-        theta: 0.0,
-        d: 0.0,
-        a: 0.0,
-        alpha: 0.0,
-        beta: 0.0,
-        limits: limits(joint),
-    };
+    let mut row = Row::motion(joint);
     // Parallel or antiparallel within PARALLEL: the sine of the angle between the lines.
     if sin > PARALLEL.sin() {
         // The common normal: x along z_{i−1} × z_i; its feet on both lines.

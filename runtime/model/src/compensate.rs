@@ -173,7 +173,7 @@ pub(crate) const PICOMETRE: f64 = 1e-12;
 const WEIGHT_BOUNDS: [f64; 2] = [1e-9, 1e9];
 
 impl Options {
-    /// Refuses weights that are not 0 or within [`WEIGHT_BOUNDS`], all zero, and a rank
+    /// Refuses weights that are not 0 or from 10⁻⁹ to 10⁹ (SI), all zero, and a rank
     /// tolerance outside `[0, 1)`.
     pub fn check(&self) -> Result<(), CompensateError> {
         let [lo, hi] = WEIGHT_BOUNDS;

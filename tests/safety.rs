@@ -188,8 +188,7 @@ fn a_fit_killed_while_writing_leaves_old_or_new_files() {
     std::fs::create_dir(&out_dir).unwrap();
     let (json, params) = (out_dir.join("fit.json"), out_dir.join("fit.params"));
     let (old_json, old_params) = (b"{\"old\": true}\n".to_vec(), b"params {}\n".to_vec());
-    let mut delays: Vec<Option<Duration>> = vec![None; 4];
-    delays.extend((0..8).map(|k| Some(full.mul_f64(0.15 * k as f64))));
+    let delays = spread(full);
     let (mut killed, mut cut_short) = (0, 0);
     for delay in delays {
         std::fs::write(&json, &old_json).unwrap();
@@ -243,8 +242,7 @@ fn an_apply_killed_while_writing_leaves_the_old_or_the_new_model() {
     let new = std::fs::read_to_string(&copy).unwrap();
     assert!(new.contains("Y.ty += backlash(Y)"), "{new}");
 
-    let mut delays: Vec<Option<Duration>> = vec![None; 4];
-    delays.extend((0..8).map(|k| Some(full.mul_f64(0.15 * k as f64))));
+    let delays = spread(full);
     let (mut killed, mut cut_short) = (0, 0);
     for delay in delays {
         std::fs::write(&model, &start).unwrap();
@@ -743,4 +741,165 @@ fn demo_writes_only_into_its_own_folder() {
             "{name}: files added"
         );
     }
+}
+
+/// Runs `args` `delays.len()` times from `reset`, killing each run as soon as `changed` says its
+/// output began to change (a `None` delay) or at the delay, and after each kill asks `whole`
+/// whether what is on disk is the old result or the new one; returns how many runs were
+/// killed while still running.
+fn kill_runs(
+    args: &[&str],
+    delays: &[Option<Duration>],
+    full: Duration,
+    mut reset: impl FnMut(),
+    mut changed: impl FnMut() -> bool,
+    mut whole: impl FnMut(Option<Duration>),
+) -> usize {
+    let mut killed = 0;
+    for &delay in delays {
+        reset();
+        let child = spawn(args);
+        let limit = delay.unwrap_or(full * 4);
+        let first_change = delay.is_none();
+        if kill_when(child, limit, || first_change && changed()) {
+            killed += 1;
+        }
+        whole(delay);
+    }
+    killed
+}
+
+/// 25 kills: a few at the first change of the output, the rest spread over the run (four
+/// commands, 100 runs in all).
+fn spread(full: Duration) -> Vec<Option<Duration>> {
+    let mut delays: Vec<Option<Duration>> = vec![None; 5];
+    delays.extend((0..20).map(|k| Some(full.mul_f64(0.06 * k as f64))));
+    delays
+}
+
+/// `kin compensate --table` killed 25 times at the first change of its folder and at delays
+/// over the run: the folder always holds one whole set — the old tables and note, or the new
+/// ones — never a new table beside an old one, and no earlier set's file left behind it.
+#[test]
+fn a_table_set_killed_while_written_is_the_old_set_or_the_new() {
+    let dir = tempfile::tempdir().unwrap();
+    let (model, data) = cmm3(dir.path(), 200);
+    let position = dir.path().join("mill3.kin");
+    std::fs::write(
+        &position,
+        std::fs::read_to_string(&model)
+            .unwrap()
+            .replace("task measure", "task position"),
+    )
+    .unwrap();
+    let fit = dir.path().join("fit.json");
+    let out = kin(&["fit", s(&position), s(&data), "-o", s(&fit)]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let tables = dir.path().join("tables");
+    let run = |grid: &str| {
+        vec![
+            "compensate".to_string(),
+            s(&position).to_string(),
+            "--fit".into(),
+            s(&fit).to_string(),
+            "--grid".into(),
+            grid.to_string(),
+            "--table".into(),
+            "linuxcnc".into(),
+            "-o".into(),
+            s(&tables).to_string(),
+        ]
+    };
+    // The old set over X and Y, the new over X alone (its Y.comp must go).
+    let old_grid = "X=0:800:4,Y=0:600:200,Z=-100";
+    let new_grid = "X=0:800:5,Y=300,Z=-100";
+    let contents = |d: &Path| -> BTreeMap<String, Vec<u8>> {
+        std::fs::read_dir(d)
+            .map(|entries| {
+                entries
+                    .flatten()
+                    .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
+                    .map(|e| {
+                        (
+                            e.file_name().to_string_lossy().into_owned(),
+                            read(&e.path()),
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let old_args = run(old_grid);
+    let old_args: Vec<&str> = old_args.iter().map(String::as_str).collect();
+    assert!(kin(&old_args).status.success());
+    let old = contents(&tables);
+    let new_args = run(new_grid);
+    let new_args: Vec<&str> = new_args.iter().map(String::as_str).collect();
+    let started = Instant::now();
+    assert!(kin(&new_args).status.success());
+    let full = started.elapsed();
+    let new = contents(&tables);
+    assert!(old.contains_key("Y.comp") && !new.contains_key("Y.comp"));
+    let killed = kill_runs(
+        &new_args,
+        &spread(full),
+        full,
+        || {
+            let _ = std::fs::remove_dir_all(&tables);
+            for e in std::fs::read_dir(dir.path()).unwrap().flatten() {
+                // A fresh folder a killed run left beside `tables`.
+                if e.file_name().to_string_lossy().starts_with(".tables") {
+                    let _ = std::fs::remove_dir_all(e.path());
+                }
+            }
+            assert!(kin(&old_args).status.success());
+        },
+        || contents(&tables) != old,
+        |delay| {
+            let now = contents(&tables);
+            assert!(
+                now == old || now == new,
+                "after a kill at {delay:?} the folder holds {:?}",
+                now.keys().collect::<Vec<_>>()
+            );
+        },
+    );
+    println!("{killed} of 25 table runs killed while running");
+    assert!(killed > 0, "no run was killed before it finished");
+}
+
+/// `kin fmt` in place killed 25 times: the file is the old text or the formatted one, never
+/// cut.
+#[test]
+fn a_format_in_place_killed_is_the_old_file_or_the_new() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("long.kin");
+    // A model long enough (its comments) for the write to be hit, badly laid out.
+    let messy = MODEL.replace("    ", "  ")
+        + &"//   a note with   spaces  .............................................\n"
+            .repeat(40_000);
+    std::fs::write(&file, &messy).unwrap();
+    let started = Instant::now();
+    assert!(kin(&["fmt", s(&file)]).status.success());
+    let full = started.elapsed();
+    let formatted = read(&file);
+    assert_ne!(formatted, messy.as_bytes(), "fmt changed nothing");
+    let killed = kill_runs(
+        &["fmt", s(&file)],
+        &spread(full),
+        full,
+        || std::fs::write(&file, &messy).unwrap(),
+        || std::fs::metadata(&file).map(|m| m.len()).ok() != Some(messy.len() as u64),
+        |delay| {
+            let now = read(&file);
+            assert!(
+                now == messy.as_bytes() || now == formatted,
+                "{} bytes after a kill at {delay:?}",
+                now.len()
+            );
+            sweep_temporaries(dir.path());
+        },
+    );
+    println!("{killed} of 25 fmt runs killed while running");
+    assert!(killed > 0, "no run was killed before it finished");
 }

@@ -80,6 +80,40 @@ machine mill3 {
 const TRUTH: &str =
     "params {\n    X.tx = [20, 3] um\n    Y.ty = [-10] um\n    Z.rx = [8] urad\n}\n";
 
+/// The 5-axis mill of the table tests — A tilting, C turning the table, the tool on Z — with
+/// the error lines given.
+fn mill5(errors: &[&str]) -> String {
+    let mut source = String::from(
+        r#"
+machine mill5 {
+    task position
+    units { length mm, angle deg, error um, tilt urad }
+    axis X prismatic along -x range 0 mm .. 500 mm
+    axis Y prismatic along -y range 0 mm .. 400 mm
+    axis Z prismatic along z range -300 mm .. 0 mm
+    axis A revolute about x range -90 deg .. 90 deg
+    axis C revolute about z continuous
+    tool chain {
+        Z moving at (0, 0, 450) mm
+        tool long at (0, 0, -150) mm
+    }
+    workpiece chain {
+        Y fixed at (0, 200, 0) mm
+        X fixed at (250, 0, 100) mm
+        A fixed at (0, 0, 50) mm
+        C fixed at (0, 0, 30) mm
+        workpiece
+    }
+    errors {
+"#,
+    );
+    for line in errors {
+        source.push_str(&format!("        {line}\n"));
+    }
+    source.push_str("    }\n}\n");
+    source
+}
+
 /// Writes the machine, simulates it without noise and fits it; returns the folder, the
 /// machine and the fit.
 fn fitted(name: &str) -> (PathBuf, PathBuf, PathBuf) {
@@ -1378,36 +1412,14 @@ fn the_compensation_section_renders_in_a_browser_and_agrees_with_kin_compensate(
 /// 0.3 µm more position error than the best correction by X and Y alone.
 #[test]
 fn sinumerik_tables_of_a_five_axis_mill_hold_only_what_their_axes_correct() {
-    let source = r#"
-machine mill5 {
-    task position
-    units { length mm, angle deg, error um, tilt urad }
-    axis X prismatic along -x range 0 mm .. 500 mm
-    axis Y prismatic along -y range 0 mm .. 400 mm
-    axis Z prismatic along z range -300 mm .. 0 mm
-    axis A revolute about x range -90 deg .. 90 deg
-    axis C revolute about z continuous
-    tool chain {
-        Z moving at (0, 0, 450) mm
-        tool long at (0, 0, -150) mm
-    }
-    workpiece chain {
-        Y fixed at (0, 200, 0) mm
-        X fixed at (250, 0, 100) mm
-        A fixed at (0, 0, 50) mm
-        C fixed at (0, 0, 30) mm
-        workpiece
-    }
-    errors {
-        X.tx = linear(X)
-        A.ty = const
-        A.tz = const
-        A.rz = const
-        C.tx = const
-        C.ry = const
-    }
-}
-"#;
+    let source = &mill5(&[
+        "X.tx = linear(X)",
+        "A.ty = const",
+        "A.tz = const",
+        "A.rz = const",
+        "C.tx = const",
+        "C.ry = const",
+    ]);
     let truth = "params {\n    X.tx = [20] um\n    A.ty = [15] um\n    A.tz = [-10] um\n    A.rz = [30] urad\n    C.tx = [12] um\n    C.ry = [25] urad\n}\n";
     let (d, machine, fit) = fitted_truth("sinumerik-5axis", source, truth);
     let (m, f) = (machine.to_str().unwrap(), fit.to_str().unwrap());
@@ -1551,36 +1563,14 @@ fn poses_without_a_direction_column_are_taken_as_approached_in_plus() {
 /// which then changes the orientation error. An unknown axis is a usage error.
 #[test]
 fn correct_position_keeps_the_rotary_axes_out_unless_asked() {
-    let source = r#"
-machine mill5 {
-    task position
-    units { length mm, angle deg, error um, tilt urad }
-    axis X prismatic along -x range 0 mm .. 500 mm
-    axis Y prismatic along -y range 0 mm .. 400 mm
-    axis Z prismatic along z range -300 mm .. 0 mm
-    axis A revolute about x range -90 deg .. 90 deg
-    axis C revolute about z continuous
-    tool chain {
-        Z moving at (0, 0, 450) mm
-        tool long at (0, 0, -150) mm
-    }
-    workpiece chain {
-        Y fixed at (0, 200, 0) mm
-        X fixed at (250, 0, 100) mm
-        A fixed at (0, 0, 50) mm
-        C fixed at (0, 0, 30) mm
-        workpiece
-    }
-    errors {
-        X.tx = linear(X)
-        A.ty = const
-        A.tz = const
-        A.rz = const
-        C.tx = const
-        C.ry = const
-    }
-}
-"#;
+    let source = &mill5(&[
+        "X.tx = linear(X)",
+        "A.ty = const",
+        "A.tz = const",
+        "A.rz = const",
+        "C.tx = const",
+        "C.ry = const",
+    ]);
     let truth = "params {\n    X.tx = [20] um\n    A.ty = [15] um\n    A.tz = [-10] um\n    A.rz = [30] urad\n    C.tx = [12] um\n    C.ry = [25] urad\n}\n";
     let (d, machine, fit) = fitted_truth("position-5axis", source, truth);
     let (m, f) = (machine.to_str().unwrap(), fit.to_str().unwrap());
@@ -1775,36 +1765,14 @@ type Correction = Box<dyn Fn(&str, f64, f64) -> f64>;
 /// (position, X Y Z moving) leaves what it predicts, within 0.3 µm.
 #[test]
 fn every_table_format_leaves_on_the_true_machine_what_kin_states() {
-    let source = r#"
-machine mill5 {
-    task position
-    units { length mm, angle deg, error um, tilt urad }
-    axis X prismatic along -x range 0 mm .. 500 mm
-    axis Y prismatic along -y range 0 mm .. 400 mm
-    axis Z prismatic along z range -300 mm .. 0 mm
-    axis A revolute about x range -90 deg .. 90 deg
-    axis C revolute about z continuous
-    tool chain {
-        Z moving at (0, 0, 450) mm
-        tool long at (0, 0, -150) mm
-    }
-    workpiece chain {
-        Y fixed at (0, 200, 0) mm
-        X fixed at (250, 0, 100) mm
-        A fixed at (0, 0, 50) mm
-        C fixed at (0, 0, 30) mm
-        workpiece
-    }
-    errors {
-        X.tx = spline(X, knots 2) + backlash(X)
-        X.ty = straightness(X, knots 2)
-        Y.ty = linear(Y)
-        Y.rz = const
-        A.ty = const
-        C.tx = const
-    }
-}
-"#;
+    let source = &mill5(&[
+        "X.tx = spline(X, knots 2) + backlash(X)",
+        "X.ty = straightness(X, knots 2)",
+        "Y.ty = linear(Y)",
+        "Y.rz = const",
+        "A.ty = const",
+        "C.tx = const",
+    ]);
     let truth = "params {\n    X.tx = [12, -8, 5, 4, 3] um\n    X.ty = [6, -4, 3] um\n    Y.ty = [15] um\n    Y.rz = [40] urad\n    A.ty = [10] um\n    C.tx = [8] um\n}\n";
     let (d, machine, fit) = fitted_truth("five-formats", source, truth);
     let (m, f) = (machine.to_str().unwrap(), fit.to_str().unwrap());

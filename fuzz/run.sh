@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs one fuzz target for a bounded time: fuzz/run.sh TARGET SECONDS [extra libFuzzer flags]
 #
-# Targets: kin_source, measurement_csv, fit_json, capi, robot_description (see fuzz/README.md). Needs cargo-fuzz
+# Targets: kin_source, measurement_csv, fit_json, capi, robot_description, lsp (see fuzz/README.md). Needs cargo-fuzz
 # (`cargo install --locked cargo-fuzz`). libFuzzer needs nightly compiler flags; on a stable
 # toolchain they are enabled with RUSTC_BOOTSTRAP=1. AddressSanitizer is on (the C ABI takes raw
 # pointers); KIN_FUZZ_SANITIZER=none runs without it (about twice as fast, for a toolchain
@@ -21,9 +21,9 @@ seconds=$2
 shift 2
 cd "$(dirname "$0")"
 case "$target" in
-  kin_source | measurement_csv | fit_json | capi | robot_description) ;;
+  kin_source | measurement_csv | fit_json | capi | robot_description | lsp) ;;
   *)
-    echo "unknown target \`$target\` (kin_source, measurement_csv, fit_json, capi, robot_description)" >&2
+    echo "unknown target \`$target\` (kin_source, measurement_csv, fit_json, capi, robot_description, lsp)" >&2
     exit 2
     ;;
 esac

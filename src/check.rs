@@ -30,52 +30,6 @@ impl From<ObserveArg> for Observe {
     }
 }
 
-/// Identifiability on states sampled over the ranges: about two rows per coefficient, with a
-/// fixed seed so `kin check` is reproducible.
-pub(crate) fn identify(
-    c: &Compiled,
-    observe: Observe,
-    aligned: bool,
-    engine: kin_model::engine::Engine,
-) -> Vec<kin_compiler::Diagnostic> {
-    if c.machine.coefficients.is_empty() {
-        return Vec::new();
-    }
-    let n = kin_estimate::identify::poses_for(c.machine.coefficients.len(), observe);
-    // `kin check` shows the dependencies only: the condition number is not estimated.
-    let report = kin_estimate::identify::sampled_verdicts(
-        &c.machine,
-        observe,
-        aligned,
-        n,
-        0x6b696e,
-        engine,
-        kin_estimate::identify::Condition::Skip,
-    );
-    match report {
-        Ok(report) => {
-            kin_estimate::identify::diagnostics(&c.machine, &c.map, &report, observe, aligned)
-        }
-        Err(kin_estimate::identify::IdentifyError::Factor {
-            column: Some(column),
-        }) => {
-            let span = kin_estimate::identify::column_span(&c.map, &column).unwrap_or_default();
-            vec![kin_compiler::Diagnostic::error(
-                "E0601",
-                "identifiability could not be analysed: this term's values overflow a number",
-                span,
-            )
-            .with_label("beyond ±1.8e308 at some pose")
-            .with_help("check the term's scale and units: a factor like `1e308` is a typo")]
-        }
-        Err(e) => vec![kin_compiler::Diagnostic::error(
-            "E0601",
-            format!("identifiability could not be analysed: {e}"),
-            Default::default(),
-        )],
-    }
-}
-
 pub fn run(
     path: &Path,
     format: Format,
@@ -112,7 +66,7 @@ pub fn run(
     all.append(&mut out.diagnostics);
     out.diagnostics = all;
     if let (Some(c), Some((observe, aligned))) = (&out.compiled, identifiability) {
-        let found = identify(c, observe.into(), aligned, engine);
+        let found = kin_estimate::identify::checked(c, observe.into(), aligned, engine);
         if !found.is_empty() {
             out.diagnostics.extend(found);
             out.compiled = None;

@@ -20,7 +20,6 @@ mod init;
 mod iso;
 mod iso_html;
 mod load;
-mod lsp;
 mod manual;
 mod predict;
 mod render;
@@ -1360,7 +1359,7 @@ fn run(command: Command) -> ExitCode {
             check,
             color,
         } => load::Failed::exit(fmt::run(&files, check, color.enabled())),
-        Command::Lsp => lsp::run(),
+        Command::Lsp => kin_lsp::run(),
         Command::Bench {
             machine,
             poses,

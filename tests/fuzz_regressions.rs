@@ -61,6 +61,11 @@ fn robot_description_inputs_do_not_panic() {
 }
 
 #[test]
+fn lsp_inputs_do_not_panic() {
+    replay("lsp", harness::lsp);
+}
+
+#[test]
 fn fit_json_inputs_do_not_panic() {
     replay("fit_json", harness::fit_json);
 }

@@ -265,3 +265,64 @@ pub fn robot_description(data: &[u8]) {
         }
     }
 }
+
+/// The language server (`kin lsp`): one session fed a message stream after a fixed
+/// `initialize` handshake. The input is split at NUL bytes into messages; each is framed with
+/// its own correct `Content-Length`, except one that starts with `#`, whose remaining bytes go
+/// to the server as they are (broken headers, wrong lengths, missing bodies). The identifiability
+/// analysis is off ([`kin_lsp::Identify::Never`]): it evaluates the model at sampled poses and is
+/// fuzzed through the model's own targets. The server must end (no hang), and everything it
+/// writes must be framed JSON-RPC: `Content-Length` headers whose bodies are JSON objects with
+/// `"jsonrpc": "2.0"`.
+pub fn lsp(data: &[u8]) {
+    const HANDSHAKE: [&str; 2] = [
+        r#"{"jsonrpc":"2.0","id":0,"method":"initialize","params":{"capabilities":{}}}"#,
+        r#"{"jsonrpc":"2.0","method":"initialized","params":{}}"#,
+    ];
+    let frame = |body: &[u8], out: &mut Vec<u8>| {
+        out.extend_from_slice(format!("Content-Length: {}\r\n\r\n", body.len()).as_bytes());
+        out.extend_from_slice(body);
+    };
+    let mut stream = Vec::with_capacity(data.len() + 256);
+    for m in HANDSHAKE {
+        frame(m.as_bytes(), &mut stream);
+    }
+    for message in data.split(|b| *b == 0) {
+        match message.strip_prefix(b"#") {
+            Some(raw) => stream.extend_from_slice(raw),
+            None => frame(message, &mut stream),
+        }
+    }
+    let mut written = Vec::new();
+    // An input that ends before `shutdown` and `exit` is a closed connection: an `Err`, not a bug.
+    let _ = kin_lsp::serve(stream.as_slice(), &mut written, kin_lsp::Identify::Never);
+    let mut rest = written.as_slice();
+    while !rest.is_empty() {
+        let header_end = rest
+            .windows(4)
+            .position(|w| w == b"\r\n\r\n")
+            .unwrap_or_else(|| panic!("output without a header end: {:?}", clip(rest)));
+        let header = std::str::from_utf8(&rest[..header_end])
+            .unwrap_or_else(|e| panic!("a header that is not UTF-8: {e}"));
+        let length: usize = header
+            .strip_prefix("Content-Length: ")
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("a header that is not Content-Length: {header:?}"));
+        let body = rest
+            .get(header_end + 4..header_end + 4 + length)
+            .unwrap_or_else(|| panic!("a body shorter than its Content-Length {length}"));
+        let value: serde_json::Value = serde_json::from_slice(body)
+            .unwrap_or_else(|e| panic!("a body that is not JSON ({e}): {:?}", clip(body)));
+        assert_eq!(
+            value.get("jsonrpc").and_then(|v| v.as_str()),
+            Some("2.0"),
+            "not a JSON-RPC message: {value}"
+        );
+        rest = &rest[header_end + 4 + length..];
+    }
+}
+
+/// At most 200 bytes of an output, for a message.
+fn clip(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(&bytes[..bytes.len().min(200)]).into_owned()
+}

@@ -994,6 +994,50 @@ fn column_name(m: &Machine, c: &Column) -> String {
     }
 }
 
+/// The identifiability warnings of a compiled model, as `kin check` and the editor show them:
+/// [`poses_for`] states sampled over the ranges with a fixed seed (reproducible), the
+/// dependencies only (the condition number is not estimated), located at the terms.
+pub fn checked(
+    c: &kin_compiler::Compiled,
+    observe: Observe,
+    aligned: bool,
+    engine: kin_model::engine::Engine,
+) -> Vec<Diagnostic> {
+    if c.machine.coefficients.is_empty() {
+        return Vec::new();
+    }
+    let n = poses_for(c.machine.coefficients.len(), observe);
+    let report = sampled_verdicts(
+        &c.machine,
+        observe,
+        aligned,
+        n,
+        0x6b696e,
+        engine,
+        Condition::Skip,
+    );
+    match report {
+        Ok(report) => diagnostics(&c.machine, &c.map, &report, observe, aligned),
+        Err(IdentifyError::Factor {
+            column: Some(column),
+        }) => {
+            let span = column_span(&c.map, &column).unwrap_or_default();
+            vec![Diagnostic::error(
+                "E0601",
+                "identifiability could not be analysed: this term's values overflow a number",
+                span,
+            )
+            .with_label("beyond ±1.8e308 at some pose")
+            .with_help("check the term's scale and units: a factor like `1e308` is a typo")]
+        }
+        Err(e) => vec![Diagnostic::error(
+            "E0601",
+            format!("identifiability could not be analysed: {e}"),
+            Default::default(),
+        )],
+    }
+}
+
 /// Where a column's coefficient is written; none for nuisance columns.
 pub fn column_span(map: &SourceMap, c: &Column) -> Option<Span> {
     match c {

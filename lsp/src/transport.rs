@@ -1,4 +1,4 @@
-//! The server's end of the stdio connection, bounded and forgiving.
+//! The server's end of the connection, bounded and forgiving.
 //!
 //! lsp-server's own stdio transport ends the session at the first message it cannot read (a
 //! malformed header, a body that is not JSON) and allocates whatever `Content-Length` says
@@ -6,7 +6,7 @@
 //! malformed message when it has a bug, and the user then loses diagnostics for the rest of the
 //! session. Here every header line and body is bounded; a message that cannot be read is
 //! answered — an error response to its `id` when it has one, else a `window/logMessage` — and
-//! the session goes on. Only the end of standard input (or `exit`) ends the reader.
+//! the session goes on. Only the end of the input (or `exit`) ends the reader.
 
 use std::io::{self, BufRead, Read, Write};
 use std::thread;
@@ -20,13 +20,13 @@ const MAX_HEADER_LINE: u64 = 8 * 1024;
 const MAX_BODY: usize = 64 * 1024 * 1024;
 
 /// The two threads of the connection.
-pub struct IoThreads {
-    reader: thread::JoinHandle<()>,
-    writer: thread::JoinHandle<io::Result<()>>,
+pub struct IoThreads<'scope> {
+    reader: thread::ScopedJoinHandle<'scope, ()>,
+    writer: thread::ScopedJoinHandle<'scope, io::Result<()>>,
 }
 
-impl IoThreads {
-    /// Waits for both threads; a writer that failed (standard output closed) is the error.
+impl IoThreads<'_> {
+    /// Waits for both threads; a writer that failed (the output closed) is the error.
     pub fn join(self) -> Result<(), String> {
         self.reader
             .join()
@@ -38,16 +38,17 @@ impl IoThreads {
     }
 }
 
-/// A connection over standard input and output.
-pub fn stdio() -> (Connection, IoThreads) {
+/// A connection over `input` and `output`, read and written by two threads of `scope`.
+pub fn spawn<'scope>(
+    scope: &'scope thread::Scope<'scope, '_>,
+    mut input: impl BufRead + Send + 'scope,
+    output: impl Write + Send + 'scope,
+) -> (Connection, IoThreads<'scope>) {
     let (to_writer, from_server) = crossbeam_channel::unbounded::<Message>();
     let (to_server, from_reader) = crossbeam_channel::unbounded::<Message>();
-    let writer = thread::spawn(move || write_all(&from_server));
+    let writer = scope.spawn(move || write_all(&from_server, output));
     let replies = to_writer.clone();
-    let reader = thread::spawn(move || {
-        let stdin = io::stdin();
-        read_all(&mut stdin.lock(), &to_server, &replies);
-    });
+    let reader = scope.spawn(move || read_all(&mut input, &to_server, &replies));
     (
         Connection {
             sender: to_writer,
@@ -57,10 +58,8 @@ pub fn stdio() -> (Connection, IoThreads) {
     )
 }
 
-fn write_all(messages: &Receiver<Message>) -> io::Result<()> {
-    let stdout = io::stdout();
+fn write_all(messages: &Receiver<Message>, mut out: impl Write) -> io::Result<()> {
     for m in messages {
-        let mut out = stdout.lock();
         m.write(&mut out)?;
         out.flush()?;
     }

@@ -1,16 +1,19 @@
-//! `kin lsp`: a Language Server Protocol server on standard input and output.
+//! `kin lsp`: a Language Server Protocol server for `.kin` files.
 //!
-//! One thread reads messages in order (lsp-server's transport); documents are synchronised
+//! [`run`] serves an editor on standard input and output; [`serve`] serves any pair of byte
+//! streams (a socket, a test's buffers, the fuzz target's input). One thread reads messages in
+//! order through a bounded, forgiving framing (`transport`); documents are synchronised
 //! whole (`TextDocumentSyncKind::FULL`). After each change the document is compiled and its
 //! diagnostics published at once; the identifiability analysis, which evaluates the model at
-//! sampled poses, runs only once the document has been left alone for [`QUIET`], and its
-//! warnings are published then (a newer edit cancels the pending run). The answers themselves
-//! are the pure functions of [`analysis`].
+//! sampled poses, runs only once the document has been left alone for a quiet period
+//! ([`Identify`]), and its warnings are published then (a newer edit cancels the pending run).
+//! The answers themselves are the pure functions of `analysis`.
 
 mod analysis;
 mod transport;
 
 use std::collections::HashMap;
+use std::io::{BufRead, Write};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -30,8 +33,49 @@ use lsp_types::{
     ServerInfo, TextDocumentSyncCapability, TextDocumentSyncKind, Uri,
 };
 
-/// How long a document must stay unchanged before the identifiability analysis runs.
-const QUIET: Duration = Duration::from_millis(300);
+/// How long a document must stay unchanged before `kin lsp` runs its identifiability analysis.
+pub const QUIET: Duration = Duration::from_millis(300);
+
+/// When the identifiability analysis of a changed document runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Identify {
+    /// Once the document has been left alone this long ([`QUIET`] for an editor).
+    After(Duration),
+    /// Never: only the compiler's diagnostics are published (the analysis evaluates the model
+    /// at sampled poses, which a harness feeding thousands of sessions cannot afford).
+    Never,
+}
+
+/// Why a session ended other than by `shutdown` and `exit`.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The input ended, or the client went away, before `shutdown`.
+    #[error("the client closed the connection")]
+    Closed,
+    /// The client broke the protocol's order (lsp-server's initialisation handshake).
+    #[error(transparent)]
+    Protocol(lsp_server::ProtocolError),
+    /// The output could not be written.
+    #[error("writing to the client: {0}")]
+    Output(String),
+}
+
+impl From<lsp_server::ProtocolError> for Error {
+    fn from(e: lsp_server::ProtocolError) -> Error {
+        // lsp-server reports the end of the input in the handshake as a protocol error.
+        if e.channel_is_disconnected() {
+            Error::Closed
+        } else {
+            Error::Protocol(e)
+        }
+    }
+}
+
+impl<T> From<crossbeam_channel::SendError<T>> for Error {
+    fn from(_: crossbeam_channel::SendError<T>) -> Error {
+        Error::Closed
+    }
+}
 
 /// The open documents, by their URI's text.
 type Docs = HashMap<String, Doc>;
@@ -48,23 +92,35 @@ struct Doc {
     identify_at: Option<Instant>,
 }
 
-/// Runs the server until the client says `exit`. Exit code 0 after a `shutdown` request, 2 if
-/// the connection broke or the client exited without one.
+/// Runs the server on standard input and output until the client says `exit`. Exit code 0
+/// after a `shutdown` request, 2 if the connection broke or the client exited without one.
 pub fn run() -> ExitCode {
-    let (connection, io_threads) = transport::stdio();
-    let code = match serve(&connection) {
+    // The reader runs on its own thread, which a lock of standard input cannot be sent to.
+    let stdin = std::io::BufReader::new(std::io::stdin());
+    match serve(stdin, std::io::stdout(), Identify::After(QUIET)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: kin lsp: {e}");
             ExitCode::from(2)
         }
-    };
-    drop(connection);
-    if let Err(e) = io_threads.join() {
-        eprintln!("error: kin lsp: {e}");
-        return ExitCode::from(2);
     }
-    code
+}
+
+/// Serves one session: reads framed JSON-RPC messages from `input`, writes the answers to
+/// `output`, until the client says `exit` after `shutdown` (`Ok`) or the input ends. A message
+/// that cannot be read is answered and the session goes on.
+pub fn serve(
+    input: impl BufRead + Send,
+    output: impl Write + Send,
+    identify: Identify,
+) -> Result<(), Error> {
+    std::thread::scope(|scope| {
+        let (connection, io_threads) = transport::spawn(scope, input, output);
+        let served = session(&connection, identify);
+        drop(connection);
+        let joined = io_threads.join().map_err(Error::Output);
+        served.and(joined)
+    })
 }
 
 fn capabilities() -> ServerCapabilities {
@@ -83,9 +139,10 @@ fn capabilities() -> ServerCapabilities {
     }
 }
 
-type Error = Box<dyn std::error::Error + Send + Sync>;
+/// A notification that could not be applied: reported, and the session goes on.
+type Skipped = Box<dyn std::error::Error + Send + Sync>;
 
-fn serve(connection: &Connection) -> Result<(), Error> {
+fn session(connection: &Connection, identify: Identify) -> Result<(), Error> {
     let (id, _params) = connection.initialize_start()?;
     let result = serde_json::json!({
         "capabilities": capabilities(),
@@ -107,13 +164,10 @@ fn serve(connection: &Connection) -> Result<(), Error> {
                         identify_due(connection, &mut docs)?;
                         continue;
                     }
-                    Err(_) => return Err("the client closed the connection".into()),
+                    Err(_) => return Err(Error::Closed),
                 }
             }
-            None => connection
-                .receiver
-                .recv()
-                .map_err(|_| "the client closed the connection")?,
+            None => connection.receiver.recv().map_err(|_| Error::Closed)?,
         };
         match msg {
             Message::Request(req) => {
@@ -126,7 +180,7 @@ fn serve(connection: &Connection) -> Result<(), Error> {
             // A notification the server cannot read is reported and skipped: there is no one to
             // answer, and the session goes on (a closed connection ends it at the next read).
             Message::Notification(n) => {
-                if let Err(e) = notified(connection, &mut docs, n) {
+                if let Err(e) = notified(connection, &mut docs, n, identify) {
                     eprintln!("kin lsp: {e}");
                 }
             }
@@ -135,12 +189,17 @@ fn serve(connection: &Connection) -> Result<(), Error> {
     }
 }
 
-fn notified(connection: &Connection, docs: &mut Docs, n: Notification) -> Result<(), Error> {
+fn notified(
+    connection: &Connection,
+    docs: &mut Docs,
+    n: Notification,
+    identify: Identify,
+) -> Result<(), Skipped> {
     match n.method.as_str() {
         DidOpenTextDocument::METHOD => {
             let p: lsp_types::DidOpenTextDocumentParams = serde_json::from_value(n.params)?;
             let doc = p.text_document;
-            changed(connection, docs, doc.uri, doc.text, doc.version)?;
+            changed(connection, docs, doc.uri, doc.text, doc.version, identify)?;
         }
         DidChangeTextDocument::METHOD => {
             let p: lsp_types::DidChangeTextDocumentParams = serde_json::from_value(n.params)?;
@@ -152,6 +211,7 @@ fn notified(connection: &Connection, docs: &mut Docs, n: Notification) -> Result
                     p.text_document.uri,
                     change.text,
                     p.text_document.version,
+                    identify,
                 )?;
             }
         }
@@ -173,6 +233,7 @@ fn changed(
     uri: Uri,
     text: String,
     version: i32,
+    identify: Identify,
 ) -> Result<(), Error> {
     let out = compile(&text);
     let previous = docs.remove(uri.as_str()).and_then(|d| d.compiled);
@@ -180,7 +241,10 @@ fn changed(
         .compiled
         .as_ref()
         .filter(|c| !c.machine.coefficients.is_empty())
-        .map(|_| Instant::now() + QUIET);
+        .and_then(|_| match identify {
+            Identify::After(quiet) => Some(Instant::now() + quiet),
+            Identify::Never => None,
+        });
     let diagnostics = analysis::diagnostics(&text, &uri, &out.diagnostics);
     publish(connection, &uri, diagnostics, Some(version))?;
     docs.insert(
@@ -209,7 +273,7 @@ fn identify_due(connection: &Connection, docs: &mut Docs) -> Result<(), Error> {
         doc.identify_at = None;
         let Some(c) = &doc.compiled else { continue };
         let mut all = doc.found.clone();
-        all.extend(crate::check::identify(
+        all.extend(kin_estimate::identify::checked(
             c,
             kin_estimate::identify::Observe::Pose,
             false,
@@ -335,5 +399,68 @@ fn respond(docs: &Docs, req: &Request) -> Result<serde_json::Value, Refusal> {
             ErrorCode::MethodNotFound,
             format!("`{}` is not supported", req.method),
         )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(body: &serde_json::Value) -> Vec<u8> {
+        let body = body.to_string();
+        format!("Content-Length: {}\r\n\r\n{body}", body.len()).into_bytes()
+    }
+
+    /// A session over byte buffers: initialised, a document opened and hovered, shut down; every
+    /// request answered under its id, the diagnostics published, and `Ok` after `exit`.
+    #[test]
+    fn a_session_over_buffers_answers_every_request() {
+        let uri = "file:///t/m.kin";
+        let text = "machine m {\n  axis X prismatic along x range 0 mm .. 100 mm\n  tool chain { X moving tool t at (0, 0, 0) mm }\n  errors { X.tx = spline(X, knots 2) }\n}\n";
+        let messages = [
+            serde_json::json!({"jsonrpc": "2.0", "id": 1, "method": "initialize", "params": {"capabilities": {}}}),
+            serde_json::json!({"jsonrpc": "2.0", "method": "initialized", "params": {}}),
+            serde_json::json!({"jsonrpc": "2.0", "method": "textDocument/didOpen", "params": {"textDocument": {"uri": uri, "languageId": "kin", "version": 1, "text": text}}}),
+            serde_json::json!({"jsonrpc": "2.0", "id": 2, "method": "textDocument/hover", "params": {"textDocument": {"uri": uri}, "position": {"line": 1, "character": 8}}}),
+            serde_json::json!({"jsonrpc": "2.0", "id": 3, "method": "no/such", "params": {}}),
+            serde_json::json!({"jsonrpc": "2.0", "id": 4, "method": "shutdown"}),
+            serde_json::json!({"jsonrpc": "2.0", "method": "exit"}),
+        ];
+        let input: Vec<u8> = messages.iter().flat_map(frame).collect();
+        let mut output = Vec::new();
+        serve(input.as_slice(), &mut output, Identify::Never).expect("a clean session");
+        let text = String::from_utf8(output).expect("UTF-8");
+        let bodies: Vec<serde_json::Value> = text
+            .split("Content-Length: ")
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                let (_, body) = s.split_once("\r\n\r\n").expect("a header end");
+                serde_json::from_str(body).expect("JSON")
+            })
+            .collect();
+        for id in 1..=4 {
+            assert!(
+                bodies.iter().any(|b| b["id"] == id),
+                "no answer to {id}: {bodies:?}"
+            );
+        }
+        let hover = bodies.iter().find(|b| b["id"] == 2).expect("hover");
+        assert!(hover["result"]["contents"].is_object(), "{hover}");
+        let unknown = bodies.iter().find(|b| b["id"] == 3).expect("unknown");
+        assert_eq!(unknown["error"]["code"], -32601, "{unknown}");
+        assert!(bodies
+            .iter()
+            .any(|b| b["method"] == "textDocument/publishDiagnostics"));
+    }
+
+    /// An input that ends before `shutdown` is a closed connection, reported as such.
+    #[test]
+    fn an_input_that_ends_early_is_a_closed_connection() {
+        let init = frame(
+            &serde_json::json!({"jsonrpc": "2.0", "id": 1, "method": "initialize", "params": {"capabilities": {}}}),
+        );
+        let mut output = Vec::new();
+        let ended = serve(init.as_slice(), &mut output, Identify::Never);
+        assert!(matches!(ended, Err(Error::Closed)), "{ended:?}");
     }
 }

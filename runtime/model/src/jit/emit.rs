@@ -256,9 +256,12 @@ fn define_all(
     sig.params.push(AbiParam::new(ptr));
     let ids = graphs
         .iter()
-        .map(|(name, _)| module.declare_function(name, Linkage::Local, &sig))
-        .collect::<Result<Vec<FuncId>, _>>()
-        .map_err(codegen)?;
+        .map(|(name, _)| {
+            module
+                .declare_function(name, Linkage::Local, &sig)
+                .map_err(codegen)
+        })
+        .collect::<Result<Vec<FuncId>, JitError>>()?;
 
     // Largest first, so that no thread is left with a long function at the end.
     let mut order: Vec<usize> = (0..graphs.len()).collect();

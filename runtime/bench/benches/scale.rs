@@ -17,6 +17,9 @@
 //!
 //! - JIT compile, 10 000 coefficients: one function 9.5 s, pieces of 1 024 1.5 s (load 10.8);
 //!   one function 1.4 s, pieces 0.27 s (load 3). 5 000: 1.9 s → 0.7 s (pieces of 512, load 10.8).
+//!   Issue 36 (load 3–4): 0.76–0.85 s before, 0.15–0.16 s with each harmonic built once and the
+//!   functions compiled on two threads; 1 000 coefficients 0.04–0.09 s → 0.02–0.03 s. At load
+//!   6–8, same-minute pairs: 0.89–1.23 s → 0.56–0.76 s (spec/performance.md, "Compile time").
 //! - `kin check`, 5 000 coefficients (load 10–11): 89 s with four rows per coefficient added
 //!   row by row (70 s sampling and accumulation, 6 s factorisation), 23 s with two rows, 16 s
 //!   with the rows added by pose; 5 s / 240 MB at load 3 with the later slice loops.

@@ -24,17 +24,21 @@
 //! Jacobian entries are emitted in the plainest exact form, for the tests.
 
 use std::mem::offset_of;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 
+use cranelift_codegen::control::ControlPlane;
 use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
 use cranelift_codegen::ir::{
     types, AbiParam, BlockArg, ConstantData, Endianness, InstBuilder, MemFlagsData, StackSlotData,
     StackSlotKind, UserFuncName, Value,
 };
+use cranelift_codegen::isa::TargetIsa;
 use cranelift_codegen::settings::{self, Configurable};
 use cranelift_codegen::Context;
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::{JITBuilder, JITModule};
-use cranelift_module::{default_libcall_names, FuncId, Linkage, Module};
+use cranelift_module::{default_libcall_names, FuncId, Linkage, Module, ModuleReloc};
 
 use super::graph::{Cmp, Dst, Effect, Graph, Id, Node, Src};
 use super::JitError;
@@ -165,7 +169,7 @@ pub(super) fn compile(
             message: "the JIT needs a 64-bit target".into(),
         });
     }
-    let mut jb = JITBuilder::with_isa(isa, default_libcall_names());
+    let mut jb = JITBuilder::with_isa(isa.clone(), default_libcall_names());
     jb.symbol(
         SINCOS,
         kin_jit_sincos as extern "C" fn(f64, *mut f64) as *const u8,
@@ -180,7 +184,7 @@ pub(super) fn compile(
     );
     let mut module = JITModule::new(jb);
 
-    let result = define_all(&mut module, graphs, width, &mut dump);
+    let result = define_all(&mut module, &*isa, graphs, width, &mut dump);
     let ids = match result {
         Ok(ids) => ids,
         Err(e) => {
@@ -201,13 +205,32 @@ pub(super) fn compile(
     Ok(Emitted { module, functions })
 }
 
+/// One function's machine code, ready to be placed in the module.
+struct Compiled {
+    alignment: u64,
+    code: Vec<u8>,
+    relocs: Vec<ModuleReloc>,
+    /// The Cranelift IR and the machine code as text, for a dump.
+    text: Option<String>,
+}
+
+/// Declares the functions of `graphs` in `module`, compiles them on up to
+/// [`compile_threads`] threads, and defines them in the order given (so the code is laid out
+/// as a single thread lays it out, whatever thread compiled what).
+///
+/// The register allocator is most of the compile time and each function is compiled on its
+/// own, so the functions are shared out among threads, largest first. Only building a
+/// function's IR touches the module (to import the three routines it calls), briefly under a
+/// lock; the compilation needs only the ISA.
 fn define_all(
     module: &mut JITModule,
+    isa: &dyn TargetIsa,
     graphs: &[(String, &Graph)],
     width: Width,
     dump: &mut Option<&mut String>,
 ) -> Result<Vec<FuncId>, JitError> {
     let ptr = module.target_config().pointer_type();
+    let config = module.target_config();
     let mut sincos_sig = module.make_signature();
     sincos_sig.params.push(AbiParam::new(types::F64));
     sincos_sig.params.push(AbiParam::new(ptr));
@@ -231,49 +254,137 @@ fn define_all(
 
     let mut sig = module.make_signature();
     sig.params.push(AbiParam::new(ptr));
-    let mut ctx = module.make_context();
-    let mut fctx = FunctionBuilderContext::new();
-    let mut ids = Vec::with_capacity(graphs.len());
-    for (name, graph) in graphs {
-        let id = module
-            .declare_function(name, Linkage::Local, &sig)
-            .map_err(codegen)?;
-        ctx.func.signature = sig.clone();
-        ctx.func.name = UserFuncName::user(0, id.as_u32());
-        let imports = Imports {
-            sincos: module.declare_func_in_func(sincos, &mut ctx.func),
-            sincos2: module.declare_func_in_func(sincos2, &mut ctx.func),
-            fmod: module.declare_func_in_func(fmod, &mut ctx.func),
-        };
-        emit_function(
-            &mut ctx,
-            &mut fctx,
-            graph,
-            &imports,
-            width,
-            ptr,
-            module.target_config(),
-        );
-        if let Some(d) = dump.as_deref_mut() {
-            d.push_str(&format!("; {name}\n{}\n", ctx.func.display()));
+    let ids = graphs
+        .iter()
+        .map(|(name, _)| {
+            module
+                .declare_function(name, Linkage::Local, &sig)
+                .map_err(codegen)
+        })
+        .collect::<Result<Vec<FuncId>, JitError>>()?;
+
+    // Largest first, so that no thread is left with a long function at the end.
+    let mut order: Vec<usize> = (0..graphs.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(graphs.get(i).map_or(0, |(_, g)| g.nodes().len())));
+    let next = AtomicUsize::new(0);
+    let disasm = dump.is_some();
+    let shared = Mutex::new(&mut *module);
+    // One thread's share: take the next function in `order` until none is left.
+    let work = || -> Vec<(usize, Result<Compiled, JitError>)> {
+        let mut ctx = Context::new();
+        let mut fctx = FunctionBuilderContext::new();
+        let mut done = Vec::new();
+        while let Some(&i) = order.get(next.fetch_add(1, Ordering::Relaxed)) {
+            let (Some((name, graph)), Some(&id)) = (graphs.get(i), ids.get(i)) else {
+                break;
+            };
+            ctx.clear();
+            ctx.func.signature = sig.clone();
+            ctx.func.name = UserFuncName::user(0, id.as_u32());
+            let imports = {
+                let mut m = match shared.lock() {
+                    Ok(m) => m,
+                    // Declaring an import cannot leave the module half-changed.
+                    Err(poisoned) => poisoned.into_inner(),
+                };
+                Imports {
+                    sincos: m.declare_func_in_func(sincos, &mut ctx.func),
+                    sincos2: m.declare_func_in_func(sincos2, &mut ctx.func),
+                    fmod: m.declare_func_in_func(fmod, &mut ctx.func),
+                }
+            };
+            emit_function(&mut ctx, &mut fctx, graph, &imports, width, ptr, config);
+            done.push((i, compile_one(&mut ctx, isa, id, name, disasm)));
         }
-        let disasm = dump.is_some();
-        ctx.set_disasm(disasm);
+        done
+    };
+    let threads = compile_threads(graphs.len());
+    let mut results: Vec<Option<Result<Compiled, JitError>>> =
+        std::iter::repeat_with(|| None).take(graphs.len()).collect();
+    let mut place = |done: Vec<(usize, Result<Compiled, JitError>)>| {
+        for (i, r) in done {
+            if let Some(slot) = results.get_mut(i) {
+                *slot = Some(r);
+            }
+        }
+    };
+    if threads <= 1 {
+        place(work());
+    } else {
+        std::thread::scope(|scope| {
+            let helpers: Vec<_> = (1..threads).map(|_| scope.spawn(work)).collect();
+            place(work());
+            for helper in helpers {
+                match helper.join() {
+                    Ok(done) => place(done),
+                    // Cranelift panicked on a helper thread: panic here, as it would have had
+                    // it run on this one.
+                    Err(payload) => std::panic::resume_unwind(payload),
+                }
+            }
+        });
+    }
+
+    for ((id, result), (name, _)) in ids.iter().zip(results).zip(graphs) {
+        let compiled = result.ok_or_else(|| JitError::Codegen {
+            message: format!("{name}: not compiled"),
+        })??;
         module
-            .define_function(id, &mut ctx)
+            .define_function_bytes(*id, compiled.alignment, &compiled.code, &compiled.relocs)
             .map_err(|e| JitError::Codegen {
                 message: format!("{name}: {e:?}"),
             })?;
-        if let (Some(d), Some(text)) = (
-            dump.as_deref_mut(),
-            ctx.compiled_code().and_then(|c| c.vcode.as_deref()),
-        ) {
-            d.push_str(&format!("; {name}: machine code\n{text}\n"));
+        if let (Some(d), Some(text)) = (dump.as_deref_mut(), compiled.text) {
+            d.push_str(&text);
         }
-        module.clear_context(&mut ctx);
-        ids.push(id);
     }
     Ok(ids)
+}
+
+/// Threads to compile `functions` functions on: one per core the process may use, at most
+/// one per function.
+fn compile_threads(functions: usize) -> usize {
+    std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(functions)
+}
+
+/// Compiles the function built in `ctx` (what `JITModule::define_function` does before it
+/// copies the code into the module).
+fn compile_one(
+    ctx: &mut Context,
+    isa: &dyn TargetIsa,
+    id: FuncId,
+    name: &str,
+    disasm: bool,
+) -> Result<Compiled, JitError> {
+    let mut text = disasm.then(|| format!("; {name}\n{}\n", ctx.func.display()));
+    ctx.set_disasm(disasm);
+    ctx.compile(isa, &mut ControlPlane::default())
+        .map_err(|e| JitError::Codegen {
+            message: format!("{name}: {:?}", e.inner),
+        })?;
+    // Read back through a shared borrow: the relocations need the function too.
+    let compiled = ctx.compiled_code().ok_or_else(|| JitError::Codegen {
+        message: format!("{name}: no code"),
+    })?;
+    let alignment = u64::from(compiled.buffer.alignment);
+    let code = compiled.code_buffer().to_vec();
+    if let (Some(t), Some(vcode)) = (text.as_mut(), compiled.vcode.as_deref()) {
+        t.push_str(&format!("; {name}: machine code\n{vcode}\n"));
+    }
+    let relocs = compiled
+        .buffer
+        .relocs()
+        .iter()
+        .map(|r| ModuleReloc::from_mach_reloc(r, &ctx.func, id))
+        .collect();
+    Ok(Compiled {
+        alignment,
+        code,
+        relocs,
+        text,
+    })
 }
 
 struct Imports {
@@ -395,15 +506,15 @@ struct Emitter<'g> {
     width: Width,
     values: Vec<Option<Value>>,
     /// Pointers loaded from the argument block, by lane and field offset.
-    bases: std::collections::HashMap<(u8, i32), Value>,
+    bases: rustc_hash::FxHashMap<(u8, i32), Value>,
     /// The selected tool: an `i64`, or for two poses an `i64x2`.
     tool: Option<Value>,
     args: Option<Value>,
     /// Each column entry's two-lane splat, made once and used by every pair of its component.
-    splats: std::collections::HashMap<Id, Value>,
+    splats: rustc_hash::FxHashMap<Id, Value>,
     /// Results of `sincos` calls: the slot and offset each is read from.
-    slots: std::collections::HashMap<Id, (cranelift_codegen::ir::StackSlot, i32)>,
-    lanes: std::collections::HashMap<(Id, Id), Value>,
+    slots: rustc_hash::FxHashMap<Id, (cranelift_codegen::ir::StackSlot, i32)>,
+    lanes: rustc_hash::FxHashMap<(Id, Id), Value>,
     ptr: types::Type,
     imports: &'g Imports,
 }

@@ -13,7 +13,10 @@
 //! for every finite `x` — the state's variables are checked for NaN before a call, and a state at
 //! infinity has no meaningful error anyway.
 
-use std::collections::HashMap;
+// Interning hashes every node built (hundreds of thousands at 10⁴ coefficients): SipHash's
+// resistance to chosen keys buys nothing for keys the compiler makes itself, and it was a sixth
+// of the compile time.
+use rustc_hash::FxHashMap as HashMap;
 
 /// Index of a node in its [`Graph`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -156,15 +159,18 @@ impl Graph {
     }
 
     fn intern(&mut self, node: Node) -> Id {
-        if let Some(id) = self.index.get(&node) {
-            return *id;
-        }
         // A graph holds far fewer than 2³² nodes (the IR bounds knots, degrees and harmonics);
         // saturating keeps this total rather than wrapping.
-        let id = Id(u32::try_from(self.nodes.len()).unwrap_or(u32::MAX));
-        self.nodes.push(node);
-        self.index.insert(node, id);
-        id
+        let next = Id(u32::try_from(self.nodes.len()).unwrap_or(u32::MAX));
+        // One lookup for both outcomes: most nodes built are new.
+        match self.index.entry(node) {
+            std::collections::hash_map::Entry::Occupied(e) => *e.get(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                self.nodes.push(node);
+                e.insert(next);
+                next
+            }
+        }
     }
 
     pub(super) fn store(&mut self, dst: Dst, index: usize, value: Id) {

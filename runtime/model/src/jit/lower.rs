@@ -182,8 +182,9 @@ struct FrameF {
 /// than linearly in the length of one straight-line function (at 10 000 coefficients one
 /// function took 9.5 s to compile); past this size the error and Jacobian functions are built
 /// as several pieces called in turn, each recomputing the kinematics (a few hundred
-/// instructions), so compile time grows linearly with the model (1.5 s at 10 000). A model of
-/// at most this many coefficients has one function per kind, the same code as without pieces.
+/// instructions), so compile time grows linearly with the model (1.5 s at 10 000 then; pieces
+/// of 512 or 256 measured no faster since). A model of at most this many coefficients has one
+/// function per kind, the same code as without pieces.
 pub(super) const PIECE: usize = 1024;
 
 /// Slot of `out` (past the 9 the functions return) that carries an error model's running sum
@@ -755,10 +756,21 @@ impl Builder<'_> {
     }
 
     /// `(sin, cos)` of harmonic `harmonics[i]` of the angle `x`, obtained as
-    /// `basis::harmonic_step` says (as `Basis::eval` does). An operand built twice is the same
-    /// node (the graph is hash-consed), so the recursion costs nothing at run time.
-    fn harmonic(&mut self, harmonics: &[u32], i: usize, x: Id) -> (Id, Id) {
-        match harmonic_step(harmonics, i) {
+    /// `basis::harmonic_step` says (as `Basis::eval` does). `done[j]` holds harmonic `j` once
+    /// built: without it each harmonic rebuilt its whole chain of operands down to the
+    /// fundamental, and looked each step up again, which at 10⁴ coefficients was a third of
+    /// the compile time (the graph is hash-consed, so the nodes are the same either way).
+    fn harmonic(
+        &mut self,
+        harmonics: &[u32],
+        i: usize,
+        x: Id,
+        done: &mut [Option<(Id, Id)>],
+    ) -> (Id, Id) {
+        if let Some(Some(known)) = done.get(i) {
+            return *known;
+        }
+        let result = match harmonic_step(harmonics, i) {
             Harmonic::Fundamental => (self.g.sin(x), self.g.cos(x)),
             Harmonic::Direct => {
                 let h = harmonics.get(i).copied().unwrap_or(0);
@@ -767,18 +779,22 @@ impl Builder<'_> {
                 (self.g.sin(a), self.g.cos(a))
             }
             Harmonic::Sum(a, b) => {
-                let mut operand = |o: HarmonicOperand| match o {
+                let mut operand = |o: HarmonicOperand, done: &mut [Option<(Id, Id)>]| match o {
                     HarmonicOperand::Fundamental => (self.g.sin(x), self.g.cos(x)),
-                    HarmonicOperand::Listed(j) => self.harmonic(harmonics, j, x),
+                    HarmonicOperand::Listed(j) => self.harmonic(harmonics, j, x, done),
                 };
-                let (sa, ca) = operand(a);
-                let (sb, cb) = operand(b);
+                let (sa, ca) = operand(a, done);
+                let (sb, cb) = operand(b, done);
                 // `basis::angle_sum`: (sa·cb + ca·sb, ca·cb − sa·sb).
                 let (sa_cb, ca_sb) = (self.g.mul(sa, cb), self.g.mul(ca, sb));
                 let (ca_cb, sa_sb) = (self.g.mul(ca, cb), self.g.mul(sa, sb));
                 (self.g.add(sa_cb, ca_sb), self.g.sub(ca_cb, sa_sb))
             }
+        };
+        if let Some(slot) = done.get_mut(i) {
+            *slot = Some(result);
         }
+        result
     }
 
     /// The values of `basis` at `x`, as `Basis::eval` computes them (thesis §3.2.2–3.2.5).
@@ -869,8 +885,9 @@ impl Builder<'_> {
                     }
                 };
                 let mut out = Vec::with_capacity(2 * harmonics.len());
+                let mut done = vec![None; harmonics.len()];
                 for i in 0..harmonics.len() {
-                    let (s, c) = self.harmonic(harmonics, i, x);
+                    let (s, c) = self.harmonic(harmonics, i, x, &mut done);
                     out.push(c);
                     out.push(s);
                 }

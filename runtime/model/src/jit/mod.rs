@@ -15,7 +15,10 @@
 //! 2. `emit`: each graph as one straight-line Cranelift function, `sin`/`cos`/`%` through the
 //!    same `libm` routines the interpreter uses. Past `lower::PIECE` coefficients the error
 //!    and Jacobian functions are several such functions called in turn, because the register
-//!    allocator's cost grows faster than the length of one function. The batches of errors
+//!    allocator's cost grows faster than the length of one function. The functions are
+//!    compiled on as many threads as the process has cores (the register allocator is most
+//!    of the compile time) and placed in the module in one fixed order, so the code is the
+//!    same whatever thread compiled what. The batches of errors
 //!    ([`JitModel::error_rows`]) call a second compilation of the error functions that
 //!    evaluates two poses a call, one per lane of `f64x2` values, with each pose's bits.
 //!

@@ -23,9 +23,10 @@
 
 use std::sync::mpsc;
 
-use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::householder;
 use faer::linalg::matmul::triangular::{self, BlockStructure};
+use faer::linalg::qr::no_pivoting::factor;
 use faer::{Accum, Conj, Mat, Par};
 
 /// Which design columns are the base's, which the candidates'.
@@ -56,12 +57,45 @@ pub(super) struct Accumulated {
     pub rows: usize,
 }
 
+/// A block of rows laid out as the fold factors it: `kb` rows of room for the triangle and
+/// the coordinates, then one row per design row. The rows are written where the
+/// factorisation reads them, so a fold neither transposes nor allocates (copying a block into
+/// freshly zeroed matrices was about a sixth of the pass's time at 10⁵ poses of the 5-axis example).
+struct Block {
+    /// `(kb + rows) × kb`: the base's columns.
+    a: Mat<f64>,
+    /// `(kb + rows) × (slots + 1)`: the slots' columns, then `y`.
+    rhs: Mat<f64>,
+    filled: usize,
+}
+
+impl Block {
+    fn new(kb: usize, wide: usize, rows: usize) -> Block {
+        Block {
+            a: Mat::zeros(kb + rows, kb),
+            rhs: Mat::zeros(kb + rows, wide),
+            filled: 0,
+        }
+    }
+
+    fn full(&self) -> bool {
+        self.kb() + self.filled == self.a.nrows()
+    }
+
+    fn kb(&self) -> usize {
+        self.a.ncols()
+    }
+}
+
 /// One worker's part.
 struct State {
     r: Mat<f64>,
     s: Mat<f64>,
     gram: Mat<f64>,
     ee: f64,
+    /// The factorisation's scratch, kept from block to block, and its size.
+    mem: MemBuffer,
+    mem_bytes: usize,
 }
 
 impl State {
@@ -72,58 +106,79 @@ impl State {
             s: Mat::zeros(kb, slots + 1),
             gram: Mat::zeros(slots + 1, slots + 1),
             ee: 0.0,
+            mem: MemBuffer::new(StackReq::EMPTY),
+            mem_bytes: 0,
         }
     }
 
-    /// Folds `filled` rows of `block` in: one row per column of it (base columns, then the
-    /// slots, then `y`), so that the reader writes each row contiguously.
-    fn fold(&mut self, block: &Mat<f64>, filled: usize) {
+    /// Folds the rows of `block` in (its top `kb` rows are overwritten).
+    fn fold(&mut self, block: &mut Block) {
+        let filled = block.filled;
         if filled == 0 {
             return;
         }
         let kb = self.r.nrows();
         let wide = self.s.ncols();
         let m = kb + filled;
-        let mut a = Mat::zeros(m, kb);
-        let mut rhs = Mat::zeros(m, wide);
+        // `[R; X_b]` and `[S; C_b | y_b]`: the triangle's lower part is zero.
         for j in 0..kb {
-            for i in 0..=j {
-                a[(i, j)] = self.r[(i, j)];
+            for i in 0..kb {
+                block.a[(i, j)] = if i <= j { self.r[(i, j)] } else { 0.0 };
             }
         }
         for j in 0..wide {
             for i in 0..kb {
-                rhs[(i, j)] = self.s[(i, j)];
+                block.rhs[(i, j)] = self.s[(i, j)];
             }
         }
-        transpose_into(&mut a, kb, block, 0, filled);
-        transpose_into(&mut rhs, kb, block, kb, filled);
+        let mut a = block.a.as_mut().subrows_mut(0, m);
+        let mut rhs = block.rhs.as_mut().subrows_mut(0, m);
         if kb > 0 {
-            let qr = a.qr();
-            let basis = qr.Q_basis();
-            let coeff = qr.Q_coeff();
-            let mut mem = MemBuffer::new(
+            // What `Mat::qr` does (the same block size, sequential), in place: the Householder
+            // basis stays below the triangle, which the application reads as unit-triangular.
+            let bs = factor::recommended_block_size::<f64>(m, kb);
+            let mut coeff = Mat::<f64>::zeros(bs, kb.min(m));
+            let req = StackReq::any_of(&[
+                factor::qr_in_place_scratch::<f64>(m, kb, bs, Par::Seq, Default::default()),
                 householder::apply_block_householder_sequence_transpose_on_the_left_in_place_scratch::<f64>(
                     m,
-                    coeff.nrows(),
+                    bs,
                     wide,
                 ),
+            ]);
+            if self.mem_bytes < req.unaligned_bytes_required() {
+                self.mem = MemBuffer::new(req);
+                self.mem_bytes = req.unaligned_bytes_required();
+            }
+            factor::qr_in_place(
+                a.as_mut(),
+                coeff.as_mut(),
+                Par::Seq,
+                MemStack::new(&mut self.mem),
+                Default::default(),
             );
             householder::apply_block_householder_sequence_transpose_on_the_left_in_place_with_conj(
-                basis,
-                coeff,
+                a.as_ref(),
+                coeff.as_ref(),
                 Conj::No,
                 rhs.as_mut(),
                 Par::Seq,
-                MemStack::new(&mut mem),
+                MemStack::new(&mut self.mem),
             );
-            let t = qr.thin_R();
-            self.r = Mat::from_fn(kb, kb, |i, j| if j >= i { t[(i, j)] } else { 0.0 });
-            self.s = Mat::from_fn(kb, wide, |i, j| rhs[(i, j)]);
+            for j in 0..kb {
+                for i in 0..=j {
+                    self.r[(i, j)] = a[(i, j)];
+                }
+            }
+            for j in 0..wide {
+                for i in 0..kb {
+                    self.s[(i, j)] = rhs[(i, j)];
+                }
+            }
         }
         let y = wide - 1;
         self.ee += (kb..m).map(|i| rhs[(i, y)].powi(2)).sum::<f64>();
-        let rest = rhs.as_ref().get(kb..m, ..);
+        let rest = rhs.as_ref().subrows(kb, filled);
         // The Gram matrix is symmetric: only its lower triangle is summed (half the flops of
         // the full product, the largest part of a block's work when the candidates have more
         // columns than the base); [`accumulate`] mirrors it once at the end.
@@ -138,20 +193,24 @@ impl State {
             1.0,
             Par::Seq,
         );
+        block.filled = 0;
     }
 
     /// Folds another worker's state in: its triangle and coordinates are rows like any others.
     fn merge(&mut self, other: State) {
         let kb = self.r.nrows();
         let wide = self.s.ncols();
-        let block = Mat::from_fn(kb + wide, kb, |j, i| {
-            if j < kb {
-                other.r[(i, j)]
-            } else {
-                other.s[(i, j - kb)]
+        let mut block = Block::new(kb, wide, kb);
+        for i in 0..kb {
+            for j in 0..kb {
+                block.a[(kb + i, j)] = other.r[(i, j)];
             }
-        });
-        self.fold(&block, kb);
+            for j in 0..wide {
+                block.rhs[(kb + i, j)] = other.s[(i, j)];
+            }
+        }
+        block.filled = kb;
+        self.fold(&mut block);
         self.ee += other.ee;
         self.gram += &other.gram;
     }
@@ -172,48 +231,50 @@ pub(super) fn accumulate<E>(
     let mut norms2 = vec![0.0; width];
     let mut rows = 0usize;
     let threads = threads.max(1);
-    let new_block = || Mat::<f64>::zeros(kb + wide, block);
-    let mut fill = |buf: &mut Mat<f64>, filled: &mut usize, x: &[f64], y: f64| {
-        // A column of an owned matrix is contiguous: the row is written as one run.
-        let mut col = buf.col_mut(*filled);
-        for (c, &j) in split.base.iter().chain(&split.candidates).enumerate() {
-            col[c] = x.get(j).copied().unwrap_or(0.0);
+    let new_block = || Block::new(kb, wide, block);
+    let mut fill = |buf: &mut Block, x: &[f64], y: f64| {
+        // One element per column: the block is column-major for the factorisation, and the
+        // `kb + wide` columns' current cache lines stay in cache while consecutive rows fill them.
+        let at = kb + buf.filled;
+        for (c, &j) in split.base.iter().enumerate() {
+            buf.a[(at, c)] = x.get(j).copied().unwrap_or(0.0);
         }
-        col[kb + wide - 1] = y;
+        for (c, &j) in split.candidates.iter().enumerate() {
+            buf.rhs[(at, c)] = x.get(j).copied().unwrap_or(0.0);
+        }
+        buf.rhs[(at, wide - 1)] = y;
         for (n, v) in norms2.iter_mut().zip(x) {
             *n += v * v;
         }
-        *filled += 1;
+        buf.filled += 1;
         rows += 1;
     };
     let state = if threads == 1 {
         let mut state = State::new(split);
         let mut buf = new_block();
-        let mut filled = 0;
         visit(&mut |x, y| {
-            fill(&mut buf, &mut filled, x, y);
-            if filled == block {
-                state.fold(&buf, filled);
-                filled = 0;
+            fill(&mut buf, x, y);
+            if buf.full() {
+                state.fold(&mut buf);
             }
         })?;
-        state.fold(&buf, filled);
+        state.fold(&mut buf);
         state
     } else {
         std::thread::scope(|scope| -> Result<State, E> {
-            let (back, spare) = mpsc::channel::<Mat<f64>>();
+            let (back, spare) = mpsc::channel::<Block>();
             let mut to = Vec::with_capacity(threads);
             let mut handles = Vec::with_capacity(threads);
             for _ in 0..threads {
                 // A rendezvous: a block is handed over when its worker is free, so only the
                 // workers' blocks and the one being filled exist (a queue of one per worker held
                 // two more, 55 MB at 10⁵ poses of the 5-axis example, and was no faster).
-                let (tx, rx) = mpsc::sync_channel::<(Mat<f64>, usize)>(0);
+                let (tx, rx) = mpsc::sync_channel::<Block>(0);
                 let back = back.clone();
                 handles.push(scope.spawn(move || {
                     let mut state = State::new(split);
-                    for (b, filled) in rx {
-                        state.fold(&b, filled);
+                    for mut b in rx {
+                        state.fold(&mut b);
                         let _ = back.send(b);
                     }
                     state
@@ -222,23 +283,21 @@ pub(super) fn accumulate<E>(
             }
             let mut sent = 0usize;
             let mut buf = new_block();
-            let mut filled = 0;
-            let mut send = |buf: &mut Mat<f64>, filled: &mut usize| {
+            let mut send = |buf: &mut Block| {
                 let next = spare.try_recv().unwrap_or_else(|_| new_block());
                 let full = std::mem::replace(buf, next);
                 // A worker only drops its end by panicking, which the join below carries on.
-                let _ = to[sent % threads].send((full, *filled));
+                let _ = to[sent % threads].send(full);
                 sent += 1;
-                *filled = 0;
             };
             let visited = visit(&mut |x, y| {
-                fill(&mut buf, &mut filled, x, y);
-                if filled == block {
-                    send(&mut buf, &mut filled);
+                fill(&mut buf, x, y);
+                if buf.full() {
+                    send(&mut buf);
                 }
             });
-            if filled > 0 {
-                send(&mut buf, &mut filled);
+            if buf.filled > 0 {
+                send(&mut buf);
             }
             drop(to);
             let mut merged: Option<State> = None;
@@ -310,22 +369,6 @@ impl Accumulated {
             }
         }
         f
-    }
-}
-
-/// `dst[top + i, j] = src[from + j, i]` for `i < rows` and every column `j` of `dst`, in
-/// tiles that keep both sides in cache.
-fn transpose_into(dst: &mut Mat<f64>, top: usize, src: &Mat<f64>, from: usize, rows: usize) {
-    const TILE: usize = 32;
-    let cols = dst.ncols();
-    for i0 in (0..rows).step_by(TILE) {
-        for j0 in (0..cols).step_by(TILE) {
-            for j in j0..(j0 + TILE).min(cols) {
-                for i in i0..(i0 + TILE).min(rows) {
-                    dst[(top + i, j)] = src[(from + j, i)];
-                }
-            }
-        }
     }
 }
 

@@ -412,6 +412,8 @@ fn all_finite_avx2(values: &[f64]) -> bool {
 }
 
 #[inline(always)]
+// `v - v` is the point: zero for a finite value, NaN otherwise.
+#[allow(clippy::eq_op)]
 fn finite_sum(values: &[f64]) -> bool {
     let mut lanes = [0.0f64; 8];
     let chunks = values.chunks_exact(8);

@@ -38,8 +38,28 @@ fn bench_prints_rates_ratios_and_compile_time() {
         "interleaved rounds",
         "position rows",
         "b / pp",
+        "C ABI",
+        "c / b",
     ] {
         assert!(stdout.contains(expected), "missing `{expected}`:\n{stdout}");
+    }
+    // The C ABI measured on each of the three rows: its rate, ÷ per pose, ÷ the baseline.
+    for row in ["six rows", "position rows", "error only"] {
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with("error") && l.contains(row) && l.contains('.'))
+            .unwrap_or_else(|| panic!("no `{row}` row:\n{stdout}"));
+        let cells: Vec<&str> = line.split("  ").filter(|c| !c.trim().is_empty()).collect();
+        let last: Vec<f64> = cells
+            .iter()
+            .rev()
+            .take(2)
+            .map(|c| c.trim().parse().unwrap_or(f64::NAN))
+            .collect();
+        assert!(
+            last.iter().all(|r| r.is_finite() && *r > 0.0),
+            "C ABI ratios of `{row}`: {line}"
+        );
     }
     let out = kin(&[
         "bench",

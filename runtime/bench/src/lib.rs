@@ -22,6 +22,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod baseline_5axis;
+mod c_abi;
 mod wide_store;
 
 use std::fmt;
@@ -118,6 +119,10 @@ pub struct PathRates {
     pub baseline: Option<f64>,
     /// The baseline writing each pose's rows into N-row outputs.
     pub baseline_batch: Option<f64>,
+    /// One pose per call through the C ABI (`kin_eval_jacobian_observed`, `kin_eval`) with the
+    /// coefficients bound once, as an embedding program calls it; `None` when the C ABI could
+    /// not compile the model.
+    pub capi: Option<f64>,
 }
 
 /// The evaluation paths measured side by side: every contender runs for a slice of time in
@@ -208,6 +213,8 @@ pub enum BenchError {
     Batch(#[from] BatchError),
     #[error("--poses must be at least 1")]
     NoPoses,
+    #[error("the C ABI refused a call of the bench (status {0})")]
+    CApi(i32),
     #[error(
         "the batched Jacobian of {poses} poses × {coefficients} coefficients needs more than \
          {MAX_BATCH_VALUES} values (2 GiB); measure with fewer --poses"
@@ -335,7 +342,7 @@ pub fn measure(source: &str, options: &Options) -> Result<Figures, BenchError> {
     };
 
     let baseline = baseline_rates(m, options, &rows, &beta, &nonlinear);
-    let paths = paths(&model, options, &rows, &beta, &mut jacs, &mut errs)?;
+    let paths = paths(source, &model, options, &rows, &beta, &mut jacs, &mut errs)?;
     let compensation = compensation_times(&model, options, &rows, &beta)?;
     let write_only = rate(options, || {
         for r in 0..count {
@@ -406,6 +413,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// rows, and the error alone. `jacs` and `errs` hold six rows per pose: the batch outputs,
 /// the baseline's as well as the JIT's.
 fn paths(
+    source: &str,
     model: &Model,
     options: &Options,
     rows: &StateRows,
@@ -428,6 +436,9 @@ fn paths(
     let no_baseline = Baseline::new(m, Trig::Recurrence)
         .err()
         .map(|e| e.to_string());
+    // The C ABI's model and states (passes 21–23), declared before the passes that borrow them.
+    let c_model = c_abi::CModel::new(source, beta).ok();
+    let c_states = c_abi::states(rows);
     let mut passes: Vec<Pass<'_>> = Vec::new();
     // 0–1: all six rows, per pose and batch.
     let (mut e6, mut j6) = ([0.0; 6], vec![0.0; 6 * n]);
@@ -608,10 +619,45 @@ fn paths(
             Ok(())
         }));
     }
+    // 21–23: one pose per call through the C ABI, six rows, position rows, error alone — after
+    // the baseline's passes, whose numbers are fixed above. A model the C ABI does not compile
+    // (it compiles what `Model::compile` compiles) leaves the column empty.
+    let capi_first = passes.len();
+    if let Some(cm) = &c_model {
+        let nc = cm.coefficients();
+        for observed in [63u32, 7] {
+            let k = observed.count_ones() as usize;
+            let (mut e, mut j) = ([0.0; 6], vec![0.0; k * nc]);
+            let c_states = &c_states;
+            passes.push(Box::new(move || {
+                for st in c_states {
+                    cm.jacobian(st, observed, e.get_mut(..k).unwrap_or(&mut []), &mut j)
+                        .map_err(|s| BenchError::CApi(s.0))?;
+                }
+                black_box(&j);
+                Ok(())
+            }));
+        }
+        let mut e = [0.0; 6];
+        let c_states = &c_states;
+        passes.push(Box::new(move || {
+            for st in c_states {
+                cm.error(st, &mut e).map_err(|s| BenchError::CApi(s.0))?;
+            }
+            black_box(&e);
+            Ok(())
+        }));
+    }
     let rates = interleaved(options, &mut passes)?;
     drop(passes);
+    let capi = |k: usize| {
+        c_model
+            .as_ref()
+            .and_then(|_| rates.get(capi_first + k).copied())
+    };
     let at = |i: usize| rates.get(i).copied().unwrap_or(0.0);
-    let base = |i: usize| rates.get(i).copied();
+    // The baseline's passes, where there are any, come before the C ABI's.
+    let base = |i: usize| rates.get(i).copied().filter(|_| i < capi_first);
     Ok(Paths {
         rounds: options.rounds.max(1),
         full: PathRates {
@@ -620,6 +666,7 @@ fn paths(
             blocked: base(6),
             baseline: base(16),
             baseline_batch: base(17),
+            capi: capi(0),
         },
         position: PathRates {
             per_pose: at(2),
@@ -627,6 +674,7 @@ fn paths(
             blocked: base(7),
             baseline: base(18),
             baseline_batch: base(19),
+            capi: capi(1),
         },
         error: PathRates {
             per_pose: at(4),
@@ -634,6 +682,7 @@ fn paths(
             blocked: None,
             baseline: base(20),
             baseline_batch: None,
+            capi: capi(2),
         },
         no_baseline,
         floor_full: Floor {
@@ -940,7 +989,7 @@ impl Paths {
     fn show(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{:<34} {:>11} {:>11} {:>7} {:>11} {:>7} {:>11} {:>11} {:>7} {:>7}",
+            "{:<34} {:>11} {:>11} {:>7} {:>11} {:>7} {:>11} {:>11} {:>7} {:>7} {:>11} {:>7} {:>7}",
             format!("medians of {} interleaved rounds", self.rounds),
             "per pose",
             "batch",
@@ -950,7 +999,10 @@ impl Paths {
             "baseline",
             "base batch",
             "pp / b",
-            "b / bb"
+            "b / bb",
+            "C ABI",
+            "c / pp",
+            "c / b"
         )?;
         let opt = |x: Option<f64>| x.map_or("-".to_string(), grouped);
         let ratio = |a: f64, b: Option<f64>| b.map_or("-".to_string(), |b| format!("{:.2}", a / b));
@@ -961,7 +1013,7 @@ impl Paths {
         ] {
             writeln!(
                 f,
-                "{name:<34} {:>11} {:>11} {:>7.2} {:>11} {:>7} {:>11} {:>11} {:>7} {:>7}",
+                "{name:<34} {:>11} {:>11} {:>7.2} {:>11} {:>7} {:>11} {:>11} {:>7} {:>7} {:>11} {:>7} {:>7}",
                 grouped(r.per_pose),
                 grouped(r.batch),
                 r.batch / r.per_pose,
@@ -972,6 +1024,10 @@ impl Paths {
                 opt(r.baseline_batch),
                 ratio(r.per_pose, r.baseline),
                 ratio(r.batch, r.baseline_batch.or(r.baseline)),
+                opt(r.capi),
+                r.capi
+                    .map_or("-".to_string(), |c| format!("{:.2}", c / r.per_pose)),
+                r.capi.map_or("-".to_string(), |c| ratio(c, r.baseline)),
             )?;
         }
         for (name, fl, r) in [
@@ -995,7 +1051,7 @@ impl Paths {
         }
         writeln!(
             f,
-            "(poses/s; batch: one call for all poses into N-row outputs; blocks: one call per {} KiB block of rows into a reused block; baseline: hand-written, harmonic recurrences; b / pp: batch ÷ per pose; bl / pp: blocks ÷ per pose; pp / b: JIT ÷ baseline per pose; b / bb: JIT batch ÷ baseline batch, or ÷ baseline per pose for the error; write floor: the batch's Jacobian bytes written to its output, nothing evaluated)",
+            "(poses/s; batch: one call for all poses into N-row outputs; blocks: one call per {} KiB block of rows into a reused block; baseline: hand-written, harmonic recurrences; b / pp: batch ÷ per pose; bl / pp: blocks ÷ per pose; pp / b: JIT ÷ baseline per pose; b / bb: JIT batch ÷ baseline batch, or ÷ baseline per pose for the error; C ABI: one pose per call through the C ABI, coefficients bound once; c / pp: C ABI ÷ per pose; c / b: C ABI ÷ baseline per pose; write floor: the batch's Jacobian bytes written to its output, nothing evaluated)",
             BLOCK_BYTES >> 10
         )?;
         writeln!(

@@ -237,6 +237,8 @@ pub struct DataOptions {
     pub ignore: Vec<String>,
     /// The field separator, when not detected from the header.
     pub delimiter: Option<u8>,
+    /// Threads reading each file (`kin fit --threads`); every core when `None`.
+    pub threads: Option<usize>,
 }
 
 impl DataOptions {
@@ -247,6 +249,7 @@ impl DataOptions {
             ignore: self.ignore.clone(),
             delimiter: self.delimiter,
             series: false,
+            threads: self.threads,
         }
     }
 }

@@ -454,8 +454,13 @@ pub fn fit_quietly(a: &FitArgs) -> Result<Fitted, Failed> {
     let source = load::model_text(&a.machine, a.color)?;
     let compiled = load::machine_source(&a.machine, &source, None, a.color)?;
     let m = &compiled.machine;
-    let files = read_all(&a.data, &compiled, &a.ignore)?;
-    let mut validate = read_all(&a.validate, &compiled, &a.ignore)?;
+    // The files are read on the fit's threads.
+    let read = crate::args::DataOptions {
+        threads: a.threads,
+        ..a.ignore.clone()
+    };
+    let files = read_all(&a.data, &compiled, &read)?;
+    let mut validate = read_all(&a.validate, &compiled, &read)?;
     let files = match a.holdout {
         Some(f) => {
             let (fitted, held) = fit::holdout(&files, f, a.seed);

@@ -78,6 +78,7 @@ impl Ignore {
         args::DataOptions {
             ignore: self.columns,
             delimiter: self.delimiter,
+            threads: None,
         }
     }
 }

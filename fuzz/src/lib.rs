@@ -142,6 +142,8 @@ pub fn measurement_csv(data: &[u8]) {
         // Detected from the header, so the fuzzer reaches every separator and quoting.
         delimiter: None,
         series: selector & 0x40 != 0,
+        // One thread or a piece per 256 KiB, so that larger inputs reach the pieces' merge.
+        threads: (selector & 0x80 != 0).then_some(1),
     };
     let m = &c.machine;
     match data::read(bytes, Path::new("fuzz.csv"), m, &options) {
@@ -180,6 +182,7 @@ fn tiny_poses() -> Option<&'static Observations> {
                 ignore: Vec::new(),
                 delimiter: None,
                 series: false,
+                threads: None,
             };
             let m = &tiny()?.machine;
             data::read(TINY_POSES.as_bytes(), Path::new("poses.csv"), m, &options).ok()

@@ -56,6 +56,9 @@ pub struct ReadOptions {
     /// Read a time series of inputs (a duty cycle for `kin predict`, `kin simulate --cycle`):
     /// as `poses`, and besides axis columns are optional (all or none) and `time` is required.
     pub series: bool,
+    /// Threads reading a whole file's data lines ([`read`]); every core when `None`. The rows
+    /// and problems are the same for any number.
+    pub threads: Option<usize>,
 }
 
 // One per data file: the size difference (a point file's absolute positions) costs nothing

@@ -1,15 +1,16 @@
 //! The reader. The header is small and read with plain string handling; data rows are the hot
-//! path (millions of numeric cells): a hand-written splitter finds the cells and recognises a
-//! plain number in one pass, and a large file's lines are read in pieces, one thread each.
-//! Anything the fast path does not recognise falls back to a careful, slow path that produces
-//! the diagnostic. Lines with quotes, and files separated by `;` or tabs, are split by the CSV
-//! front end ([`csv`]) instead of the splitter; the cells then go through the same checks.
+//! path (millions of numeric cells): a logos lexer finds the cells and recognises a plain
+//! number in one pass, and a large file's lines are read in pieces, one thread each. Anything
+//! the fast path does not recognise falls back to a careful, slow path that produces the
+//! diagnostic. Lines with quotes, and files separated by `;` or tabs, are split by the CSV
+//! front end ([`csv`]) instead of the lexer; the cells then go through the same checks.
 
 use std::collections::HashMap;
 use std::path::Path;
 
 use kin_compiler::ir::{JointKind, Machine};
 use kin_compiler::units::{Dim, Unit, UnitError};
+use logos::Logos;
 
 pub mod csv;
 
@@ -214,6 +215,18 @@ pub(super) fn skipped(line: &str) -> bool {
     t.is_empty() || t.starts_with('#')
 }
 
+#[derive(Logos, Debug, Clone, Copy, PartialEq, Eq)]
+#[logos(skip r"[ \t\r]+")]
+enum Tok {
+    #[token(",")]
+    Comma,
+    // Every text this matches is also accepted by `f64::from_str`.
+    #[regex(r"[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?", priority = 10)]
+    Number,
+    #[regex(r"[^, \t\r\n]+", priority = 1)]
+    Text,
+}
+
 /// A cell's span in its line, spaces around it excluded (ASCII ones; the slow path trims the
 /// rest). An empty cell has `start == end` at the place it would be.
 #[derive(Debug, Clone, Copy)]
@@ -228,102 +241,41 @@ pub struct Cell {
     pub origin: usize,
 }
 
-/// Spaces around a cell of a comma-separated line: never part of it.
-fn blank(b: u8) -> bool {
-    matches!(b, b' ' | b'\t' | b'\r')
-}
-
-/// The end of the plain number (`[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?`, a text
-/// `f64::from_str` reads too) that starts `bytes`, if one does.
-fn number_end(bytes: &[u8]) -> Option<usize> {
-    let digits = |from: usize| {
-        bytes
-            .get(from..)
-            .map_or(0, |b| b.iter().take_while(|c| c.is_ascii_digit()).count())
-    };
-    let mut i = usize::from(matches!(bytes.first(), Some(b'+' | b'-')));
-    let whole = digits(i);
-    i += whole;
-    let mut fraction = 0;
-    if bytes.get(i) == Some(&b'.') {
-        fraction = digits(i + 1);
-        // `1.` is a number, `.` is not.
-        if whole + fraction == 0 {
-            return None;
-        }
-        i += 1 + fraction;
-    }
-    if whole + fraction == 0 {
-        return None;
-    }
-    if matches!(bytes.get(i), Some(b'e' | b'E')) {
-        let sign = usize::from(matches!(bytes.get(i + 1), Some(b'+' | b'-')));
-        let exponent = digits(i + 1 + sign);
-        // `1e` and `1e+` are not numbers with an exponent: the `e` is then text after one.
-        if exponent > 0 {
-            i += 1 + sign + exponent;
-        }
-    }
-    Some(i)
-}
-
-/// Splits a comma-separated line without quotes into `cells`. A cell's span leaves out the
-/// spaces around it; an empty (or blank) cell is an empty span just after its comma. A cell
-/// is a number for the fast path when it is exactly one plain number (see [`number_end`]).
 fn split_cells(line: &str, cells: &mut Vec<Cell>) {
     cells.clear();
-    let bytes = line.as_bytes();
-    let mut start = 0;
-    loop {
-        let rest = bytes.get(start..).unwrap_or_default();
-        let lead = rest.iter().take_while(|&&b| blank(b)).count();
-        let from = start + lead;
-        let text = bytes.get(from..).unwrap_or_default();
-        // Most cells are one number: the number and the spaces after it, then the comma.
-        if let Some(len) = number_end(text) {
-            let after = text.get(len..).unwrap_or_default();
-            let gap = after.iter().take_while(|&&b| blank(b)).count();
-            match after.get(gap) {
-                None | Some(b',') => {
-                    cells.push(Cell {
-                        start: from,
-                        end: from + len,
-                        number: true,
-                        origin: from,
-                    });
-                    match after.get(gap) {
-                        Some(_) => start = from + len + gap + 1,
-                        None => return,
-                    }
-                    continue;
+    let mut lex = Tok::lexer(line);
+    let mut cell = Cell {
+        start: 0,
+        end: 0,
+        number: false,
+        origin: 0,
+    };
+    let mut tokens = 0usize;
+    while let Some(tok) = lex.next() {
+        let span = lex.span();
+        match tok {
+            Ok(Tok::Comma) => {
+                cells.push(cell);
+                cell = Cell {
+                    start: span.end,
+                    end: span.end,
+                    number: false,
+                    origin: span.end,
+                };
+                tokens = 0;
+            }
+            other => {
+                if tokens == 0 {
+                    cell.start = span.start;
+                    cell.origin = span.start;
                 }
-                Some(_) => {}
+                tokens += 1;
+                cell.end = span.end;
+                cell.number = tokens == 1 && other == Ok(Tok::Number);
             }
-        }
-        let comma = text.iter().position(|&b| b == b',');
-        let end = comma.map_or(bytes.len(), |at| from + at);
-        let body = bytes.get(from..end).unwrap_or_default();
-        let trimmed = body.len() - body.iter().rev().take_while(|&&b| blank(b)).count();
-        cells.push(if trimmed == 0 {
-            Cell {
-                start,
-                end: start,
-                number: false,
-                origin: start,
-            }
-        } else {
-            Cell {
-                start: from,
-                end: from + trimmed,
-                number: false,
-                origin: from,
-            }
-        });
-        match comma {
-            Some(_) => start = end + 1,
-            None => return,
         }
     }
+    cells.push(cell);
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

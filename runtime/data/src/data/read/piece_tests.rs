@@ -1,8 +1,7 @@
 //! The reader in pieces: a file read on several threads gives what one thread gives (rows,
 //! ids, values to the bit, problems in order, the cap and the count past it), wherever the
-//! cuts fall; and the hand-written splitter is the logos lexer it replaced.
+//! cuts fall.
 
-use logos::Logos;
 use proptest::prelude::*;
 
 use super::super::testing::machine;
@@ -266,86 +265,16 @@ proptest! {
         prop_assert_eq!(outcome(&text, &options, pieces), outcome(&text, &options, 1));
     }
 
-    /// The splitter finds the cells and numbers the logos lexer found, on any line.
-    #[test]
-    fn the_splitter_is_the_lexer(line in "[-+0-9.eE ,\t\rx\"\u{a0}\u{e9}\u{2212}]{0,40}") {
-        let mut cells = Vec::new();
-        split_cells(&line, &mut cells);
-        let found: Vec<_> = cells.iter().map(|c| (c.start, c.end, c.number, c.origin)).collect();
-        prop_assert_eq!(found, lexed(&line));
-    }
-
-    /// Every text the splitter takes for a number `f64::from_str` reads, and nothing the
-    /// lexer's number pattern rejects.
+    /// Every text of the lexer's number pattern is one cell, taken for a number, which
+    /// `f64::from_str` reads (the fast path parses only those).
     #[test]
     fn numbers_are_what_the_standard_parser_reads(
         text in "[+-]?([0-9]{1,25}(\\.[0-9]{0,25})?|\\.[0-9]{1,25})([eE][+-]?[0-9]{1,3})?",
     ) {
-        prop_assert_eq!(number_end(text.as_bytes()), Some(text.len()));
+        let mut cells = Vec::new();
+        split_cells(&text, &mut cells);
+        prop_assert_eq!(cells.len(), 1);
+        prop_assert!(cells.first().is_some_and(|c| c.number && c.end == text.len()));
         prop_assert!(text.parse::<f64>().is_ok());
     }
-}
-
-#[test]
-fn the_splitter_is_the_lexer_on_chosen_lines() {
-    for line in [
-        "",
-        ",",
-        " , ,",
-        "1,2",
-        " 1 ,\t2\r",
-        "1.,.5,.,-,+,1e,1e+,1e5,1E-5x,+.5e-3",
-        "1 2,a b,  ,x",
-        "\u{a0}1,1\u{a0}",
-        "1.2.3,--1,1-",
-    ] {
-        let mut cells = Vec::new();
-        split_cells(line, &mut cells);
-        let found: Vec<_> = cells
-            .iter()
-            .map(|c| (c.start, c.end, c.number, c.origin))
-            .collect();
-        assert_eq!(found, lexed(line), "{line:?}");
-    }
-}
-
-/// The lexer the reader used before its hand-written splitter (`split_cells`).
-#[derive(Logos, Debug, Clone, Copy, PartialEq, Eq)]
-#[logos(skip r"[ \t\r]+")]
-enum Tok {
-    #[token(",")]
-    Comma,
-    #[regex(r"[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?", priority = 10)]
-    Number,
-    #[regex(r"[^, \t\r\n]+", priority = 1)]
-    Text,
-}
-
-/// The cells as the lexer split them: (start, end, number, origin).
-fn lexed(line: &str) -> Vec<(usize, usize, bool, usize)> {
-    let mut cells = Vec::new();
-    let mut lex = Tok::lexer(line);
-    let mut cell = (0, 0, false, 0);
-    let mut tokens = 0usize;
-    while let Some(tok) = lex.next() {
-        let span = lex.span();
-        match tok {
-            Ok(Tok::Comma) => {
-                cells.push(cell);
-                cell = (span.end, span.end, false, span.end);
-                tokens = 0;
-            }
-            other => {
-                if tokens == 0 {
-                    cell.0 = span.start;
-                    cell.3 = span.start;
-                }
-                tokens += 1;
-                cell.1 = span.end;
-                cell.2 = tokens == 1 && other == Ok(Tok::Number);
-            }
-        }
-    }
-    cells.push(cell);
-    cells
 }

@@ -493,6 +493,20 @@ fn check_results(what: &str, values: &[f64]) -> Result<(), Fail> {
     }
 }
 
+/// The arguments of an evaluation call as C passed them (`jac` NULL and 0 for the error
+/// alone).
+#[derive(Clone, Copy)]
+struct EvalArgs {
+    model: *const kin_model,
+    state: *const kin_state,
+    beta: *const f64,
+    n_beta: usize,
+    err: *mut f64,
+    n_err: usize,
+    jac: *mut f64,
+    n_jac: usize,
+}
+
 /// An evaluation's arguments once every check has passed.
 struct Quick<'a> {
     model: &'a Model,
@@ -513,26 +527,26 @@ struct Quick<'a> {
 /// fills most of a core's 32 KiB first-level instruction cache, and the careful path, its
 /// messages' formatting inline between the checks, spread one call over many more cache lines
 /// than its few comparisons need. Evicting the generated code's lines made it run a quarter
-/// slower through the C ABI than called from Rust (cachegrind: four times the instruction-cache
-/// misses per call).
+/// slower through the C ABI than called from Rust (cachegrind: 5.8 times the first-level
+/// instruction-cache misses per call; 3.7 times with this path, spec/performance.md).
 ///
 /// # Safety
 ///
-/// `model` is NULL or a live model, `state` NULL or a `kin_state` whose arrays are valid for
-/// their lengths, `beta` valid for `n_beta` doubles, `err` for `n_err` and `jac` for `n_jac`,
-/// none of them changed by anything else during `'a`.
-#[allow(clippy::too_many_arguments)]
+/// `a.model` is NULL or a live model, `a.state` NULL or a `kin_state` whose arrays are valid
+/// for their lengths, `a.beta` valid for `n_beta` doubles, `a.err` for `n_err` and `a.jac` for
+/// `n_jac`, none of them changed by anything else during `'a`.
 #[inline(always)]
-unsafe fn quick<'a>(
-    model: *const kin_model,
-    state: *const kin_state,
-    beta: *const f64,
-    n_beta: usize,
-    err: *mut f64,
-    n_err: usize,
-    jac: *mut f64,
-    n_jac: usize,
-) -> Option<Quick<'a>> {
+unsafe fn quick<'a>(a: EvalArgs) -> Option<Quick<'a>> {
+    let EvalArgs {
+        model,
+        state,
+        beta,
+        n_beta,
+        err,
+        n_err,
+        jac,
+        n_jac,
+    } = a;
     if model.is_null() || state.is_null() || !state.is_aligned() {
         return None;
     }
@@ -1269,12 +1283,22 @@ pub unsafe extern "C" fn kin_eval(
     n_err: usize,
 ) -> c_int {
     guard(|| {
+        let a = EvalArgs {
+            model,
+            state,
+            beta,
+            n_beta,
+            err,
+            n_err,
+            jac: std::ptr::null_mut(),
+            n_jac: 0,
+        };
         // SAFETY: the caller's contract.
-        if unsafe { quick_eval(model, state, beta, n_beta, err, n_err) } {
+        if unsafe { quick_eval(a) } {
             return Ok(());
         }
         // SAFETY: the caller's contract.
-        unsafe { careful_eval(model, state, beta, n_beta, err, n_err) }
+        unsafe { careful_eval(a) }
     })
 }
 
@@ -1283,27 +1307,9 @@ pub unsafe extern "C" fn kin_eval(
 /// # Safety
 ///
 /// As [`kin_eval`].
-unsafe fn quick_eval(
-    model: *const kin_model,
-    state: *const kin_state,
-    beta: *const f64,
-    n_beta: usize,
-    err: *mut f64,
-    n_err: usize,
-) -> bool {
-    // SAFETY: the caller's contract; no Jacobian.
-    let Some(c) = (unsafe {
-        quick(
-            model,
-            state,
-            beta,
-            n_beta,
-            err,
-            n_err,
-            std::ptr::null_mut(),
-            0,
-        )
-    }) else {
+unsafe fn quick_eval(a: EvalArgs) -> bool {
+    // SAFETY: the caller's contract.
+    let Some(c) = (unsafe { quick(a) }) else {
         return false;
     };
     let Ok(out) = <&mut [f64; 6]>::try_from(c.err) else {
@@ -1319,14 +1325,16 @@ unsafe fn quick_eval(
 /// As [`kin_eval`].
 #[cold]
 #[inline(never)]
-unsafe fn careful_eval(
-    model: *const kin_model,
-    state: *const kin_state,
-    beta: *const f64,
-    n_beta: usize,
-    err: *mut f64,
-    n_err: usize,
-) -> Result<(), Fail> {
+unsafe fn careful_eval(a: EvalArgs) -> Result<(), Fail> {
+    let EvalArgs {
+        model,
+        state,
+        beta,
+        n_beta,
+        err,
+        n_err,
+        ..
+    } = a;
     // SAFETY: caller's contract.
     let st = unsafe { read_state(state)? };
     let inputs = with_beta(state_regions(state, &st), beta, n_beta);
@@ -1400,17 +1408,24 @@ pub unsafe extern "C" fn kin_eval_jacobian_observed(
     n_jac: usize,
 ) -> c_int {
     guard(|| {
+        let a = EvalArgs {
+            model,
+            state,
+            beta,
+            n_beta,
+            err,
+            n_err,
+            jac,
+            n_jac,
+        };
         if let Some(selected) = observed_components(observed) {
             // SAFETY: the caller's contract.
-            let done = unsafe {
-                quick_jacobian(model, state, beta, n_beta, selected, err, n_err, jac, n_jac)
-            };
-            if done {
+            if unsafe { quick_jacobian(a, selected) } {
                 return Ok(());
             }
         }
         // SAFETY: the caller's contract.
-        unsafe { careful_jacobian(model, state, beta, n_beta, observed, err, n_err, jac, n_jac) }
+        unsafe { careful_jacobian(a, observed) }
     })
 }
 
@@ -1428,20 +1443,9 @@ fn observed_components(observed: u32) -> Option<::kin_model::engine::Observed> {
 /// # Safety
 ///
 /// As [`kin_eval_jacobian_observed`].
-#[allow(clippy::too_many_arguments)]
-unsafe fn quick_jacobian(
-    model: *const kin_model,
-    state: *const kin_state,
-    beta: *const f64,
-    n_beta: usize,
-    selected: ::kin_model::engine::Observed,
-    err: *mut f64,
-    n_err: usize,
-    jac: *mut f64,
-    n_jac: usize,
-) -> bool {
+unsafe fn quick_jacobian(a: EvalArgs, selected: ::kin_model::engine::Observed) -> bool {
     // SAFETY: the caller's contract.
-    let Some(c) = (unsafe { quick(model, state, beta, n_beta, err, n_err, jac, n_jac) }) else {
+    let Some(c) = (unsafe { quick(a) }) else {
         return false;
     };
     let rows = selected.rows();
@@ -1461,18 +1465,17 @@ unsafe fn quick_jacobian(
 /// As [`kin_eval_jacobian_observed`].
 #[cold]
 #[inline(never)]
-#[allow(clippy::too_many_arguments)]
-unsafe fn careful_jacobian(
-    model: *const kin_model,
-    state: *const kin_state,
-    beta: *const f64,
-    n_beta: usize,
-    observed: u32,
-    err: *mut f64,
-    n_err: usize,
-    jac: *mut f64,
-    n_jac: usize,
-) -> Result<(), Fail> {
+unsafe fn careful_jacobian(a: EvalArgs, observed: u32) -> Result<(), Fail> {
+    let EvalArgs {
+        model,
+        state,
+        beta,
+        n_beta,
+        err,
+        n_err,
+        jac,
+        n_jac,
+    } = a;
     let Some(selected) = observed_components(observed) else {
         return Err(Fail(
             KIN_ERR_VALUE,
@@ -2049,21 +2052,20 @@ mod tests {
                                 };
                                 let err = e_at.map_or(null_mut(), |k| base.add(k));
                                 let jac = j_at.map_or(null_mut(), |k| base.add(k));
-                                let quick_ok = quick_jacobian(
+                                let a = EvalArgs {
                                     model,
-                                    &st,
-                                    b,
-                                    n_b,
-                                    ::kin_model::engine::Observed::FULL,
+                                    state: &st,
+                                    beta: b,
+                                    n_beta: n_b,
                                     err,
                                     n_err,
                                     jac,
                                     n_jac,
-                                );
+                                };
+                                let quick_ok =
+                                    quick_jacobian(a, ::kin_model::engine::Observed::FULL);
                                 let quick_out = arena.clone();
-                                let careful = careful_jacobian(
-                                    model, &st, b, n_b, 63, err, n_err, jac, n_jac,
-                                );
+                                let careful = careful_jacobian(a, 63);
                                 if quick_ok {
                                     accepted += 1;
                                     assert!(careful.is_ok(), "q {qv} dirs {dv} β {beta_kind}");

@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use kin_bench::baseline_5axis::{self, Trig};
+use kin_bench::c_abi::c_state;
 use kin_capi::{
     kin_eval, kin_eval_jacobian, kin_eval_jacobian_observed, kin_model as CModel,
     kin_model_compile, kin_state, KIN_OK,
@@ -96,21 +97,6 @@ fn c_model(source: &str) -> *mut CModel {
     out
 }
 
-/// The `kin_state` of a state (its slices outlive the call).
-fn c_state(s: &kin_model::interp::State) -> kin_state {
-    kin_state {
-        q: s.q.as_ptr(),
-        n_q: s.q.len(),
-        inputs: s.inputs.as_ptr(),
-        n_inputs: s.inputs.len(),
-        lags: s.lags.as_ptr(),
-        n_lags: s.lags.len(),
-        dirs: s.dirs.as_ptr(),
-        n_dirs: s.dirs.len(),
-        time: s.time,
-        tool: s.tool,
-    }
-}
 
 /// Poses per second of `f` over all poses, best of 5 rounds of about `budget / 5`.
 fn rate(budget: Duration, mut f: impl FnMut()) -> f64 {

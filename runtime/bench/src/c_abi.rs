@@ -5,6 +5,7 @@
 use std::ffi::c_int;
 use std::ptr::{null, null_mut};
 
+use ::kin_model::interp::State;
 use ::kin_model::jit::StateRows;
 use kin_capi::{kin_model as c_model, kin_state, KIN_OK};
 
@@ -96,21 +97,21 @@ impl Drop for CModel {
 
 /// The `kin_state` of every row, pointing into `rows` (whose arrays must outlive its use).
 pub(crate) fn states(rows: &StateRows) -> Vec<kin_state> {
-    (0..rows.len())
-        .map(|r| {
-            let s = rows.get(r);
-            kin_state {
-                q: s.q.as_ptr(),
-                n_q: s.q.len(),
-                inputs: s.inputs.as_ptr(),
-                n_inputs: s.inputs.len(),
-                lags: s.lags.as_ptr(),
-                n_lags: s.lags.len(),
-                dirs: s.dirs.as_ptr(),
-                n_dirs: s.dirs.len(),
-                time: s.time,
-                tool: s.tool,
-            }
-        })
-        .collect()
+    (0..rows.len()).map(|r| c_state(&rows.get(r))).collect()
+}
+
+/// The `kin_state` of a state, pointing into its slices (which must outlive its use).
+pub fn c_state(s: &State) -> kin_state {
+    kin_state {
+        q: s.q.as_ptr(),
+        n_q: s.q.len(),
+        inputs: s.inputs.as_ptr(),
+        n_inputs: s.inputs.len(),
+        lags: s.lags.as_ptr(),
+        n_lags: s.lags.len(),
+        dirs: s.dirs.as_ptr(),
+        n_dirs: s.dirs.len(),
+        time: s.time,
+        tool: s.tool,
+    }
 }

@@ -22,7 +22,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod baseline_5axis;
-mod c_abi;
+pub mod c_abi;
 mod wide_store;
 
 use std::fmt;

@@ -97,7 +97,6 @@ fn c_model(source: &str) -> *mut CModel {
     out
 }
 
-
 /// Poses per second of `f` over all poses, best of 5 rounds of about `budget / 5`.
 fn rate(budget: Duration, mut f: impl FnMut()) -> f64 {
     f();

@@ -182,6 +182,15 @@ int kin_nominal_jacobian(const kin_model *model, const kin_state *state, double 
 int kin_eval_batch(const kin_model *model, const kin_rows *rows, const double *beta, size_t n_beta,
                    double *err, size_t n_err, double *jac, size_t n_jac);
 
+/* kin_eval_batch of some components only, selected by observed as in kin_eval_jacobian_observed:
+ * err (n_err = k * n_rows, k the bits set) receives k values per row, jac (n_jac = k *
+ * coefficients * n_rows) one k x n block per row, each row what kin_eval_jacobian_observed gives
+ * at that state; with jac NULL and n_jac 0 only the errors. Nothing is computed or stored for the
+ * other components (observed = 7: a tracker's positions, half the work of full poses). */
+int kin_eval_batch_observed(const kin_model *model, const kin_rows *rows, const double *beta,
+                            size_t n_beta, unsigned int observed, double *err, size_t n_err,
+                            double *jac, size_t n_jac);
+
 /* A compiled compensation function (thesis section 2.3.5): the joint corrections that cancel a
  * positioning machine's predicted tool-location error, for a controller's servo cycle. */
 typedef struct kin_compensator kin_compensator;

@@ -1600,7 +1600,39 @@ pub unsafe extern "C" fn kin_eval_batch(
     jac: *mut f64,
     n_jac: usize,
 ) -> c_int {
+    // SAFETY: the caller's contract, every component observed (the same code and results).
+    unsafe { kin_eval_batch_observed(model, rows, beta, n_beta, 63, err, n_err, jac, n_jac) }
+}
+
+/// [`kin_eval_batch`] of some components only, selected by `observed` as in
+/// [`kin_eval_jacobian_observed`]: `err` (`n_err` = k × rows, k the bits set) receives k values
+/// per row and `jac` (`n_jac` = k × coefficients × rows) one k × n block per row, each row the
+/// bits [`kin_eval_jacobian_observed`] gives at that state. Nothing is computed or stored for
+/// the other components (a tracker's positions: half the work and memory of full poses).
+///
+/// # Safety
+///
+/// As [`kin_eval_batch`].
+#[no_mangle]
+#[allow(clippy::too_many_arguments)]
+pub unsafe extern "C" fn kin_eval_batch_observed(
+    model: *const kin_model,
+    rows: *const kin_rows,
+    beta: *const f64,
+    n_beta: usize,
+    observed: u32,
+    err: *mut f64,
+    n_err: usize,
+    jac: *mut f64,
+    n_jac: usize,
+) -> c_int {
     guard(|| {
+        let Some(selected) = observed_components(observed) else {
+            return Err(Fail(
+                KIN_ERR_VALUE,
+                format!("`observed` is {observed}: one bit per component, from 1 to 63"),
+            ));
+        };
         if rows.is_null() || !rows.is_aligned() {
             return Err(Fail(KIN_ERR_POINTER, "`rows` is NULL or misaligned".into()));
         }
@@ -1658,9 +1690,10 @@ pub unsafe extern "C" fn kin_eval_batch(
             check_beta(b)?;
         }
         if jac.is_empty() && m.coefficients() > 0 && r.n_rows > 0 {
-            m.eval_rows(&state_rows, b, out).map_err(batch_error)?;
+            m.eval_rows_observed(&state_rows, b, selected, out)
+                .map_err(batch_error)?;
         } else {
-            m.eval_jacobian_rows(&state_rows, b, out, jac)
+            m.eval_jacobian_rows_observed(&state_rows, b, selected, out, jac)
                 .map_err(batch_error)?;
         }
         check_results("err", out)?;
@@ -2677,6 +2710,143 @@ mod tests {
             assert_eq!(call(0, 3), KIN_ERR_VALUE);
             assert_eq!(call(64, 3), KIN_ERR_VALUE);
             assert_eq!(call(7, 2), KIN_ERR_SIZE);
+            kin_model_free(model);
+        }
+    }
+
+    /// A batch of observed components holds, row by row, the bits of the one-pose observed
+    /// call at that row's state; the error-only batch the same values; a wrong mask or length
+    /// is refused.
+    #[test]
+    fn observed_batches_are_the_one_pose_observed_rows() {
+        let src = include_str!("../../examples/milling_5axis.kin");
+        let model = compile(src).expect("compiles");
+        // SAFETY: a live model.
+        let (n, n_inputs, n_lags) = unsafe {
+            (
+                kin_model_coefficients(model),
+                kin_model_inputs(model),
+                kin_model_lags(model),
+            )
+        };
+        let beta: Vec<f64> = (0..n).map(|j| 1e-6 * ((j % 5) as f64 - 2.0)).collect();
+        const ROWS: usize = 5;
+        let q: Vec<f64> = (0..5 * ROWS).map(|i| 0.05 * (i % 7) as f64 - 0.1).collect();
+        let inputs: Vec<f64> = (0..n_inputs * ROWS)
+            .map(|i| 1.0 + 0.5 * (i % 3) as f64)
+            .collect();
+        let lags = vec![0.5; n_lags * ROWS];
+        let dirs: Vec<f64> = (0..5 * ROWS)
+            .map(|i| if i % 3 == 0 { -1.0 } else { 1.0 })
+            .collect();
+        let time: Vec<f64> = (0..ROWS).map(|r| 10.0 * r as f64).collect();
+        let tool = [0usize; ROWS];
+        let rows = kin_rows {
+            n_rows: ROWS,
+            q: q.as_ptr(),
+            n_q: q.len(),
+            inputs: inputs.as_ptr(),
+            n_inputs: inputs.len(),
+            lags: lags.as_ptr(),
+            n_lags: lags.len(),
+            dirs: dirs.as_ptr(),
+            n_dirs: dirs.len(),
+            time: time.as_ptr(),
+            n_time: ROWS,
+            tool: tool.as_ptr(),
+            n_tool: ROWS,
+        };
+        // SAFETY: a live model; every buffer is valid for the length given with it.
+        unsafe {
+            for observed in [7u32, 0b110_010, 63] {
+                let k = observed.count_ones() as usize;
+                let (mut e, mut j) = (vec![0.0; k * ROWS], vec![0.0; k * n * ROWS]);
+                let code = kin_eval_batch_observed(
+                    model,
+                    &rows,
+                    beta.as_ptr(),
+                    n,
+                    observed,
+                    e.as_mut_ptr(),
+                    e.len(),
+                    j.as_mut_ptr(),
+                    j.len(),
+                );
+                assert_eq!(code, KIN_OK, "{}", last_error());
+                let mut only = vec![0.0; k * ROWS];
+                let code = kin_eval_batch_observed(
+                    model,
+                    &rows,
+                    beta.as_ptr(),
+                    n,
+                    observed,
+                    only.as_mut_ptr(),
+                    only.len(),
+                    null_mut(),
+                    0,
+                );
+                assert_eq!(code, KIN_OK, "{}", last_error());
+                for r in 0..ROWS {
+                    let state = kin_state {
+                        q: q[5 * r..].as_ptr(),
+                        n_q: 5,
+                        inputs: inputs[n_inputs * r..].as_ptr(),
+                        n_inputs,
+                        lags: lags[n_lags * r..].as_ptr(),
+                        n_lags,
+                        dirs: dirs[5 * r..].as_ptr(),
+                        n_dirs: 5,
+                        time: time[r],
+                        tool: 0,
+                    };
+                    let (mut e1, mut j1) = (vec![0.0; k], vec![0.0; k * n]);
+                    let code = kin_eval_jacobian_observed(
+                        model,
+                        &state,
+                        beta.as_ptr(),
+                        n,
+                        observed,
+                        e1.as_mut_ptr(),
+                        k,
+                        j1.as_mut_ptr(),
+                        k * n,
+                    );
+                    assert_eq!(code, KIN_OK, "{}", last_error());
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(
+                        bits(&e[k * r..k * (r + 1)]),
+                        bits(&e1),
+                        "{observed} row {r}"
+                    );
+                    assert_eq!(
+                        bits(&j[k * n * r..k * n * (r + 1)]),
+                        bits(&j1),
+                        "{observed} row {r}"
+                    );
+                    // The error-only code sums in its own order: equal to rounding.
+                    for (a, b) in only[k * r..k * (r + 1)].iter().zip(&e1) {
+                        assert!((a - b).abs() <= 1e-12 * b.abs().max(1e-9), "{a} {b}");
+                    }
+                }
+            }
+            let mut e = vec![0.0; 3 * ROWS];
+            let mut call = |observed: u32, n_err: usize| {
+                kin_eval_batch_observed(
+                    model,
+                    &rows,
+                    beta.as_ptr(),
+                    n,
+                    observed,
+                    e.as_mut_ptr(),
+                    n_err,
+                    null_mut(),
+                    0,
+                )
+            };
+            assert_eq!(call(0, 3 * ROWS), KIN_ERR_VALUE);
+            assert_eq!(call(64, 3 * ROWS), KIN_ERR_VALUE);
+            assert_eq!(call(7, 3 * ROWS - 1), KIN_ERR_SIZE);
+            assert_eq!(call(7, 3 * ROWS), KIN_OK, "{}", last_error());
             kin_model_free(model);
         }
     }

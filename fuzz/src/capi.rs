@@ -10,11 +10,12 @@ use std::sync::{Mutex, OnceLock};
 
 use arbitrary::{Arbitrary, Unstructured};
 use kin_capi::{
-    kin_eval, kin_eval_batch, kin_eval_jacobian, kin_last_error, kin_model, kin_model_axes,
-    kin_model_axis_range, kin_model_beta, kin_model_bind_params, kin_model_coefficients,
-    kin_model_compile, kin_model_free, kin_model_input_range, kin_model_inputs,
-    kin_model_lag_input, kin_model_lags, kin_model_name, kin_model_set_beta, kin_nominal_jacobian,
-    kin_rows, kin_state, KIN_ERR_OVERLAP, KIN_ERR_PANIC, KIN_OK,
+    kin_eval, kin_eval_batch, kin_eval_batch_observed, kin_eval_jacobian,
+    kin_eval_jacobian_observed, kin_last_error, kin_model, kin_model_axes, kin_model_axis_range,
+    kin_model_beta, kin_model_bind_params, kin_model_coefficients, kin_model_compile,
+    kin_model_free, kin_model_input_range, kin_model_inputs, kin_model_lag_input, kin_model_lags,
+    kin_model_name, kin_model_set_beta, kin_nominal_jacobian, kin_rows, kin_state, KIN_ERR_OVERLAP,
+    KIN_ERR_PANIC, KIN_OK,
 };
 
 use super::MACHINES;
@@ -57,6 +58,15 @@ enum Len {
     Null,
     /// A NULL pointer with a huge length: size arithmetic must not overflow.
     NullHuge(u8),
+}
+
+/// The rows a call's mask selects (six for none, or for a mask the ABI refuses): what the
+/// buffers' lengths are measured from.
+fn components(observed: Option<u8>) -> usize {
+    match observed {
+        Some(m @ 1..=63) => m.count_ones() as usize,
+        _ => 6,
+    }
 }
 
 /// A caller's array: `None` is a NULL pointer with the given length.
@@ -133,6 +143,9 @@ enum Call {
     EvalJacobian {
         state: StateIn,
         beta: Option<(Len, Vec<f64>)>,
+        /// `None`: `kin_eval_jacobian`; a mask (any byte, so also invalid ones): the
+        /// `_observed` call.
+        observed: Option<u8>,
         err: Len,
         jac: Len,
     },
@@ -144,6 +157,8 @@ enum Call {
     Batch {
         rows: RowsIn,
         beta: Option<(Len, Vec<f64>)>,
+        /// As for [`Call::EvalJacobian`].
+        observed: Option<u8>,
         err: Len,
         jac: Option<Len>,
     },
@@ -286,25 +301,40 @@ fn call(model: *mut kin_model, c: &Call) {
         Call::EvalJacobian {
             state,
             beta,
+            observed,
             err,
             jac,
         } => {
             let arrays = StateArrays::new(state, axes, inputs, lags);
             let s = arrays.state(state);
             let b = beta_array(beta);
-            let mut e = Array::new(*err, 6, &[]);
-            let mut j = Array::new(*jac, 6 * n, &[]);
+            let k = components(*observed);
+            let mut e = Array::new(*err, k, &[]);
+            let mut j = Array::new(*jac, k * n, &[]);
             let code = unsafe {
-                kin_eval_jacobian(
-                    model,
-                    &s,
-                    b.ptr(),
-                    b.len,
-                    e.ptr_mut(),
-                    e.len,
-                    j.ptr_mut(),
-                    j.len,
-                )
+                match observed {
+                    None => kin_eval_jacobian(
+                        model,
+                        &s,
+                        b.ptr(),
+                        b.len,
+                        e.ptr_mut(),
+                        e.len,
+                        j.ptr_mut(),
+                        j.len,
+                    ),
+                    Some(m) => kin_eval_jacobian_observed(
+                        model,
+                        &s,
+                        b.ptr(),
+                        b.len,
+                        u32::from(*m),
+                        e.ptr_mut(),
+                        e.len,
+                        j.ptr_mut(),
+                        j.len,
+                    ),
+                }
             };
             status(code, "kin_eval_jacobian");
         }
@@ -325,6 +355,7 @@ fn call(model: *mut kin_model, c: &Call) {
         Call::Batch {
             rows,
             beta,
+            observed,
             err,
             jac,
         } => {
@@ -366,25 +397,39 @@ fn call(model: *mut kin_model, c: &Call) {
                 n_tool,
             };
             let b = beta_array(beta);
-            let mut e = Array::new(*err, 6 * r, &[]);
+            let k = components(*observed);
+            let mut e = Array::new(*err, k * r, &[]);
             let mut j = match jac {
-                Some(len) => Array::new(*len, 6 * n * r, &[]),
+                Some(len) => Array::new(*len, k * n * r, &[]),
                 None => Array {
                     values: None,
                     len: 0,
                 },
             };
             let code = unsafe {
-                kin_eval_batch(
-                    model,
-                    &kr,
-                    b.ptr(),
-                    b.len,
-                    e.ptr_mut(),
-                    e.len,
-                    j.ptr_mut(),
-                    j.len,
-                )
+                match observed {
+                    None => kin_eval_batch(
+                        model,
+                        &kr,
+                        b.ptr(),
+                        b.len,
+                        e.ptr_mut(),
+                        e.len,
+                        j.ptr_mut(),
+                        j.len,
+                    ),
+                    Some(m) => kin_eval_batch_observed(
+                        model,
+                        &kr,
+                        b.ptr(),
+                        b.len,
+                        u32::from(*m),
+                        e.ptr_mut(),
+                        e.len,
+                        j.ptr_mut(),
+                        j.len,
+                    ),
+                }
             };
             status(code, "kin_eval_batch");
         }

@@ -12,6 +12,7 @@
 //! - [`Model::nominal_jacobian`]: the nominal tool location and its joint Jacobian;
 //! - [`Model::eval_rows`] and [`Model::eval_jacobian_rows`]: the same over many states at once
 //!   ([`StateRows`], row-major arrays, e.g. from a [`RowsBuf`]), into buffers the caller reuses;
+//!   their `_observed` forms for some components only (the position rows of a tracker);
 //! - [`Model::compensator`]: a [`ServoCompensator`], the joint corrections of a commanded pose
 //!   (thesis §2.3.5) for a controller's servo cycle: native code, no allocation, no lock;
 //! - [`Model::evaluator`]: an [`Evaluator`] (what the fit uses), JIT by default or the
@@ -344,6 +345,35 @@ impl Model {
     ) -> Result<(), BatchError> {
         self.jit
             .error_and_jacobian_rows(rows, beta, &self.nonlinear, err, jac)
+    }
+
+    /// [`Model::eval_rows`] of the `observed` components only: `err` holds `observed.rows()`
+    /// values per row.
+    pub fn eval_rows_observed(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+    ) -> Result<(), BatchError> {
+        self.jit
+            .observed_error_rows(rows, beta, &self.nonlinear, observed, err)
+    }
+
+    /// [`Model::eval_jacobian_rows`] of the `observed` components only: `err` holds
+    /// `observed.rows()` values per row and `jac` one `observed.rows() × n` block per row, each
+    /// the rows of [`Model::eval_jacobian_observed`] at that state (a tracker's positions: half
+    /// the work and half the memory of the full pose).
+    pub fn eval_jacobian_rows_observed(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+    ) -> Result<(), BatchError> {
+        self.jit
+            .observed_error_and_jacobian_rows(rows, beta, &self.nonlinear, observed, err, jac)
     }
 
     /// An [`Evaluator`] on the JIT's code (no compilation), with this model's non-linear values.
@@ -966,5 +996,49 @@ mod tests {
             assert_eq!(&jacs[6 * n * r..6 * n * (r + 1)], j.as_slice());
         }
         assert!(model.eval_rows(&rows, &beta, &mut only[1..]).is_err());
+    }
+
+    /// The observed batches hold, row by row, the bits of the one-pose observed call (the
+    /// error-only batch its values); a buffer sized for six rows is refused for three.
+    #[test]
+    fn observed_batch_rows_match_single_calls() {
+        let model = Model::compile(SRC).expect("compiles");
+        let n = model.coefficients();
+        let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64 - 2.5)).collect();
+        let states = States::sample(model.machine(), 7, 3);
+        let buf = RowsBuf::from_states(&states);
+        let rows = buf.rows();
+        for observed in [
+            Observed::POSITION,
+            Observed::from_flags([false, true, false, true, false, true]),
+        ] {
+            let k = observed.rows();
+            let mut errs = vec![0.0; k * rows.len()];
+            let mut jacs = vec![0.0; k * n * rows.len()];
+            model
+                .eval_jacobian_rows_observed(&rows, &beta, observed, &mut errs, &mut jacs)
+                .expect("batch");
+            let mut only = vec![0.0; k * rows.len()];
+            model
+                .eval_rows_observed(&rows, &beta, observed, &mut only)
+                .expect("batch");
+            let (mut e, mut j) = (vec![0.0; k], vec![0.0; k * n]);
+            for r in 0..rows.len() {
+                model
+                    .eval_jacobian_observed(&states.get(r), &beta, observed, &mut e, &mut j)
+                    .expect("eval");
+                assert_eq!(&errs[k * r..k * (r + 1)], e.as_slice());
+                assert_eq!(&jacs[k * n * r..k * n * (r + 1)], j.as_slice());
+                // The error-only code sums in its own order: the same values to rounding.
+                assert!(only[k * r..k * (r + 1)]
+                    .iter()
+                    .zip(&e)
+                    .all(|(a, b)| (a - b).abs() <= 1e-12 * a.abs().max(1e-9)));
+            }
+            let mut six = vec![0.0; 6 * n * rows.len()];
+            assert!(model
+                .eval_jacobian_rows_observed(&rows, &beta, observed, &mut errs, &mut six)
+                .is_err());
+        }
     }
 }

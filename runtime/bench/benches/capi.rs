@@ -2,7 +2,9 @@
 //! `kin_eval` on the 5-axis example, against `Model::eval_jacobian` and `Model::eval` (the
 //! generated code behind a length check) and the hand-written Rust evaluator of the same
 //! machine (with harmonic recurrences, as `kin bench`'s baseline, and with the interpreter's
-//! `sincos` calls), all in this run. The ratios say what the ABI's checks cost an embedder.
+//! `sincos` calls), all in this run; and `kin_eval_batch_observed` in blocks of poses and into
+//! one output for all, against the hand-written evaluator writing the same rows. The ratios
+//! say what the ABI's checks cost an embedder.
 //!
 //! `cargo bench -p kin-bench --bench capi` prints the summary first, then criterion's report.
 
@@ -14,8 +16,8 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use kin_bench::baseline_5axis::{self, Trig};
 use kin_bench::c_abi::c_state;
 use kin_capi::{
-    kin_eval, kin_eval_jacobian, kin_eval_jacobian_observed, kin_model as CModel,
-    kin_model_compile, kin_state, KIN_OK,
+    kin_eval, kin_eval_batch_observed, kin_eval_jacobian, kin_eval_jacobian_observed,
+    kin_model as CModel, kin_model_compile, kin_rows, kin_state, KIN_OK,
 };
 
 /// `kin_eval_jacobian_observed` over `states` into reused buffers: with `beta` given per call,
@@ -51,8 +53,76 @@ fn abi_jacobian(
     }
     black_box(&jac);
 }
+use kin_model::jit::StateRows;
 use kin_model::states::States;
 use kin_model::Model;
+
+/// The C ABI's view of `rows` (which must outlive every use of it).
+fn c_rows(rows: &StateRows) -> kin_rows {
+    kin_rows {
+        n_rows: rows.len(),
+        q: rows.q.as_ptr(),
+        n_q: rows.q.len(),
+        inputs: rows.inputs.as_ptr(),
+        n_inputs: rows.inputs.len(),
+        lags: rows.lags.as_ptr(),
+        n_lags: rows.lags.len(),
+        dirs: rows.dirs.as_ptr(),
+        n_dirs: rows.dirs.len(),
+        time: rows.time.as_ptr(),
+        n_time: rows.time.len(),
+        tool: rows.tool.as_ptr(),
+        n_tool: rows.tool.len(),
+    }
+}
+
+/// `kin_eval_batch_observed` over `rows` in calls of `per_call` rows (β bound), each call's
+/// rows at `at(call)` of `err` and `jac`: the same block again (a consumer's reused block) or
+/// the next (one output for all).
+fn abi_batch(
+    model: *mut CModel,
+    rows: &StateRows,
+    per_call: usize,
+    observed: u32,
+    reuse: bool,
+    err: &mut [f64],
+    jac: &mut [f64],
+) {
+    let k = observed.count_ones() as usize;
+    let n = jac.len() / (k * if reuse { per_call } else { rows.len() });
+    let mut start = 0;
+    let mut call = 0;
+    while start < rows.len() {
+        let end = (start + per_call).min(rows.len());
+        let block = rows.rows(start, end);
+        let cr = c_rows(&block);
+        let r = end - start;
+        let at = if reuse { 0 } else { call * per_call };
+        let (e, j) = (
+            &mut err[k * at..k * (at + r)],
+            &mut jac[k * n * at..k * n * (at + r)],
+        );
+        // SAFETY: a live model with β bound, rows valid for the lengths they state, buffers of
+        // the lengths passed.
+        let code = unsafe {
+            kin_eval_batch_observed(
+                model,
+                &cr,
+                std::ptr::null(),
+                0,
+                observed,
+                e.as_mut_ptr(),
+                e.len(),
+                j.as_mut_ptr(),
+                j.len(),
+            )
+        };
+        debug_assert_eq!(code, KIN_OK);
+        start = end;
+        call += 1;
+    }
+    black_box(&jac);
+}
 
 const POSES: usize = 1000;
 
@@ -143,6 +213,22 @@ fn summary() {
         .iter()
         .map(|p| p.value)
         .collect();
+    // Batches through the C ABI (β bound) against the hand-written evaluator writing the same
+    // rows into the same places: six and position rows, in calls of a cache-sized block of
+    // poses into one reused block (31 and 63 poses of this example: `BLOCK_BYTES` of kin
+    // bench), and all poses in one call into one output for all.
+    let buf = kin_model::RowsBuf::from_states(&s.states);
+    let rows = buf.rows();
+    let per_block = |k: usize| ((256usize << 10) / (8 * k * n)).max(1);
+    let batches = [
+        (63u32, per_block(6), true),
+        (7, per_block(3), true),
+        (63, POSES, false),
+        (7, POSES, false),
+    ];
+    let (mut batch_abi, mut batch_hand) = ([0.0f64; 4], [0.0f64; 4]);
+    let mut batch_err = vec![0.0; 6 * POSES];
+    let mut batch_jac = vec![0.0; 6 * n * POSES];
     for _ in 0..3 {
         abi = abi.max(rate(budget, || {
             abi_jacobian(cm, &states, Some(&s.beta), 63, &mut err, &mut jac)
@@ -192,6 +278,41 @@ fn summary() {
             }
             black_box(&err);
         }));
+        for (i, (observed, per_call, reuse)) in batches.iter().enumerate() {
+            let k = observed.count_ones() as usize;
+            let r = if *reuse { *per_call } else { POSES };
+            let (e, j) = (&mut batch_err[..k * r], &mut batch_jac[..k * n * r]);
+            batch_abi[i] = batch_abi[i].max(rate(budget, || {
+                abi_batch(cm_bound, &rows, *per_call, *observed, *reuse, e, j)
+            }));
+            batch_hand[i] = batch_hand[i].max(rate(budget, || {
+                let mut e3 = [0.0; 3];
+                let mut e6 = [0.0; 6];
+                for p in 0..POSES {
+                    let at = if *reuse { p % per_call } else { p };
+                    let jp = &mut j[k * n * at..k * n * (at + 1)];
+                    if k == 3 {
+                        baseline.position_error_and_jacobian(
+                            &s.states.get(p),
+                            &s.beta,
+                            &mut e3,
+                            jp,
+                        );
+                        e[3 * at..3 * at + 3].copy_from_slice(&e3);
+                    } else {
+                        baseline.error_and_jacobian(
+                            &s.states.get(p),
+                            &s.beta,
+                            &nonlinear,
+                            &mut e6,
+                            jp,
+                        );
+                        e[6 * at..6 * at + 6].copy_from_slice(&e6);
+                    }
+                }
+                black_box(&j);
+            }));
+        }
         rust_err = rust_err.max(rate(budget, || {
             for r in 0..POSES {
                 s.model
@@ -220,6 +341,25 @@ fn summary() {
         abi_err / rust_err,
         abi_err / hand_err
     );
+    eprintln!("  batches through kin_eval_batch_observed (β bound), against the hand-written evaluator writing the same rows:");
+    for (i, (observed, per_call, reuse)) in batches.iter().enumerate() {
+        let what = if *observed == 63 {
+            "six rows"
+        } else {
+            "position rows"
+        };
+        let how = if *reuse {
+            format!("blocks of {per_call} poses a call into one reused block")
+        } else {
+            format!("{POSES} poses in one call into one output")
+        };
+        eprintln!(
+            "    {what}, {how}: C ABI {:.0}, hand-written {:.0}: ABI ÷ hand {:.2}",
+            batch_abi[i],
+            batch_hand[i],
+            batch_abi[i] / batch_hand[i]
+        );
+    }
     // SAFETY: compiled above, freed once.
     unsafe {
         kin_capi::kin_model_free(cm);

@@ -68,6 +68,7 @@ fn fit_json(a: &FitArgs) -> Result<(), Failed> {
     if let Some(out) = &a.output {
         check_outputs(out, a)?;
     }
+    crate::rounds::hash_ahead(&a.data);
     let fitted = if streams(a) {
         fit_streamed(a)?
     } else {
@@ -121,6 +122,7 @@ pub fn fit_command(a: &FitArgs) -> Result<Fitted, Failed> {
     if let Some(out) = &a.output {
         check_outputs(out, a)?;
     }
+    crate::rounds::hash_ahead(&a.data);
     let fitted = if streams(a) {
         fit_streamed(a)?
     } else {

@@ -16,6 +16,9 @@
  *   jac K j0 .. j(6n-1)       its Jacobian, row-major
  *   nominal K p0 p1 p2        nominal tool position
  *   batch K e0 .. e5          error at state K (kin_eval_batch)
+ *   pbatch K e0 e1 e2 j0 .. j(3n-1)
+ *                             position rows at state K (kin_eval_batch_observed, observed 7):
+ *                             the error's ex, ey, ez and their Jacobian rows
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -144,6 +147,23 @@ int main(int argc, char **argv) {
     if ((status = kin_eval_batch(model, &rows, NULL, 0, batch, 6 * STATES, NULL, 0)) != KIN_OK)
         fail("kin_eval_batch", status);
     for (size_t k = 0; k < STATES; k++) print("batch", k, batch + 6 * k, 6);
+
+    /* Position rows alone (a tracker's data): 3 errors and a 3 x n block per state. */
+    double *pos = malloc(sizeof(double) * (3 + 3 * n) * STATES);
+    if (!pos) return 1;
+    double *pos_err = pos, *pos_jac = pos + 3 * STATES;
+    if ((status = kin_eval_batch_observed(model, &rows, NULL, 0, 7, pos_err, 3 * STATES, pos_jac,
+                                          3 * n * STATES)) != KIN_OK)
+        fail("kin_eval_batch_observed", status);
+    for (size_t k = 0; k < STATES; k++) {
+        double *record = malloc(sizeof(double) * (3 + 3 * n));
+        if (!record) return 1;
+        memcpy(record, pos_err + 3 * k, 3 * sizeof(double));
+        memcpy(record + 3, pos_jac + 3 * n * k, 3 * n * sizeof(double));
+        print("pbatch", k, record, 3 + 3 * n);
+        free(record);
+    }
+    free(pos);
 
     /* A wrong length is refused, not read past. */
     kin_state bad = {q, axes + 1, in, inputs, lag, lags, dirs, axes, 0.0, 0};

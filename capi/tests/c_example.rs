@@ -178,7 +178,7 @@ fn the_c_example_matches_the_rust_api() {
         .collect();
 
     let got = records(&stdout);
-    assert_eq!(got.len(), 4 * 5, "{stdout}");
+    assert_eq!(got.len(), 4 * 6, "{stdout}");
     let mut compared = 0;
     for (tag, k, values) in got {
         let s = states[k].get();
@@ -194,6 +194,19 @@ fn the_c_example_matches_the_rust_api() {
                     .eval_jacobian(&s, model.beta(), &mut e, &mut j)
                     .expect("eval");
                 j
+            }
+            "pbatch" => {
+                let (mut e, mut j) = (vec![0.0; 3], vec![0.0; 3 * n]);
+                model
+                    .eval_jacobian_observed(
+                        &s,
+                        model.beta(),
+                        kin_model::engine::Observed::POSITION,
+                        &mut e,
+                        &mut j,
+                    )
+                    .expect("eval");
+                e.into_iter().chain(j).collect()
             }
             "nominal" => {
                 let mut j = vec![0.0; 6 * model.axes()];

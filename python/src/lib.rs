@@ -15,6 +15,7 @@ use kin_diagnose as diagnose;
 use kin_estimate::fit::{self, merge, report, DataSet, Reduced, Solver, StreamingQr};
 use kin_model::embed::Error as ModelError;
 use kin_model::interp::State;
+use kin_model::jit::{BatchError, StateRows};
 use kin_model::Model;
 use numpy::ndarray::{Dimension, Ix1, Ix2};
 use numpy::{
@@ -201,7 +202,57 @@ struct Scratch {
     dirs: Vec<f64>,
 }
 
+/// Rows `start..end` of a row-major array of `width` columns the caller gave, if given.
+fn pick(given: Option<&[f64]>, width: usize, start: usize, end: usize) -> Option<&[f64]> {
+    given.and_then(|v| v.get(start * width..end * width))
+}
+
+/// Rows per call of the model's batch functions ([`Batch::blocks`]): a call's own setup is
+/// nothing beside a thousand rows, and the scratch standing in for what the caller does not give
+/// stays a few kilobytes whatever the batch's size.
+const BLOCK: usize = 1024;
+
 impl Batch<'_> {
+    /// Calls `f(start, rows)` for the rows in blocks of [`BLOCK`], each block's rows `start ..`
+    /// of the batch, with the model's batch functions (the error alone two poses a call, each
+    /// pose's bits those of one call; large Jacobians written with streaming stores) until one
+    /// fails; returns that row (in the whole batch) and its message, as [`Batch::each`] does.
+    fn blocks(
+        &self,
+        model: &Model,
+        mut f: impl FnMut(usize, &StateRows) -> Result<(), BatchError>,
+    ) -> Result<(), (usize, String)> {
+        let m = model.machine();
+        let (na, ni, nl) = (m.axes.len(), m.inputs.len(), m.lags.len());
+        let nan = |n: usize| vec![f64::NAN; n];
+        let inputs = nan(if self.inputs.is_some() { 0 } else { BLOCK * ni });
+        let dirs = nan(if self.dirs.is_some() { 0 } else { BLOCK * na });
+        let time = nan(if self.time.is_some() { 0 } else { BLOCK });
+        let lags = nan(BLOCK * nl);
+        let tools = vec![self.tool; BLOCK];
+        let mut start = 0;
+        while start < self.rows {
+            let end = (start + BLOCK).min(self.rows);
+            let b = end - start;
+            let rows = StateRows {
+                q: self.q.get(start * na..end * na).unwrap_or(&[]),
+                inputs: pick(self.inputs, ni, start, end)
+                    .unwrap_or(inputs.get(..b * ni).unwrap_or(&[])),
+                lags: lags.get(..b * nl).unwrap_or(&[]),
+                time: pick(self.time, 1, start, end).unwrap_or(time.get(..b).unwrap_or(&[])),
+                dirs: pick(self.dirs, na, start, end).unwrap_or(dirs.get(..b * na).unwrap_or(&[])),
+                tool: tools.get(..b).unwrap_or(&[]),
+                tool_offset: &[],
+            };
+            f(start, &rows).map_err(|e| match e {
+                BatchError::Row { row, source } => (start + row, source.to_string()),
+                other => (start, other.to_string()),
+            })?;
+            start = end;
+        }
+        Ok(())
+    }
+
     /// Calls `f(r, state)` for every row until one fails; returns that row and its message.
     fn each(
         &self,
@@ -607,16 +658,11 @@ impl PyModel {
         let dst = w.as_slice_mut().map_err(|e| kin_error(py, e))?;
         let model = &self.model;
         py.detach(|| {
-            let mut chunks = dst.chunks_exact_mut(6);
-            batch.each(model, |_, s| {
-                let mut e = [0.0; 6];
-                model
-                    .eval(s, model.beta(), &mut e)
-                    .map_err(|e| e.to_string())?;
-                if let Some(d) = chunks.next() {
-                    d.copy_from_slice(&e);
-                }
-                Ok(())
+            batch.blocks(model, |start, rows| {
+                let e = dst
+                    .get_mut(6 * start..6 * (start + rows.len()))
+                    .unwrap_or(&mut []);
+                model.eval_rows(rows, model.beta(), e)
             })
         })
         .map_err(|e| eval_error(py, e))?;
@@ -670,12 +716,11 @@ impl PyModel {
         let jdst = wj.as_slice_mut().map_err(|e| kin_error(py, e))?;
         let model = &self.model;
         py.detach(|| {
-            batch.each(model, |r, s| {
-                let j = jdst.get_mut(r * k * p..(r + 1) * k * p).unwrap_or(&mut []);
-                let e = dst.get_mut(k * r..k * r + k).unwrap_or(&mut []);
-                model
-                    .eval_jacobian_observed(s, model.beta(), observed, e, j)
-                    .map_err(|e| e.to_string())
+            batch.blocks(model, |start, rows| {
+                let end = start + rows.len();
+                let j = jdst.get_mut(start * k * p..end * k * p).unwrap_or(&mut []);
+                let e = dst.get_mut(k * start..k * end).unwrap_or(&mut []);
+                model.eval_jacobian_rows_observed(rows, model.beta(), observed, e, j)
             })
         })
         .map_err(|e| eval_error(py, e))?;
@@ -748,7 +793,11 @@ impl PyModel {
                     let known: Vec<&str> = m.axes.iter().map(|a| a.name.as_str()).collect();
                     return Err(kin_error(
                         py,
-                        format!("`{name}` is no axis of `{}` (its axes: {})", m.name, known.join(", ")),
+                        format!(
+                            "`{name}` is no axis of `{}` (its axes: {})",
+                            m.name,
+                            known.join(", ")
+                        ),
                     ));
                 };
                 chosen.push(j);

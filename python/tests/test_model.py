@@ -276,3 +276,28 @@ def test_threads_evaluate_one_model_at_once():
         th.join()
     for o in outs:
         assert np.array_equal(o, want)
+
+
+def test_a_large_batch_is_each_state_on_its_own():
+    # The batch goes to the model in blocks of states (the error alone two states a call): every
+    # row is what the state alone gives, bit for bit, across the blocks' edges, for the errors,
+    # the full Jacobian and the position rows; a bad state past the first block is named by its
+    # own row.
+    m = kin.Model.compile(XY)
+    q = states_of(m, 2500, seed=4)
+    err = m.eval(q)
+    jerr, jac = m.eval_jacobian(q)
+    perr, pjac = m.eval_jacobian(q, observe="position")
+    for i in (0, 1, 1023, 1024, 1025, 2047, 2048, 2499):
+        one = q[i : i + 1]
+        assert np.array_equal(err[i], m.eval(one)[0]), i
+        e1, j1 = m.eval_jacobian(one)
+        assert np.array_equal(jerr[i], e1[0]) and np.array_equal(jac[i], j1[0]), i
+        p1, pj1 = m.eval_jacobian(one, observe="position")
+        assert np.array_equal(perr[i], p1[0]) and np.array_equal(pjac[i], pj1[0]), i
+        assert np.array_equal(pjac[i], jac[i, :3]), i
+    q[2100, 1] = np.nan
+    for call in (m.eval, m.eval_jacobian):
+        with pytest.raises(kin.EvalError) as e:
+            call(q)
+        assert e.value.row == 2100

@@ -59,6 +59,7 @@ fn diagnose_command(a: &DiagnoseArgs) -> Result<(), Failed> {
         diagnose::Progress::new(move |step, done, total| {
             let msg = match step {
                 diagnose::Step::Rows => "testing the candidate effects",
+                diagnose::Step::Pairs => "comparing the effects found",
                 diagnose::Step::Refits => "refitting what was found",
             };
             if bar.length() != Some(total) || bar.message() != msg {

@@ -88,6 +88,7 @@ fn phases(marks: Arc<Mutex<Vec<Mark>>>) -> diagnose::Progress {
         let mark = match step {
             Step::Rows if m.is_empty() => "spectra, library, compile",
             Step::Rows if done == total => "candidate pass",
+            Step::Pairs if done == total => "pairs pass",
             Step::Refits if done == 0 => "candidate algebra",
             Step::Refits if done == total => "refits",
             _ => return,

@@ -40,6 +40,9 @@ pub enum Step {
     /// The one pass over every measured row with the candidates' columns (`done` of `total`
     /// rows).
     Rows,
+    /// The second pass over the rows, with the columns of the candidates that are compared with
+    /// one another (`done` of `total` rows).
+    Pairs,
     /// The refits of significant findings whose wavelength or time constant is fitted.
     Refits,
 }
@@ -995,6 +998,7 @@ fn test_candidates(
             .filter(|&j| j < n_base || j >= layout.coefficients)
             .collect(),
         candidates: Vec::new(),
+        groups: Vec::new(),
     };
     let mut slot_of: HashMap<usize, usize> = HashMap::new();
     for &j in columns.iter().flat_map(|(_, terms)| terms.iter().flatten()) {
@@ -1003,22 +1007,39 @@ fn test_candidates(
             split.candidates.len() - 1
         });
     }
-    let total: u64 = files.iter().map(|f| f.observations.len() as u64).sum();
-    let (mut done, mut last) = (0u64, None);
-    let acc = pass::accumulate(&split, width, options.block, options.threads, |push| {
-        fit::for_each_row(engine.as_mut(), files, &states, &layout, |meta, x, y| {
-            // Several rows (components) share a measured row: count the measured rows.
-            if last != Some((meta.file, meta.line)) {
-                last = Some((meta.file, meta.line));
-                done += 1;
-                if done % 4096 == 0 {
-                    settings.progress.report(Step::Rows, done, total);
-                }
-            }
-            push(x, y)
+    // Each candidate's own products: what its test needs. Those between candidates are summed
+    // later for the few the diagnosis compares (`compared`).
+    split.groups = columns
+        .iter()
+        .map(|(_, terms)| {
+            terms
+                .iter()
+                .flatten()
+                .filter_map(|j| slot_of.get(j).copied())
+                .collect()
         })
-    })?;
-    settings.progress.report(Step::Rows, total, total);
+        .collect();
+    let total: u64 = files.iter().map(|f| f.observations.len() as u64).sum();
+    // One pass over every row with the columns of `split`, reported as `step`.
+    let mut rows_pass = |split: &pass::Split, step: Step| {
+        let (mut done, mut last) = (0u64, None);
+        let acc = pass::accumulate(split, width, options.block, options.threads, |push| {
+            fit::for_each_row(engine.as_mut(), files, &states, &layout, |meta, x, y| {
+                // Several rows (components) share a measured row: count the measured rows.
+                if last != Some((meta.file, meta.line)) {
+                    last = Some((meta.file, meta.line));
+                    done += 1;
+                    if done % 4096 == 0 {
+                        settings.progress.report(step, done, total);
+                    }
+                }
+                push(x, y)
+            })
+        });
+        settings.progress.report(step, total, total);
+        acc
+    };
+    let mut acc = rows_pass(&split, Step::Rows)?;
     let kb = split.base.len();
     // Everything is done on columns of factors whose inner products are those of the columns
     // of X ([`pass`]). An orthonormal basis of the base model's columns first, in the base's
@@ -1215,12 +1236,45 @@ fn test_candidates(
         all.extend(best);
     }
     all.sort_by(|a, b| rank_order(&a.finding, &b.finding));
+    // The products between the candidates the comparisons below can ask about, in a second
+    // pass over the rows with their columns alone.
+    let compared = compared(&all, rss_base);
+    let mut pair_cols: Vec<usize> = compared
+        .iter()
+        .flat_map(|&i| all[i].terms.iter().flatten().copied())
+        .filter(|j| slot_of.contains_key(j))
+        .collect();
+    pair_cols.sort_unstable();
+    pair_cols.dedup();
+    if compared.len() > 1 {
+        let pairs = pass::Split {
+            base: split.base.clone(),
+            groups: vec![(0..pair_cols.len()).collect()],
+            candidates: pair_cols.clone(),
+        };
+        let later = rows_pass(&pairs, Step::Pairs)?;
+        let slots: Vec<usize> = pair_cols
+            .iter()
+            .filter_map(|j| slot_of.get(j).copied())
+            .collect();
+        acc.include(later, &slots);
+    }
+    let space = Space {
+        acc: &acc,
+        base: &base_basis,
+        slot_of: &slot_of,
+        rss_base,
+    };
     let mut findings = equivalent_groups(all, rss_base, &space);
     // The plausibility of the refit, for what the user may act on.
     let size = machine_size(m);
     for f in findings.iter_mut().filter(|f| f.finding.significant) {
+        // A finding's own columns were summed together (its test needed them).
+        let Some(reduced) = space.reduced(&f.columns) else {
+            continue;
+        };
         let p = plausibility(
-            &space.reduced(&f.columns),
+            &reduced,
             &base_cols,
             &f.columns,
             &sup.machine,
@@ -1281,6 +1335,35 @@ fn test_candidates(
 
 /// Significant findings compared pairwise for being readings of one effect.
 const SAME_EFFECT_FINDINGS: usize = 10;
+
+/// Whether two tested candidates' residual sums tie for [`equivalent_groups`] (its necessary
+/// condition before their spaces are compared).
+fn tie(a: &Tested, b: &Tested, rss_base: f64) -> bool {
+    (a.rss - b.rss).abs() <= 1e-9 * rss_base.max(f64::MIN_POSITIVE)
+        && a.finding.significant == b.finding.significant
+        && a.finding.columns == b.finding.columns
+}
+
+/// The tested candidates (indices into `all`, in rank order) whose products with others the
+/// diagnosis can ask for: every candidate whose residual sum ties another's
+/// ([`equivalent_groups`] compares their spaces), and the significant ones [`same_effects`]
+/// can reach. That takes the first [`SAME_EFFECT_FINDINGS`] significant findings after the
+/// grouping, which only merges tied candidates into the group of the first of them: a finding
+/// among those is either tied or one of the first `SAME_EFFECT_FINDINGS + tied` significant
+/// candidates here.
+fn compared(all: &[Tested], rss_base: f64) -> Vec<usize> {
+    let tied: Vec<usize> = (0..all.len())
+        .filter(|&i| (0..all.len()).any(|j| j != i && tie(&all[i], &all[j], rss_base)))
+        .collect();
+    let mut out: Vec<usize> = (0..all.len())
+        .filter(|&i| all[i].finding.significant)
+        .take(SAME_EFFECT_FINDINGS + tied.len())
+        .chain(tied)
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
 
 /// Marks significant findings that are readings of an effect an earlier one (lower BIC)
 /// explains: with the earlier line in the model, this one adds nothing significant (its partial
@@ -1396,7 +1479,10 @@ struct Space<'a> {
 impl Space<'_> {
     /// The factor of the base with the super-model columns `cols` (each once), and where each
     /// column is in it.
-    fn factor(&self, cols: impl Iterator<Item = usize>) -> (faer::Mat<f64>, HashMap<usize, usize>) {
+    fn factor(
+        &self,
+        cols: impl Iterator<Item = usize>,
+    ) -> Option<(faer::Mat<f64>, HashMap<usize, usize>)> {
         let kb = self.acc.r.nrows();
         let mut slots = Vec::new();
         let mut at = HashMap::new();
@@ -1406,13 +1492,13 @@ impl Space<'_> {
                 slots.push(slot);
             }
         }
-        (self.acc.factor(&slots), at)
+        Some((self.acc.factor(&slots)?, at))
     }
 
     /// What the terms (super-model columns per term) add to the base; `None` when a column
     /// was not in the pass.
     fn added(&self, terms: &[Vec<usize>]) -> Option<Added> {
-        let (f, at) = self.factor(terms.iter().flatten().copied());
+        let (f, at) = self.factor(terms.iter().flatten().copied())?;
         self.added_in(&f, &at, terms)
     }
 
@@ -1470,7 +1556,11 @@ impl Space<'_> {
 
     /// Whether two candidates add the same space: both bases in one factor.
     fn same(&self, a: &Tested, b: &Tested) -> bool {
-        let (f, at) = self.factor(a.terms.iter().chain(&b.terms).flatten().copied());
+        // Two candidates the pass did not sum together are not compared (`compared` names
+        // every pair this is asked about).
+        let Some((f, at)) = self.factor(a.terms.iter().chain(&b.terms).flatten().copied()) else {
+            return false;
+        };
         match (
             self.added_in(&f, &at, &a.terms),
             self.added_in(&f, &at, &b.terms),
@@ -1482,8 +1572,8 @@ impl Space<'_> {
 
     /// A reduced problem of the base and the super-model columns `cols`, at their design
     /// positions (y at the last), for [`plausibility`].
-    fn reduced(&self, cols: &[usize]) -> fit::Reduced {
-        let (f, at) = self.factor(cols.iter().copied());
+    fn reduced(&self, cols: &[usize]) -> Option<fit::Reduced> {
+        let (f, at) = self.factor(cols.iter().copied())?;
         let width = self.acc.norms.len();
         let k = f.nrows();
         let mut r = faer::Mat::zeros(k, width + 1);
@@ -1499,13 +1589,13 @@ impl Space<'_> {
             place(c, j);
         }
         place(k - 1, width);
-        fit::Reduced {
+        Some(fit::Reduced {
             r,
             rows: self.acc.rows,
             norms: self.acc.norms.clone(),
             y_sum: 0.0,
             y_sumsq: 0.0,
-        }
+        })
     }
 }
 
@@ -1572,12 +1662,8 @@ fn equivalent_groups(all: Vec<Tested>, rss_base: f64, space: &Space) -> Vec<Test
     for t in all {
         // Equal RSS (to rounding) first: a cheap necessary condition.
         let close = |g: &Vec<Tested>| {
-            g.first().is_some_and(|h| {
-                (h.rss - t.rss).abs() <= 1e-9 * rss_base.max(f64::MIN_POSITIVE)
-                    && h.finding.significant == t.finding.significant
-                    && h.finding.columns == t.finding.columns
-                    && space.same(h, &t)
-            })
+            g.first()
+                .is_some_and(|h| tie(h, &t, rss_base) && space.same(h, &t))
         };
         match groups.iter_mut().find(|g| close(g)) {
             Some(g) => g.push(t),
@@ -2253,6 +2339,36 @@ mod tests {
             contradicted: Vec::new(),
             same_effect_as: Vec::new(),
         }
+    }
+
+    /// The candidates the second pass sums together: every one whose residual sum ties
+    /// another's (wherever it ranks, significant or not), and the significant ones the
+    /// readings-of-one-effect check can reach once tied ones are merged.
+    #[test]
+    fn the_compared_candidates_are_the_tied_and_the_first_significant() {
+        let tested = |i: usize, rss: f64, significant: bool| Tested {
+            proposal: i,
+            finding: Finding {
+                significant,
+                ..finding(&format!("line {i}"), -(i as f64))
+            },
+            terms: vec![vec![i]],
+            columns: vec![i],
+            rss,
+        };
+        // 14 significant with distinct sums, then 3 not significant, the last two tied.
+        let mut all: Vec<Tested> = (0..14).map(|i| tested(i, 100.0 + i as f64, true)).collect();
+        all.extend((14..17).map(|i| tested(i, 200.0 + (i / 15) as f64, false)));
+        let c = compared(&all, 1000.0);
+        let want: Vec<usize> = (0..12).chain([15, 16]).collect();
+        assert_eq!(c, want);
+        // Two significant ones tied far down: they count, and two more of the first.
+        all[12].rss = all[13].rss;
+        let c = compared(&all, 1000.0);
+        assert_eq!(c, (0..14).chain([15, 16]).collect::<Vec<_>>());
+        // Sums that differ by more than rounding are not tied.
+        all[12].rss = all[13].rss * (1.0 + 1e-6);
+        assert_eq!(compared(&all, 1000.0), want);
     }
 
     /// The evidence and the structure outrank BIC: a contradicted line after every other

@@ -20,6 +20,14 @@
 //! have no cancellation against X, so a column the base spans comes out as rounding, as in a
 //! QR of all the columns. On several threads, block `i` goes to worker `i mod T` and the
 //! workers' states are merged in worker order: the same bits for the same `T`.
+//!
+//! Not every product of remainders is summed: only those within each of the [`Split::groups`]
+//! (sets of candidate columns, `y` always with them). A candidate's own test needs the products
+//! of its own columns; those of two candidates are needed only where the diagnosis compares
+//! them (equal residual sums, readings of one effect), a few candidates out of hundreds, which
+//! a second, narrow pass sums once the tests have named them. Summing every pair of the mill's
+//! 737 candidate columns was half the pass's products for none of its answers.
+//! [`Accumulated::factor`] refuses columns whose products were not summed together.
 
 use std::sync::mpsc;
 
@@ -29,13 +37,65 @@ use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::qr::no_pivoting::factor;
 use faer::{Accum, Conj, Mat, Par};
 
-/// Which design columns are the base's, which the candidates'.
+/// Which design columns are the base's, which the candidates', and which candidate columns'
+/// products are summed together.
 #[derive(Debug, Clone)]
 pub(super) struct Split {
     /// Design columns of the base (coefficients and nuisance parameters), in order.
     pub base: Vec<usize>,
     /// Design columns of the candidates, each once: the slots.
     pub candidates: Vec<usize>,
+    /// Sets of slots whose products with one another (and with `y`) are summed: one per
+    /// candidate, or one for several candidates that are compared.
+    pub groups: Vec<Vec<usize>>,
+}
+
+/// The products of one group's remainders.
+#[derive(Debug, Clone)]
+pub(super) struct Group {
+    /// The group's slots, ascending.
+    slots: Vec<usize>,
+    /// Lower triangle of the Gram matrix of the group's remainders, `y`'s last
+    /// (`slots.len() + 1` square); mirrored at the end of the pass.
+    gram: Mat<f64>,
+}
+
+impl Group {
+    /// Where `slot` is in this group (`None`: not in it); `y` is at `slots.len()`.
+    fn at(&self, slot: usize) -> Option<usize> {
+        self.slots.binary_search(&slot).ok()
+    }
+}
+
+/// The groups of `split` to sum: each once, ascending, none inside a larger one (its
+/// products are the larger one's).
+fn groups(split: &Split) -> Vec<Vec<usize>> {
+    let mut all: Vec<Vec<usize>> = split
+        .groups
+        .iter()
+        .map(|g| {
+            let mut g: Vec<usize> = g
+                .iter()
+                .copied()
+                .filter(|&s| s < split.candidates.len())
+                .collect();
+            g.sort_unstable();
+            g.dedup();
+            g
+        })
+        .collect();
+    // Larger first, then by content: a group is kept unless a kept one holds all of it.
+    all.sort_by(|a, b| b.len().cmp(&a.len()).then_with(|| a.cmp(b)));
+    let mut kept: Vec<Vec<usize>> = Vec::new();
+    for g in all {
+        let inside = kept
+            .iter()
+            .any(|k| g.iter().all(|s| k.binary_search(s).is_ok()));
+        if !inside {
+            kept.push(g);
+        }
+    }
+    kept
 }
 
 /// What the pass accumulated.
@@ -48,8 +108,8 @@ pub(super) struct Accumulated {
     /// The coordinates of every candidate column (slot order) and, last, of `y` in the base's
     /// space (`kb × (slots + 1)`).
     pub s: Mat<f64>,
-    /// The Gram matrix of the remainders of every slot, `y`'s last.
-    pub gram: Mat<f64>,
+    /// The Gram matrices of the remainders of the groups' slots, `y`'s last in each.
+    groups: Vec<Group>,
     /// The sum of squares of `y`'s remainder.
     pub ee: f64,
     /// Euclidean norm of every design column.
@@ -91,23 +151,33 @@ impl Block {
 struct State {
     r: Mat<f64>,
     s: Mat<f64>,
-    gram: Mat<f64>,
+    groups: Vec<Group>,
     ee: f64,
     /// The factorisation's scratch, kept from block to block, and its size.
     mem: MemBuffer,
     mem_bytes: usize,
+    /// A group's remainders gathered from a block (as many rows as a block has, as many
+    /// columns as the widest group has, `y` included).
+    gathered: Mat<f64>,
 }
 
 impl State {
-    fn new(split: &Split) -> State {
+    fn new(split: &Split, groups: &[Vec<usize>]) -> State {
         let (kb, slots) = (split.base.len(), split.candidates.len());
         State {
             r: Mat::zeros(kb, kb),
             s: Mat::zeros(kb, slots + 1),
-            gram: Mat::zeros(slots + 1, slots + 1),
+            groups: groups
+                .iter()
+                .map(|g| Group {
+                    slots: g.clone(),
+                    gram: Mat::zeros(g.len() + 1, g.len() + 1),
+                })
+                .collect(),
             ee: 0.0,
             mem: MemBuffer::new(StackReq::EMPTY),
             mem_bytes: 0,
+            gathered: Mat::zeros(0, 0),
         }
     }
 
@@ -179,20 +249,37 @@ impl State {
         let y = wide - 1;
         self.ee += (kb..m).map(|i| rhs[(i, y)].powi(2)).sum::<f64>();
         let rest = rhs.as_ref().subrows(kb, filled);
-        // The Gram matrix is symmetric: only its lower triangle is summed (half the flops of
-        // the full product, the largest part of a block's work when the candidates have more
-        // columns than the base); [`accumulate`] mirrors it once at the end.
-        triangular::matmul(
-            self.gram.as_mut(),
-            BlockStructure::TriangularLower,
-            Accum::Add,
-            rest.transpose(),
-            BlockStructure::Rectangular,
-            rest,
-            BlockStructure::Rectangular,
-            1.0,
-            Par::Seq,
-        );
+        let widest = self
+            .groups
+            .iter()
+            .map(|g| g.slots.len() + 1)
+            .max()
+            .unwrap_or(0);
+        if self.gathered.nrows() < filled || self.gathered.ncols() < widest {
+            self.gathered = Mat::zeros(filled.max(self.gathered.nrows()), widest);
+        }
+        for g in &mut self.groups {
+            // The group's columns side by side, `y` last: one product for the group.
+            let w = g.slots.len() + 1;
+            let mut part = self.gathered.as_mut().submatrix_mut(0, 0, filled, w);
+            for (c, &slot) in g.slots.iter().chain([&y]).enumerate() {
+                part.as_mut().col_mut(c).copy_from(rest.col(slot));
+            }
+            let part = part.as_ref();
+            // The Gram matrix is symmetric: only its lower triangle is summed (half the flops
+            // of the full product); [`accumulate`] mirrors it once at the end.
+            triangular::matmul(
+                g.gram.as_mut(),
+                BlockStructure::TriangularLower,
+                Accum::Add,
+                part.transpose(),
+                BlockStructure::Rectangular,
+                part,
+                BlockStructure::Rectangular,
+                1.0,
+                Par::Seq,
+            );
+        }
         block.filled = 0;
     }
 
@@ -212,7 +299,9 @@ impl State {
         block.filled = kb;
         self.fold(&mut block);
         self.ee += other.ee;
-        self.gram += &other.gram;
+        for (g, o) in self.groups.iter_mut().zip(&other.groups) {
+            g.gram += &o.gram;
+        }
     }
 }
 
@@ -228,6 +317,7 @@ pub(super) fn accumulate<E>(
     let kb = split.base.len();
     let wide = split.candidates.len() + 1;
     let block = block.max(kb + wide).max(1);
+    let groups = groups(split);
     let mut norms2 = vec![0.0; width];
     let mut rows = 0usize;
     let threads = threads.max(1);
@@ -250,7 +340,7 @@ pub(super) fn accumulate<E>(
         rows += 1;
     };
     let state = if threads == 1 {
-        let mut state = State::new(split);
+        let mut state = State::new(split, &groups);
         let mut buf = new_block();
         visit(&mut |x, y| {
             fill(&mut buf, x, y);
@@ -271,8 +361,9 @@ pub(super) fn accumulate<E>(
                 // two more, 55 MB at 10⁵ poses of the 5-axis example, and was no faster).
                 let (tx, rx) = mpsc::sync_channel::<Block>(0);
                 let back = back.clone();
+                let groups = &groups;
                 handles.push(scope.spawn(move || {
-                    let mut state = State::new(split);
+                    let mut state = State::new(split, groups);
                     for mut b in rx {
                         state.fold(&mut b);
                         let _ = back.send(b);
@@ -312,20 +403,22 @@ pub(super) fn accumulate<E>(
                 }
             }
             visited?;
-            Ok(merged.unwrap_or_else(|| State::new(split)))
+            Ok(merged.unwrap_or_else(|| State::new(split, &groups)))
         })?
     };
-    let mut gram = state.gram;
-    for j in 0..gram.ncols() {
-        for i in 0..j {
-            gram[(i, j)] = gram[(j, i)];
+    let mut groups = state.groups;
+    for g in &mut groups {
+        for j in 0..g.gram.ncols() {
+            for i in 0..j {
+                g.gram[(i, j)] = g.gram[(j, i)];
+            }
         }
     }
     Ok(Accumulated {
         base: split.base.clone(),
         r: state.r,
         s: state.s,
-        gram,
+        groups,
         ee: state.ee,
         norms: norms2.iter().map(|v| v.sqrt()).collect(),
         rows,
@@ -333,15 +426,54 @@ pub(super) fn accumulate<E>(
 }
 
 impl Accumulated {
+    /// Takes in the groups of a later pass over the same rows (its slot `i` is this pass's
+    /// `slot_of[i]`), so that [`Accumulated::factor`] can join their columns.
+    pub fn include(&mut self, later: Accumulated, slot_of: &[usize]) {
+        for g in later.groups {
+            let mut order: Vec<(usize, usize)> = g
+                .slots
+                .iter()
+                .enumerate()
+                .filter_map(|(i, &s)| slot_of.get(s).map(|&t| (t, i)))
+                .collect();
+            if order.len() != g.slots.len() {
+                continue;
+            }
+            order.sort_unstable();
+            // The group's matrix in the ascending order of this pass's slots, `y` last.
+            let from: Vec<usize> = order
+                .iter()
+                .map(|&(_, i)| i)
+                .chain([g.slots.len()])
+                .collect();
+            let gram = Mat::from_fn(from.len(), from.len(), |a, b| g.gram[(from[a], from[b])]);
+            self.groups.push(Group {
+                slots: order.into_iter().map(|(t, _)| t).collect(),
+                gram,
+            });
+        }
+    }
+
     /// A factor `F` of `[X | C | y]` (`FᵀF` its Gram matrix) for the candidate columns `slots`:
     /// the base's columns, the slots', `y` last. Only inner products of its columns are
     /// meaningful: the rows below the base's are a symmetric square root of the remainders'
-    /// Gram matrix, not a triangle.
-    pub fn factor(&self, slots: &[usize]) -> Mat<f64> {
+    /// Gram matrix, not a triangle. `None` when no group of the pass summed the products of
+    /// all of `slots` (a pair of candidates no comparison named).
+    pub fn factor(&self, slots: &[usize]) -> Option<Mat<f64>> {
         let kb = self.r.nrows();
         let q = slots.len();
         let k = kb + q + 1;
         let y = self.s.ncols() - 1;
+        let group = self
+            .groups
+            .iter()
+            .find(|g| slots.iter().all(|&s| g.at(s).is_some()))?;
+        // Where each of `slots` (and, last, `y`) is in the group's matrix.
+        let inside: Vec<usize> = slots
+            .iter()
+            .map(|&s| group.at(s).unwrap_or(0))
+            .chain([group.slots.len()])
+            .collect();
         let at = |c: usize| slots.get(c).copied().unwrap_or(y);
         let mut f = Mat::zeros(k, k);
         for a in 0..kb {
@@ -355,20 +487,19 @@ impl Accumulated {
         // The root of the unit-diagonal Gram matrix, scaled back (`F = √(D⁻¹GD⁻¹) D`): the
         // columns' sizes differ by many orders (units, and `y` a residual), and an eigenvalue
         // solver's rounding is relative to the largest.
+        let gram = |a: usize, b: usize| group.gram[(inside[a], inside[b])];
         let d: Vec<f64> = (0..=q)
-            .map(|a| self.gram[(at(a), at(a))].max(0.0).sqrt())
+            .map(|a| gram(a, a).max(0.0).sqrt())
             .map(|v| if v > 0.0 { v } else { 1.0 })
             .collect();
-        let sub = Mat::from_fn(q + 1, q + 1, |a, b| {
-            self.gram[(at(a), at(b))] / (d[a] * d[b])
-        });
+        let sub = Mat::from_fn(q + 1, q + 1, |a, b| gram(a, b) / (d[a] * d[b]));
         let root = root(&sub);
         for a in 0..=q {
             for b in 0..=q {
                 f[(kb + a, kb + b)] = root[(a, b)] * d[b];
             }
         }
-        f
+        Some(f)
     }
 }
 
@@ -444,6 +575,7 @@ mod tests {
         let split = Split {
             base: vec![0, 1, 2, 4, 8],
             candidates: vec![3, 5, 7],
+            groups: vec![vec![2, 0, 1], vec![1]],
         };
         let gram = |a: usize, b: usize| -> f64 {
             let col = |r: &(Vec<f64>, f64), c: usize| if c == 9 { r.1 } else { r.0[c] };
@@ -452,11 +584,13 @@ mod tests {
         for threads in [1, 2] {
             let acc = run(&data, &split, 64, threads);
             assert_eq!(acc.rows, 1000);
+            // The group inside the larger one is not summed again.
+            assert_eq!(acc.groups.len(), 1);
             let again = run(&data, &split, 64, threads);
-            assert_eq!(acc.gram, again.gram);
+            assert_eq!(acc.groups[0].gram, again.groups[0].gram);
             assert_eq!(acc.s, again.s);
             for slots in [vec![0usize], vec![1, 2], vec![2, 0, 1]] {
-                let f = acc.factor(&slots);
+                let f = acc.factor(&slots).expect("summed together");
                 let design: Vec<usize> = split
                     .base
                     .iter()
@@ -478,11 +612,58 @@ mod tests {
                 }
             }
             // Slot 1 is `b1 − b2/2`: in the base's span, nothing of it remains.
-            assert!(
-                acc.gram[(1, 1)].sqrt() < 1e-13 * gram(5, 5).sqrt(),
-                "{:?}",
-                acc.gram
-            );
+            let g = &acc.groups[0].gram;
+            assert!(g[(1, 1)].sqrt() < 1e-13 * gram(5, 5).sqrt(), "{g:?}");
+        }
+    }
+
+    /// Candidates summed apart give each its own products, the same bits as summed together
+    /// in one group; two of them are refused together until a later pass sums them, whose
+    /// products then join theirs.
+    #[test]
+    fn products_are_summed_within_groups_only() {
+        let data = rows(700);
+        let apart = Split {
+            base: vec![0, 1, 2, 4, 8],
+            candidates: vec![3, 5, 7],
+            groups: vec![vec![0], vec![1, 2]],
+        };
+        let together = Split {
+            groups: vec![vec![0, 1, 2]],
+            ..apart.clone()
+        };
+        let mut a = run(&data, &apart, 64, 2);
+        let t = run(&data, &together, 64, 2);
+        assert_eq!(a.groups.len(), 2);
+        for slots in [vec![0usize], vec![1, 2], vec![2], vec![1]] {
+            let fa = a.factor(&slots).expect("summed");
+            let ft = t.factor(&slots).expect("summed");
+            let close = fa.col_iter().zip(ft.col_iter()).all(|(x, y)| {
+                x.iter()
+                    .zip(y.iter())
+                    .all(|(p, q)| (p - q).abs() <= 1e-12 * (p.abs() + q.abs() + 1e-300))
+            });
+            assert!(close, "{slots:?}");
+        }
+        assert!(a.factor(&[0, 1]).is_none());
+        assert!(a.factor(&[2, 0]).is_none());
+        // A later pass over the candidate columns 7 and 3 alone (its slots 0 and 1 are this
+        // pass's 2 and 0): the pair is then joined.
+        let later = Split {
+            base: apart.base.clone(),
+            candidates: vec![7, 3],
+            groups: vec![vec![0, 1]],
+        };
+        a.include(run(&data, &later, 64, 2), &[2, 0]);
+        let joined = a.factor(&[2, 0]).expect("joined by the later pass");
+        let whole = t.factor(&[2, 0]).expect("summed");
+        for (x, y) in joined.col_iter().zip(whole.col_iter()) {
+            for (p, q) in x.iter().zip(y.iter()) {
+                assert!(
+                    (p - q).abs() <= 1e-11 * (p.abs() + q.abs() + 1e-300),
+                    "{p} {q}"
+                );
+            }
         }
     }
 }

@@ -1,5 +1,5 @@
-//! The candidates' one pass over the rows: every candidate's columns against the base model's,
-//! without the columns of one candidate meeting another's.
+//! The candidates' pass over the rows: every candidate's columns against the base model's,
+//! without the columns of one candidate meeting another's (but where they are compared).
 //!
 //! Testing a candidate needs the triangle of `[X | C_i | y]` (X the base model's columns, `C_i`
 //! the candidate's): the part of `C_i` and `y` that X does not explain, and its products. One
@@ -8,13 +8,13 @@
 //! block (`[R; X_b] = Q R'`, as in [`kin_estimate::fit::StreamingQr`]), and the same orthogonal `Qᵀ` is
 //! applied to `[S; C_b | y_b]` — every candidate's columns and `y` — in one blocked product:
 //! its top rows are the columns' coordinates in the base's space (`S`), its bottom rows the
-//! parts of this block's rows orthogonal to it. Those bottom rows are summed into one Gram
-//! matrix of the remainders. All of it is orthogonal, so a candidate's factor
+//! parts of this block's rows orthogonal to it. Those bottom rows are summed into Gram
+//! matrices of the remainders, one per group of columns (below). All of it is orthogonal, so a candidate's factor
 //! `[R S_i z; 0 T_i w_i; 0 0 ρ_i]` has the inner products of `[X C_i y]`: the added-variable
 //! test of the candidate, from one pass for all of them; two candidates' joint factor compares
-//! the spaces they add. The cost per row is base² + 2 base × candidate columns + (candidate
-//! columns)² / 2 (one blocked Householder application and one Gram product per block), against
-//! (base + candidate columns)² for one QR of every column.
+//! the spaces they add. The cost per row is base² + 2 base × candidate columns + the groups'
+//! (columns)² / 2 (one blocked Householder application and one Gram product per group and
+//! block), against (base + candidate columns)² for one QR of every column.
 //!
 //! Only the remainders, which X does not explain, are squared into a Gram matrix: their sums
 //! have no cancellation against X, so a column the base spans comes out as rounding, as in a

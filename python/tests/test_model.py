@@ -176,6 +176,20 @@ def test_bad_arrays_are_refused_with_a_clear_error():
     assert e.value.row == 3
 
 
+def test_a_result_that_overflows_is_an_error_naming_its_row():
+    # A finite but absurd position: the spline's values overflow. An infinity must not come
+    # back as a number, from the error or from its Jacobian.
+    m = kin.Model.compile(SLIDE)
+    q = np.full((5, 1), 0.1)
+    q[2, 0] = 1e300
+    for call in (m.eval, m.eval_jacobian):
+        with pytest.raises(kin.EvalError, match="too large for double precision") as e:
+            call(q)
+        assert e.value.row == 2
+    err, jac = m.eval_jacobian(q[:2])
+    assert np.isfinite(err).all() and np.isfinite(jac).all()
+
+
 def test_every_array_a_numpy_user_passes_gives_the_same_numbers():
     # `DataFrame.to_numpy()` gives a Fortran-ordered array: its memory is column after column,
     # which read as rows would mix the axes' values. It, a strided view, a list, integers and

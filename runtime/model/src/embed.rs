@@ -281,8 +281,16 @@ impl Model {
 
     /// The error at `state` for coefficients `beta`: `(ex, ey, ez, erx, ery, erz)` in the
     /// workpiece frame's axes, with the task's sign.
+    ///
+    /// Every evaluation of a `Model` hands back finite numbers or an error: a state or β too
+    /// large for double precision gives [`EvalError::NotFinite`], naming the first value that
+    /// came out infinite or NaN. The Jacobian's entries are not looked at one by one: the
+    /// processor's overflow flags after the call vouch for them (spec/performance.md, "Finite
+    /// outputs without looking at them").
     pub fn eval(&self, state: &State, beta: &[f64], out: &mut [f64; 6]) -> Result<(), EvalError> {
-        *out = self.jit.error(state, beta, &self.nonlinear)?;
+        let err = self.jit.error(state, beta, &self.nonlinear)?;
+        jit::finite(true, &err, &[])?;
+        *out = err;
         Ok(())
     }
 
@@ -295,8 +303,7 @@ impl Model {
         err: &mut [f64; 6],
         jac: &mut [f64],
     ) -> Result<(), EvalError> {
-        self.jit
-            .error_and_jacobian(state, beta, &self.nonlinear, err, jac)
+        self.eval_jacobian_observed(state, beta, Observed::FULL, err, jac)
     }
 
     /// [`Model::eval_jacobian`] of the `observed` components only (position rows alone, say):
@@ -310,8 +317,15 @@ impl Model {
         err: &mut [f64],
         jac: &mut [f64],
     ) -> Result<(), EvalError> {
-        self.jit
-            .observed_error_and_jacobian(state, beta, &self.nonlinear, observed, err, jac)
+        self.jit.jacobian(
+            state,
+            beta,
+            &self.nonlinear,
+            observed,
+            err,
+            jac,
+            jit::Outputs::Finite,
+        )
     }
 
     /// The nominal tool location in the workpiece frame and its Jacobian with respect to the
@@ -331,7 +345,7 @@ impl Model {
         beta: &[f64],
         err: &mut [f64],
     ) -> Result<(), BatchError> {
-        self.jit.error_rows(rows, beta, &self.nonlinear, err)
+        self.eval_rows_observed(rows, beta, Observed::FULL, err)
     }
 
     /// [`Model::eval_jacobian`] over many states: `err` holds 6 values per row, `jac` one 6 × n
@@ -343,8 +357,7 @@ impl Model {
         err: &mut [f64],
         jac: &mut [f64],
     ) -> Result<(), BatchError> {
-        self.jit
-            .error_and_jacobian_rows(rows, beta, &self.nonlinear, err, jac)
+        self.eval_jacobian_rows_observed(rows, beta, Observed::FULL, err, jac)
     }
 
     /// [`Model::eval_rows`] of the `observed` components only: `err` holds `observed.rows()`
@@ -357,7 +370,8 @@ impl Model {
         err: &mut [f64],
     ) -> Result<(), BatchError> {
         self.jit
-            .observed_error_rows(rows, beta, &self.nonlinear, observed, err)
+            .observed_error_rows(rows, beta, &self.nonlinear, observed, err)?;
+        rows_finite(observed.rows(), err)
     }
 
     /// [`Model::eval_jacobian_rows`] of the `observed` components only: `err` holds
@@ -372,8 +386,15 @@ impl Model {
         err: &mut [f64],
         jac: &mut [f64],
     ) -> Result<(), BatchError> {
-        self.jit
-            .observed_error_and_jacobian_rows(rows, beta, &self.nonlinear, observed, err, jac)
+        self.jit.jacobian_rows(
+            rows,
+            beta,
+            &self.nonlinear,
+            observed,
+            err,
+            jac,
+            jit::Outputs::Finite,
+        )
     }
 
     /// An [`Evaluator`] on the JIT's code (no compilation), with this model's non-linear values.
@@ -647,6 +668,27 @@ impl ServoCompensator {
             beta: self.model.beta(),
         };
         compensate::servo(&mut engine, self.model.machine(), &self.options, state, dq)
+    }
+}
+
+/// `Ok` when every error of a batch (`k` per row) is finite, else the row of the first that
+/// is not.
+fn rows_finite(k: usize, err: &[f64]) -> Result<(), BatchError> {
+    // One addition per value: a NaN or infinity makes the sum so (as may finite values that
+    // overflow it, which the search then does not find).
+    if err.iter().sum::<f64>().is_finite() {
+        return Ok(());
+    }
+    match err.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        None => Ok(()),
+        Some((i, &value)) => Err(BatchError::Row {
+            row: i / k.max(1),
+            source: EvalError::NotFinite {
+                what: "err",
+                index: i % k.max(1),
+                value,
+            },
+        }),
     }
 }
 
@@ -996,6 +1038,59 @@ mod tests {
             assert_eq!(&jacs[6 * n * r..6 * n * (r + 1)], j.as_slice());
         }
         assert!(model.eval_rows(&rows, &beta, &mut only[1..]).is_err());
+    }
+
+    /// A result that overflows is refused, naming the row and the value, by the one-pose calls
+    /// and the batches alike, the rows before it evaluated; a flag raised by other code before
+    /// a call (the test's own overflow here) is no error.
+    #[test]
+    fn results_that_are_not_finite_are_refused_and_named() {
+        let model = Model::compile(SRC).expect("compiles");
+        let n = model.coefficients();
+        let axes = model.axes();
+        let beta = vec![2e-6; n];
+        let states = States::sample(model.machine(), 5, 4);
+        let mut buf = RowsBuf::from_states(&states);
+        // Row 3 at an absurd X: its spline's values overflow.
+        buf.q[3 * axes] = 1e300;
+        let rows = buf.rows();
+        let not_finite =
+            |e: &EvalError| matches!(e, EvalError::NotFinite { value, .. } if !value.is_finite());
+        let (mut errs, mut jacs) = (vec![0.0; 6 * rows.len()], vec![0.0; 6 * n * rows.len()]);
+        match model.eval_jacobian_rows(&rows, &beta, &mut errs, &mut jacs) {
+            Err(BatchError::Row { row: 3, source }) => assert!(not_finite(&source), "{source}"),
+            other => panic!("{other:?}"),
+        }
+        match model.eval_rows(&rows, &beta, &mut errs) {
+            Err(BatchError::Row { row: 3, source }) => assert!(not_finite(&source), "{source}"),
+            other => panic!("{other:?}"),
+        }
+        let bad = rows.get(3);
+        let (mut e, mut j) = ([0.0; 6], vec![0.0; 6 * n]);
+        let refused = model
+            .eval_jacobian(&bad, &beta, &mut e, &mut j)
+            .expect_err("overflows");
+        assert!(not_finite(&refused), "{refused}");
+        assert!(refused
+            .to_string()
+            .contains("too large for double precision"));
+        let refused = model.eval(&bad, &beta, &mut e).expect_err("overflows");
+        assert!(not_finite(&refused), "{refused}");
+        // The Jacobian overflows whatever β: with β = 0 the error is NaN (0·∞) and named.
+        let zero = vec![0.0; n];
+        assert!(model.eval_jacobian(&bad, &zero, &mut e, &mut j).is_err());
+
+        let good = RowsBuf::from_states(&states);
+        let good = good.rows();
+        std::hint::black_box(std::hint::black_box(1e300f64) * 1e300);
+        model
+            .eval_jacobian(&good.get(3), &beta, &mut e, &mut j)
+            .expect("a flag of other code is no error");
+        assert!(e.iter().chain(&j).all(|v| v.is_finite()));
+        std::hint::black_box(std::hint::black_box(1e300f64) * 1e300);
+        model
+            .eval_jacobian_rows(&good, &beta, &mut errs, &mut jacs)
+            .expect("a flag of other code is no error");
     }
 
     /// The observed batches hold, row by row, the bits of the one-pose observed call (the

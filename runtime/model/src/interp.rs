@@ -31,6 +31,15 @@ pub enum EvalError {
     },
     #[error("the model uses `{name}`, which this observation does not give")]
     Missing { name: String },
+    /// A result that is not a finite number: only the embedding API (`Model`) tests for it.
+    #[error(
+        "`{what}[{index}]` came out as {value}: the state or β is too large for double precision"
+    )]
+    NotFinite {
+        what: &'static str,
+        index: usize,
+        value: f64,
+    },
 }
 
 /// One observation state, in SI units (spec/data.md): what an error is a function of.

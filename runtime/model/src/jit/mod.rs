@@ -51,6 +51,7 @@
 //! ```
 
 mod emit;
+mod flags;
 mod graph;
 mod lower;
 pub mod stream;
@@ -499,18 +500,15 @@ impl JitModel {
         err: &mut [f64; 6],
         jac: &mut [f64],
     ) -> Result<(), EvalError> {
-        let mut out = [0.0; 12];
-        self.call(
-            Function::Jacobian,
+        self.jacobian(
             state,
             beta,
             nonlinear,
             Observed::FULL,
-            &mut out,
+            err,
             jac,
-        )?;
-        *err = first6(&out);
-        Ok(())
+            Outputs::AsComputed,
+        )
     }
 
     /// The nominal location of the tool in wr and its Jacobian with respect to the joint
@@ -553,6 +551,30 @@ impl JitModel {
         err: &mut [f64],
         jac: &mut [f64],
     ) -> Result<(), EvalError> {
+        self.jacobian(
+            state,
+            beta,
+            nonlinear,
+            observed,
+            err,
+            jac,
+            Outputs::AsComputed,
+        )
+    }
+
+    /// [`JitModel::observed_error_and_jacobian`], refusing results that are not finite when
+    /// `outputs` says so.
+    #[allow(clippy::too_many_arguments)] // the evaluation's arguments, one each
+    pub(crate) fn jacobian(
+        &self,
+        state: &State,
+        beta: &[f64],
+        nonlinear: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+        outputs: Outputs,
+    ) -> Result<(), EvalError> {
         buffer("the observed error", observed.rows(), err.len())?;
         let mut out = [0.0; 12];
         self.call(
@@ -565,6 +587,9 @@ impl JitModel {
             jac,
         )?;
         pick(&out, observed, err);
+        if outputs == Outputs::Finite {
+            finite(flags::quiet() && reads_finite(state), err, jac)?;
+        }
         Ok(())
     }
 
@@ -673,6 +698,32 @@ impl JitModel {
         err: &mut [f64],
         jac: &mut [f64],
     ) -> Result<(), BatchError> {
+        self.jacobian_rows(
+            rows,
+            beta,
+            nonlinear,
+            observed,
+            err,
+            jac,
+            Outputs::AsComputed,
+        )
+    }
+
+    /// [`JitModel::observed_error_and_jacobian_rows`], refusing the first row whose results
+    /// are not finite when `outputs` says so: each row's error values as they come, the
+    /// Jacobian's by the flags after the last row (every row's values looked at only if a flag
+    /// went up or a row read an infinity).
+    #[allow(clippy::too_many_arguments)] // the evaluation's arguments, one each
+    pub(crate) fn jacobian_rows(
+        &self,
+        rows: &StateRows,
+        beta: &[f64],
+        nonlinear: &[f64],
+        observed: Observed,
+        err: &mut [f64],
+        jac: &mut [f64],
+        outputs: Outputs,
+    ) -> Result<(), BatchError> {
         self.check_rows(rows)?;
         let k = observed.rows();
         let block = k * self.inner.machine.coefficients.len();
@@ -687,6 +738,10 @@ impl JitModel {
         let streaming = stream::worth_it(jac.len());
         let prefetch = !streaming && stream::beyond_cache(jac.len());
         let mut scratch = vec![0.0; if streaming { block } else { 0 }];
+        // Whether every row read finite values, and the first row whose error is not finite:
+        // the Jacobian's entries are known finite when, besides, no flag went up (`flags`),
+        // tested once for the whole batch.
+        let (mut reads, mut bad) = (true, None);
         // Empty blocks (no coefficient, or no component): chunks of 0 are not allowed.
         let mut blocks = jac.chunks_exact_mut(block.max(1));
         let mut errs = err.chunks_exact_mut(k.max(1));
@@ -701,9 +756,10 @@ impl JitModel {
                 stream::prefetch_for_writing(j.as_ptr_range().end, block);
             }
             let target: &mut [f64] = if streaming { &mut scratch } else { j };
+            let state = rows.get(r);
             self.call(
                 Function::Jacobian,
-                &rows.get(r),
+                &state,
                 beta,
                 nonlinear,
                 observed,
@@ -714,12 +770,34 @@ impl JitModel {
             if streaming {
                 stream::copy(j, &scratch);
             }
-            if k > 0 {
-                pick(&out, observed, errs.next().unwrap_or(&mut []));
+            let e = if k > 0 {
+                errs.next().unwrap_or(&mut [])
+            } else {
+                &mut []
+            };
+            pick(&out, observed, e);
+            if outputs == Outputs::Finite {
+                reads &= reads_finite(&state);
+                if finite(true, e, &[]).is_err() {
+                    bad = Some(r);
+                    break;
+                }
             }
         }
         if streaming {
             stream::fence();
+        }
+        if outputs == Outputs::Finite && (bad.is_some() || !(flags::quiet() && reads)) {
+            // The rows' values, up to the one whose error is not finite: the first row
+            // holding a value that is not is named.
+            let last = bad.map_or(rows.len(), |r| r + 1);
+            for r in 0..last {
+                let (e, j) = (
+                    err.get(r * k..(r + 1) * k).unwrap_or(&[]),
+                    jac.get(r * block..(r + 1) * block).unwrap_or(&[]),
+                );
+                finite(false, e, j).map_err(|source| BatchError::Row { row: r, source })?;
+            }
         }
         Ok(())
     }
@@ -972,6 +1050,32 @@ fn zero_upper() {
     std::arch::x86_64::_mm256_zeroupper();
 }
 
+/// What an evaluation hands back when a result is not a finite number (a state or β too
+/// large for double precision): the values as computed (the fits, which test their rows
+/// themselves), or an error naming the first such value (the embedding API, `Model`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Outputs {
+    AsComputed,
+    Finite,
+}
+
+/// `Ok` when every value of `err` and `jac` is finite, else the first that is not. With
+/// `jac_finite` (the call read finite values and raised no flag, see `flags`) the Jacobian is
+/// known to be finite — its entries do not depend on β, which the error values do — and only
+/// the error values are looked at, by one addition each (a NaN or infinity makes the sum so);
+/// each value is looked at only when that quick test fails.
+pub(crate) fn finite(jac_finite: bool, err: &[f64], jac: &[f64]) -> Result<(), EvalError> {
+    if jac_finite && err.iter().sum::<f64>().is_finite() {
+        return Ok(());
+    }
+    for (what, values) in [("err", err), ("jac", jac)] {
+        if let Some((index, &value)) = values.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(EvalError::NotFinite { what, index, value });
+        }
+    }
+    Ok(())
+}
+
 fn first6(out: &Out) -> [f64; 6] {
     [out[0], out[1], out[2], out[3], out[4], out[5]]
 }
@@ -1012,6 +1116,23 @@ fn check_len(
             got,
         })
     }
+}
+
+/// Whether every value the generated code may read from `s` is finite: the joint positions
+/// (the kinematics reads them all), and no infinity among the rest — a NaN there is in a
+/// variable no model of the tool reads, as `check` refuses the others. The non-linear
+/// parameters were checked when set; β matters only to the error values, looked at anyway.
+fn reads_finite(s: &State) -> bool {
+    let q = s.q.iter().fold(true, |all, v| all & v.is_finite());
+    let infinite = s
+        .inputs
+        .iter()
+        .chain(s.lags)
+        .chain(s.dirs)
+        .fold(s.time.is_infinite(), |any, v| any | v.is_infinite());
+    q && !infinite
+        && s.tool_offset
+            .is_none_or(|t| t.iter().all(|v| v.is_finite()))
 }
 
 /// Whether any value of the state is NaN (`|` rather than `||`, so there is no branch).
@@ -1250,6 +1371,95 @@ mod tests {
             .machine
     }
 
+    const EXAMPLES: [&str; 5] = [
+        "milling_5axis",
+        "bridge_cmm",
+        "robot_6axis",
+        "xy_table",
+        "bench_200",
+    ];
+
+    struct Setup {
+        m: Machine,
+        model: JitModel,
+        rows: RowsBuf,
+        beta: Vec<f64>,
+        nl: Vec<f64>,
+    }
+
+    /// An example compiled, `count` sampled poses whose continuous axes go round by turns —
+    /// inside the first turn, outside it, on its ends, negative — and small coefficients.
+    fn setup(name: &str, count: usize, seed: u64) -> Setup {
+        let turn = std::f64::consts::TAU;
+        let m = example(name);
+        let model = compile(&m).expect("compiles");
+        let n = m.coefficients.len();
+        let mut rows = RowsBuf::from_states(&States::sample(&m, count, seed));
+        let axes = m.axes.len();
+        for (a, axis) in m.axes.iter().enumerate() {
+            if !axis.continuous {
+                continue;
+            }
+            for (r, q) in rows.q.iter_mut().skip(a).step_by(axes).enumerate() {
+                *q = match r % 5 {
+                    0 => *q + 3.0 * turn,
+                    1 => -*q,
+                    2 => 0.0,
+                    3 => turn,
+                    _ => *q,
+                };
+            }
+        }
+        let beta = (0..n).map(|j| 1e-6 * (j as f64 + 0.5).sin()).collect();
+        let nl = m.nonlinear.iter().map(|p| p.value).collect();
+        Setup {
+            m,
+            model,
+            rows,
+            beta,
+            nl,
+        }
+    }
+
+    /// The generated code raises none of the flags `flags` watches on the examples' sampled
+    /// poses (continuous axes past a turn among them): the embedding API's test of its
+    /// outputs takes the quick way there, instead of looking at every value.
+    #[test]
+    fn the_examples_raise_no_flag() {
+        for name in EXAMPLES {
+            let Setup {
+                m,
+                model,
+                rows,
+                beta,
+                nl,
+            } = setup(name, 200, 11);
+            let n = m.coefficients.len();
+            let states = rows.rows();
+            for observed in [Observed::FULL, Observed::POSITION] {
+                let (mut err, mut jac) =
+                    (vec![0.0; observed.rows()], vec![0.0; observed.rows() * n]);
+                flags::quiet();
+                for r in 0..states.len() {
+                    let s = states.get(r);
+                    model
+                        .jacobian(
+                            &s,
+                            &beta,
+                            &nl,
+                            observed,
+                            &mut err,
+                            &mut jac,
+                            Outputs::AsComputed,
+                        )
+                        .expect("evaluates");
+                    assert!(flags::quiet(), "{name}, {observed}, row {r}");
+                    assert!(reads_finite(&s), "{name}, row {r}");
+                }
+            }
+        }
+    }
+
     /// Each pose of a two-pose call gets the one-pose code's bits: every example, all six
     /// components and the position alone, the error (as the batches call it) and the error
     /// with its Jacobian (compiled here: the batches do not use it), on pairs whose poses take
@@ -1257,36 +1467,16 @@ mod tests {
     /// turn in one lane and outside (or exactly on its ends) in the other.
     #[test]
     fn two_poses_a_call_give_each_pose_the_bits_of_one() {
-        let turn = std::f64::consts::TAU;
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        for name in [
-            "milling_5axis",
-            "bridge_cmm",
-            "robot_6axis",
-            "xy_table",
-            "bench_200",
-        ] {
-            let m = example(name);
-            let model = compile(&m).expect("compiles");
+        for name in EXAMPLES {
+            let Setup {
+                m,
+                model,
+                rows,
+                beta,
+                nl,
+            } = setup(name, 40, 7);
             let n = m.coefficients.len();
-            let mut rows = RowsBuf::from_states(&States::sample(&m, 40, 7));
-            let axes = m.axes.len();
-            for (a, axis) in m.axes.iter().enumerate() {
-                if !axis.continuous {
-                    continue;
-                }
-                for (r, q) in rows.q.iter_mut().skip(a).step_by(axes).enumerate() {
-                    *q = match r % 5 {
-                        0 => *q + 3.0 * turn,
-                        1 => -*q,
-                        2 => 0.0,
-                        3 => turn,
-                        _ => *q,
-                    };
-                }
-            }
-            let beta: Vec<f64> = (0..n).map(|j| 1e-6 * (j as f64 + 0.5).sin()).collect();
-            let nl: Vec<f64> = m.nonlinear.iter().map(|p| p.value).collect();
             let states = rows.rows();
             for observed in [Observed::FULL, Observed::POSITION] {
                 let k = observed.rows();

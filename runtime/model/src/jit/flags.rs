@@ -1,5 +1,5 @@
-//! The processor's sticky floating-point exception flags, read around a call of generated code
-//! to learn, without looking at its outputs, that none of them is infinite or NaN.
+//! The processor's sticky floating-point exception flags (per thread), read after a call of
+//! generated code to learn, without looking at its outputs, that none of them is infinite or NaN.
 //!
 //! Every operation of the generated code and of the routines it calls (`sincos`, `fmod`) is an
 //! IEEE operation on the processor's vector unit, which raises a flag when it produces an
@@ -13,8 +13,8 @@
 //! pass over a Jacobian's outputs reads every entry again (issue 36: a tenth of a C ABI call).
 //!
 //! The converse does not hold — an intermediate may overflow and still give a finite output
-//! (`1/∞ = 0`), or code outside the call may raise a flag between the two reads — so a raised
-//! flag means only "look at the values", never "a value is bad".
+//! (`1/∞ = 0`), or other code of the thread may have raised a flag since the last read — so a
+//! raised flag means only "look at the values", never "a value is bad".
 //!
 //! Where the flags cannot be read (an architecture other than x86-64 and AArch64), [`quiet`]
 //! answers `false` and the caller looks at every value, as before.

@@ -577,7 +577,7 @@ impl JitModel {
     ) -> Result<(), EvalError> {
         buffer("the observed error", observed.rows(), err.len())?;
         let mut out = [0.0; 12];
-        self.call(
+        let read_finite = self.call(
             Function::Jacobian,
             state,
             beta,
@@ -588,7 +588,7 @@ impl JitModel {
         )?;
         pick(&out, observed, err);
         if outputs == Outputs::Finite {
-            finite(flags::quiet() && reads_finite(state), err, jac)?;
+            finite(flags::quiet() && read_finite, err, jac)?;
         }
         Ok(())
     }
@@ -756,17 +756,17 @@ impl JitModel {
                 stream::prefetch_for_writing(j.as_ptr_range().end, block);
             }
             let target: &mut [f64] = if streaming { &mut scratch } else { j };
-            let state = rows.get(r);
-            self.call(
-                Function::Jacobian,
-                &state,
-                beta,
-                nonlinear,
-                observed,
-                &mut out,
-                target,
-            )
-            .map_err(|source| BatchError::Row { row: r, source })?;
+            let read_finite = self
+                .call(
+                    Function::Jacobian,
+                    &rows.get(r),
+                    beta,
+                    nonlinear,
+                    observed,
+                    &mut out,
+                    target,
+                )
+                .map_err(|source| BatchError::Row { row: r, source })?;
             if streaming {
                 stream::copy(j, &scratch);
             }
@@ -777,7 +777,7 @@ impl JitModel {
             };
             pick(&out, observed, e);
             if outputs == Outputs::Finite {
-                reads &= reads_finite(&state);
+                reads &= read_finite;
                 if finite(true, e, &[]).is_err() {
                     bad = Some(r);
                     break;
@@ -839,7 +839,7 @@ impl JitModel {
     /// Checks everything a call of `f` for `state` relies on but the choice of code: the
     /// state's sizes, the buffers (`jac_len` values of Jacobian), the tool, and that no
     /// variable the tool's models read is missing. The selected tool's transform as the
-    /// generated code reads it.
+    /// generated code reads it, and whether every value the code reads is finite.
     fn check(
         &self,
         f: Function,
@@ -848,7 +848,7 @@ impl JitModel {
         nonlinear: &[f64],
         observed: Observed,
         jac_len: usize,
-    ) -> Result<[f64; 12], EvalError> {
+    ) -> Result<Checked, EvalError> {
         let inner = &*self.inner;
         let m = &inner.machine;
         let sizes = [
@@ -895,7 +895,8 @@ impl JitModel {
         // Which variable is missing is looked up only when some value is NaN: the lookup
         // walks the variables the tool's models read, a branch on each one's kind, and cost
         // about 5 % of a position-only evaluation; the scan of every value has no branch.
-        if f != Function::Nominal && any_nan(state) {
+        let scan = scan(state);
+        if f != Function::Nominal && scan.nan {
             for &v in inner.used.get(state.tool).map_or(&[][..], |u| u.as_slice()) {
                 if value(v, state).is_none_or(f64::is_nan) {
                     return Err(EvalError::Missing {
@@ -904,11 +905,15 @@ impl JitModel {
                 }
             }
         }
-        Ok(tool_tf)
+        Ok(Checked {
+            finite: scan.finite && tool_tf.iter().all(|v| v.is_finite()),
+            tool_tf,
+        })
     }
 
-    /// Checks everything a call relies on and calls. With [`JitModel::error_pair`], the only
-    /// place generated code is entered.
+    /// Checks everything a call relies on and calls: `true` when every value the code read
+    /// was finite (see [`Checked::finite`]). With [`JitModel::error_pair`], the only place
+    /// generated code is entered.
     #[allow(clippy::too_many_arguments)] // the generated functions' arguments, one each
     fn call(
         &self,
@@ -919,8 +924,9 @@ impl JitModel {
         observed: Observed,
         out: &mut Out,
         jac: &mut [f64],
-    ) -> Result<(), EvalError> {
-        let tool_tf = self.check(f, state, beta, nonlinear, observed, jac.len())?;
+    ) -> Result<bool, EvalError> {
+        let Checked { tool_tf, finite } =
+            self.check(f, state, beta, nonlinear, observed, jac.len())?;
         let Some(functions) = self.functions(f, observed) else {
             // The subset's code could not be compiled: the full functions, then its rows.
             let n = self.inner.machine.coefficients.len();
@@ -934,7 +940,7 @@ impl JitModel {
                     dst.copy_from_slice(src);
                 }
             }
-            return Ok(());
+            return Ok(finite);
         };
         let args = args(state, beta, nonlinear, &tool_tf, out, jac);
         // SAFETY: each function was compiled from this machine by `compile` and is alive while
@@ -953,7 +959,7 @@ impl JitModel {
             // SAFETY: as above, for each piece.
             unsafe { function(&args) };
         }
-        Ok(())
+        Ok(finite)
     }
 
     /// [`JitModel::call`] of the error functions for two poses at once, by the two-pose code
@@ -971,7 +977,9 @@ impl JitModel {
         let [sa, sb] = states;
         let [oa, ob] = outs;
         let check = |s| self.check(Function::Error, s, beta, nonlinear, observed, 0);
-        let (Ok(ta), Ok(tb)) = (check(sa), check(sb)) else {
+        let (Ok(Checked { tool_tf: ta, .. }), Ok(Checked { tool_tf: tb, .. })) =
+            (check(sa), check(sb))
+        else {
             return false;
         };
         let Some(functions) = self.pair_error_functions(observed) else {
@@ -1118,30 +1126,37 @@ fn check_len(
     }
 }
 
-/// Whether every value the generated code may read from `s` is finite: the joint positions
-/// (the kinematics reads them all), and no infinity among the rest — a NaN there is in a
-/// variable no model of the tool reads, as `check` refuses the others. The non-linear
-/// parameters were checked when set; β matters only to the error values, looked at anyway.
-fn reads_finite(s: &State) -> bool {
-    let q = s.q.iter().fold(true, |all, v| all & v.is_finite());
-    let infinite = s
-        .inputs
-        .iter()
-        .chain(s.lags)
-        .chain(s.dirs)
-        .fold(s.time.is_infinite(), |any, v| any | v.is_infinite());
-    q && !infinite
-        && s.tool_offset
-            .is_none_or(|t| t.iter().all(|v| v.is_finite()))
+/// What a call checks the generated code's inputs for (see [`JitModel::check`]).
+struct Checked {
+    /// The selected tool's transform as the code reads it.
+    tool_tf: [f64; 12],
+    /// Every value the code may read is finite: the joint positions (the kinematics reads them
+    /// all) and the tool's transform, and no infinity among the state's other values — a NaN
+    /// there is in a variable no model of the tool reads, as `check` refuses the others. The
+    /// non-linear parameters were checked when set; β matters only to the error values.
+    finite: bool,
 }
 
-/// Whether any value of the state is NaN (`|` rather than `||`, so there is no branch).
-fn any_nan(s: &State) -> bool {
-    s.q.iter()
-        .chain(s.inputs)
-        .chain(s.lags)
-        .chain(s.dirs)
-        .fold(s.time.is_nan(), |any, v| any | v.is_nan())
+/// One pass over the state's values, without a branch (`|`, `&` rather than `||`, `&&`).
+struct Scan {
+    /// Some value is NaN.
+    nan: bool,
+    /// The joint positions are finite and no other value is infinite.
+    finite: bool,
+}
+
+fn scan(s: &State) -> Scan {
+    let (q_nan, q_finite) = s.q.iter().fold((false, true), |(nan, finite), v| {
+        (nan | v.is_nan(), finite & v.is_finite())
+    });
+    let (nan, infinite) = s.inputs.iter().chain(s.lags).chain(s.dirs).fold(
+        (q_nan | s.time.is_nan(), s.time.is_infinite()),
+        |(nan, inf), v| (nan | v.is_nan(), inf | v.is_infinite()),
+    );
+    Scan {
+        nan,
+        finite: q_finite & !infinite,
+    }
 }
 
 fn value(v: Var, s: &State) -> Option<f64> {
@@ -1437,24 +1452,23 @@ mod tests {
             let n = m.coefficients.len();
             let states = rows.rows();
             for observed in [Observed::FULL, Observed::POSITION] {
-                let (mut err, mut jac) =
-                    (vec![0.0; observed.rows()], vec![0.0; observed.rows() * n]);
+                let mut jac = vec![0.0; observed.rows() * n];
                 flags::quiet();
                 for r in 0..states.len() {
-                    let s = states.get(r);
-                    model
-                        .jacobian(
-                            &s,
+                    let mut out = [0.0; 12];
+                    let read_finite = model
+                        .call(
+                            Function::Jacobian,
+                            &states.get(r),
                             &beta,
                             &nl,
                             observed,
-                            &mut err,
+                            &mut out,
                             &mut jac,
-                            Outputs::AsComputed,
                         )
                         .expect("evaluates");
                     assert!(flags::quiet(), "{name}, {observed}, row {r}");
-                    assert!(reads_finite(&s), "{name}, row {r}");
+                    assert!(read_finite, "{name}, row {r}");
                 }
             }
         }
@@ -1512,8 +1526,8 @@ mod tests {
                     };
                     let (ta, tb) = (check(&a), check(&b));
                     let two = [
-                        args(&a, &beta, &nl, &ta, &mut oa, &mut ja),
-                        args(&b, &beta, &nl, &tb, &mut ob, &mut jb),
+                        args(&a, &beta, &nl, &ta.tool_tf, &mut oa, &mut ja),
+                        args(&b, &beta, &nl, &tb.tool_tf, &mut ob, &mut jb),
                     ];
                     clean_vector_state();
                     for f in &jacobians.jacobian {

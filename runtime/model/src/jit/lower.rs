@@ -270,13 +270,17 @@ fn errors(
     models.sort_by_key(|e| frame_order(e.frame));
     let mut written = vec![false; n];
     // Running sums, brought up to date after every component so that no component's column
-    // outlives it, kept in registers: the register allocator spills what it must. (With the
-    // column splats read from a stack area, six sums held in registers left too few for the
-    // columns and basis values and the Jacobian's sums went through `out`; since the splats
-    // are values of their own, registers are 5–9 % faster for six rows and 3–5 % for three,
-    // the same code compiled both ways in one process.) Several pieces hand their sums on in
-    // `out`.
-    let memory = pieces;
+    // outlives it. With at most three rows they are kept in registers, which leaves enough
+    // for the columns and basis values (3–5 % faster than through `out`, the same code
+    // compiled both ways in one process). Six sums and six column splats are more than the
+    // 16 vector registers hold with everything else: the register allocator spilled and
+    // reloaded the sums and the frame's rotation around every component, and the six-row
+    // function outgrew the first-level instruction cache. Through `out` (a load, an add and
+    // a store per row and component) the 5-axis example's six-row function has 576 moves to
+    // and from the stack instead of 732, 3 % less code, and runs 3–5 % faster through the C
+    // ABI, both ways in one process (spec/performance.md). Several pieces hand their sums on
+    // in `out` in any case.
+    let memory = pieces || (jacobian && observed.rows() > 3);
     let mut done = Vec::new();
     let mut piece = Piece::new(m, tool_rotation);
     // Used only with a single piece, whose graph this is.

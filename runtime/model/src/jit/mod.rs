@@ -1394,6 +1394,82 @@ mod tests {
         "bench_200",
     ];
 
+    /// Every Jacobian entry is stored by exactly one effect of one piece: the code generator
+    /// stores the constant zeros ahead of everything else (`emit::Emitter::zero_entries`), which
+    /// is the same only if nothing else writes those places.
+    #[test]
+    fn each_jacobian_entry_is_written_once() {
+        let mut machines: Vec<(String, Machine)> = EXAMPLES
+            .iter()
+            .map(|name| (name.to_string(), example(name)))
+            .collect();
+        // Past `lower::PIECE` coefficients the functions come in pieces.
+        let mut errors = String::new();
+        for axis in ["X", "Y", "Z"] {
+            for e in ["tx", "ty", "tz", "rx", "ry", "rz"] {
+                errors.push_str(&format!(
+                    "{axis}.{e} = spline({axis}, knots 50, degree 1)\n"
+                ));
+            }
+        }
+        errors.push_str("C.rz = fourier(C, harmonics 1..100)\n");
+        let source = format!(
+            "machine large {{
+    task position
+    axis X prismatic along x range 0 mm .. 1000 mm
+    axis Y prismatic along y range 0 mm .. 800 mm
+    axis Z prismatic along z range -400 mm .. 0 mm
+    axis C revolute about z continuous
+    workpiece chain {{ Y fixed  C fixed  workpiece }}
+    tool chain {{ X moving  Z moving at (0, 0, 500) mm  tool a at (30, 20, -100) mm }}
+    errors {{
+{errors}    }}
+}}"
+        );
+        let large = kin_compiler::compile(&source)
+            .compiled
+            .expect("compiles")
+            .machine;
+        assert!(large.coefficients.len() > lower::PIECE);
+        machines.push(("large".into(), large));
+        let subsets = [
+            Observed::FULL,
+            Observed::from_flags([true, true, true, false, false, false]),
+            Observed::from_flags([false, true, false, true, false, true]),
+        ];
+        for (name, m) in &machines {
+            let n = m.coefficients.len();
+            let pieces = lower::build(m, Kind::Jacobian, None, Observed::FULL);
+            if name == "large" {
+                assert!(pieces.len() > 1, "{name}: one piece");
+            }
+            for observed in subsets {
+                let mut writes = vec![0u32; observed.rows() * n];
+                for g in lower::build(m, Kind::Jacobian, None, observed) {
+                    for effect in g.effects() {
+                        let at: &[u32] = match *effect {
+                            graph::Effect::Store(graph::Dst::Jac, i, _) => &[i],
+                            graph::Effect::Pair(graph::Dst::Jac, i, ..) => &[i, i + 1],
+                            graph::Effect::AddTo(graph::Dst::Jac, ..) => {
+                                panic!("{name}: a sum kept in the Jacobian")
+                            }
+                            _ => &[],
+                        };
+                        for &i in at {
+                            writes[i as usize] += 1;
+                        }
+                    }
+                }
+                let wrong = writes.iter().position(|&w| w != 1);
+                assert_eq!(
+                    wrong.map(|i| (i, writes[i])),
+                    None,
+                    "{name} {observed:?}: (entry, times written)"
+                );
+            }
+        }
+    }
+
     struct Setup {
         m: Machine,
         model: JitModel,

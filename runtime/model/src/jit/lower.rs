@@ -276,8 +276,8 @@ fn errors(
     // 16 vector registers hold with everything else: the register allocator spilled and
     // reloaded the sums and the frame's rotation around every component, and the six-row
     // function outgrew the first-level instruction cache. Through `out` (a load, an add and
-    // a store per row and component) the 5-axis example's six-row function has 576 moves to
-    // and from the stack instead of 732, 3 % less code, and runs 3–5 % faster through the C
+    // a store per row and component) the 5-axis example's six-row function has 552 moves to
+    // and from the stack instead of 732, 4 % less code, and runs 3–5 % faster through the C
     // ABI, both ways in one process (spec/performance.md). Several pieces hand their sums on
     // in `out` in any case.
     let memory = pieces || (jacobian && observed.rows() > 3);

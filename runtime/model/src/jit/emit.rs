@@ -728,6 +728,10 @@ impl Emitter<'_> {
 
     /// Stores `zeros` from one cleared register for the single entries and one for the pairs.
     fn store_zeros(&mut self, b: &mut FunctionBuilder, zeros: &[Zero]) {
+        // No zeros, no load of the Jacobian's pointer (the error functions have none).
+        if zeros.is_empty() {
+            return;
+        }
         let Some(base) = self.base_ptr(b, 0, dst_field(Dst::Jac)) else {
             return;
         };

@@ -1403,27 +1403,22 @@ mod tests {
             .iter()
             .map(|name| (name.to_string(), example(name)))
             .collect();
-        // Past `lower::PIECE` coefficients the functions come in pieces.
-        let mut errors = String::new();
-        for axis in ["X", "Y", "Z"] {
-            for e in ["tx", "ty", "tz", "rx", "ry", "rz"] {
-                errors.push_str(&format!(
-                    "{axis}.{e} = spline({axis}, knots 50, degree 1)\n"
-                ));
-            }
-        }
-        errors.push_str("C.rz = fourier(C, harmonics 1..100)\n");
+        // Past `lower::PIECE` coefficients the functions come in pieces: six Fourier series
+        // of 200 coefficients on a rotary table, and a straightness on the linear axis.
+        let errors: String = ["tx", "ty", "tz", "rx", "ry", "rz"]
+            .iter()
+            .map(|e| format!("        C.{e} = fourier(C, harmonics 1..100)\n"))
+            .collect();
         let source = format!(
-            "machine large {{
+            "machine pieces {{
     task position
-    axis X prismatic along x range 0 mm .. 1000 mm
-    axis Y prismatic along y range 0 mm .. 800 mm
-    axis Z prismatic along z range -400 mm .. 0 mm
+    axis X prismatic along x range 0 mm .. 500 mm
     axis C revolute about z continuous
-    workpiece chain {{ Y fixed  C fixed  workpiece }}
-    tool chain {{ X moving  Z moving at (0, 0, 500) mm  tool a at (30, 20, -100) mm }}
+    workpiece chain {{ C fixed  workpiece }}
+    tool chain {{ X moving  tool a at (0, 0, -50) mm }}
     errors {{
-{errors}    }}
+{errors}        X.ty = straightness(X, knots 10)
+    }}
 }}"
         );
         let large = kin_compiler::compile(&source)

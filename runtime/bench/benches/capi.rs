@@ -9,16 +9,20 @@
 //! `cargo bench -p kin-bench --bench capi` prints the summary first, then criterion's report.
 
 use std::hint::black_box;
-use std::ptr::null_mut;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use kin_bench::baseline_5axis::{self, Trig};
 use kin_bench::c_abi::c_state;
 use kin_capi::{
     kin_eval, kin_eval_batch_observed, kin_eval_jacobian, kin_eval_jacobian_observed,
-    kin_model as CModel, kin_model_compile, kin_rows, kin_state, KIN_OK,
+    kin_model as CModel, kin_state, KIN_OK,
 };
+use kin_model::jit::StateRows;
+
+#[path = "common/five_axis.rs"]
+mod five_axis;
+use five_axis::{c_model, c_rows, rate, setup, POSES};
 
 /// `kin_eval_jacobian_observed` over `states` into reused buffers: with `beta` given per call,
 /// or the model's bound β (NULL); `observed` one bit per component.
@@ -52,28 +56,6 @@ fn abi_jacobian(
         debug_assert_eq!(code, KIN_OK);
     }
     black_box(&jac);
-}
-use kin_model::jit::StateRows;
-use kin_model::states::States;
-use kin_model::Model;
-
-/// The C ABI's view of `rows` (which must outlive every use of it).
-fn c_rows(rows: &StateRows) -> kin_rows {
-    kin_rows {
-        n_rows: rows.len(),
-        q: rows.q.as_ptr(),
-        n_q: rows.q.len(),
-        inputs: rows.inputs.as_ptr(),
-        n_inputs: rows.inputs.len(),
-        lags: rows.lags.as_ptr(),
-        n_lags: rows.lags.len(),
-        dirs: rows.dirs.as_ptr(),
-        n_dirs: rows.dirs.len(),
-        time: rows.time.as_ptr(),
-        n_time: rows.time.len(),
-        tool: rows.tool.as_ptr(),
-        n_tool: rows.tool.len(),
-    }
 }
 
 /// `kin_eval_batch_observed` over `rows` in calls of `per_call` rows (β bound), each call's
@@ -124,69 +106,10 @@ fn abi_batch(
     black_box(&jac);
 }
 
-const POSES: usize = 1000;
-
-struct Setup {
-    source: String,
-    model: Model,
-    states: States,
-    beta: Vec<f64>,
-}
-
-fn setup() -> Setup {
-    let path = format!(
-        "{}/../../examples/milling_5axis.kin",
-        env!("CARGO_MANIFEST_DIR")
-    );
-    let source = std::fs::read_to_string(path).expect("example");
-    let model = Model::compile(&source).expect("compiles");
-    let n = model.coefficients();
-    let states = States::sample(model.machine(), POSES, 1);
-    let beta = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
-    Setup {
-        source,
-        model,
-        states,
-        beta,
-    }
-}
-
-fn c_model(source: &str) -> *mut CModel {
-    let mut out = null_mut();
-    // SAFETY: a valid source and out pointer; no error buffer.
-    let code = unsafe {
-        kin_model_compile(
-            source.as_ptr().cast(),
-            source.len(),
-            &mut out,
-            null_mut(),
-            0,
-        )
-    };
-    assert_eq!(code, KIN_OK);
-    out
-}
-
-/// Poses per second of `f` over all poses, best of 5 rounds of about `budget / 5`.
-fn rate(budget: Duration, mut f: impl FnMut()) -> f64 {
-    f();
-    let mut best: f64 = 0.0;
-    for _ in 0..5 {
-        let start = Instant::now();
-        let mut rounds = 0u32;
-        while start.elapsed() < budget / 5 {
-            f();
-            rounds += 1;
-        }
-        best = best.max(f64::from(rounds) * POSES as f64 / start.elapsed().as_secs_f64());
-    }
-    best
-}
-
 fn summary() {
     let s = setup();
     let n = s.model.coefficients();
-    let cm = c_model(&s.source);
+    let cm = c_model(&s.source, None);
     let states: Vec<kin_state> = (0..POSES).map(|r| c_state(&s.states.get(r))).collect();
     let budget = Duration::from_millis(1500);
     let mut err = [0.0; 6];
@@ -196,10 +119,7 @@ fn summary() {
     let (mut hand_exact, mut hand_err) = (0.0f64, 0.0f64);
     let (mut abi_err, mut rust_err, mut abi_position) = (0.0f64, 0.0f64, 0.0f64);
     // The same model with β bound once (kin_model_set_beta): calls pass NULL and 0.
-    let cm_bound = c_model(&s.source);
-    // SAFETY: a live model and β of its length.
-    let bound = unsafe { kin_capi::kin_model_set_beta(cm_bound, s.beta.as_ptr(), n) };
-    assert_eq!(bound, KIN_OK);
+    let cm_bound = c_model(&s.source, Some(&s.beta));
     // The hand-written evaluator with harmonic recurrences (`kin bench`'s baseline) and with a
     // `sincos` of every angle the interpreter takes one of (its numbers, more calls).
     let mut baseline = baseline_5axis::Baseline::new(s.model.machine(), Trig::Recurrence)
@@ -371,7 +291,7 @@ fn bench(c: &mut Criterion) {
     summary();
     let s = setup();
     let n = s.model.coefficients();
-    let cm = c_model(&s.source);
+    let cm = c_model(&s.source, None);
     let states: Vec<kin_state> = (0..POSES).map(|r| c_state(&s.states.get(r))).collect();
     let mut err = [0.0; 6];
     let mut jac = vec![0.0; 6 * n];

@@ -624,6 +624,34 @@ impl Baseline {
         })
     }
 
+    /// What this evaluator read from the machine — chain offsets, tool offsets, every spline's
+    /// range, knots and trends, the periodic terms' α, the two scalings' expressions — as JSON,
+    /// so that a model of the same machine written with another tool (the CasADi comparison of
+    /// `runtime/bench/casadi/`) takes the same numbers rather than working them out again.
+    pub fn tables(&self) -> serde_json::Value {
+        use serde_json::json;
+        fn quad<const M: usize>(q: &Quad<M>) -> serde_json::Value {
+            json!({ "lo": q.lo, "span": q.span, "knots": &q.knots[..], "trend": &q.trend[..] })
+        }
+        let periodic =
+            |p: &Periodic2| json!({ "tau": p.tau, "knots": &p.knots[..], "alpha": &p.alpha[..] });
+        json!({
+            "coefficients": N,
+            "s_y": self.s_y, "s_x": self.s_x, "s_a": self.s_a, "s_c": self.s_c, "s_z": self.s_z,
+            "tools": self.tools,
+            "y_ty": quad(&self.y_ty), "y_per": periodic(&self.y_per),
+            "y_str": quad(&self.y_str), "y_rot": quad(&self.y_rot), "x_load": quad(&self.x_load),
+            "x_tx": quad(&self.x_tx), "x_per": periodic(&self.x_per),
+            "x_str": quad(&self.x_str), "x_rot": quad(&self.x_rot),
+            "z_tz": { "lo": self.z_tz.0, "span": self.z_tz.1, "knots": self.z_tz.2 },
+            "z_str": quad(&self.z_str), "z_rot": quad(&self.z_rot),
+            "a_lo": self.a_lo, "a_span": self.a_span,
+            "a_sp2": quad(&self.a_sp2), "a_sp3": quad(&self.a_sp3),
+            "c_rev": quad(&self.c_rev), "c_mid": self.c_mid,
+            "y_scale": self.y_scale, "y_load": self.y_load,
+        })
+    }
+
     /// The error (position task: actual − nominal) and its β-Jacobian, 6 × n row-major.
     ///
     /// # Panics

@@ -126,9 +126,11 @@ pub struct Export<'a> {
 pub enum ExportFormat {
     Urdf,
     Dh,
+    C,
 }
 
-/// `kin export urdf|dh`: the machine with its constant errors folded into a URDF or a DH table.
+/// `kin export urdf|dh|c`: the machine with its constant errors folded into a URDF or a DH
+/// table, or its evaluator as C source.
 pub fn export(args: Export<'_>, format: ExportFormat) -> ExitCode {
     Failed::exit(write_export(args, format))
 }
@@ -177,6 +179,15 @@ fn write_export(args: Export<'_>, format: ExportFormat) -> Result<(), Failed> {
                 summary,
                 table.left_out,
             )
+        }
+        ExportFormat::C => {
+            let text = kin_model::jit::c_source(m).map_err(|e| failed(&e))?;
+            let summary = format!(
+                "exported `{}` as C source: the error, the six-row and the position-row β-Jacobians of {} coefficients; compile with -ffp-contract=off for kin's roundings",
+                m.name,
+                m.coefficients.len()
+            );
+            (text, summary, Vec::new())
         }
     };
     if !left_out.is_empty() {

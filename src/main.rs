@@ -936,6 +936,26 @@ enum ExportCommand {
         #[arg(long, value_enum, default_value_t = Color::Auto)]
         color: Color,
     },
+    /// The model's evaluator as C source, for a program to compile in: the error, the error
+    /// with its six-row β-Jacobian and the position rows, the same operations as kin's JIT,
+    /// with the fitted values (`params` or `--params`) as the default β (spec/performance.md,
+    /// "The evaluator as C source"). Compile with -ffp-contract=off for kin's roundings.
+    #[command(after_help = "Examples:
+  kin export c examples/milling_5axis.kin --params FIT.params -o mill.c
+  cc -O3 -march=native -ffp-contract=off -c mill.c")]
+    C {
+        /// The machine.
+        machine: PathBuf,
+        /// Parameter values (`params { … }`, e.g. the FIT.params `kin fit` writes): the β the
+        /// functions use when called with NULL.
+        #[arg(long, value_name = "FILE")]
+        params: Option<PathBuf>,
+        /// Output `.c` file (standard output when absent); replaced atomically.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        #[arg(long, value_enum, default_value_t = Color::Auto)]
+        color: Color,
+    },
 }
 
 /// Whether the command line asks for JSON (`--format json` or `--format=json`), read before
@@ -1457,6 +1477,21 @@ fn run(command: Command) -> ExitCode {
                 color: color.enabled(),
             },
             import::ExportFormat::Dh,
+        ),
+        Command::Export(ExportCommand::C {
+            machine,
+            params,
+            output,
+            color,
+        }) => import::export(
+            import::Export {
+                machine: &machine,
+                params: params.as_deref(),
+                name: None,
+                output: output.as_deref(),
+                color: color.enabled(),
+            },
+            import::ExportFormat::C,
         ),
         Command::Import(ImportCommand::Dh {
             file,

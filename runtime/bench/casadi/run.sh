@@ -3,8 +3,8 @@
 #
 # Builds the comparison from scratch and runs it: CasADi from PyPI into a virtual environment,
 # the hand-written evaluator's tables of the example (`five_axis_tables`), CasADi's C code of the
-# same model (`five_axis.py`), built by the system's C compiler into a shared library with the
-# flags below, and the `casadi` bench of kin-bench loading it. A measurement on this computer,
+# same model (`five_axis.py`) and kin's own (`kin export c`), built by the system's C compiler
+# into one shared library with the flags below, and the `casadi` bench of kin-bench loading it. A measurement on this computer,
 # not a test; about 3 minutes once built.
 #
 #   runtime/bench/casadi/run.sh [--check] [WORK_DIR]     (default: target/casadi)
@@ -45,8 +45,15 @@ fi
 cd "$root"
 cargo run "${profile[@]}" --quiet -p kin-bench --example five_axis_tables >"$work/tables.json"
 (cd "$work" && "$work/venv/bin/python" "$root/runtime/bench/casadi/five_axis.py" tables.json kin5.c)
+# kin's own C source of the example, compiled beside CasADi's with the same flags and, as its
+# header asks, without contracting a*b + c into fused operations (CasADi's may).
+cargo run "${profile[@]}" --quiet --bin kin -- export c examples/milling_5axis.kin \
+    -o "$work/milling_5axis.c" >/dev/null
 # shellcheck disable=SC2086 # CFLAGS is a list of flags
-"$cc" $cflags -fPIC -shared -o "$work/libkin5.so" "$work/kin5.c" -lm
+"$cc" $cflags -fPIC -c -o "$work/kin5.o" "$work/kin5.c"
+# shellcheck disable=SC2086
+"$cc" $cflags -ffp-contract=off -fPIC -c -o "$work/milling_5axis.o" "$work/milling_5axis.c"
+"$cc" -shared -o "$work/libkin5.so" "$work/kin5.o" "$work/milling_5axis.o" -lm
 echo "casadi: $("$cc" --version | head -n 1), $cflags" >&2
 if [ -n "$check" ]; then
     KIN_CASADI_LIB="$work/libkin5.so" KIN_CASADI_CHECK=1 cargo test --quiet -p kin-bench --bench casadi

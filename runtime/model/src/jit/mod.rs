@@ -50,6 +50,7 @@
 //! model.error_and_jacobian(&states.get(0), &beta, &[], &mut err, &mut jac).expect("evaluates");
 //! ```
 
+mod c_source;
 mod emit;
 mod flags;
 mod graph;
@@ -68,6 +69,7 @@ use crate::engine::Evaluator;
 pub use crate::engine::Observed;
 use crate::interp::{var_name, EvalError, State};
 use crate::kinematics::{length_direction, length_error, KinematicsError, ToolLocation};
+pub use c_source::c_source;
 use emit::{Args, RawFn};
 use lower::Kind;
 
@@ -1377,7 +1379,7 @@ mod tests {
     use crate::embed::RowsBuf;
     use crate::states::States;
 
-    fn example(name: &str) -> Machine {
+    pub(super) fn example(name: &str) -> Machine {
         let path = format!("{}/../../examples/{name}.kin", env!("CARGO_MANIFEST_DIR"));
         let src = std::fs::read_to_string(&path).expect("example");
         kin_compiler::compile(&src)
@@ -1386,7 +1388,7 @@ mod tests {
             .machine
     }
 
-    const EXAMPLES: [&str; 5] = [
+    pub(super) const EXAMPLES: [&str; 5] = [
         "milling_5axis",
         "bridge_cmm",
         "robot_6axis",
@@ -1394,17 +1396,9 @@ mod tests {
         "bench_200",
     ];
 
-    /// Every Jacobian entry is stored by exactly one effect of one piece: the code generator
-    /// stores the constant zeros ahead of everything else (`emit::Emitter::zero_entries`), which
-    /// is the same only if nothing else writes those places.
-    #[test]
-    fn each_jacobian_entry_is_written_once() {
-        let mut machines: Vec<(String, Machine)> = EXAMPLES
-            .iter()
-            .map(|name| (name.to_string(), example(name)))
-            .collect();
-        // Past `lower::PIECE` coefficients the functions come in pieces: six Fourier series
-        // of 200 coefficients on a rotary table, and a straightness on the linear axis.
+    /// A machine past `lower::PIECE` coefficients, whose functions come in pieces: six Fourier
+    /// series of 200 coefficients on a rotary table, and a straightness on the linear axis.
+    pub(super) fn large_machine() -> Machine {
         let errors: String = ["tx", "ty", "tz", "rx", "ry", "rz"]
             .iter()
             .map(|e| format!("        C.{e} = fourier(C, harmonics 1..100)\n"))
@@ -1426,7 +1420,19 @@ mod tests {
             .expect("compiles")
             .machine;
         assert!(large.coefficients.len() > lower::PIECE);
-        machines.push(("large".into(), large));
+        large
+    }
+
+    /// Every Jacobian entry is stored by exactly one effect of one piece: the code generator
+    /// stores the constant zeros ahead of everything else (`emit::Emitter::zero_entries`), which
+    /// is the same only if nothing else writes those places.
+    #[test]
+    fn each_jacobian_entry_is_written_once() {
+        let mut machines: Vec<(String, Machine)> = EXAMPLES
+            .iter()
+            .map(|name| (name.to_string(), example(name)))
+            .collect();
+        machines.push(("large".into(), large_machine()));
         let subsets = [
             Observed::FULL,
             Observed::from_flags([true, true, true, false, false, false]),

@@ -16,7 +16,12 @@ use kin_model::interp::Interpreter;
 use kin_model::jit::{self, Observed};
 use kin_model::states::States;
 
-const POSES: usize = 1000;
+// The 5-axis benchmarks' module for its timing loop and pose count; the rest is theirs.
+#[allow(dead_code)]
+#[path = "common/five_axis.rs"]
+mod five_axis;
+use five_axis::{rate, POSES};
+
 const EXAMPLES: [&str; 3] = ["milling_5axis", "bridge_cmm", "robot_6axis"];
 
 fn machine(name: &str) -> Machine {
@@ -47,22 +52,6 @@ fn setup(name: &str) -> Setup {
         beta,
         nonlinear,
     }
-}
-
-/// Poses per second of `f` run over all poses, best of a few rounds of about `budget`.
-fn rate(budget: Duration, mut f: impl FnMut()) -> f64 {
-    f();
-    let mut best: f64 = 0.0;
-    for _ in 0..5 {
-        let start = Instant::now();
-        let mut rounds = 0u32;
-        while start.elapsed() < budget / 5 {
-            f();
-            rounds += 1;
-        }
-        best = best.max(f64::from(rounds) * POSES as f64 / start.elapsed().as_secs_f64());
-    }
-    best
 }
 
 /// The summary: every figure measured here, in this run, so the ratios compare like with like.

@@ -427,6 +427,23 @@ mod tests {
                         .expect("jacobian_position"),
                 )
             };
+            let call_error =
+                |st: &crate::interp::State, tool: usize, beta: *const f64, e: &mut [f64; 6]| {
+                    // SAFETY: the state's arrays have the machine's sizes, β (when not null) its
+                    // coefficients, and `e` the six values the function writes.
+                    unsafe {
+                        error(
+                            st.q.as_ptr(),
+                            st.inputs.as_ptr(),
+                            st.lags.as_ptr(),
+                            st.dirs.as_ptr(),
+                            st.time,
+                            tool,
+                            beta,
+                            e.as_mut_ptr(),
+                        )
+                    }
+                };
             let jit = crate::jit::compile(m).expect("compiles");
             let n = m.coefficients.len();
             let nonlinear: Vec<f64> = m.nonlinear.iter().map(|q| q.value).collect();
@@ -467,40 +484,15 @@ mod tests {
                     assert_eq!(call(position, &mut pe, &mut pj), 0);
                     d = d.max(worst(&pe, &e[..3])).max(worst(&pj, &j[..3 * n]));
                     let mut ee = [0.0; 6];
-                    // SAFETY: as above.
-                    let code = unsafe {
-                        error(
-                            st.q.as_ptr(),
-                            st.inputs.as_ptr(),
-                            st.lags.as_ptr(),
-                            st.dirs.as_ptr(),
-                            st.time,
-                            st.tool,
-                            pass,
-                            ee.as_mut_ptr(),
-                        )
-                    };
-                    assert_eq!(code, 0);
+                    assert_eq!(call_error(&st, st.tool, pass, &mut ee), 0);
                     let je = jit.error(&st, beta, &nonlinear).expect("JIT error");
                     d = d.max(worst(&ee, &je));
                 }
             }
             assert!(d <= 1e-12, "{}: C and JIT differ by {d:e}", m.name);
-            let st = states.get(0);
+            // A tool index past the last is refused before anything is read or written.
             let mut e = [7.0; 6];
-            // SAFETY: as above; a tool index past the last is refused before anything is read.
-            let code = unsafe {
-                error(
-                    st.q.as_ptr(),
-                    st.inputs.as_ptr(),
-                    st.lags.as_ptr(),
-                    st.dirs.as_ptr(),
-                    st.time,
-                    m.tools.len(),
-                    std::ptr::null(),
-                    e.as_mut_ptr(),
-                )
-            };
+            let code = call_error(&states.get(0), m.tools.len(), std::ptr::null(), &mut e);
             assert_eq!(
                 (code, e),
                 (-1, [7.0; 6]),

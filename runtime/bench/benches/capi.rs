@@ -4,7 +4,8 @@
 //! machine (with harmonic recurrences, as `kin bench`'s baseline, and with the interpreter's
 //! `sincos` calls), all in this run; and `kin_eval_batch_observed` in blocks of poses and into
 //! one output for all, against the hand-written evaluator writing the same rows. The ratios
-//! say what the ABI's checks cost an embedder.
+//! say what the ABI's checks cost an embedder; the last line, how far copies of the same code
+//! in one process run apart.
 //!
 //! `cargo bench -p kin-bench --bench capi` prints the summary first, then criterion's report.
 
@@ -285,6 +286,40 @@ fn summary() {
         kin_capi::kin_model_free(cm);
         kin_capi::kin_model_free(cm_bound);
     };
+    copies(&s, budget);
+}
+
+/// The same machine code in several places: the model compiled `COPIES` times more, each copy's
+/// six-row function timed through `Model` in interleaved rounds. How fast a copy runs depends
+/// on where its code and the Rust around it land (spec/performance.md, "Where the code
+/// lands"); the spread says how far one figure above may be from another build's.
+fn copies(s: &five_axis::Setup, budget: Duration) {
+    const COPIES: usize = 6;
+    let n = s.model.coefficients();
+    let models: Vec<kin_model::Model> = (0..COPIES)
+        .map(|_| kin_model::Model::compile(&s.source).expect("compiles"))
+        .collect();
+    let mut err = [0.0; 6];
+    let mut jac = vec![0.0; 6 * n];
+    let mut best = [0.0f64; COPIES];
+    for _ in 0..3 {
+        for (b, m) in best.iter_mut().zip(&models) {
+            *b = b.max(rate(budget, || {
+                for r in 0..POSES {
+                    m.eval_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac)
+                        .expect("eval");
+                }
+                black_box(&jac);
+            }));
+        }
+    }
+    let (lo, hi) = best.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
+        (lo.min(*v), hi.max(*v))
+    });
+    eprintln!(
+        "  the same model compiled {COPIES} times more, six rows through Model: {lo:.0} … {hi:.0} (slowest ÷ fastest {:.2})",
+        lo / hi
+    );
 }
 
 fn bench(c: &mut Criterion) {

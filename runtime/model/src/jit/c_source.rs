@@ -1,11 +1,10 @@
 //! The model's evaluator as C source (`kin export c`): the expression graphs the JIT compiles
 //! (`lower::build`), written as C for an embedder's own compiler.
 //!
-//! Why: Cranelift compiles quickly but allocates registers and folds loads less well than an
-//! optimising C compiler, and on the 5-axis example the one-pose functions it makes run below
-//! the hand-written evaluator (spec/performance.md). The same graphs compiled by GCC run faster
-//! than the hand-written evaluator ("The evaluator as C source"). An embedder that knows its
-//! machine when it builds its program can take that code instead of the C ABI's JIT.
+//! Why: an embedder that knows its machine when it builds its program can compile the model in
+//! — no JIT, no kin library, no per-call checks but the tool's index — instead of calling the C
+//! ABI's JIT (spec/performance.md, "The evaluator as C source"; GCC's code of these graphs is
+//! not reliably faster than Cranelift's: "Where the code lands").
 //!
 //! What the file holds: for each graph one `static` function of the JIT's arguments (the state's
 //! arrays, β, the non-linear parameters, the tool's transform, the outputs), each node one
@@ -140,7 +139,9 @@ fn header(c: &mut String, m: &Machine, p: &str) {
  * The same operations as kin's JIT in the same order: compiled without contracting a*b + c
  * into fused operations (GCC and Clang: -ffp-contract=off) the results are kin's to the last
  * bit except where sin and cos of the C library differ from kin's by a unit in the last place.
- * For speed, -O2 or -O3 and the target's instruction set (-march=native).
+ * For speed, -O2 or -O3 and the target's instruction set (-march=native). GCC 12 was seen to
+ * fuse a product and a sum in spite of -ffp-contract=off when it vectorises straight-line code
+ * for a processor with FMA; -fno-tree-slp-vectorize keeps every rounding.
  */
 #include <math.h>
 #include <stddef.h>
@@ -181,6 +182,12 @@ fn piece(c: &mut String, name: &str, g: &Graph) {
             Effect::Store(d, at, v) => {
                 need(c, g, &mut emitted, v);
                 let _ = writeln!(c, "    {}[{at}] = v{};", dst(d), v.index());
+            }
+            // A column that is zero whatever the pose: zeros, as the JIT stores them (`+0`,
+            // where the product with a negative value would be `-0`).
+            Effect::Pair(d, at, col, ..) if g.value(col) == Some(0.0) => {
+                let d = dst(d);
+                let _ = writeln!(c, "    {d}[{at}] = 0.0;\n    {d}[{}] = 0.0;", at + 1);
             }
             Effect::Pair(d, at, col, a, b) => {
                 for v in [col, a, b] {
@@ -455,6 +462,9 @@ mod tests {
             let given: Vec<f64> = (0..n).map(|j| 1e-6 * ((j % 5) as f64 - 2.0)).collect();
             let states = States::sample(m, 200, 7);
             let mut d: f64 = 0.0;
+            // Per Jacobian entry: +0 from the JIT at every pose (a column that is zero
+            // whatever the pose), and -0 from C at some pose.
+            let (mut always_zero, mut minus_zero) = (vec![true; 6 * n], vec![false; 6 * n]);
             for r in 0..states.len() {
                 let st = states.get(r);
                 for (beta, pass) in [(&bound, std::ptr::null()), (&given, given.as_ptr())] {
@@ -480,6 +490,10 @@ mod tests {
                     };
                     assert_eq!(call(six, &mut ce, &mut cj), 0);
                     d = d.max(worst(&ce, &e)).max(worst(&cj, &j));
+                    for (k, (x, y)) in j.iter().zip(&cj).enumerate() {
+                        always_zero[k] &= x.to_bits() == 0;
+                        minus_zero[k] |= y.to_bits() == (-0.0f64).to_bits();
+                    }
                     let (mut pe, mut pj) = ([0.0; 3], vec![0.0; 3 * n]);
                     assert_eq!(call(position, &mut pe, &mut pj), 0);
                     d = d.max(worst(&pe, &e[..3])).max(worst(&pj, &j[..3 * n]));
@@ -490,6 +504,13 @@ mod tests {
                 }
             }
             assert!(d <= 1e-12, "{}: C and JIT differ by {d:e}", m.name);
+            // Such entries are +0 in C too, not the -0 of a product with a negative value;
+            // elsewhere a zero's sign may follow the C library's sin and cos.
+            let signs = always_zero
+                .iter()
+                .zip(&minus_zero)
+                .filter(|(a, b)| **a && **b);
+            assert_eq!(signs.count(), 0, "{}: zero entries' signs", m.name);
             // A tool index past the last is refused before anything is read or written.
             let mut e = [7.0; 6];
             let code = call_error(&states.get(0), m.tools.len(), std::ptr::null(), &mut e);

@@ -8,6 +8,8 @@
 //! in one process run apart.
 //!
 //! `cargo bench -p kin-bench --bench capi` prints the summary first, then criterion's report.
+//! With `KIN_CAPI_CALLS` set it only makes calls, for `runtime/bench/cachegrind.sh` to count
+//! their instructions and cache misses ([`calls_only`]).
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -105,6 +107,98 @@ fn abi_batch(
         call += 1;
     }
     black_box(&jac);
+}
+
+/// The calls alone, for `runtime/bench/cachegrind.sh`: `KIN_CAPI_CALLS` names the path —
+/// `abi`, `abi-position`, `abi-error` (the C ABI, β bound), `model`, `model-position`,
+/// `model-error` (`Model`, β given) or `hand` (the hand-written evaluator, six rows) — and
+/// `KIN_CAPI_REPS` how many times (default 10) to evaluate the 1 000 poses, after the setup
+/// every run shares; nothing is timed or printed. `false` for a name it does not know.
+fn calls_only(path: &str, reps: usize) -> bool {
+    let s = setup();
+    let n = s.model.coefficients();
+    let cm = c_model(&s.source, Some(&s.beta));
+    let states: Vec<kin_state> = (0..POSES).map(|r| c_state(&s.states.get(r))).collect();
+    let mut err = [0.0; 6];
+    let mut jac = vec![0.0; 6 * n];
+    let mut hand = baseline_5axis::Baseline::new(s.model.machine(), Trig::Recurrence)
+        .expect("the 5-axis example");
+    let nonlinear: Vec<f64> = s
+        .model
+        .machine()
+        .nonlinear
+        .iter()
+        .map(|p| p.value)
+        .collect();
+    let position = kin_model::engine::Observed::POSITION;
+    // One pass over the 1 000 poses: the path chosen once, outside the loops it times.
+    let mut pass: Box<dyn FnMut()> = match path {
+        "abi" => Box::new(|| abi_jacobian(cm, &states, None, 63, &mut err, &mut jac)),
+        "abi-position" => Box::new(|| abi_jacobian(cm, &states, None, 7, &mut err, &mut jac)),
+        "abi-error" => Box::new(|| {
+            for st in &states {
+                // SAFETY: a live model with β bound, a valid state, an output of six.
+                let code = unsafe { kin_eval(cm, st, std::ptr::null(), 0, err.as_mut_ptr(), 6) };
+                debug_assert_eq!(code, KIN_OK);
+            }
+            black_box(&err);
+        }),
+        "model" => Box::new(|| {
+            for r in 0..POSES {
+                let done = s
+                    .model
+                    .eval_jacobian(&s.states.get(r), &s.beta, &mut err, &mut jac);
+                debug_assert!(done.is_ok());
+            }
+            black_box(&jac);
+        }),
+        "model-position" => Box::new(|| {
+            for r in 0..POSES {
+                let done = s.model.eval_jacobian_observed(
+                    &s.states.get(r),
+                    &s.beta,
+                    position,
+                    &mut err[..3],
+                    &mut jac[..3 * n],
+                );
+                debug_assert!(done.is_ok());
+            }
+            black_box(&jac);
+        }),
+        "model-error" => Box::new(|| {
+            for r in 0..POSES {
+                let done = s.model.eval(&s.states.get(r), &s.beta, &mut err);
+                debug_assert!(done.is_ok());
+            }
+            black_box(&err);
+        }),
+        "hand" => Box::new(|| {
+            for r in 0..POSES {
+                hand.error_and_jacobian(&s.states.get(r), &s.beta, &nonlinear, &mut err, &mut jac);
+            }
+            black_box(&jac);
+        }),
+        _ => Box::new(|| {}),
+    };
+    let known = [
+        "abi",
+        "abi-position",
+        "abi-error",
+        "model",
+        "model-position",
+        "model-error",
+        "hand",
+    ]
+    .contains(&path);
+    if known {
+        for _ in 0..reps {
+            pass();
+        }
+    }
+    drop(pass);
+    // SAFETY: compiled above, freed once.
+    unsafe { kin_capi::kin_model_free(cm) };
+    known
 }
 
 fn summary() {
@@ -323,6 +417,14 @@ fn copies(s: &five_axis::Setup, budget: Duration) {
 }
 
 fn bench(c: &mut Criterion) {
+    if let Ok(path) = std::env::var("KIN_CAPI_CALLS") {
+        let reps = std::env::var("KIN_CAPI_REPS")
+            .ok()
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(10);
+        let known = calls_only(&path, reps);
+        std::process::exit(if known { 0 } else { 2 });
+    }
     summary();
     let s = setup();
     let n = s.model.coefficients();

@@ -123,13 +123,7 @@ fn calls_only(path: &str, reps: usize) -> bool {
     let mut jac = vec![0.0; 6 * n];
     let mut hand = baseline_5axis::Baseline::new(s.model.machine(), Trig::Recurrence)
         .expect("the 5-axis example");
-    let nonlinear: Vec<f64> = s
-        .model
-        .machine()
-        .nonlinear
-        .iter()
-        .map(|p| p.value)
-        .collect();
+    let nonlinear = &s.nonlinear;
     let position = kin_model::engine::Observed::POSITION;
     // One pass over the 1 000 poses: the path chosen once, outside the loops it times.
     let mut pass: Box<dyn FnMut()> = match path {
@@ -174,7 +168,7 @@ fn calls_only(path: &str, reps: usize) -> bool {
         }),
         "hand" => Box::new(|| {
             for r in 0..POSES {
-                hand.error_and_jacobian(&s.states.get(r), &s.beta, &nonlinear, &mut err, &mut jac);
+                hand.error_and_jacobian(&s.states.get(r), &s.beta, nonlinear, &mut err, &mut jac);
             }
             black_box(&jac);
         }),
@@ -221,13 +215,7 @@ fn summary() {
         .expect("the 5-axis example");
     let mut exact =
         baseline_5axis::Baseline::new(s.model.machine(), Trig::Exact).expect("the 5-axis example");
-    let nonlinear: Vec<f64> = s
-        .model
-        .machine()
-        .nonlinear
-        .iter()
-        .map(|p| p.value)
-        .collect();
+    let nonlinear = &s.nonlinear;
     // Batches through the C ABI (β bound) against the hand-written evaluator writing the same
     // rows into the same places: six and position rows, in calls of a cache-sized block of
     // poses into one reused block (31 and 63 poses of this example: `BLOCK_BYTES` of kin
@@ -267,7 +255,7 @@ fn summary() {
                 baseline.error_and_jacobian(
                     &s.states.get(r),
                     &s.beta,
-                    &nonlinear,
+                    nonlinear,
                     &mut err,
                     &mut jac,
                 );
@@ -276,7 +264,7 @@ fn summary() {
         }));
         hand_exact = hand_exact.max(rate(budget, || {
             for r in 0..POSES {
-                exact.error_and_jacobian(&s.states.get(r), &s.beta, &nonlinear, &mut err, &mut jac);
+                exact.error_and_jacobian(&s.states.get(r), &s.beta, nonlinear, &mut err, &mut jac);
             }
             black_box(&jac);
         }));
@@ -318,7 +306,7 @@ fn summary() {
                         baseline.error_and_jacobian(
                             &s.states.get(p),
                             &s.beta,
-                            &nonlinear,
+                            nonlinear,
                             &mut e6,
                             jp,
                         );

@@ -382,13 +382,7 @@ fn measure(s: &Setup, args: &Args, x: &Exported, peers: &mut [Peer; M], budget: 
     let cm: *mut CModel = c_model(&s.source, Some(&s.beta));
     let states: Vec<kin_state> = (0..POSES).map(|r| c_state(&s.states.get(r))).collect();
     let mut baseline = Baseline::new(s.model.machine(), Trig::Recurrence).expect("the example");
-    let nonlinear: Vec<f64> = s
-        .model
-        .machine()
-        .nonlinear
-        .iter()
-        .map(|p| p.value)
-        .collect();
+    let nonlinear = &s.nonlinear;
     let buf = kin_model::RowsBuf::from_states(&s.states);
     let rows = buf.rows();
     let cr = c_rows(&rows);
@@ -473,7 +467,7 @@ fn measure(s: &Setup, args: &Args, x: &Exported, peers: &mut [Peer; M], budget: 
                 baseline.error_and_jacobian(
                     &s.states.get(p),
                     &s.beta,
-                    &nonlinear,
+                    nonlinear,
                     &mut err,
                     &mut jac,
                 );

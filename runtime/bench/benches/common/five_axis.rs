@@ -17,6 +17,8 @@ pub struct Setup {
     pub model: Model,
     pub states: States,
     pub beta: Vec<f64>,
+    /// The machine's non-linear parameter values, as the hand-written evaluator takes them.
+    pub nonlinear: Vec<f64>,
 }
 
 pub fn setup() -> Setup {
@@ -29,11 +31,13 @@ pub fn setup() -> Setup {
     let n = model.coefficients();
     let states = States::sample(model.machine(), POSES, 1);
     let beta = (0..n).map(|j| 1e-6 * ((j % 7) as f64 - 3.0)).collect();
+    let nonlinear = model.machine().nonlinear.iter().map(|p| p.value).collect();
     Setup {
         source,
         model,
         states,
         beta,
+        nonlinear,
     }
 }
 

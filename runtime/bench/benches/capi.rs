@@ -126,18 +126,22 @@ fn calls_only(path: &str, reps: usize) -> bool {
     let nonlinear = &s.nonlinear;
     let position = kin_model::engine::Observed::POSITION;
     // One pass over the 1 000 poses: the path chosen once, outside the loops it times.
-    let mut pass: Box<dyn FnMut()> = match path {
-        "abi" => Box::new(|| abi_jacobian(cm, &states, None, 63, &mut err, &mut jac)),
-        "abi-position" => Box::new(|| abi_jacobian(cm, &states, None, 7, &mut err, &mut jac)),
-        "abi-error" => Box::new(|| {
+    let pass: Option<Box<dyn FnMut()>> = match path {
+        "abi" => Some(Box::new(|| {
+            abi_jacobian(cm, &states, None, 63, &mut err, &mut jac)
+        })),
+        "abi-position" => Some(Box::new(|| {
+            abi_jacobian(cm, &states, None, 7, &mut err, &mut jac)
+        })),
+        "abi-error" => Some(Box::new(|| {
             for st in &states {
                 // SAFETY: a live model with β bound, a valid state, an output of six.
                 let code = unsafe { kin_eval(cm, st, std::ptr::null(), 0, err.as_mut_ptr(), 6) };
                 debug_assert_eq!(code, KIN_OK);
             }
             black_box(&err);
-        }),
-        "model" => Box::new(|| {
+        })),
+        "model" => Some(Box::new(|| {
             for r in 0..POSES {
                 let done = s
                     .model
@@ -145,8 +149,8 @@ fn calls_only(path: &str, reps: usize) -> bool {
                 debug_assert!(done.is_ok());
             }
             black_box(&jac);
-        }),
-        "model-position" => Box::new(|| {
+        })),
+        "model-position" => Some(Box::new(|| {
             for r in 0..POSES {
                 let done = s.model.eval_jacobian_observed(
                     &s.states.get(r),
@@ -158,38 +162,28 @@ fn calls_only(path: &str, reps: usize) -> bool {
                 debug_assert!(done.is_ok());
             }
             black_box(&jac);
-        }),
-        "model-error" => Box::new(|| {
+        })),
+        "model-error" => Some(Box::new(|| {
             for r in 0..POSES {
                 let done = s.model.eval(&s.states.get(r), &s.beta, &mut err);
                 debug_assert!(done.is_ok());
             }
             black_box(&err);
-        }),
-        "hand" => Box::new(|| {
+        })),
+        "hand" => Some(Box::new(|| {
             for r in 0..POSES {
                 hand.error_and_jacobian(&s.states.get(r), &s.beta, nonlinear, &mut err, &mut jac);
             }
             black_box(&jac);
-        }),
-        _ => Box::new(|| {}),
+        })),
+        _ => None,
     };
-    let known = [
-        "abi",
-        "abi-position",
-        "abi-error",
-        "model",
-        "model-position",
-        "model-error",
-        "hand",
-    ]
-    .contains(&path);
-    if known {
+    let known = pass.is_some();
+    if let Some(mut pass) = pass {
         for _ in 0..reps {
             pass();
         }
     }
-    drop(pass);
     // SAFETY: compiled above, freed once.
     unsafe { kin_capi::kin_model_free(cm) };
     known

@@ -128,7 +128,7 @@ pub(super) struct Emitted {
 }
 
 /// Compiles `graphs` (name, graph) into one module. With `dump`, the Cranelift IR of each
-/// function and the machine code it became are appended to it (the `--dump clif` view).
+/// function and the machine code it became are appended to it ([`super::dump_clif`]).
 pub(super) fn compile(
     graphs: &[(String, &Graph)],
     width: Width,
@@ -626,6 +626,12 @@ impl Emitter<'_> {
     fn operand(&mut self, b: &mut FunctionBuilder, id: Id) -> Option<Value> {
         if let Some(&(slot, offset)) = self.slots.get(&id) {
             return Some(b.ins().stack_load(self.ptr, self.ty(), slot, offset));
+        }
+        // A column's scalar uses after its splat read the splat's first lane, the same
+        // register: the scalar dies where the splat is made instead of holding a register of
+        // its own (or a spill and its reloads) through the rest of the component.
+        if let (Width::Pose, Some(&splat)) = (self.width, self.splats.get(&id)) {
+            return Some(b.ins().extractlane(splat, 0));
         }
         match self.graph.node(id) {
             Node::Const(bits) => Some(self.constant(b, f64::from_bits(bits))),

@@ -205,6 +205,10 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
         error,
         jacobian,
         nominal,
+        tools_finite: tools
+            .iter()
+            .map(|t| t.iter().all(|v| v.is_finite()))
+            .collect(),
         tools,
         used: (0..machine.tools.len())
             .map(|t| used_vars(machine, t))
@@ -225,7 +229,8 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
 }
 
 /// The Cranelift IR of the three functions of `machine` and the machine code each became, for
-/// `--dump clif`, golden tests and looking at what the code generator does.
+/// tests and for looking at what the code generator does (no command prints it: a test or a
+/// scratch program calls this).
 pub fn dump_clif(machine: &Machine) -> Result<String, JitError> {
     let graphs = graphs(machine, &tool_transforms(machine))?;
     let mut text = String::new();
@@ -364,6 +369,9 @@ struct Inner {
     nominal: RawFn,
     /// Per tool: offset rotation (row-major) and translation, as the generated code reads them.
     tools: Vec<[f64; 12]>,
+    /// Per tool: whether its transform is finite, known once rather than looked at per call
+    /// (12 values, 70 instructions of a six-row call).
+    tools_finite: Vec<bool>,
     /// Per tool: the state variables the acting error models read, in the interpreter's order
     /// of evaluation, so that a missing one is reported as the interpreter reports it.
     used: Vec<Vec<Var>>,
@@ -890,9 +898,11 @@ impl JitModel {
             .into());
         };
         let mut tool_tf = *tool;
+        let mut tool_finite = inner.tools_finite.get(state.tool).copied().unwrap_or(false);
         if let Some(t) = state.tool_offset {
             // S_tl = Trans(t)·R: the override replaces the translation and keeps the rotation.
             tool_tf[9..].copy_from_slice(&t);
+            tool_finite = tool_tf.iter().all(|v| v.is_finite());
         }
         // Which variable is missing is looked up only when some value is NaN: the lookup
         // walks the variables the tool's models read, a branch on each one's kind, and cost
@@ -908,7 +918,7 @@ impl JitModel {
             }
         }
         Ok(Checked {
-            finite: scan.finite && tool_tf.iter().all(|v| v.is_finite()),
+            finite: scan.finite && tool_finite,
             tool_tf,
         })
     }

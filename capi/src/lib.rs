@@ -127,28 +127,40 @@ thread_local! {
 
 /// Runs `f`, catching a panic; on failure records the message and returns the status.
 fn guard(f: impl FnOnce() -> Result<(), Fail>) -> c_int {
-    let result = catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|panic| {
-        let what = panic
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| panic.downcast_ref::<String>().cloned())
-            .unwrap_or_default();
-        Err(Fail(
-            KIN_ERR_PANIC,
-            format!("internal error (a bug in kin): {what}"),
-        ))
-    });
-    match result {
-        Ok(()) => KIN_OK,
-        Err(Fail(code, message)) => {
-            LAST_ERROR.with(|e| {
-                if let Ok(mut e) = e.try_borrow_mut() {
-                    *e = message;
-                }
-            });
-            code
-        }
+    // The failures out of line: inlined into every entry point, their formatting and the
+    // thread-local store spread a call that succeeds over more instruction-cache lines, which
+    // the generated code needs (spec/performance.md, "Where the code lands").
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(())) => KIN_OK,
+        Ok(Err(fail)) => failed(fail),
+        Err(panic) => panicked(panic),
     }
+}
+
+#[cold]
+#[inline(never)]
+fn panicked(panic: Box<dyn std::any::Any + Send>) -> c_int {
+    let what = panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_default();
+    failed(Fail(
+        KIN_ERR_PANIC,
+        format!("internal error (a bug in kin): {what}"),
+    ))
+}
+
+/// Keeps `fail`'s message for [`kin_last_error`] and returns its code.
+#[cold]
+#[inline(never)]
+fn failed(Fail(code, message): Fail) -> c_int {
+    LAST_ERROR.with(|e| {
+        if let Ok(mut e) = e.try_borrow_mut() {
+            *e = message;
+        }
+    });
+    code
 }
 
 /// Copies `text` into `buf` (`len` bytes, NUL-terminated, cut at a character boundary) and
@@ -400,13 +412,23 @@ fn check_state(s: &State) -> Result<(), Fail> {
 /// sum that is not finite — a bad value, or finite values whose sum overflows — is looked at
 /// value by value. On x86-64 with AVX2 the sum runs in eight vectors of four (an addition waits
 /// 3–4 cycles for the one before it in its lane; eight independent chains keep both of a
-/// core's adders busy): 34 ns for a Jacobian's 1 038 outputs, 3 ns for a state's five joint
-/// positions. Written with the vector operations themselves: arrays of lanes left to the
-/// compiler were stored to the stack lane by lane and read back as vectors, each such read
-/// waiting for the stores (20 ns for five values).
+/// core's adders busy): 34 ns for a Jacobian's 1 038 outputs. Written with the vector
+/// operations themselves: arrays of lanes left to the compiler were stored to the stack lane by
+/// lane and read back as vectors, each such read waiting for the stores (20 ns for five
+/// values).
 fn all_finite(values: &[f64]) -> bool {
-    sum_is_finite(values) || values.iter().all(|v| v.is_finite())
+    // A state's few values in one chain of additions: the vector form's set-up (the feature
+    // test, the call, eight lanes to reduce) costs more than it saves below a few dozen.
+    let sum = if values.len() < SHORT {
+        values.iter().fold(0.0, |a, v| a + v).is_finite()
+    } else {
+        sum_is_finite(values)
+    };
+    sum || values.iter().all(|v| v.is_finite())
 }
+
+/// Below this many values [`all_finite`] adds them one by one.
+const SHORT: usize = 16;
 
 fn sum_is_finite(values: &[f64]) -> bool {
     #[cfg(target_arch = "x86_64")]

@@ -205,10 +205,7 @@ pub fn compile(machine: &Machine) -> Result<JitModel, JitError> {
         error,
         jacobian,
         nominal,
-        tools_finite: tools
-            .iter()
-            .map(|t| t.iter().all(|v| v.is_finite()))
-            .collect(),
+        tools_finite: tools.iter().flatten().all(|v| v.is_finite()),
         tools,
         used: (0..machine.tools.len())
             .map(|t| used_vars(machine, t))
@@ -369,9 +366,11 @@ struct Inner {
     nominal: RawFn,
     /// Per tool: offset rotation (row-major) and translation, as the generated code reads them.
     tools: Vec<[f64; 12]>,
-    /// Per tool: whether its transform is finite, known once rather than looked at per call
-    /// (12 values, 70 instructions of a six-row call).
-    tools_finite: Vec<bool>,
+    /// Whether every tool's transform is finite: known once rather than looked at per call (a
+    /// fold over 12 values, 73 instructions of every call). One flag for all tools, not one
+    /// per tool beside `tools`: where it is false (a transform out of range), a call looks at
+    /// its outputs, which is never wrong, only slower.
+    tools_finite: bool,
     /// Per tool: the state variables the acting error models read, in the interpreter's order
     /// of evaluation, so that a missing one is reported as the interpreter reports it.
     used: Vec<Vec<Var>>,
@@ -898,7 +897,7 @@ impl JitModel {
             .into());
         };
         let mut tool_tf = *tool;
-        let mut tool_finite = inner.tools_finite.get(state.tool).copied().unwrap_or(false);
+        let mut tool_finite = inner.tools_finite;
         if let Some(t) = state.tool_offset {
             // S_tl = Trans(t)·R: the override replaces the translation and keeps the rotation.
             tool_tf[9..].copy_from_slice(&t);

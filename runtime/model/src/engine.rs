@@ -30,6 +30,15 @@ impl Observed {
         )
     }
 
+    /// The components whose bit is set, bit `c` for component `c` (the C ABI's `observed`);
+    /// `None` for no component or a bit beyond the sixth.
+    pub fn from_bits(bits: u32) -> Option<Observed> {
+        match u8::try_from(bits) {
+            Ok(b) if b != 0 && b <= Observed::FULL.0 => Some(Observed(b)),
+            _ => None,
+        }
+    }
+
     /// Whether component `c` (0–5) is observed.
     pub fn contains(self, c: usize) -> bool {
         c < 6 && self.0 & (1 << c) != 0
@@ -285,4 +294,23 @@ pub fn make(
         Engine::Interp => Box::new(Interpreter::new(machine)?),
         Engine::Jit => Box::new(crate::jit::compile(machine)?.evaluator()),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Observed;
+
+    /// Bit `c` is component `c`; no component, or a bit beyond the sixth, is no subset.
+    #[test]
+    fn from_bits_is_from_flags() {
+        for bits in 1..64u32 {
+            let flags = std::array::from_fn(|c| bits & (1 << c) != 0);
+            assert_eq!(Observed::from_bits(bits), Some(Observed::from_flags(flags)));
+        }
+        assert_eq!(Observed::from_bits(7), Some(Observed::POSITION));
+        assert_eq!(Observed::from_bits(63), Some(Observed::FULL));
+        for bits in [0, 64, 65, 127, 255, 256, 1 << 31, u32::MAX] {
+            assert_eq!(Observed::from_bits(bits), None, "{bits}");
+        }
+    }
 }

@@ -866,14 +866,17 @@ impl JitModel {
             ("lag states", m.lags.len(), state.lags.len()),
             ("directions", m.axes.len(), state.dirs.len()),
         ];
-        for (what, expected, got) in sizes {
-            if expected != got {
-                return Err(EvalError::StateSize {
-                    what,
-                    expected,
-                    got,
-                });
-            }
+        // The four sizes in one test; which one is wrong only when one is.
+        if sizes.iter().fold(false, |bad, &(_, e, g)| bad | (e != g)) {
+            let (what, expected, got) = sizes
+                .into_iter()
+                .find(|&(_, e, g)| e != g)
+                .unwrap_or(sizes[0]);
+            return Err(EvalError::StateSize {
+                what,
+                expected,
+                got,
+            });
         }
         let n = m.coefficients.len();
         if f != Function::Nominal {
@@ -1102,8 +1105,15 @@ fn first6(out: &Out) -> [f64; 6] {
 /// The observed components of the error in `out` (where the functions leave component `c` at
 /// `out[c]`), in order, into `err`.
 fn pick(out: &Out, observed: Observed, err: &mut [f64]) {
-    for (slot, c) in err.iter_mut().zip(observed.components()) {
-        *slot = out.get(c).copied().unwrap_or(f64::NAN);
+    // Without a branch on the components: each value goes to the next row, which moves on
+    // only past an observed component, so an unobserved value is overwritten by the next
+    // observed one or falls beyond the rows. `err` holds `observed.rows()` values.
+    let mut row = 0;
+    for (c, &value) in out.iter().take(6).enumerate() {
+        if let Some(slot) = err.get_mut(row) {
+            *slot = value;
+        }
+        row += usize::from(observed.contains(c));
     }
 }
 
@@ -1148,7 +1158,7 @@ struct Checked {
     finite: bool,
 }
 
-/// One pass over the state's values, without a branch (`|`, `&` rather than `||`, `&&`).
+/// What [`scan`] finds among the state's values.
 struct Scan {
     /// Some value is NaN.
     nan: bool,
@@ -1156,7 +1166,31 @@ struct Scan {
     finite: bool,
 }
 
+/// The state's values looked at in one pass. The common answer — every value finite — comes
+/// from the bits of `v − v`: zero for a finite `v`, a NaN's (never zero) for an infinity or a
+/// NaN. Their bitwise OR has no order to keep, unlike a sum, so the compiler runs it several
+/// values a step; each kind of value is told apart only when that OR is not zero.
+#[allow(clippy::eq_op)] // `v − v` is the test: zero exactly when `v` is finite.
 fn scan(s: &State) -> Scan {
+    let any_bits = |values: &[f64]| values.iter().fold(0u64, |a, v| a | (v - v).to_bits());
+    let bits = any_bits(s.q)
+        | any_bits(s.inputs)
+        | any_bits(s.lags)
+        | any_bits(s.dirs)
+        | (s.time - s.time).to_bits();
+    if bits == 0 {
+        return Scan {
+            nan: false,
+            finite: true,
+        };
+    }
+    scan_each(s)
+}
+
+/// [`scan`] value by value, when some value is not finite.
+#[cold]
+#[inline(never)]
+fn scan_each(s: &State) -> Scan {
     let (q_nan, q_finite) = s.q.iter().fold((false, true), |(nan, finite), v| {
         (nan | v.is_nan(), finite & v.is_finite())
     });

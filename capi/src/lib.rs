@@ -21,6 +21,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
 
 use ::kin_model::embed::Error;
+use ::kin_model::engine::Observed;
 use ::kin_model::interp::{EvalError, State};
 use ::kin_model::jit::{BatchError, StateRows};
 use ::kin_model::Model;
@@ -379,11 +380,32 @@ fn check_values(
 
 /// Whether a state holds values it may hold ([`check_values`], without the messages).
 ///
-/// The inputs and directions are folded without branches (`&`, `|`, not `&&`, `||`): the
-/// directions of consecutive poses change unpredictably (+1, −1, 0, not given), and the
-/// short-circuit form mispredicted a branch or two per direction — an eighth of the time of a
-/// whole call in a profile.
+/// The usual state — every number finite, every direction −1, 0 or +1 — is told by bits that
+/// are zero exactly then: those of `v − v` (a NaN's for an infinity or a NaN) and, for a
+/// direction `d`, of `d·d − |d|` (zero only for −1, 0 and +1: a product rounds to the factor
+/// only for these, and a difference is zero only between equal numbers). OR-ed together they
+/// have no order to keep, so several values go in a step, with no branch on a value — the
+/// directions of consecutive poses change unpredictably, and a branch on each mispredicted
+/// (an eighth of a whole call in a profile). The rest, NaN where one may stand, each value.
+#[inline]
+#[allow(clippy::eq_op)] // `v − v` is the test: zero exactly when `v` is finite.
 fn state_fine(s: &State) -> bool {
+    let bits = |values: &[f64]| values.iter().fold(0u64, |a, v| a | (v - v).to_bits());
+    let dirs = s
+        .dirs
+        .iter()
+        .fold(0u64, |a, d| a | (d * d - d.abs()).to_bits());
+    if bits(s.q) | bits(s.inputs) | bits(s.lags) | dirs | (s.time - s.time).to_bits() == 0 {
+        return true;
+    }
+    state_fine_each(s)
+}
+
+/// [`state_fine`] value by value, when some value is not a finite number or some direction
+/// not −1, 0 or +1.
+#[cold]
+#[inline(never)]
+fn state_fine_each(s: &State) -> bool {
     let inputs = s.inputs.iter().fold(true, |ok, v| ok & !v.is_infinite());
     let dirs = s.dirs.iter().fold(true, |ok, d| {
         ok & (d.is_nan() | (d.abs() == 1.0) | (*d == 0.0))
@@ -597,8 +619,7 @@ unsafe fn quick<'a>(a: EvalArgs) -> Option<Quick<'a>> {
         span(st.dirs, st.n_dirs),
         span(beta, n_beta),
     ];
-    let [e, j] = outputs;
-    if meet(e, j) || outputs.iter().any(|o| inputs.iter().any(|i| meet(*o, *i))) {
+    if any_meet(outputs, &inputs) {
         return None;
     }
     // SAFETY: each pointer is NULL with a length of 0, or non-NULL, aligned, of a size that
@@ -633,17 +654,35 @@ unsafe fn quick<'a>(a: EvalArgs) -> Option<Quick<'a>> {
     })
 }
 
-/// The bytes `n` values at `p` cover, as [`region`] counts them.
+/// The bytes `n` values at `p` cover, as [`region`] counts them, for arguments [`usable`]
+/// accepted (the size within an `isize`, so no saturating product); no values as `(0, 0)`,
+/// which [`meet`] finds to share no byte with anything.
 #[inline(always)]
 fn span<T>(p: *const T, n: usize) -> (usize, usize) {
-    let Region { start, end, .. } = region(p, n, "");
-    (start, end)
+    let start = p as usize;
+    let end = start.wrapping_add(n.wrapping_mul(std::mem::size_of::<T>()));
+    if n == 0 {
+        (0, 0)
+    } else {
+        (start, end)
+    }
 }
 
-/// Whether two spans share a byte, as [`disjoint`] tests it.
+/// Whether two [`span`]s share a byte, as [`disjoint`] tests it: an empty span, `(0, 0)`, has
+/// no start below the other's end.
 #[inline(always)]
 fn meet(a: (usize, usize), b: (usize, usize)) -> bool {
-    a.0 < a.1 && b.0 < b.1 && a.0 < b.1 && b.0 < a.1
+    (a.0 < b.1) & (b.0 < a.1)
+}
+
+/// Whether the two outputs share a byte with each other or with an input: [`meet`] of each
+/// pair, without a branch (`|`, not `||`).
+#[inline(always)]
+fn any_meet(outputs: [(usize, usize); 2], inputs: &[(usize, usize)]) -> bool {
+    let [e, j] = outputs;
+    inputs
+        .iter()
+        .fold(meet(e, j), |hit, i| hit | meet(e, *i) | meet(j, *i))
 }
 
 /// What [`slice`](fn@slice) accepts: `n` values at `p`, none, or a non-NULL aligned pointer to
@@ -1441,7 +1480,7 @@ pub unsafe extern "C" fn kin_eval_jacobian_observed(
             jac,
             n_jac,
         };
-        if let Some(selected) = observed_components(observed) {
+        if let Some(selected) = Observed::from_bits(observed) {
             // SAFETY: the caller's contract.
             if unsafe { quick_jacobian(a, selected) } {
                 return Ok(());
@@ -1452,33 +1491,22 @@ pub unsafe extern "C" fn kin_eval_jacobian_observed(
     })
 }
 
-/// The components bit `c` of `observed` selects, for 1 ..= 63.
-fn observed_components(observed: u32) -> Option<::kin_model::engine::Observed> {
-    if observed == 0 || observed > 63 {
-        return None;
-    }
-    let flags: [bool; 6] = std::array::from_fn(|c| observed & (1 << c) != 0);
-    Some(::kin_model::engine::Observed::from_flags(flags))
-}
-
 /// [`kin_eval_jacobian_observed`] when every check passes, with no message: see [`quick`].
 ///
 /// # Safety
 ///
 /// As [`kin_eval_jacobian_observed`].
-unsafe fn quick_jacobian(a: EvalArgs, selected: ::kin_model::engine::Observed) -> bool {
+unsafe fn quick_jacobian(a: EvalArgs, selected: Observed) -> bool {
     // SAFETY: the caller's contract.
     let Some(c) = (unsafe { quick(a) }) else {
         return false;
     };
-    let rows = selected.rows();
-    c.err.len() == rows
-        && Some(c.jac.len()) == rows.checked_mul(c.model.coefficients())
-        // `Model` hands back finite values or an error: the processor's overflow flags vouch
-        // for the Jacobian's, so no pass over its outputs here.
-        && c.model
-            .eval_jacobian_observed(&c.state, c.beta, selected, c.err, c.jac)
-            .is_ok()
+    // `Model` checks the outputs' lengths against the rows (an error sends the caller to the
+    // careful path, which names them) and hands back finite values or an error: the
+    // processor's overflow flags vouch for the Jacobian's, so no pass over its outputs here.
+    c.model
+        .eval_jacobian_observed(&c.state, c.beta, selected, c.err, c.jac)
+        .is_ok()
 }
 
 /// [`kin_eval_jacobian_observed`] checking each argument in turn and naming what is wrong.
@@ -1499,7 +1527,7 @@ unsafe fn careful_jacobian(a: EvalArgs, observed: u32) -> Result<(), Fail> {
         jac,
         n_jac,
     } = a;
-    let Some(selected) = observed_components(observed) else {
+    let Some(selected) = Observed::from_bits(observed) else {
         return Err(Fail(
             KIN_ERR_VALUE,
             format!("`observed` is {observed}: one bit per component, from 1 to 63"),
@@ -1648,7 +1676,7 @@ pub unsafe extern "C" fn kin_eval_batch_observed(
     n_jac: usize,
 ) -> c_int {
     guard(|| {
-        let Some(selected) = observed_components(observed) else {
+        let Some(selected) = Observed::from_bits(observed) else {
             return Err(Fail(
                 KIN_ERR_VALUE,
                 format!("`observed` is {observed}: one bit per component, from 1 to 63"),
@@ -1959,6 +1987,71 @@ mod tests {
             assert!(all_finite(&v), "{len} values of f64::MAX are finite");
         }
     }
+    /// The quick test of a state (the bits of `v − v` and `d·d − |d|`) answers as the test of
+    /// each value does, for every kind of value in every place.
+    #[test]
+    fn state_fine_is_exact() {
+        let edges = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            1.0 + f64::EPSILON,
+            1.0 - f64::EPSILON / 2.0,
+            -1.0 - f64::EPSILON,
+            0.5,
+            2.0,
+            f64::MIN_POSITIVE,
+            5e-324,
+            -5e-324,
+            1e-200,
+            1e200,
+            f64::MAX,
+            f64::MIN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -f64::NAN,
+        ];
+        // Also values from every part of the range: the bits of a simple generator.
+        let mut x = 0x9e37_79b9_7f4a_7c15_u64;
+        let random = (0..4000).map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            f64::from_bits(x)
+        });
+        let values: Vec<f64> = edges.into_iter().chain(random).collect();
+        let (q, inputs, lags, dirs) = ([0.3; 3], [20.0; 2], [0.1; 2], [1.0, -1.0, 0.0]);
+        for &v in &values {
+            for place in 0..5 {
+                let (mut q, mut inputs, mut lags, mut dirs, mut time) =
+                    (q, inputs, lags, dirs, 60.0);
+                match place {
+                    0 => q[1] = v,
+                    1 => inputs[0] = v,
+                    2 => lags[1] = v,
+                    3 => dirs[2] = v,
+                    _ => time = v,
+                }
+                let s = State {
+                    q: &q,
+                    inputs: &inputs,
+                    lags: &lags,
+                    time,
+                    dirs: &dirs,
+                    tool: 0,
+                    tool_offset: None,
+                };
+                assert_eq!(
+                    state_fine(&s),
+                    state_fine_each(&s),
+                    "{v:e} in place {place}"
+                );
+            }
+        }
+    }
+
     use std::ptr::{null, null_mut};
 
     const SRC: &str = "machine m {
@@ -2116,8 +2209,7 @@ mod tests {
                                     jac,
                                     n_jac,
                                 };
-                                let quick_ok =
-                                    quick_jacobian(a, ::kin_model::engine::Observed::FULL);
+                                let quick_ok = quick_jacobian(a, Observed::FULL);
                                 let quick_out = arena.clone();
                                 let careful = careful_jacobian(a, 63);
                                 if quick_ok {
@@ -2139,6 +2231,72 @@ mod tests {
         assert!(accepted > 0 && refused > 0, "{accepted} {refused}");
         // SAFETY: compiled above, freed once.
         unsafe { kin_model_free(model) };
+    }
+
+    #[test]
+    fn every_input_an_output_overlaps_is_found() {
+        // The one-pose entry's quick test of the regions, against each input in turn: `q`,
+        // `dirs`, β, the state itself, and an empty array (no bytes, so no overlap) pointing
+        // inside an output.
+        let model = compile(SRC).expect("compiles");
+        let beta = [1e-6, 2e-6, 0.0, 0.0, 3e-6];
+        let mut mem = [0.0f64; 128];
+        let base = mem.as_mut_ptr();
+        // `err` at 0..6, `jac` at 6..36 of `mem`; the inputs elsewhere unless placed inside.
+        let (q, dirs) = ([0.2], [1.0]);
+        let state = |q: *const f64, dirs: *const f64, inputs: *const f64| kin_state {
+            q,
+            n_q: 1,
+            inputs,
+            n_inputs: 0,
+            lags: null(),
+            n_lags: 0,
+            dirs,
+            n_dirs: 1,
+            time: 0.0,
+            tool: 0,
+        };
+        // SAFETY: a live model; every pointer is valid for the length given with it, and what
+        // an output overlaps is refused before anything is written.
+        unsafe {
+            let eval = |s: *const kin_state, b: *const f64| {
+                kin_eval_jacobian(model, s, b, 5, base, 6, base.add(6), 30)
+            };
+            let good = state(q.as_ptr(), dirs.as_ptr(), null());
+            assert_eq!(eval(&good, beta.as_ptr()), KIN_OK);
+            let empty_inside = state(q.as_ptr(), dirs.as_ptr(), base.add(10));
+            assert_eq!(
+                eval(&empty_inside, beta.as_ptr()),
+                KIN_OK,
+                "{}",
+                last_error()
+            );
+            for (at, what) in [(3, "q"), (35, "q"), (20, "dirs")] {
+                base.add(at).write(if what == "q" { 0.2 } else { 1.0 });
+                let s = if what == "q" {
+                    state(base.add(at), dirs.as_ptr(), null())
+                } else {
+                    state(q.as_ptr(), base.add(at), null())
+                };
+                assert_eq!(eval(&s, beta.as_ptr()), KIN_ERR_OVERLAP, "{what} at {at}");
+                assert!(
+                    last_error().contains(&format!("`{what}` overlap")),
+                    "{}",
+                    last_error()
+                );
+            }
+            // β over the end of `jac`, then just beyond it.
+            base.add(33).cast::<[f64; 5]>().write(beta);
+            assert_eq!(eval(&good, base.add(33)), KIN_ERR_OVERLAP);
+            base.add(36).cast::<[f64; 5]>().write(beta);
+            assert_eq!(eval(&good, base.add(36)), KIN_OK, "{}", last_error());
+            // The state itself inside `jac`.
+            let inside = base.add(12).cast::<kin_state>();
+            inside.write(good);
+            assert_eq!(eval(inside, beta.as_ptr()), KIN_ERR_OVERLAP);
+            assert!(last_error().contains("`state`"), "{}", last_error());
+            kin_model_free(model);
+        }
     }
 
     #[test]

@@ -1987,6 +1987,7 @@ mod tests {
             assert!(all_finite(&v), "{len} values of f64::MAX are finite");
         }
     }
+
     /// The quick test of a state (the bits of `v − v` and `d·d − |d|`) answers as the test of
     /// each value does, for every kind of value in every place.
     #[test]

@@ -22,7 +22,7 @@ use std::path::Path;
 
 use ::kin_model::embed::Error;
 use ::kin_model::engine::Observed;
-use ::kin_model::interp::{EvalError, State};
+use ::kin_model::interp::{finite_bits, EvalError, State};
 use ::kin_model::jit::{BatchError, StateRows};
 use ::kin_model::Model;
 
@@ -380,22 +380,23 @@ fn check_values(
 
 /// Whether a state holds values it may hold ([`check_values`], without the messages).
 ///
-/// The usual state — every number finite, every direction −1, 0 or +1 — is told by bits that
-/// are zero exactly then: those of `v − v` (a NaN's for an infinity or a NaN) and, for a
-/// direction `d`, of `d·d − |d|` (zero only for −1, 0 and +1: a product rounds to the factor
-/// only for these, and a difference is zero only between equal numbers). OR-ed together they
-/// have no order to keep, so several values go in a step, with no branch on a value — the
-/// directions of consecutive poses change unpredictably, and a branch on each mispredicted
-/// (an eighth of a whole call in a profile). The rest, NaN where one may stand, each value.
+/// The usual state — every number finite, every direction −1, 0 or +1 — is told without a
+/// branch on a value: the numbers by [`finite_bits`], a direction `d` by the bits of
+/// `d·d − |d|`, zero only for −1, 0 and +1 (a product rounds to the factor only for these,
+/// and a difference is zero only between equal numbers), all OR-ed together. The directions
+/// of consecutive poses change unpredictably, and a branch on each mispredicted (an eighth of
+/// a whole call in a profile). The rest, NaN where one may stand, each value.
 #[inline]
-#[allow(clippy::eq_op)] // `v − v` is the test: zero exactly when `v` is finite.
 fn state_fine(s: &State) -> bool {
-    let bits = |values: &[f64]| values.iter().fold(0u64, |a, v| a | (v - v).to_bits());
     let dirs = s
         .dirs
         .iter()
         .fold(0u64, |a, d| a | (d * d - d.abs()).to_bits());
-    if bits(s.q) | bits(s.inputs) | bits(s.lags) | dirs | (s.time - s.time).to_bits() == 0 {
+    let numbers = finite_bits(s.q)
+        | finite_bits(s.inputs)
+        | finite_bits(s.lags)
+        | finite_bits(std::slice::from_ref(&s.time));
+    if numbers | dirs == 0 {
         return true;
     }
     state_fine_each(s)

@@ -1166,19 +1166,10 @@ struct Scan {
     finite: bool,
 }
 
-/// The state's values looked at in one pass. The common answer — every value finite — comes
-/// from the bits of `v − v`: zero for a finite `v`, a NaN's (never zero) for an infinity or a
-/// NaN. Their bitwise OR has no order to keep, unlike a sum, so the compiler runs it several
-/// values a step; each kind of value is told apart only when that OR is not zero.
-#[allow(clippy::eq_op)] // `v − v` is the test: zero exactly when `v` is finite.
+/// The state's values looked at in one pass: every value finite ([`State::all_finite`]), the
+/// common answer, or else each value looked at.
 fn scan(s: &State) -> Scan {
-    let any_bits = |values: &[f64]| values.iter().fold(0u64, |a, v| a | (v - v).to_bits());
-    let bits = any_bits(s.q)
-        | any_bits(s.inputs)
-        | any_bits(s.lags)
-        | any_bits(s.dirs)
-        | (s.time - s.time).to_bits();
-    if bits == 0 {
+    if s.all_finite() {
         return Scan {
             nan: false,
             finite: true,

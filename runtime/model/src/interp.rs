@@ -489,12 +489,12 @@ pub fn scalar(s: &Scalar, state: &State, m: &Machine) -> Result<f64, EvalError> 
 
 #[cfg(test)]
 mod tests {
-    use super::State;
+    use super::{finite_bits, State};
 
-    /// The quick test says "all finite" exactly when each value is, wherever the one value
-    /// that is not stands.
+    /// Zero exactly when every value is finite, wherever the one value that is not stands; a
+    /// state's test covers each of its numbers.
     #[test]
-    fn all_finite_is_each_value_finite() {
+    fn finite_bits_is_each_value_finite() {
         let values = [
             0.0,
             -0.0,
@@ -510,27 +510,36 @@ mod tests {
             -f64::NAN,
         ];
         for v in values {
-            for place in 0..5 {
-                let (mut q, mut inputs, mut lags, mut dirs, mut time) =
-                    ([0.3; 3], [20.0; 2], [0.1; 2], [1.0, -1.0, 0.0], 60.0);
-                match place {
-                    0 => q[2] = v,
-                    1 => inputs[1] = v,
-                    2 => lags[0] = v,
-                    3 => dirs[1] = v,
-                    _ => time = v,
+            for len in 1..10 {
+                for at in 0..len {
+                    let mut xs = vec![0.25; len];
+                    xs[at] = v;
+                    assert_eq!(
+                        finite_bits(&xs) == 0,
+                        v.is_finite(),
+                        "{v:e} at {at} of {len}"
+                    );
                 }
-                let s = State {
-                    q: &q,
-                    inputs: &inputs,
-                    lags: &lags,
-                    time,
-                    dirs: &dirs,
-                    tool: 0,
-                    tool_offset: None,
-                };
-                assert_eq!(s.all_finite(), v.is_finite(), "{v:e} in place {place}");
             }
         }
+        assert_eq!(finite_bits(&[]), 0);
+        // Every part of a state is in its test.
+        let state = |q: &[f64; 2], time, dirs: &[f64; 2]| {
+            State {
+                q,
+                inputs: &[],
+                lags: &[],
+                time,
+                dirs,
+                tool: 0,
+                tool_offset: None,
+            }
+            .all_finite()
+        };
+        let (fine, nan) = ([0.5, 1.0], [1.0, f64::NAN]);
+        assert!(state(&fine, 60.0, &fine));
+        assert!(!state(&nan, 60.0, &fine));
+        assert!(!state(&fine, 60.0, &nan));
+        assert!(!state(&fine, f64::INFINITY, &fine));
     }
 }

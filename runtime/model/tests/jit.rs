@@ -1478,6 +1478,26 @@ fn clif_dump_names_the_three_functions() {
     assert!(text.contains("call fn"), "sin/cos are calls");
 }
 
+/// `fneg` and `fabs` build their sign mask in a general register and move it over (three
+/// instructions on x86-64): a negation is emitted as a product by −1 from the constant pool and
+/// a positive part as the compare and select the backend makes one `maxsd` of, so the only
+/// `fabs` left is the `|a|` of each `fmod`'s first-turn test (the one call with a result).
+#[test]
+fn negations_and_positive_parts_build_no_sign_mask() {
+    for name in ["milling_5axis", "bridge_cmm", "robot_6axis"] {
+        let text = jit::dump_clif(&example(name)).expect("dump");
+        let count = |needle: &str| text.matches(needle).count();
+        assert_eq!(count("= fneg "), 0, "{name}");
+        assert_eq!(count("= fabs "), count("= call fn"), "{name}");
+        if cfg!(target_arch = "x86_64") && name != "robot_6axis" {
+            assert!(
+                count("vmaxsd") > 0,
+                "{name}: splines' positive parts are `maxsd`"
+            );
+        }
+    }
+}
+
 #[test]
 fn inconsistent_ir_is_rejected_at_compile_time() {
     let mut m = example("bridge_cmm");

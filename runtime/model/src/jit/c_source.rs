@@ -282,8 +282,8 @@ fn expression(node: Node) -> String {
         Node::Floor(a) => format!("floor({})", v(a)),
         Node::Sin(a) => format!("sin({})", v(a)),
         Node::Cos(a) => format!("cos({})", v(a)),
-        // The graph's positive part, `(a + |a|)·0.5`, exactly as the JIT computes it.
-        Node::PosPart(a) => format!("({} + fabs({})) * 0.5", v(a), v(a)),
+        // The graph's positive part as the JIT computes it: `a` where `0 < a`, else +0.
+        Node::PosPart(a) => format!("0.0 < {} ? {} : 0.0", v(a), v(a)),
         Node::Fmod(a, b) => format!("fmod({}, {})", v(a), v(b)),
         // A comparison with a NaN is false in C as in the graph.
         Node::Select(cmp, a, b, t, f) => {

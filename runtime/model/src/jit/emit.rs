@@ -465,7 +465,7 @@ fn emit_function(
         if live.get(i).copied().unwrap_or(false)
             && matches!(node, Node::Sin(_) | Node::Cos(_) | Node::Fmod(..))
         {
-            e.value(&mut b, Id::new(i));
+            e.prepare(&mut b, Id::new(i));
         }
     }
     // The entries that are zero whatever the pose, all at once from one cleared register,
@@ -483,7 +483,7 @@ fn emit_function(
         }
         match effect {
             Effect::Eval(value) => {
-                e.value(&mut b, value);
+                e.prepare(&mut b, value);
             }
             Effect::Store(dst, index, value) => {
                 if let Some(v) = e.value(&mut b, value) {
@@ -813,9 +813,17 @@ impl Emitter<'_> {
         }
     }
 
-    /// Emits `root` and whatever it needs, depth first without recursion (sums over hundreds
-    /// of coefficients make deep operand chains).
+    /// Emits `root` and whatever it needs ([`Emitter::prepare`]) and gives its value.
     fn value(&mut self, b: &mut FunctionBuilder, root: Id) -> Option<Value> {
+        self.prepare(b, root)?;
+        self.operand(b, root)
+    }
+
+    /// Emits `root` and whatever it needs, depth first without recursion (sums over hundreds
+    /// of coefficients make deep operand chains), without reading its value: a `sin` or `cos`
+    /// is read from its slot at each use, and a load nothing uses stays in the code (the
+    /// backend keeps every load).
+    fn prepare(&mut self, b: &mut FunctionBuilder, root: Id) -> Option<()> {
         let mut stack = vec![(root, false)];
         while let Some((id, ready)) = stack.pop() {
             if self.available(id) {
@@ -831,10 +839,39 @@ impl Emitter<'_> {
                 }
                 continue;
             }
-            let v = self.emit(b, id, node)?;
+            if let Node::Sin(x) | Node::Cos(x) = node {
+                self.sincos_node(b, id, x)?;
+                continue;
+            }
+            let v = self.emit(b, node)?;
             self.set(id, v);
         }
-        self.operand(b, root)
+        Some(())
+    }
+
+    /// The call that gives `sin x` and `cos x` (node `id` is one of them), into a stack slot
+    /// of its own. The results stay there and are loaded at each use ([`Emitter::operand`]):
+    /// every float register dies at the next call, so holding them in registers would only
+    /// add a spill.
+    fn sincos_node(&mut self, b: &mut FunctionBuilder, id: Id, x: Id) -> Option<()> {
+        let xv = self.operand(b, x)?;
+        let size = 16 * u32::from(self.lane_count());
+        let slot =
+            b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, size, 3));
+        self.sincos(b, x, xv, slot)?;
+        let cos = self.cos_offset();
+        for (node, offset) in [(Node::Sin(x), 0), (Node::Cos(x), cos)] {
+            if let Some(n) = self.graph.find(&node) {
+                self.slots.insert(n, (slot, offset));
+            }
+        }
+        let offset = if matches!(self.graph.node(id), Node::Sin(_)) {
+            0
+        } else {
+            cos
+        };
+        self.slots.insert(id, (slot, offset));
+        Some(())
     }
 
     /// `sin x, cos x` into `slot` (sines first, then cosines: at 0 and 8 for one pose, at 0
@@ -968,7 +1005,7 @@ impl Emitter<'_> {
         Some(t)
     }
 
-    fn emit(&mut self, b: &mut FunctionBuilder, id: Id, node: Node) -> Option<Value> {
+    fn emit(&mut self, b: &mut FunctionBuilder, node: Node) -> Option<Value> {
         let mut ops = [None; 4];
         for (slot, op) in ops.iter_mut().zip(super::graph::operands(node)) {
             *slot = Some(self.operand(b, op)?);
@@ -988,36 +1025,32 @@ impl Emitter<'_> {
             }
             Node::Div(..) => b.ins().fdiv(p?, q?),
             Node::PosPart(_) => {
+                // `a` where `0 < a`, else +0 (for a NaN too): written as the comparison and
+                // select that the backend turns into one `maxsd` (`maxpd` for two poses),
+                // where `(a + |a|)·0.5` took five instructions, the mask of `|a|` built in a
+                // general register.
                 let a = p?;
-                let abs = b.ins().fabs(a);
-                let twice = b.ins().fadd(a, abs);
-                let half = self.constant(b, 0.5);
-                b.ins().fmul(twice, half)
-            }
-            Node::Neg(_) => b.ins().fneg(p?),
-            Node::Floor(_) => b.ins().floor(p?),
-            Node::Sin(x) | Node::Cos(x) => {
-                // One call gives both, into a stack slot of its own. The results stay there
-                // and are loaded at each use: every float register dies at the next call, so
-                // holding them in registers would only add a spill.
-                let size = 16 * u32::from(self.lane_count());
-                let slot = b.create_sized_stack_slot(StackSlotData::new(
-                    StackSlotKind::ExplicitSlot,
-                    size,
-                    3,
-                ));
-                self.sincos(b, x, p?, slot)?;
-                let cos = self.cos_offset();
-                for (node, offset) in [(Node::Sin(x), 0), (Node::Cos(x), cos)] {
-                    if let Some(n) = self.graph.find(&node) {
-                        self.slots.insert(n, (slot, offset));
+                let zero = self.constant(b, 0.0);
+                let above = b.ins().fcmp(FloatCC::LessThan, zero, a);
+                match self.width {
+                    Width::Pose => b.ins().select(above, a, zero),
+                    Width::Pair => {
+                        let mask = b.ins().bitcast(types::F64X2, vector_cast(), above);
+                        b.ins().bitselect(mask, a, zero)
                     }
                 }
-                let offset = if matches!(node, Node::Sin(_)) { 0 } else { cos };
-                self.slots.insert(id, (slot, offset));
-                b.ins().stack_load(self.ptr, self.ty(), slot, offset)
             }
-            Node::Fmod(..) => {
+            // `−a` as `a·(−1)`, the same number (a product by −1 is exact and flips the sign,
+            // zeros included), read from the constant pool by one instruction where `fneg`
+            // builds its sign mask in a general register and moves it over (three).
+            Node::Neg(_) => {
+                let minus_one = self.constant(b, -1.0);
+                b.ins().fmul(p?, minus_one)
+            }
+            Node::Floor(_) => b.ins().floor(p?),
+            // `prepare` emits these (`sincos_node`): their values are read at each use.
+            Node::Sin(_) | Node::Cos(_) => return None,
+            Node::Fmod(_, modulus) => {
                 // `fmod(a, m)` is `a` itself, exactly, when `|a| < |m|` (a continuous axis
                 // within its first turn): the call only where it is not (for two poses, where
                 // either is not). A NaN fails the comparison and takes the call, as it would
@@ -1026,7 +1059,12 @@ impl Emitter<'_> {
                 let ty = self.ty();
                 let (call, join) = (b.create_block(), b.create_block());
                 let result = b.append_block_param(join, ty);
-                let (abs_a, abs_m) = (b.ins().fabs(a), b.ins().fabs(m));
+                let abs_a = b.ins().fabs(a);
+                // A constant modulus (a turn, 2π) has its `|m|` known here: no mask to build.
+                let abs_m = match self.graph.value(modulus) {
+                    Some(c) => self.constant(b, c.abs()),
+                    None => b.ins().fabs(m),
+                };
                 let inside = b.ins().fcmp(FloatCC::LessThan, abs_a, abs_m);
                 let inside = match self.width {
                     Width::Pose => inside,

@@ -88,8 +88,9 @@ pub(super) enum Node {
     Floor(Id),
     Sin(Id),
     Cos(Id),
-    /// `max(a, 0)`, computed as `(a + |a|)·0.5`: exact for every finite `a` (`a + |a|` is `2a`
-    /// or `+0`), so it is the positive part bit for bit, without a branch or a compare.
+    /// `max(a, 0)`: `a` where `0 < a`, else +0 (for a NaN too), without a branch (one
+    /// `maxsd` in the generated code). Of `u − t` it is the interpreter's `if u > t` of a
+    /// truncated power bit for bit: for finite `u` and `t`, `u − t > 0` exactly when `u > t`.
     PosPart(Id),
     /// `a % b` as Rust (and C's `fmod`) define it: exact, so any implementation agrees.
     Fmod(Id, Id),
@@ -301,7 +302,7 @@ impl Graph {
 
     pub(super) fn pos_part(&mut self, a: Id) -> Id {
         match self.value(a) {
-            Some(x) => self.konst((x + x.abs()) * 0.5),
+            Some(x) => self.konst(if 0.0 < x { x } else { 0.0 }),
             None => self.intern(Node::PosPart(a)),
         }
     }

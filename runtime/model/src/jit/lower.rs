@@ -740,9 +740,9 @@ impl Builder<'_> {
     /// `u^l` or `(u − t)_+^l` (eq. 3.3), as `Power::value`.
     ///
     /// `Power::value` selects (`if u > t { (u − t)^l } else { 0 }`). For `l ≥ 1` this computes
-    /// `max(u − t, 0)^l` instead, the same number (`u > t` exactly when `u − t > 0`, and `0^l`
-    /// is 0) without a branch on the data, which random states mispredict half the time. Only a
-    /// NaN `u` differs, and then the other functions are NaN in both.
+    /// `max(u − t, 0)^l` instead ([`super::graph::Node::PosPart`]), the same number (`u > t`
+    /// exactly when `u − t > 0`, and `0^l` is 0; a NaN `u` gives 0 in both) without a branch
+    /// on the data, which random states mispredict half the time.
     fn power(&mut self, p: Power, u: Id) -> Id {
         match p.knot {
             None => self.ipow(u, p.power),
